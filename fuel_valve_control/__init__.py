@@ -1,0 +1,1 @@
+"""ROS-free control core: controllers, observers, limits, faults, metrics, scenarios, simulator."""

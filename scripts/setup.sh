@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Create/refresh the project's virtual environment in .venv (idempotent).
+# - numerical stack and tools from requirements.txt
+# - ROS 2 Jazzy wheels from PyPI (requirements-ros.txt) only when rclpy is not already
+#   importable (with a sourced ROS install the venv sees the system packages instead)
+# - this package itself, editable, so the console scripts (plant, controller, ...) exist
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+  if "$PYTHON" -c "import rclpy" 2>/dev/null; then
+    echo "[setup] rclpy found on the system: venv with system site packages"
+    "$PYTHON" -m venv --system-site-packages .venv
+  else
+    "$PYTHON" -m venv .venv
+  fi
+fi
+PIP=(.venv/bin/python -m pip install --quiet --disable-pip-version-check)
+stamp=.venv/.fuel_valve_installed
+if [ ! -f "$stamp" ] || [ requirements.txt -nt "$stamp" ] || [ requirements-ros.txt -nt "$stamp" ] || [ setup.py -nt "$stamp" ]; then
+  echo "[setup] installing Python dependencies into .venv (first run takes a minute)"
+  "${PIP[@]}" -r requirements.txt 2>&1 | grep -v "^WARNING: Location" || true
+  if ! .venv/bin/python -c "import rclpy" 2>/dev/null; then
+    echo "[setup] installing ROS 2 Jazzy wheels from PyPI"
+    "${PIP[@]}" -r requirements-ros.txt 2>&1 | grep -v "^WARNING: Location" || true
+  fi
+  "${PIP[@]}" -e . 2>&1 | grep -v "^WARNING: Location" || true
+  .venv/bin/python -c "import numpy, scipy, yaml, fuel_valve_plant" # fail loudly if anything is missing
+  touch "$stamp"
+fi
