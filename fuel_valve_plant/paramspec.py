@@ -221,3 +221,33 @@ def parse_overrides(items: Iterable[str], sections: Iterable[str]) -> dict[str, 
             value = rhs
         out[section][key] = value
     return out
+
+
+def to_ros_yaml(spec: ParamSpec, values: Mapping[str, Any] | None = None, header: str = "") -> str:
+    """A ROS 2 parameter file (``/**: ros__parameters:``) for ``values`` (default: the
+    defaults), nested by dotted name, each entry commented with its unit, range and meaning."""
+    values = dict(spec.defaults()) if values is None else dict(values)
+    lines = [f"# {line}".rstrip() for line in header.strip().splitlines()] if header else []
+    lines += ["/**:", "  ros__parameters:"]
+    opened: list[str] = []
+    closed: set[str] = set()
+    for p in spec:
+        parts = p.name.split(".")
+        common = 0
+        while common < min(len(opened), len(parts) - 1) and opened[common] == parts[common]:
+            common += 1
+        closed.update(".".join(opened[:i + 1]) for i in range(common, len(opened)))
+        opened = opened[:common]
+        for depth in range(common, len(parts) - 1):
+            group = ".".join(parts[:depth + 1])
+            if group in closed:
+                raise ValueError(f"{spec.section}: parameters of group {group!r} are not contiguous")
+            lines.append("    " + "  " * depth + parts[depth] + ":")
+            opened.append(parts[depth])
+        value = values[p.name]
+        text = yaml.safe_dump(value, default_flow_style=True).strip()
+        if text.endswith("..."):
+            text = text[:-3].strip()
+        note = f"{p.description}; {p.range_text()}" + ("; run-time" if p.runtime else "")
+        lines.append(f"    {'  ' * (len(parts) - 1)}{parts[-1]}: {text}  # {note}")
+    return "\n".join(lines) + "\n"

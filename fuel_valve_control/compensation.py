@@ -1,0 +1,167 @@
+"""Friction compensation strategies for the state-feedback laws (SPEC §3, §6).
+
+Each strategy returns, once per period, the torque to add to the motor command (N*m at the
+motor) and its belief of the friction on both shafts (fed to the observer as known loads).
+Friction estimates are signed torques *opposing* motion as seen by the shaft: a positive
+estimate is friction acting toward closed (the shaft moves toward open).
+
+* :class:`FriedlandPark` (modes ``observer_fc``, ``kalman_fc``): the dissertation's two
+  parallel Friedland–Park observers on the estimated velocities, ``F̂1 + F̂2/N`` added.
+* :class:`StictionGain` (mode ``fc_gain``): appendix A's fixed stiction-breaking term, a
+  torque of ``gain x Ts(Δp)`` in the direction of the error outside the deadband.
+* :class:`ReferenceFeedforward` (mode ``observer_ff``): friction feed-forward in the direction
+  the *reference* moves (known in advance, noise free), sized from the Δp-scheduled friction
+  model, static level while the valve is at rest, and adapted on line by the Friedland–Park
+  update while the valve slides (so friction that differs from the model is learned).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .friction_observer import FrictionObserver
+from .model import NominalModel
+
+
+@dataclass
+class Context:
+    """What a compensator may use this period (valve-side units unless named motor)."""
+
+    pressure_kpa: float
+    th1: float                  # estimated gear-output angle, rad
+    w1: float                   # estimated gear-output velocity, rad/s
+    thl: float                  # estimated valve angle, rad
+    wl: float                   # estimated valve velocity, rad/s
+    valve_speed_meas: float     # valve velocity from the valve resolver (short average), rad/s
+    applied_torque: float       # motor torque applied last period, N*m (motor)
+    ref_velocity: float         # reference velocity, rad/s
+    ref_acceleration: float     # reference acceleration, rad/s²
+    ref_moving: bool            # a planned move is under way
+    error: float                # demand - valve angle estimate, rad
+    outside_deadband: bool      # |error| beyond the friction-sized deadband (hold phase)
+
+
+def _sat(x: float) -> float:
+    return -1.0 if x < -1.0 else (1.0 if x > 1.0 else x)
+
+
+class Compensator:
+    """No compensation (mode ``observer``)."""
+
+    def reset(self, model: NominalModel, pressure_kpa: float) -> None:
+        pass
+
+    def update(self, ctx: Context) -> tuple[float, float, float]:
+        """(torque to add at the motor, motor friction estimate, valve friction estimate)."""
+        return 0.0, 0.0, 0.0
+
+
+def _non_friction_accels(model: NominalModel, ctx: Context) -> tuple[float, float]:
+    """Accelerations from every torque but friction: (motor shaft, rad/s² motor units; valve)."""
+    n = model.gear_ratio
+    twist = model.coupling_stiffness_nm_per_rad * (ctx.th1 - ctx.thl) \
+        + model.coupling_damping_nms * (ctx.w1 - ctx.wl)
+    wm = (ctx.applied_torque - twist / n - model.motor_viscous_nms * n * ctx.w1) / model.motor_inertia_kgm2
+    wv = (twist - model.valve_viscous_nms * ctx.wl - model.load_torque(ctx.thl, ctx.pressure_kpa)) \
+        / model.valve_inertia_kgm2
+    return wm, wv
+
+
+class FriedlandPark(Compensator):
+    """Two parallel Friedland–Park observers (motor and valve shaft) on estimated velocities."""
+
+    def __init__(self, motor: FrictionObserver, valve: FrictionObserver, fraction: float = 1.0):
+        self.motor, self.valve, self.fraction = motor, valve, fraction
+        self.model: NominalModel | None = None
+
+    def reset(self, model, pressure_kpa):
+        self.model = model
+        fl = model.friction(pressure_kpa)
+        self.motor.reset(fl.motor_coulomb_nm / model.motor_inertia_kgm2)
+        self.valve.reset(fl.valve_coulomb_nm / model.valve_inertia_kgm2)
+
+    def update(self, ctx):
+        m = self.model
+        vm = m.gear_ratio * ctx.w1
+        wm, wv = _non_friction_accels(m, ctx)
+        self.motor.update(vm, wm)
+        self.valve.update(ctx.wl, wv)
+        fm = m.motor_inertia_kgm2 * self.motor.compensation(vm)
+        fv = m.valve_inertia_kgm2 * self.valve.compensation(ctx.wl)
+        return self.fraction * (fm + fv / m.gear_ratio), self.fraction * fm, self.fraction * fv
+
+
+class StictionGain(Compensator):
+    """Appendix A: a fixed stiction-breaking torque ``gain x Ts(Δp)`` toward the target,
+    ramped over ``error_scale`` and applied only outside the deadband while holding."""
+
+    def __init__(self, gain: float, error_scale: float):
+        self.gain, self.error_scale = gain, error_scale
+        self.model: NominalModel | None = None
+
+    def reset(self, model, pressure_kpa):
+        self.model = model
+
+    def update(self, ctx):
+        if not ctx.outside_deadband or ctx.ref_moving:
+            return 0.0, 0.0, 0.0
+        ts = self.model.friction(ctx.pressure_kpa).valve_static_nm
+        return self.gain * ts / self.model.gear_ratio * _sat(ctx.error / self.error_scale), 0.0, 0.0
+
+
+class ReferenceFeedforward(Compensator):
+    """Friction feed-forward in the reference's direction, Δp-scheduled and adapted.
+
+    ``direction = sat(v_ref / v_smooth)``; the magnitude is the static level while the valve
+    is at rest (so it breaks away when the reference starts) and the Coulomb level while it
+    slides.  Both levels scale with the ratio ``adapted Coulomb / nominal Coulomb``; the
+    adaptation is the Friedland–Park update run on the *measured* valve speed while the valve
+    slides in the reference direction, so its sign never comes from noise.
+    """
+
+    def __init__(self, motor: FrictionObserver, valve: FrictionObserver, velocity_smoothing: float,
+                 stuck_speed: float, static_start: bool = True, fraction: float = 1.0):
+        self.motor, self.valve = motor, valve
+        self.static_start = static_start
+        self.v_smooth = velocity_smoothing
+        self.stuck_speed = stuck_speed
+        self.fraction = fraction
+        self.model: NominalModel | None = None
+
+    def reset(self, model, pressure_kpa):
+        self.model = model
+        fl = model.friction(pressure_kpa)
+        self.motor.reset(fl.motor_coulomb_nm / model.motor_inertia_kgm2)
+        self.valve.reset(fl.valve_coulomb_nm / model.valve_inertia_kgm2)
+
+    def scale(self, pressure_kpa: float) -> tuple[float, float]:
+        """Adapted / nominal Coulomb level of (motor, valve)."""
+        m = self.model
+        fl = m.friction(pressure_kpa)
+        sm = m.motor_inertia_kgm2 * self.motor.level / fl.motor_coulomb_nm if fl.motor_coulomb_nm > 0 else 1.0
+        sv = m.valve_inertia_kgm2 * self.valve.level / fl.valve_coulomb_nm if fl.valve_coulomb_nm > 0 else 1.0
+        return sm, sv
+
+    def update(self, ctx):
+        m = self.model
+        n = m.gear_ratio
+        direction = _sat(ctx.ref_velocity / self.v_smooth) if self.v_smooth > 0 else (
+            (ctx.ref_velocity > 0) - (ctx.ref_velocity < 0))
+        # adapt the levels only while the valve really slides the way the reference goes
+        sliding = abs(ctx.valve_speed_meas) > self.stuck_speed and ctx.valve_speed_meas * ctx.ref_velocity > 0
+        if sliding:
+            wm, wv = _non_friction_accels(m, ctx)
+            self.motor.update(n * ctx.valve_speed_meas, wm)
+            self.valve.update(ctx.valve_speed_meas, wv)
+        at_rest = abs(ctx.valve_speed_meas) <= self.stuck_speed
+        # breakaway help: static level while the reference pulls a valve at rest, i.e. when a
+        # move starts (accelerating) or, holding, when the error is beyond the deadband
+        breakaway = self.static_start and at_rest and ctx.ref_acceleration * direction > 0
+        if direction == 0.0:
+            return 0.0, 0.0, 0.0
+        fl = m.friction(ctx.pressure_kpa)
+        sm, sv = self.scale(ctx.pressure_kpa)
+        tm = sm * (fl.motor_static_nm if breakaway else fl.motor_coulomb_nm)
+        tv = sv * (fl.valve_static_nm if breakaway else fl.valve_coulomb_nm)
+        fm, fv = self.fraction * tm * direction, self.fraction * tv * direction
+        return fm + fv / n, fm, fv

@@ -1,0 +1,181 @@
+"""Controller parameters (SPEC §3, §4): every design choice is a named value with a unit.
+
+The ``model.*`` section is the controller's *nominal* knowledge of the actuator (what the
+vendor's data sheet and drawings say); gains are designed from it at start-up.  It defaults
+to the plant's nominal parameters, so a perturbed plant (robustness studies) is controlled
+with gains designed for the nominal one.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from fuel_valve_plant.paramspec import ConfigError, Param, ParamSet, ParamSpec
+from fuel_valve_plant.plant_params import PLANT_SPEC, PRESSURE_MAX_KPA, default_config_dir
+
+MODES = ("pi", "pi_dither", "observer", "observer_fc", "kalman_fc", "fc_gain", "observer_ff")
+DEFAULT_MODE = "observer_fc"
+
+_P = PLANT_SPEC.params
+
+
+def _nominal(name: str, plant_name: str, description: str) -> Param:
+    src = _P[plant_name]
+    return Param(f"model.{name}", src.default, src.unit, description, src.low, src.high, src.low_open)
+
+
+CONTROLLER_SPEC = ParamSpec("controller", [
+    # --- interface contract (SPEC §4) -----------------------------------------------------
+    Param("mode", DEFAULT_MODE, "", "control law", choices=MODES, runtime=True),
+    Param("loop_rate_hz", 1000.0, "Hz", "position-loop rate (gains are designed for it)", 100.0, 10000.0),
+    Param("demand_source", "percent", "", "which demand topic drives the valve", choices=("percent", "ma"),
+          runtime=True),
+    Param("demand_timeout_s", 0.5, "s", "demand older than this is stale", 0.005, 60.0, runtime=True),
+    Param("demand_timeout_action", "trip", "", "on a stale demand: hold the last demand or trip",
+          choices=("hold", "trip"), runtime=True),
+    Param("pressure_differential_kpa", PRESSURE_MAX_KPA, "kPa",
+          "pressure differential reported by the supervisor; schedules friction-dependent terms",
+          0.0, PRESSURE_MAX_KPA, runtime=True),
+    # --- actuator ratings -----------------------------------------------------------------
+    Param("limits.peak_current_a", 37.0, "A", "peak current (data sheet: 37 A for <= 20 ms)", 0.0, 40.0,
+          low_open=True, runtime=True),
+    Param("limits.peak_time_s", 0.020, "s", "time the peak current may flow from a full I2t budget",
+          0.0, 1.0, runtime=True),
+    Param("limits.continuous_current_a", 15.0, "A", "continuous current rating", 0.0, 40.0, low_open=True,
+          runtime=True),
+    # --- baseline PI(D) (the existing analog driver) --------------------------------------
+    Param("pi.crossover_hz", 10.0, "Hz", "open-loop crossover on the nominal linear plant", 0.5, 100.0),
+    Param("pi.phase_margin_deg", 45.0, "deg", "phase margin at the crossover", 10.0, 80.0),
+    Param("pi.integral_corner_ratio", 0.25, "", "integral corner as a fraction of the crossover",
+          0.01, 1.0),
+    Param("pi.derivative_filter_ratio", 4.0, "", "derivative filter pole as a multiple of the crossover",
+          1.5, 50.0),
+    Param("pi.dither_hz", 25.0, "Hz", "dither frequency of pi_dither", 1.0, 200.0, runtime=True),
+    Param("pi.dither_pct", 1.0, "%", "dither amplitude of pi_dither, percent of stroke", 0.0, 10.0,
+          runtime=True),
+    # --- state feedback with integral action (observer, *_fc, fc_gain) --------------------
+    Param("design.method", "pole_placement", "", "gain design for observer/observer_fc/fc_gain",
+          choices=("pole_placement", "lqr")),
+    Param("design.bandwidth_hz", 12.0, "Hz", "natural frequency of the dominant closed-loop pair",
+          0.5, 100.0),
+    Param("design.damping", 0.9, "", "damping ratio of the dominant closed-loop pair", 0.2, 2.0),
+    Param("design.integrator_ratio", 0.35, "", "integrator pole as a fraction of the dominant frequency",
+          0.01, 2.0),
+    Param("design.resonance_damping", 0.2, "", "damping given to the coupling mode (its frequency is kept)",
+          0.01, 1.0),
+    Param("design.resonance_frequency_ratio", 1.0, "", "closed-loop / open-loop coupling-mode frequency",
+          0.3, 3.0),
+    Param("observer.bandwidth_ratio", 12.0, "", "Luenberger observer poles as a multiple of the "
+          "controller poles (each pole's natural frequency)", 1.0, 20.0),
+    Param("lqr.position_error_rad", 2e-3, "rad", "Bryson scale: acceptable valve position error", 1e-6, 1.0),
+    Param("lqr.velocity_rad_s", 2.0, "rad/s", "Bryson scale: acceptable shaft velocities", 1e-3, 1000.0),
+    Param("lqr.twist_rad", 5e-3, "rad", "Bryson scale: acceptable coupling twist", 1e-6, 1.0),
+    Param("lqr.integral_rad_s", 2e-4, "rad*s", "Bryson scale: acceptable integrated error", 1e-9, 10.0),
+    Param("lqr.current_a", 10.0, "A", "Bryson scale: acceptable current", 0.01, 40.0),
+    Param("kalman.torque_noise_nm", 2.0, "N*m", "process noise: unmodelled valve torque (friction)", 1e-6, 100.0),
+    Param("kalman.motor_torque_noise_nm", 0.01, "N*m", "process noise: unmodelled motor torque", 1e-9, 10.0),
+    Param("kalman.measurement_counts", 0.5, "counts", "resolver noise incl. quantisation, rms counts",
+          0.01, 100.0),
+    # --- integral action near the target (anti-hunting) ------------------------------------
+    Param("integral.deadband_jump_fraction", 0.55, "", "integrator frozen while |error| < this fraction of "
+          "the stick-slip jump (2(Ts-Tc)/K at the current pressure, times the measured/nominal ratio "
+          "learned from the valve's own breakaways)", 0.0, 5.0, runtime=True),
+    Param("integral.stuck_ramp_time_s", 0.1, "s", "a valve stuck outside the deadband has its torque "
+          "ramped through the static friction level in this time (quasi-static breakaway)", 0.001, 100.0,
+          runtime=True),
+    Param("integral.relax_time_s", 0.3, "s", "time constant with which a settled, stuck valve's drive "
+          "relaxes to the middle of the static-friction band (0 = off)", 0.0, 100.0, runtime=True),
+    Param("integral.deadband_min_rad", 2.9e-4, "rad", "smallest deadband (3 valve resolver counts)",
+          0.0, 0.05, runtime=True),
+    # --- reference trajectory for large demand changes -------------------------------------
+    Param("trajectory.max_velocity_rad_s", 11.0, "rad/s", "slew rate of planned moves", 0.01, 100.0),
+    Param("trajectory.max_acceleration_rad_s2", 600.0, "rad/s^2", "acceleration of planned moves",
+          1.0, 1e5),
+    Param("trajectory.step_threshold_rad", 0.005, "rad", "demand changes larger than this in one period "
+          "are planned as moves", 0.0, 2.0),
+    Param("trajectory.min_move_time_s", 0.02, "s", "planned moves last at least this long (lower "
+          "acceleration for short moves)", 0.0, 2.0),
+    Param("trajectory.feedforward_lead_s", 0.002, "s", "how far ahead the acceleration feed-forward "
+          "of a move is taken (hold and current-loop delay)", 0.0, 0.05),
+    Param("trajectory.velocity_filter_s", 0.005, "s", "time constant of the demand-velocity estimate used "
+          "as feed-forward when the demand is followed directly", 0.0, 1.0),
+    # --- seating on the stops ---------------------------------------------------------------------
+    Param("seat.margin_pct", 0.5, "%", "demands within this of a stop seat the valve on it", 0.0, 10.0),
+    Param("seat.overtravel_rad", 0.1, "rad", "how far beyond the stop a seating move is aimed", 0.0, 0.5),
+    Param("seat.torque_nm", 3.0, "N*m", "seating torque beyond the known load (valve side)", 0.0, 50.0),
+    # --- Friedland-Park friction observers --------------------------------------------------
+    Param("fp.motor.alpha", 2.0, "", "motor-shaft observer gain alpha", 0.0, 1e6, low_open=True, runtime=True),
+    Param("fp.motor.beta", 1.5, "", "motor-shaft observer exponent beta", 0.0, 200.0, low_open=True,
+          runtime=True),
+    Param("fp.motor.gain_cap", 200.0, "1/s", "cap on alpha*beta*|v|^(beta-1), motor shaft", 0.0, 1e4,
+          low_open=True, runtime=True),
+    Param("fp.motor.freeze_velocity_rad_s", 2.0, "rad/s", "motor speed below which the estimate is frozen",
+          0.0, 1000.0, runtime=True),
+    Param("fp.valve.alpha", 2.0, "", "valve-shaft observer gain alpha", 0.0, 1e6, low_open=True, runtime=True),
+    Param("fp.valve.beta", 1.5, "", "valve-shaft observer exponent beta", 0.0, 200.0, low_open=True,
+          runtime=True),
+    Param("fp.valve.gain_cap", 200.0, "1/s", "cap on alpha*beta*|v|^(beta-1), valve shaft", 0.0, 1e4,
+          low_open=True, runtime=True),
+    Param("fp.valve.freeze_velocity_rad_s", 0.05, "rad/s", "valve speed below which the estimate is frozen",
+          0.0, 100.0, runtime=True),
+    Param("fp.compensation_fraction", 1.0, "", "fraction of the estimated friction fed to the command",
+          0.0, 1.5, runtime=True),
+    # --- observer_ff: friction feed-forward along the reference ------------------------------
+    Param("ff.velocity_smoothing_rad_s", 0.01, "rad/s", "reference speed over which the feed-forward "
+          "direction ramps from 0 to +-1", 0.0, 10.0, runtime=True),
+    Param("ff.stuck_speed_rad_s", 0.03, "rad/s", "measured valve speed at or below which the valve "
+          "counts as stuck (static level fed forward)", 0.0, 10.0, runtime=True),
+    Param("ff.static_start", False, "", "feed the static (breakaway) level forward while a move starts "
+          "pulling a valve at rest", runtime=True),
+    Param("ff.speed_window_periods", 4, "", "periods over which the valve speed is measured from the "
+          "valve resolver", 1, 100),
+    # --- fc_gain (appendix A) ------------------------------------------------------------------
+    Param("fc_gain.gain", 0.8, "", "stiction-breaking torque as a fraction of the nominal valve "
+          "static friction at the current pressure", 0.0, 3.0, runtime=True),
+    Param("fc_gain.error_scale_rad", 1e-3, "rad", "error over which the term ramps to full size",
+          1e-6, 1.0, runtime=True),
+    # --- fault logic (SPEC §4) -----------------------------------------------------------------
+    Param("faults.tracking_error_rad", 0.1, "rad", "tracking error limit", 1e-3, 1.1, runtime=True),
+    Param("faults.tracking_error_time_s", 1.0, "s", "time beyond the limit before the fault latches",
+          0.01, 60.0, runtime=True),
+    Param("faults.resolver_timeout_s", 0.02, "s", "resolver silence that latches a fault", 0.002, 5.0,
+          runtime=True),
+    Param("faults.resolver_max_step_rad", 0.05, "rad", "valve reading change per period that is "
+          "physically impossible (implausible)", 1e-3, 1.0, runtime=True),
+    Param("faults.resolver_max_disagreement_rad", 1.5, "rad", "motor/N vs valve angle disagreement "
+          "beyond any coupling twist (implausible)", 1e-3, 2.0, runtime=True),
+    Param("faults.i2t_fault_time_s", 2.0, "s", "time the loop may ask for more than the I2t limit allows "
+          "(jam / overload) before the fault latches", 0.05, 60.0, runtime=True),
+    # --- nominal model (defaults = plant nominal values) --------------------------------------
+    _nominal("motor_inertia_kgm2", "motor.inertia_kgm2", "rotor inertia Jm"),
+    _nominal("motor_viscous_nms", "motor.viscous_nms", "rotor viscous friction Bm"),
+    Param("model.torque_constant_nm_per_a", 1.5 * _P["motor.pole_pairs"].default * _P["motor.flux_linkage_wb"].default,
+          "N*m/A", "motor torque per q-axis ampere, 1.5 p psi_f", 0.0, 10.0, low_open=True),
+    _nominal("gear_ratio", "gearbox.ratio", "gear ratio N"),
+    _nominal("coupling_stiffness_nm_per_rad", "coupling.stiffness_nm_per_rad", "coupling stiffness K"),
+    _nominal("coupling_damping_nms", "coupling.damping_nms", "coupling damping c"),
+    _nominal("valve_inertia_kgm2", "valve.inertia_kgm2", "valve inertia JL"),
+    _nominal("valve_viscous_nms", "valve.viscous_nms", "valve viscous friction BL"),
+    _nominal("spring_preload_nm", "spring.preload_nm", "return-spring preload"),
+    _nominal("spring_rate_nm_per_rad", "spring.rate_nm_per_rad", "return-spring rate"),
+    _nominal("flow_torque_max_nm", "flow.torque_max_nm", "peak flow torque at full pressure"),
+    _nominal("stroke_rad", "valve.stroke_rad", "stroke (open stop)"),
+    _nominal("pressure_max_kpa", "friction.pressure_max_kpa", "pressure of the full per_dp friction terms"),
+    _nominal("motor_coulomb_nm", "friction.motor.coulomb_nm", "nominal motor Coulomb friction"),
+    _nominal("motor_static_nm", "friction.motor.static_nm", "nominal motor static friction"),
+    _nominal("valve_coulomb_nm", "friction.valve.coulomb_nm", "nominal valve Coulomb friction at zero pressure"),
+    _nominal("valve_coulomb_per_dp_nm", "friction.valve.coulomb_per_dp_nm", "nominal valve Coulomb friction "
+             "added at full pressure"),
+    _nominal("valve_static_nm", "friction.valve.static_nm", "nominal valve static friction at zero pressure"),
+    _nominal("valve_static_per_dp_nm", "friction.valve.static_per_dp_nm", "nominal valve static friction "
+             "added at full pressure"),
+])
+
+
+def load_controller_params(path: str | Path | None = "default", overrides=None) -> ParamSet:
+    """Controller parameters from ``config/controller.yaml`` (``"default"``), a file, or none."""
+    if path == "default":
+        path = default_config_dir() / "controller.yaml"
+    ps = CONTROLLER_SPEC.load(path, overrides)
+    if ps["limits.continuous_current_a"] > ps["limits.peak_current_a"]:
+        raise ConfigError("controller: limits.continuous_current_a must not exceed limits.peak_current_a")
+    return ps

@@ -1,0 +1,182 @@
+"""Gain design from the nominal model: PI(D) loop shaping, pole placement, LQR, Kalman.
+
+Every function takes physical/design parameters and returns gains; nothing here is a pasted
+number.  Conventions: the discrete plant is the ZOH model of :mod:`.model` at the loop period;
+the integral state is ``ζ[k+1] = ζ[k] + T (r - θL)``; the control law is
+``u = u_ff - K (x̂ - x_ref) + K_I ζ`` (motor torque, N*m); observers are *current*
+estimators (the estimate at k uses y[k]).
+"""
+from __future__ import annotations
+
+import cmath
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import solve_discrete_are
+from scipy.signal import place_poles
+
+from fuel_valve_plant.paramspec import ConfigError
+
+from .model import NominalModel
+
+
+# ------------------------------------------------------------------------------ baseline PI(D)
+@dataclass(frozen=True)
+class PIDGains:
+    """Series PI(D): ``C(s) = kp (1 + wi/s) (1 + s/wz) / (1 + s/wp)`` on the valve-angle error,
+    output motor torque (N*m).  ``crossover``, ``phase_margin_deg`` are what the design achieved
+    on the nominal linear plant including the sample-and-hold delay."""
+
+    kp: float
+    wi: float
+    wz: float
+    wp: float
+    crossover_rad_s: float
+    phase_margin_deg: float
+
+
+def valve_response(model: NominalModel, w: float) -> complex:
+    """θL / u (rad per N*m of motor torque) of the linear nominal model at ``s = jw``."""
+    a, bu, _, _ = model.continuous()
+    s = 1j * w
+    x = np.linalg.solve(s * np.eye(4) - a, bu[:, 0])
+    return complex(x[2])
+
+
+def design_pid(model: NominalModel, period_s: float, crossover_hz: float, phase_margin_deg: float,
+               integral_ratio: float, filter_ratio: float) -> PIDGains:
+    """Loop-shape the vendor-style PI(D) for a crossover and phase margin on the linear plant.
+
+    The sample-and-hold and computation are modelled as a delay of 1.5 periods.  The lead
+    zero is solved for the phase margin; ``kp`` then puts the crossover where asked.
+    """
+    wc = 2.0 * math.pi * crossover_hz
+    wi = integral_ratio * wc
+    wp = filter_ratio * wc
+    plant = valve_response(model, wc) * cmath.exp(-1j * wc * 1.5 * period_s)
+    pi_part = 1.0 + wi / (1j * wc)
+    needed_lead = math.radians(phase_margin_deg - 180.0) - cmath.phase(plant) - cmath.phase(pi_part)
+    needed_lead = (needed_lead + math.pi) % (2 * math.pi) - math.pi
+    # lead of (1 + s/wz)/(1 + s/wp) at wc:  atan(wc/wz) - atan(wc/wp) = needed_lead
+    target = needed_lead + math.atan(wc / wp)
+    if not 0.0 < target < math.pi / 2:
+        raise ConfigError(f"controller: a PI(D) with pi.derivative_filter_ratio={filter_ratio:g} cannot reach "
+                          f"{phase_margin_deg:g} deg phase margin at {crossover_hz:g} Hz")
+    wz = wc / math.tan(target)
+    lead = (1.0 + 1j * wc / wz) / (1.0 + 1j * wc / wp)
+    kp = 1.0 / abs(plant * pi_part * lead)
+    loop = kp * plant * pi_part * lead
+    return PIDGains(kp, wi, wz, wp, wc, 180.0 + math.degrees(cmath.phase(loop)))
+
+
+# ------------------------------------------------------------------------------ state feedback
+@dataclass(frozen=True)
+class StateFeedback:
+    """``u = -K x + K_I ζ`` on the augmented discrete model, plus the closed-loop poles (z)."""
+
+    k: np.ndarray          # shape (4,)
+    ki: float
+    poles: np.ndarray
+
+
+def augmented(ad: np.ndarray, bu: np.ndarray, period_s: float):
+    """Augment with the integral of ``r - θL``: ``ζ[k+1] = ζ[k] - T θL[k]`` (+ T r)."""
+    n = ad.shape[0]
+    aa = np.zeros((n + 1, n + 1))
+    aa[:n, :n] = ad
+    aa[n, 2] = -period_s
+    aa[n, n] = 1.0
+    ba = np.vstack([bu, [[0.0]]])
+    return aa, ba
+
+
+def continuous_poles(model: NominalModel, bandwidth_hz: float, damping: float, integrator_ratio: float,
+                     resonance_damping: float, resonance_ratio: float) -> np.ndarray:
+    """Desired continuous closed-loop poles (rad/s): dominant pair, integrator, coupling mode."""
+    wn = 2.0 * math.pi * bandwidth_hz
+    wr = model.resonance_rad_s * resonance_ratio
+    poles = []
+    for w, z in ((wn, damping), (wr, resonance_damping)):
+        if z < 1.0:
+            wd = w * math.sqrt(1.0 - z * z)
+            poles += [complex(-z * w, wd), complex(-z * w, -wd)]
+        else:  # overdamped: two real poles
+            root = w * math.sqrt(z * z - 1.0)
+            poles += [-z * w + root, -z * w - root]
+    poles.append(-integrator_ratio * wn)
+    return np.array(poles)
+
+
+def to_discrete(poles_s: np.ndarray, period_s: float) -> np.ndarray:
+    return np.exp(np.asarray(poles_s) * period_s)
+
+
+def place_state_feedback(model: NominalModel, period_s: float, poles_s: np.ndarray) -> StateFeedback:
+    """Pole placement on the augmented ZOH model (scipy ``place_poles``)."""
+    ad, bu, _, _ = model.discrete(period_s)
+    aa, ba = augmented(ad, bu, period_s)
+    placed = place_poles(aa, ba, _distinct(to_discrete(poles_s, period_s)))
+    gain = placed.gain_matrix[0]
+    return StateFeedback(gain[:4].copy(), float(-gain[4]), np.linalg.eigvals(aa - ba @ placed.gain_matrix))
+
+
+def lqr_state_feedback(model: NominalModel, period_s: float, q_diag, r: float) -> StateFeedback:
+    """Discrete LQR on the augmented model (``solve_discrete_are``); ``q_diag`` for
+    [θ1, ω1, θL, ωL, ζ], ``r`` for the motor torque."""
+    ad, bu, _, _ = model.discrete(period_s)
+    aa, ba = augmented(ad, bu, period_s)
+    q = np.diag(q_diag)
+    p = solve_discrete_are(aa, ba, q, np.array([[r]]))
+    gain = np.linalg.solve(ba.T @ p @ ba + r, ba.T @ p @ aa)[0]
+    return StateFeedback(gain[:4].copy(), float(-gain[4]), np.linalg.eigvals(aa - ba @ gain[None, :]))
+
+
+def bryson_weights(model: NominalModel, position_rad: float, velocity_rad_s: float, twist_rad: float,
+                   integral_rad_s: float, current_a: float) -> tuple[np.ndarray, float]:
+    """Bryson's rule: each state weighted by 1/(acceptable value)².  The twist θ1 - θL is
+    weighted through the θ1/θL cross terms, expressed here on the diagonal of the gear angle."""
+    q = np.array([1.0 / twist_rad ** 2, 1.0 / velocity_rad_s ** 2, 1.0 / position_rad ** 2,
+                  1.0 / velocity_rad_s ** 2, 1.0 / integral_rad_s ** 2])
+    torque = current_a * model.torque_constant_nm_per_a
+    return q, 1.0 / torque ** 2
+
+
+# ------------------------------------------------------------------------------ observers
+def observer_poles(model: NominalModel, bandwidth_hz: float, ratio: float, period_s: float) -> np.ndarray:
+    """Continuous poles (rad/s) of the disturbance observer (six states): a well-damped pair
+    ``ratio`` times the controller's dominant frequency, a pair at least as fast as the
+    coupling mode, and two real disturbance poles at the dominant observer frequency; all
+    kept below 0.45 x Nyquist so the discrete observer stays well conditioned."""
+    w_max = 0.45 * math.pi / period_s
+    w_slow = min(ratio * 2.0 * math.pi * bandwidth_hz, w_max)
+    w_fast = min(max(model.resonance_rad_s, 1.5 * w_slow), w_max)
+    poles = []
+    for w, z in ((w_slow, 0.8), (w_fast, 0.7)):
+        wd = w * math.sqrt(1.0 - z * z)
+        poles += [complex(-z * w, wd), complex(-z * w, -wd)]
+    poles += [-0.7 * w_slow, -0.9 * w_slow]
+    return np.array(poles)
+
+
+def current_estimator_gain(ad: np.ndarray, cm: np.ndarray, poles_z: np.ndarray) -> np.ndarray:
+    """Gain L of ``x̂ = x̄ + L (y - C x̄)``, ``x̄ = A x̂⁻ + B u``: error dynamics ``A - L C A``."""
+    placed = place_poles(ad.T, (cm @ ad).T, _distinct(poles_z))
+    return placed.gain_matrix.T
+
+
+def kalman_gain(ad: np.ndarray, g: np.ndarray, cm: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Steady-state Kalman gain of the current estimator (filtered form): ``M = P Cᵀ (C P Cᵀ + R)⁻¹``
+    with ``P`` the a-priori covariance from the dual Riccati equation."""
+    p = solve_discrete_are(ad.T, cm.T, g @ q @ g.T, r)
+    return p @ cm.T @ np.linalg.inv(cm @ p @ cm.T + r)
+
+
+def _distinct(poles: np.ndarray) -> np.ndarray:
+    """place_poles rejects repeated poles beyond the input rank: nudge exact repeats apart."""
+    out = list(np.asarray(poles, dtype=complex))
+    for i in range(len(out)):
+        for j in range(i):
+            if abs(out[i] - out[j]) < 1e-9:
+                out[i] = out[i] * (1.0 - 1e-4 * (i + 1))
+    return np.array(out)

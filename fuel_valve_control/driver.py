@@ -1,0 +1,255 @@
+"""The valve driver core: demand handling, fault logic and the position controller (SPEC §4).
+
+This is what the controller node runs and what the offline simulator runs, so fault
+reactions are tested without ROS.  Inputs arrive as events (demand, resolver sample, optional
+measured current, trip/reset); :meth:`ValveDriver.step` is called once per loop period and
+returns the current command and drive enable.
+
+Faults latch until :meth:`reset` and all react the same way: drive enable false and zero
+current, so the return spring closes the valve (fail safe).  A stale demand with
+``demand_timeout_action: hold`` is the one exception: the valve holds the last good demand
+and a latched warning is raised instead.
+
+Malformed input never raises: NaN/inf/out-of-range values become faults or warnings.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+from fuel_valve_plant.paramspec import ParamSet
+
+from .control_laws import Measurement
+from .controller_params import CONTROLLER_SPEC
+from .position_controller import PositionController
+
+DEMAND_SIGNAL = "demand_signal_failure"
+DEMAND_STALE = "demand_stale"
+RESOLVER_STALE = "resolver_stale"
+RESOLVER_IMPLAUSIBLE = "resolver_implausible"
+TRACKING = "tracking_error"
+OVERCURRENT = "overcurrent_i2t"
+TRIPPED = "commanded_trip"
+FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE, TRACKING, OVERCURRENT, TRIPPED)
+
+# NAMUR NE43 for the 4-20 mA demand
+NE43_FAIL_LOW_MA = 3.6
+NE43_FAIL_HIGH_MA = 21.0
+NE43_USABLE_LOW_MA = 3.8
+NE43_USABLE_HIGH_MA = 20.5
+PERCENT_FAIL_MARGIN = 5.0          # percent demands beyond -5 % / 105 % are signal failures
+
+
+def ma_to_percent(ma: float) -> float:
+    return (ma - 4.0) / 16.0 * 100.0
+
+
+@dataclass
+class DriverOutput:
+    current_a: float
+    enable: bool
+    state: str                           # waiting | running | holding | fault
+    demand_pct: float | None
+    position_pct: float | None
+    faults: dict = field(default_factory=dict)      # code -> message (latched)
+    warnings: dict = field(default_factory=dict)    # code -> message
+
+
+class ValveDriver:
+    def __init__(self, params: ParamSet | None = None):
+        self.ps = params if params is not None else CONTROLLER_SPEC.defaults()
+        self.controller = PositionController(self.ps)
+        self.stroke = self.controller.model.stroke_rad
+        self.n = self.controller.model.gear_ratio
+        self.period = self.controller.period
+        self.faults: dict[str, str] = {}
+        self.warnings: dict[str, str] = {}
+        self._demand_pct: float | None = None      # last good demand (selected source)
+        self._demand_t: float | None = None
+        self._demand_bad: str | None = None        # why the latest demand message was rejected
+        self._meas: Measurement | None = None
+        self._meas_t: float | None = None
+        self._meas_bad: str | None = None
+        self._armed = False
+        self._arm_torque = 0.0
+        self._tracking_since: float | None = None
+        self._positions: deque = deque(maxlen=int(2.0 / self.period))
+        self.last = DriverOutput(0.0, False, "waiting", None, None)
+
+    # ------------------------------------------------------------------ parameters
+    def set_params(self, changes: dict) -> None:
+        """Apply run-time parameter changes; raises (and changes nothing) if any is invalid
+        or not changeable at run time."""
+        new = self.ps.replace(changes)
+        fixed = [k for k in changes if not CONTROLLER_SPEC.params[k].runtime and new[k] != self.ps[k]]
+        if fixed:
+            raise ValueError(f"{', '.join(fixed)} cannot change at run time")
+        if new["limits.continuous_current_a"] > new["limits.peak_current_a"]:
+            raise ValueError("limits.continuous_current_a must not exceed limits.peak_current_a")
+        ctl = self.controller
+        old_ps = self.ps
+        self.ps = new
+        ctl.ps = new
+        ctl.limiter.configure(new["limits.peak_current_a"], new["limits.peak_time_s"],
+                              new["limits.continuous_current_a"])
+        if new["mode"] != old_ps["mode"] or any(k.startswith(("fp.", "integral.", "fc_gain.")) for k in changes):
+            # rebuild the law with the new settings, bumplessly from the last applied torque
+            ctl.switch_law(new["mode"], self._meas if self._armed else None, new["pressure_differential_kpa"])
+
+    # ------------------------------------------------------------------ inputs
+    def demand_percent(self, t: float, value: float) -> None:
+        if self.ps["demand_source"] == "percent":
+            self._accept_demand(t, value, *self._check_percent(value))
+
+    def demand_ma(self, t: float, value: float) -> None:
+        if self.ps["demand_source"] == "ma":
+            self._accept_demand(t, value, *self._check_ma(value))
+
+    @staticmethod
+    def _check_percent(value):
+        if not isinstance(value, (int, float)) or not math.isfinite(value):
+            return None, f"demand {value!r} is not a finite number"
+        if value < -PERCENT_FAIL_MARGIN or value > 100.0 + PERCENT_FAIL_MARGIN:
+            return None, f"demand {value:g} % is far outside 0..100 %"
+        warn = None if 0.0 <= value <= 100.0 else f"demand {value:g} % clamped to 0..100 %"
+        return min(max(value, 0.0), 100.0), warn
+
+    @staticmethod
+    def _check_ma(value):
+        if not isinstance(value, (int, float)) or not math.isfinite(value):
+            return None, f"demand current {value!r} is not a finite number"
+        if value <= NE43_FAIL_LOW_MA or value >= NE43_FAIL_HIGH_MA:
+            return None, f"demand current {value:.2f} mA signals a failure (NAMUR NE43: <= 3.6 or >= 21.0 mA)"
+        warn = None
+        if not NE43_USABLE_LOW_MA <= value <= NE43_USABLE_HIGH_MA:
+            warn = f"demand current {value:.2f} mA outside the NE43 usable range 3.8..20.5 mA"
+        return min(max(ma_to_percent(value), 0.0), 100.0), warn
+
+    def _accept_demand(self, t, raw, pct, note):
+        if pct is None:
+            self._demand_bad = note
+            self._latch(DEMAND_SIGNAL, note)
+            return
+        self._demand_bad = None
+        if note:
+            self.warnings["demand_range"] = note
+        else:
+            self.warnings.pop("demand_range", None)
+        self._demand_pct, self._demand_t = pct, t
+
+    def resolver(self, t: float, motor_rad: float, valve_rad: float) -> None:
+        """A resolver sample taken at ``t``; implausible samples latch a fault and are dropped."""
+        why = self._implausible(t, motor_rad, valve_rad)
+        if why:
+            self._meas_bad = why
+            self._latch(RESOLVER_IMPLAUSIBLE, why)
+            return
+        self._meas_bad = None
+        self._meas = Measurement(float(motor_rad), float(valve_rad))
+        self._meas_t = t
+
+    def _implausible(self, t, motor, valve) -> str | None:
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (motor, valve)):
+            return f"resolver reading not finite (motor {motor!r}, valve {valve!r})"
+        margin = 0.05
+        if not -margin <= valve <= self.stroke + margin:
+            return f"valve angle {valve:.4f} rad outside the stroke 0..{self.stroke:.4f} rad"
+        if abs(motor / self.n - valve) > self.ps["faults.resolver_max_disagreement_rad"]:
+            return (f"motor resolver ({motor / self.n:.4f} rad at the valve) and valve resolver ({valve:.4f} rad) "
+                    f"disagree beyond any coupling twist")
+        if self._meas is not None and self._meas_t is not None:
+            periods = max((t - self._meas_t) / self.period, 1.0)
+            jump = abs(valve - self._meas.valve_rad)
+            if jump > self.ps["faults.resolver_max_step_rad"] * periods:
+                return f"valve angle jumped {jump:.4f} rad in {max(t - self._meas_t, 0.0) * 1e3:.1f} ms"
+        return None
+
+    def measured_current(self, t: float, amps: float) -> None:
+        """Optional drive telemetry: a current beyond the hardware rating is an over-current."""
+        limit = 1.1 * self.ps["limits.peak_current_a"]
+        if not math.isfinite(amps) or abs(amps) > limit:
+            self._latch(OVERCURRENT, f"measured motor current {amps!r} A beyond {limit:.1f} A")
+
+    def start_from_torque(self, torque_nm: float) -> None:
+        """Arm (first time) with the loop continuing from ``torque_nm`` instead of zero: for a
+        simulation that starts with the valve already held by the drive."""
+        self._arm_torque = torque_nm
+
+    def trip(self, reason: str = "trip requested") -> None:
+        self._latch(TRIPPED, reason)
+
+    def reset(self) -> tuple[bool, str]:
+        """Clear latched faults and re-arm, unless a fault cause is still present."""
+        if self._demand_bad:
+            return False, f"cannot reset: {self._demand_bad}"
+        if self._meas_bad:
+            return False, f"cannot reset: {self._meas_bad}"
+        cleared = sorted(self.faults) + sorted(k for k in self.warnings if k == DEMAND_STALE)
+        self.faults.clear()
+        self.warnings.pop(DEMAND_STALE, None)
+        self._tracking_since = None
+        self.controller.limiter.reset()
+        return True, ("cleared: " + ", ".join(cleared)) if cleared else "nothing to clear"
+
+    def _latch(self, code: str, message: str) -> None:
+        if code not in self.faults:
+            self.faults[code] = message
+
+    # ------------------------------------------------------------------ loop
+    def step(self, t: float) -> DriverOutput:
+        ps = self.ps
+        # --- staleness checks
+        if self._meas_t is not None and t - self._meas_t > ps["faults.resolver_timeout_s"]:
+            self._latch(RESOLVER_STALE, f"no resolver sample for {(t - self._meas_t) * 1e3:.0f} ms")
+        holding = False
+        if self._demand_t is not None and t - self._demand_t > ps["demand_timeout_s"]:
+            msg = f"no valid demand for {t - self._demand_t:.2f} s"
+            if ps["demand_timeout_action"] == "trip":
+                self._latch(DEMAND_STALE, msg)
+            else:
+                self.warnings.setdefault(DEMAND_STALE, msg + " (holding the last demand)")
+                holding = True
+        position_pct = None if self._meas is None else 100.0 * self._meas.valve_rad / self.stroke
+        if self.faults or self._meas is None or self._demand_pct is None:
+            self._armed = False
+            state = "fault" if self.faults else "waiting"
+            self.last = DriverOutput(0.0, False, state, self._demand_pct, position_pct,
+                                     dict(self.faults), dict(self.warnings))
+            return self.last
+        demand_rad = self._demand_pct / 100.0 * self.stroke
+        pressure = ps["pressure_differential_kpa"]
+        if not self._armed:
+            self.controller.reset(self._meas, pressure, self._arm_torque)
+            self._arm_torque = 0.0        # re-arming after a fault starts from zero torque
+            self._armed = True
+        current = self.controller.update(t, demand_rad, self._meas, pressure)
+        # --- faults that the loop itself detects
+        if abs(demand_rad - self._meas.valve_rad) > ps["faults.tracking_error_rad"]:
+            if self._tracking_since is None:
+                self._tracking_since = t
+            elif t - self._tracking_since > ps["faults.tracking_error_time_s"]:
+                self._latch(TRACKING, f"tracking error above {ps['faults.tracking_error_rad']:g} rad "
+                                      f"for {t - self._tracking_since:.2f} s")
+        else:
+            self._tracking_since = None
+        if self.controller.limiter.overload_time > ps["faults.i2t_fault_time_s"]:
+            self._latch(OVERCURRENT, f"I2t budget exhausted and more than "
+                                     f"{ps['limits.continuous_current_a']:g} A requested for "
+                                     f"{self.controller.limiter.overload_time:.2f} s (jam or overload)")
+        if self.faults:                       # latched this very period: fail safe now
+            self._armed = False
+            self.last = DriverOutput(0.0, False, "fault", self._demand_pct, position_pct,
+                                     dict(self.faults), dict(self.warnings))
+            return self.last
+        self._positions.append(self._meas.valve_rad)
+        self.last = DriverOutput(current, True, "holding" if holding else "running", self._demand_pct,
+                                 position_pct, {}, dict(self.warnings))
+        return self.last
+
+    # ------------------------------------------------------------------ diagnostics helpers
+    def recent_position_spread(self) -> float:
+        """Half peak-to-peak of the valve angle over the last 2 s (a live limit-cycle estimate)."""
+        if len(self._positions) < 2:
+            return 0.0
+        return 0.5 * (max(self._positions) - min(self._positions))

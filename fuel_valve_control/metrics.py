@@ -1,0 +1,260 @@
+"""Closed-loop metrics of SPEC §5, computed from a trace of the demand and the valve angle.
+
+The same code serves the offline simulator and the bag report, so it only needs what a bag
+holds: time, demand, valve angle (the *true* angle when the plant's ground truth is there),
+current and drive enable.  Segments are found in the demand itself:
+
+* **plateaus**: runs of constant demand at least ``MIN_PLATEAU_S`` long;
+* **steps**: a change between two plateaus that happens within ``MAX_STEP_WIDTH_S``
+  (also the move from the initial valve position to the first plateau);
+* **holds**: plateaus of at least ``MIN_HOLD_S``; their second half is the settled window;
+* **sweeps**: stretches between plateaus where the demand oscillates (>= 6 extrema);
+* **trips**: falling edges of the drive enable.
+
+Metric definitions (all angles rad, times s, currents A):
+
+* ``rise_time_s``: 10 % to 90 % of the step; ``overshoot_pct``: largest excursion beyond the
+  new demand, percent of the step; ``settling_time_s``: from the step until the error stays
+  inside ``max(2 % of the step, 0.1°)`` to the end of the following plateau (``null`` when it
+  never does); worst over all steps.
+* ``steady_state_error_rad``: ``|mean(demand - angle)|`` over the settled half of each hold
+  (or of each step's plateau when there is no hold); worst.
+* ``limit_cycle_amplitude_rad``: half the peak-to-peak angle over the settled half of a hold;
+  ``limit_cycle_frequency_hz``: dominant frequency there, 0 when the amplitude is within one
+  resolver count; worst hold.
+* ``peak_current_a``, ``rms_current_a``: over the whole run.
+* ``stroke_time_s``: from a step of >= 95 % of the stroke to 98 % of it.
+* ``close_time_s``: from the drive being disabled to <= 2 % open.
+* ``bandwidth_hz``: where the per-cycle gain ``p-p(angle) / p-p(demand)`` of a sweep falls
+  below -3 dB (interpolated in log frequency); the top frequency when it never does.
+* ``iae_rad_s``: integral of ``|demand - angle|`` over the whole run.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+RESOLVER_COUNT_RAD = 2.0 * math.pi / 65536
+TENTH_DEGREE_RAD = math.radians(0.1)
+MIN_PLATEAU_S = 0.1
+MAX_STEP_WIDTH_S = 0.02
+MIN_HOLD_S = 2.0
+MIN_STEP_RAD = 1e-3
+CONST_TOL_RAD = 1e-6
+MINUS_3DB = 10.0 ** (-3.0 / 20.0)
+
+
+@dataclass
+class Trace:
+    """Samples on a common time base (s).  ``current`` is the current magnitude, A."""
+
+    t: np.ndarray
+    demand: np.ndarray
+    position: np.ndarray
+    current: np.ndarray
+    enable: np.ndarray
+    stroke_rad: float = 1.0472
+
+    def __post_init__(self):
+        for name in ("t", "demand", "position", "current", "enable"):
+            setattr(self, name, np.asarray(getattr(self, name), dtype=float))
+        n = len(self.t)
+        if n < 2 or any(len(getattr(self, k)) != n for k in ("demand", "position", "current", "enable")):
+            raise ValueError("trace needs at least two samples and equal-length signals")
+
+
+@dataclass
+class Segment:
+    kind: str            # plateau | step | hold | sweep | trip
+    i0: int
+    i1: int              # exclusive
+    info: dict = field(default_factory=dict)
+
+
+def plateaus(tr: Trace) -> list[Segment]:
+    """Maximal runs of constant demand lasting at least MIN_PLATEAU_S."""
+    d = tr.demand
+    change = np.flatnonzero(np.abs(np.diff(d)) > CONST_TOL_RAD) + 1
+    starts = np.concatenate([[0], change])
+    ends = np.concatenate([change, [len(d)]])
+    out = []
+    for a, b in zip(starts, ends):
+        if tr.t[b - 1] - tr.t[a] >= MIN_PLATEAU_S:
+            out.append(Segment("plateau", int(a), int(b), {"demand": float(d[a])}))
+    return out
+
+
+def find_segments(tr: Trace) -> list[Segment]:
+    segs: list[Segment] = []
+    plats = plateaus(tr)
+    t = tr.t
+    # the move from the initial angle onto the first plateau counts as a step
+    if plats and plats[0].i0 == 0 and abs(plats[0].info["demand"] - tr.position[0]) > MIN_STEP_RAD:
+        p = plats[0]
+        segs.append(Segment("step", 0, p.i1, {"from": float(tr.position[0]), "to": p.info["demand"]}))
+    for prev, nxt in zip(plats, plats[1:]):
+        gap = t[nxt.i0] - t[prev.i1 - 1]
+        delta = nxt.info["demand"] - prev.info["demand"]
+        if gap <= MAX_STEP_WIDTH_S and abs(delta) > MIN_STEP_RAD:
+            segs.append(Segment("step", nxt.i0, nxt.i1, {"from": prev.info["demand"], "to": nxt.info["demand"]}))
+        elif gap > MAX_STEP_WIDTH_S:
+            seg = tr.demand[prev.i1:nxt.i0]
+            extrema = np.count_nonzero(np.diff(np.sign(np.diff(seg))) != 0)
+            if extrema >= 6:
+                segs.append(Segment("sweep", prev.i1, nxt.i0))
+    # a sweep that runs to the end of the trace
+    last = plats[-1].i1 if plats else 0
+    if last < len(t) - 1:
+        seg = tr.demand[last:]
+        if np.count_nonzero(np.diff(np.sign(np.diff(seg))) != 0) >= 6:
+            segs.append(Segment("sweep", last, len(t)))
+    for p in plats:
+        if t[p.i1 - 1] - t[p.i0] >= MIN_HOLD_S:
+            segs.append(Segment("hold", p.i0, p.i1, dict(p.info)))
+    en = tr.enable > 0.5
+    for i in np.flatnonzero(en[:-1] & ~en[1:]) + 1:
+        segs.append(Segment("trip", int(i), len(t)))
+    # steps and holds end where the drive is disabled: a tripped valve is not being positioned
+    for seg in segs:
+        if seg.kind in ("step", "hold"):
+            off = np.flatnonzero(~en[seg.i0:seg.i1])
+            if len(off):
+                seg.i1 = seg.i0 + int(off[0])
+    segs = [s for s in segs if s.i1 - s.i0 >= 2 and not (s.kind == "hold" and t[s.i1 - 1] - t[s.i0] < MIN_HOLD_S)]
+    segs.sort(key=lambda s: s.i0)
+    return segs
+
+
+# --------------------------------------------------------------------------- per segment
+def step_metrics(tr: Trace, seg: Segment) -> dict:
+    t = tr.t[seg.i0:seg.i1] - tr.t[seg.i0]
+    pos = tr.position[seg.i0:seg.i1]
+    r0, r1 = seg.info["from"], seg.info["to"]
+    delta = r1 - r0
+    sgn = 1.0 if delta > 0 else -1.0
+    progress = sgn * (pos - r0) / abs(delta)         # 0 at start, 1 at the new demand
+    out: dict = {"from_rad": r0, "to_rad": r1}
+    i10 = np.flatnonzero(progress >= 0.1)
+    i90 = np.flatnonzero(progress >= 0.9)
+    if len(i10) and len(i90):
+        out["rise_time_s"] = float(t[i90[0]] - t[i10[0]])
+    out["overshoot_pct"] = float(max(0.0, (progress.max() - 1.0) * 100.0))
+    band = max(0.02 * abs(delta), TENTH_DEGREE_RAD)
+    outside = np.flatnonzero(np.abs(pos - r1) > band)
+    if len(outside) == 0:
+        out["settling_time_s"] = 0.0
+    elif outside[-1] < len(pos) - 1:
+        out["settling_time_s"] = float(t[outside[-1] + 1])
+    else:
+        out["settling_time_s"] = None
+    half = len(pos) // 2
+    out["steady_state_error_rad"] = float(abs(np.mean(r1 - pos[half:])))
+    if abs(delta) >= 0.95 * tr.stroke_rad:
+        reached = np.flatnonzero(progress >= 0.98)
+        out["stroke_time_s"] = float(t[reached[0]]) if len(reached) else None
+    return out
+
+
+def hold_metrics(tr: Trace, seg: Segment) -> dict:
+    mid = (seg.i0 + seg.i1) // 2
+    pos = tr.position[mid:seg.i1]
+    t = tr.t[mid:seg.i1]
+    amp = 0.5 * float(np.ptp(pos))
+    freq = 0.0
+    if amp > RESOLVER_COUNT_RAD and len(pos) > 8:
+        x = pos - np.mean(pos)
+        dt = float(np.median(np.diff(t)))
+        spec = np.abs(np.fft.rfft(x * np.hanning(len(x))))
+        f = np.fft.rfftfreq(len(x), dt)
+        spec[0] = 0.0
+        freq = float(f[int(np.argmax(spec))])
+    return {"demand_rad": seg.info["demand"], "limit_cycle_amplitude_rad": amp, "limit_cycle_frequency_hz": freq,
+            "steady_state_error_rad": float(abs(np.mean(seg.info["demand"] - pos)))}
+
+
+def sweep_metrics(tr: Trace, seg: Segment) -> dict:
+    d = tr.demand[seg.i0:seg.i1]
+    pos = tr.position[seg.i0:seg.i1]
+    t = tr.t[seg.i0:seg.i1]
+    centre = 0.5 * (d.max() + d.min())
+    up = np.flatnonzero((d[:-1] - centre < 0) & (d[1:] - centre >= 0))
+    freqs, gains = [], []
+    for a, b in zip(up, up[1:]):
+        dd = np.ptp(d[a:b + 1])
+        if dd <= 0:
+            continue
+        freqs.append(1.0 / (t[b] - t[a]))
+        gains.append(np.ptp(pos[a:b + 1]) / dd)
+    if len(gains) < 3:
+        return {}
+    freqs, gains = np.array(freqs), np.array(gains)
+    smooth = np.array([np.median(gains[max(i - 1, 0):i + 2]) for i in range(len(gains))])
+    below = np.flatnonzero(smooth < MINUS_3DB)
+    if len(below) == 0:
+        bw = float(freqs.max())
+    elif below[0] == 0:
+        bw = 0.0
+    else:
+        i = below[0]
+        f0, f1, g0, g1 = freqs[i - 1], freqs[i], smooth[i - 1], smooth[i]
+        frac = (g0 - MINUS_3DB) / (g0 - g1) if g0 != g1 else 0.0
+        bw = float(math.exp(math.log(f0) + frac * (math.log(f1) - math.log(f0))))
+    return {"bandwidth_hz": bw, "frequencies_hz": freqs.round(3).tolist(), "gains": gains.round(4).tolist()}
+
+
+def trip_metrics(tr: Trace, seg: Segment) -> dict:
+    pos = tr.position[seg.i0:]
+    t = tr.t[seg.i0:] - tr.t[seg.i0]
+    closed = np.flatnonzero(pos <= 0.02 * tr.stroke_rad)
+    return {"close_time_s": float(t[closed[0]]) if len(closed) else None}
+
+
+# --------------------------------------------------------------------------- aggregate
+def compute(tr: Trace) -> tuple[dict, list[dict]]:
+    """(metrics of SPEC §5, per-segment details).  Absent metrics are omitted."""
+    metrics: dict = {}
+    details: list[dict] = []
+    steps, holds = [], []
+    for seg in find_segments(tr):
+        if seg.kind == "step":
+            m = step_metrics(tr, seg)
+            steps.append(m)
+        elif seg.kind == "hold":
+            m = hold_metrics(tr, seg)
+            holds.append(m)
+        elif seg.kind == "sweep":
+            m = sweep_metrics(tr, seg)
+            if "bandwidth_hz" in m and "bandwidth_hz" not in metrics:
+                metrics["bandwidth_hz"] = m["bandwidth_hz"]
+        elif seg.kind == "trip":
+            m = trip_metrics(tr, seg)
+            if "close_time_s" not in metrics:
+                metrics["close_time_s"] = m["close_time_s"]
+        else:
+            continue
+        details.append({"kind": seg.kind, "t_start_s": float(tr.t[seg.i0]), "t_end_s": float(tr.t[seg.i1 - 1]), **m})
+    if steps:
+        rises = [s["rise_time_s"] for s in steps if "rise_time_s" in s]
+        if rises:
+            metrics["rise_time_s"] = max(rises)
+        metrics["overshoot_pct"] = max(s["overshoot_pct"] for s in steps)
+        settle = [s["settling_time_s"] for s in steps]
+        metrics["settling_time_s"] = None if any(v is None for v in settle) else max(settle)
+        strokes = [s["stroke_time_s"] for s in steps if "stroke_time_s" in s]
+        if strokes:
+            metrics["stroke_time_s"] = strokes[0]
+    sse_sources = holds if holds else steps
+    if sse_sources:
+        metrics["steady_state_error_rad"] = max(s["steady_state_error_rad"] for s in sse_sources)
+    if holds:
+        worst = max(holds, key=lambda h: h["limit_cycle_amplitude_rad"])
+        metrics["limit_cycle_amplitude_rad"] = worst["limit_cycle_amplitude_rad"]
+        metrics["limit_cycle_frequency_hz"] = worst["limit_cycle_frequency_hz"]
+    metrics["peak_current_a"] = float(np.max(np.abs(tr.current)))
+    metrics["rms_current_a"] = float(np.sqrt(np.mean(tr.current ** 2)))
+    dt = np.diff(tr.t)
+    err = np.abs(tr.demand - tr.position)
+    metrics["iae_rad_s"] = float(np.sum(0.5 * (err[1:] + err[:-1]) * dt))
+    return metrics, details

@@ -1,0 +1,165 @@
+"""Position controller: builds the control law of the selected mode from the parameters,
+converts its torque to a q-current request and applies the actuator's current limits.
+
+Gains are designed here, at construction, from the nominal model (``model.*``) and the
+``design.*``/``observer.*``/``lqr.*``/``kalman.*`` parameters.  Mode changes at run time are
+bumpless: the new law starts from the last measurement with its integral state set so its
+first output equals the last applied torque.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fuel_valve_plant.paramspec import ParamSet
+
+from . import design
+from .compensation import Compensator, FriedlandPark, ReferenceFeedforward, StictionGain
+from .control_laws import (ControlLaw, Estimate, IntegralPolicy, Measurement, PIDLaw, Seating,
+                           StateFeedbackLaw)
+from .controller_params import CONTROLLER_SPEC, MODES
+from .friction_observer import FrictionObserver
+from .limits import CurrentLimiter
+from .model import NominalModel
+from .trajectory import TrajectoryShaper
+
+
+@dataclass(frozen=True)
+class Designs:
+    """Everything the design step computed (kept for diagnostics and tests)."""
+
+    pid: design.PIDGains
+    placement: design.StateFeedback
+    placement_poles_s: np.ndarray
+    lqr: design.StateFeedback
+    observer_gain: np.ndarray
+    kalman_gain: np.ndarray
+
+
+def design_all(ps: ParamSet, model: NominalModel) -> Designs:
+    period = 1.0 / ps["loop_rate_hz"]
+    pid = design.design_pid(model, period, ps["pi.crossover_hz"], ps["pi.phase_margin_deg"],
+                            ps["pi.integral_corner_ratio"], ps["pi.derivative_filter_ratio"])
+    poles = design.continuous_poles(model, ps["design.bandwidth_hz"], ps["design.damping"],
+                                    ps["design.integrator_ratio"], ps["design.resonance_damping"],
+                                    ps["design.resonance_frequency_ratio"])
+    placement = design.place_state_feedback(model, period, poles)
+    q, r = design.bryson_weights(model, ps["lqr.position_error_rad"], ps["lqr.velocity_rad_s"],
+                                 ps["lqr.twist_rad"], ps["lqr.integral_rad_s"], ps["lqr.current_a"])
+    lqr = design.lqr_state_feedback(model, period, q, r)
+    ao, _, _, co = model.observer_model(period)
+    obs_poles = design.observer_poles(model, ps["design.bandwidth_hz"], ps["observer.bandwidth_ratio"], period)
+    observer_gain = design.current_estimator_gain(ao, co, design.to_discrete(obs_poles, period))
+    # Kalman: the unknown load torques random-walk (friction jumps at breakaway and reversal);
+    # the measurements carry resolver noise and quantisation
+    g = np.vstack([np.zeros((4, 2)), np.eye(2)])
+    qn = np.diag([(ps["kalman.motor_torque_noise_nm"] * model.gear_ratio) ** 2, ps["kalman.torque_noise_nm"] ** 2])
+    lsb = 2.0 * np.pi / 65536
+    rn = np.diag([(ps["kalman.measurement_counts"] * lsb / model.gear_ratio) ** 2,
+                  (ps["kalman.measurement_counts"] * lsb) ** 2])
+    kalman = design.kalman_gain(ao, g, co, qn, rn)
+    return Designs(pid, placement, poles, lqr, observer_gain, kalman)
+
+
+class PositionController:
+    """Mode selection, torque-to-current conversion and current limiting."""
+
+    def __init__(self, params: ParamSet | None = None):
+        self.ps = params if params is not None else CONTROLLER_SPEC.defaults()
+        self.model = NominalModel.from_params(self.ps)
+        self.period = 1.0 / self.ps["loop_rate_hz"]
+        self.designs = design_all(self.ps, self.model)
+        lim = self.ps
+        self.limiter = CurrentLimiter(lim["limits.peak_current_a"], lim["limits.peak_time_s"],
+                                      lim["limits.continuous_current_a"], self.period)
+        self.law: ControlLaw = self._build(self.ps["mode"])
+        self._started = False
+        self.last_current = 0.0
+        self.last_torque = 0.0
+
+    # ------------------------------------------------------------------ construction
+    def _build(self, mode: str) -> ControlLaw:
+        ps, m, period, d = self.ps, self.model, self.period, self.designs
+        if mode in ("pi", "pi_dither"):
+            amp = ps["pi.dither_pct"] / 100.0 * m.stroke_rad if mode == "pi_dither" else 0.0
+            return PIDLaw(d.pid, m, period, amp, ps["pi.dither_hz"])
+        shaper = TrajectoryShaper(period, ps["trajectory.max_velocity_rad_s"],
+                                  ps["trajectory.max_acceleration_rad_s2"], ps["trajectory.step_threshold_rad"],
+                                  ps["trajectory.velocity_filter_s"], ps["trajectory.min_move_time_s"],
+                                  ps["trajectory.feedforward_lead_s"])
+        integral = IntegralPolicy(ps["integral.deadband_jump_fraction"], ps["integral.deadband_min_rad"],
+                                  ps["ff.stuck_speed_rad_s"], ps["integral.stuck_ramp_time_s"],
+                                  ps["integral.relax_time_s"])
+        feedback, gain = d.placement, d.observer_gain
+        if mode == "kalman_fc":
+            feedback, gain = d.lqr, d.kalman_gain
+        elif ps["design.method"] == "lqr":
+            feedback = d.lqr
+        seating = Seating(ps["seat.margin_pct"] / 100.0 * m.stroke_rad, ps["seat.overtravel_rad"],
+                          ps["seat.torque_nm"], m.stroke_rad)
+        return StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode),
+                                seating, speed_window=ps["ff.speed_window_periods"])
+
+    def _compensator(self, mode: str) -> Compensator:
+        ps, m, period = self.ps, self.model, self.period
+        if mode == "fc_gain":
+            return StictionGain(ps["fc_gain.gain"], ps["fc_gain.error_scale_rad"])
+        if mode not in ("observer_fc", "kalman_fc", "observer_ff"):
+            return Compensator()
+        fps = (FrictionObserver(ps["fp.motor.alpha"], ps["fp.motor.beta"], ps["fp.motor.gain_cap"],
+                                ps["fp.motor.freeze_velocity_rad_s"], period,
+                                max_level=3.0 * m.motor_static_nm / m.motor_inertia_kgm2),
+               FrictionObserver(ps["fp.valve.alpha"], ps["fp.valve.beta"], ps["fp.valve.gain_cap"],
+                                ps["fp.valve.freeze_velocity_rad_s"], period,
+                                max_level=3.0 * (m.valve_static_nm + m.valve_static_per_dp_nm) / m.valve_inertia_kgm2))
+        if mode == "observer_ff":
+            return ReferenceFeedforward(*fps, ps["ff.velocity_smoothing_rad_s"], ps["ff.stuck_speed_rad_s"],
+                                        ps["ff.static_start"], ps["fp.compensation_fraction"])
+        return FriedlandPark(*fps, ps["fp.compensation_fraction"])
+
+    # ------------------------------------------------------------------ run time
+    @property
+    def mode(self) -> str:
+        return self.law.name
+
+    def switch_law(self, mode: str, meas: Measurement | None, pressure_kpa: float) -> None:
+        """(Re)build the law for ``mode`` from the present parameters.  With a measurement the
+        new law continues bumplessly from the last applied torque; without one it starts at
+        the next :meth:`update`."""
+        if mode not in MODES:
+            raise ValueError(f"unknown mode {mode!r}; allowed: {', '.join(MODES)}")
+        self.law = self._build(mode)
+        if meas is not None and self._started:
+            self.law.reset(meas, self.last_torque, pressure_kpa)
+        else:
+            self._started = False
+
+    def reset(self, meas: Measurement, pressure_kpa: float, torque_nm: float = 0.0) -> None:
+        """(Re)arm from a measurement, starting from ``torque_nm`` (0 after a trip)."""
+        self.limiter.reset()
+        self.law.reset(meas, torque_nm, pressure_kpa)
+        self.last_torque = torque_nm
+        self.last_current = torque_nm / self.model.torque_constant_nm_per_a
+        self._started = True
+
+    def update(self, t: float, demand_rad: float, meas: Measurement, pressure_kpa: float) -> float:
+        """One loop period: returns the limited q-current command, A."""
+        if not self._started:
+            self.reset(meas, pressure_kpa)
+        kt = self.model.torque_constant_nm_per_a
+        torque = self.law.update(t, demand_rad, meas, pressure_kpa)
+        request = torque / kt
+        current = self.limiter.apply(request)
+        self.last_current = current
+        self.last_torque = current * kt
+        self.law.applied(self.last_torque, self.limiter.saturated)
+        return current
+
+    def estimate(self) -> Estimate:
+        return self.law.estimate()
+
+    def reference_position(self) -> float:
+        """The shaped reference the law tracks this period (rad; NaN when it has none)."""
+        ref = getattr(self.law, "reference", None)
+        return ref.position if ref is not None else float("nan")

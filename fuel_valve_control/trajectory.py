@@ -1,0 +1,139 @@
+"""Reference shaping: large demand changes become smooth, limited moves.
+
+A jump in the demand larger than ``step_threshold`` would saturate the current, wind up the
+loop and ring the coupling; instead the reference travels along a planned move from rest to
+rest: a trapezoidal velocity profile whose acceleration phases are sin² shaped, so the
+acceleration (and the friction and inertia feed-forward built on it) rises and falls
+smoothly — jerk-limited, nothing that rings the 87 Hz coupling mode.  A move lasts at least
+``min_move_time``: a small step is a quick, smooth push fast enough for the valve to slide
+continuously (at max Δp it only slides smoothly above ~1 rad/s; slower it stick-slips).
+
+While a move runs, further demand changes are remembered and planned when it ends.  Small or
+continuous demand changes (ramps, sines, dither) pass straight through, so the shaper costs
+no bandwidth; their velocity (for feed-forward) is the demand's derivative through a
+first-order filter of ``velocity_filter`` seconds.  The acceleration of a move is sampled
+``lead`` seconds ahead: the torque it feeds forward acts through the zero-order hold and the
+current loop, i.e. late.  Units: rad, rad/s, rad/s², s.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass
+class Reference:
+    position: float
+    velocity: float
+    acceleration: float
+    moving: bool          # True while a planned move is under way
+
+
+@dataclass(frozen=True)
+class Move:
+    """A rest-to-rest move of ``distance`` (signed) with sin²-shaped acceleration phases."""
+
+    start: float
+    distance: float
+    accel_time: float     # duration of each acceleration phase, s
+    cruise_time: float
+    peak_velocity: float  # magnitude
+
+    @classmethod
+    def plan(cls, start: float, target: float, v_max: float, a_max: float, min_time: float) -> "Move":
+        d = abs(target - start)
+        # sin² acceleration with peak a: an acceleration phase of t_a gains v = a t_a / 2
+        v = min(v_max, math.sqrt(d * a_max / 2.0))
+        t_a = 2.0 * v / a_max
+        t_c = d / v - t_a if v > 0 else 0.0
+        if 2.0 * t_a + t_c < min_time:          # too quick for a small move: stretch it
+            if d / v_max >= min_time / 2.0:      # cruising at v_max, longer ramps
+                v = v_max
+                t_a = max(min_time - d / v, 0.0)
+                t_c = d / v - t_a
+            else:                                # no cruise: two ramps of min_time / 2
+                t_a, t_c = min_time / 2.0, 0.0
+                v = d / t_a
+        return cls(start, target - start, t_a, max(t_c, 0.0), v)
+
+    @property
+    def duration(self) -> float:
+        return 2.0 * self.accel_time + self.cruise_time
+
+    def sample(self, tau: float) -> tuple[float, float, float]:
+        """(position, velocity, acceleration) at ``tau`` seconds into the move."""
+        sgn = 1.0 if self.distance >= 0 else -1.0
+        ta, tc, v = self.accel_time, self.cruise_time, self.peak_velocity
+        if tau >= self.duration or ta <= 0.0:
+            return self.start + self.distance, 0.0, 0.0
+        a_pk = 2.0 * v / ta
+        w = 2.0 * math.pi / ta
+
+        def ramp(t):   # distance, velocity, acceleration of one sin² ramp from rest
+            return (a_pk * (t * t / 4.0 + (math.cos(w * t) - 1.0) / (2.0 * w * w)),
+                    a_pk * (t / 2.0 - math.sin(w * t) / (2.0 * w)),
+                    a_pk * math.sin(math.pi * t / ta) ** 2)
+
+        d_ramp = v * ta / 2.0
+        if tau < ta:
+            p, vel, acc = ramp(tau)
+        elif tau < ta + tc:
+            p, vel, acc = d_ramp + v * (tau - ta), v, 0.0
+        else:
+            rem = self.duration - tau             # the deceleration mirrors the acceleration
+            p_r, v_r, a_r = ramp(rem)
+            p, vel, acc = abs(self.distance) - p_r, v_r, -a_r
+        return self.start + sgn * p, sgn * vel, sgn * acc
+
+
+class TrajectoryShaper:
+    def __init__(self, period_s: float, max_velocity: float, max_acceleration: float, step_threshold: float,
+                 velocity_filter: float = 0.0, min_move_time: float = 0.0, lead: float = 0.0):
+        self.period = period_s
+        self.lead = lead
+        self.v_max = max_velocity
+        self.a_max = max_acceleration
+        self.threshold = step_threshold
+        self.min_move_time = min_move_time
+        self._alpha = period_s / (period_s + velocity_filter)
+        self._p: float | None = None
+        self._v = 0.0
+        self._move: Move | None = None
+        self._tau = 0.0
+
+    def reset(self, position: float) -> None:
+        """Start at rest at ``position`` (e.g. the measured valve angle)."""
+        self._p = position
+        self._v = 0.0
+        self._move = None
+
+    @property
+    def moving(self) -> bool:
+        return self._move is not None
+
+    def arrived(self, target: float) -> bool:
+        """At rest on ``target`` (a planned move has ended there)."""
+        return self._move is None and self._p == target
+
+    def at(self, position: float) -> bool:
+        return self._move is None and self._p == position
+
+    def update(self, demand: float) -> Reference:
+        """Advance one period toward ``demand``; returns the reference for this period."""
+        if self._p is None:
+            self.reset(demand)
+        if self._move is None and abs(demand - self._p) > self.threshold:
+            self._move = Move.plan(self._p, demand, self.v_max, self.a_max, self.min_move_time)
+            self._tau = 0.0
+        if self._move is None:
+            raw = (demand - self._p) / self.period
+            self._v += self._alpha * (min(max(raw, -self.v_max), self.v_max) - self._v)
+            self._p = demand
+            return Reference(demand, self._v, 0.0, False)
+        self._tau += self.period
+        p, v, _ = self._move.sample(self._tau)
+        a = self._move.sample(self._tau + self.lead)[2]   # inertia feed-forward leads the hold delay
+        if self._tau >= self._move.duration:
+            self._move = None                       # arrived exactly; a changed demand is planned next
+        self._p, self._v = p, v
+        return Reference(p, v, a, self._move is not None)
