@@ -267,6 +267,7 @@ class StateFeedbackLaw(ControlLaw):
     def update(self, t, demand_rad, meas, pressure_kpa):
         m = self.model
         n = m.gear_ratio
+        self._pressure = pressure_kpa
         # ---- disturbance observer (current estimator)
         x_bar = self.ao @ self.xo + self.bu[:, 0] * self._u_net + self.bd[:, 0] * self._d
         self.xo = x_bar + self.obs_gain @ (np.array([meas.motor_rad / n, meas.valve_rad]) - self.co @ x_bar)
@@ -331,6 +332,14 @@ class StateFeedbackLaw(ControlLaw):
         self._u_net = torque_nm - self._fm
         if not saturated:
             self.zeta += self._pending
+
+    def friction_trend(self) -> float | None:
+        """Learned valve friction / nominal friction at the present pressure (None if the
+        compensation does not learn): the wear and contamination trend of the valve."""
+        scale = getattr(self.compensator, "scale", None)
+        return scale(self._pressure)[1] if scale is not None and self._pressure is not None else None
+
+    _pressure: float | None = None
 
     def estimate(self):
         n = self.model.gear_ratio

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import cmath
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -116,9 +117,8 @@ def place_state_feedback(model: NominalModel, period_s: float, poles_s: np.ndarr
     """Pole placement on the augmented ZOH model (scipy ``place_poles``)."""
     ad, bu, _, _ = model.discrete(period_s)
     aa, ba = augmented(ad, bu, period_s)
-    placed = place_poles(aa, ba, _distinct(to_discrete(poles_s, period_s)))
-    gain = placed.gain_matrix[0]
-    return StateFeedback(gain[:4].copy(), float(-gain[4]), np.linalg.eigvals(aa - ba @ placed.gain_matrix))
+    gain = _place(aa, ba, to_discrete(poles_s, period_s))
+    return StateFeedback(gain[0, :4].copy(), float(-gain[0, 4]), np.linalg.eigvals(aa - ba @ gain))
 
 
 def lqr_state_feedback(model: NominalModel, period_s: float, q_diag, r: float) -> StateFeedback:
@@ -161,8 +161,7 @@ def observer_poles(model: NominalModel, bandwidth_hz: float, ratio: float, perio
 
 def current_estimator_gain(ad: np.ndarray, cm: np.ndarray, poles_z: np.ndarray) -> np.ndarray:
     """Gain L of ``x̂ = x̄ + L (y - C x̄)``, ``x̄ = A x̂⁻ + B u``: error dynamics ``A - L C A``."""
-    placed = place_poles(ad.T, (cm @ ad).T, _distinct(poles_z))
-    return placed.gain_matrix.T
+    return _place(ad.T, (cm @ ad).T, poles_z).T
 
 
 def kalman_gain(ad: np.ndarray, g: np.ndarray, cm: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -170,6 +169,21 @@ def kalman_gain(ad: np.ndarray, g: np.ndarray, cm: np.ndarray, q: np.ndarray, r:
     with ``P`` the a-priori covariance from the dual Riccati equation."""
     p = solve_discrete_are(ad.T, cm.T, g @ q @ g.T, r)
     return p @ cm.T @ np.linalg.inv(cm @ p @ cm.T + r)
+
+
+def _place(a: np.ndarray, b: np.ndarray, poles: np.ndarray) -> np.ndarray:
+    """``place_poles`` gain with the poles checked.  scipy warns when its robustness
+    iteration (which only tunes the eigenvectors) stops early; the placement itself is
+    verified here instead, so that warning is silenced."""
+    poles = _distinct(poles)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        gain = place_poles(a, b, poles).gain_matrix
+    got = np.sort_complex(np.linalg.eigvals(a - b @ gain))
+    want = np.sort_complex(poles)
+    if not np.allclose(got, want, atol=1e-6 * max(1.0, float(np.max(np.abs(want))))):
+        raise ValueError(f"pole placement failed: wanted {want}, got {got}")
+    return gain
 
 
 def _distinct(poles: np.ndarray) -> np.ndarray:

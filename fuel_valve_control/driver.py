@@ -247,9 +247,47 @@ class ValveDriver:
                                  position_pct, {}, dict(self.warnings))
         return self.last
 
-    # ------------------------------------------------------------------ diagnostics helpers
+    # ------------------------------------------------------------------ diagnostics
     def recent_position_spread(self) -> float:
         """Half peak-to-peak of the valve angle over the last 2 s (a live limit-cycle estimate)."""
         if len(self._positions) < 2:
             return 0.0
         return 0.5 * (max(self._positions) - min(self._positions))
+
+    def health(self) -> Health:
+        """Level (0 OK, 1 WARN, 2 ERROR), a readable message and key values for /diagnostics."""
+        out = self.last
+        if out.faults:
+            level, message = 2, "FAULT (latched; drive disabled, spring closing the valve): " + "; ".join(
+                out.faults.values())
+        elif out.state == "waiting":
+            missing = [what for what, absent in (("a valid demand", out.demand_pct is None),
+                                                 ("resolver samples", out.position_pct is None)) if absent]
+            level, message = 1, "waiting for " + (" and ".join(missing) or "arming")
+        elif out.warnings:
+            level, message = 1, "running with warnings: " + "; ".join(out.warnings.values())
+        else:
+            level, message = 0, f"{out.state}, mode {self.controller.mode}"
+        est = self.controller.estimate()
+        law = self.controller.law
+        tracking = None
+        if out.demand_pct is not None and out.position_pct is not None:
+            tracking = (out.demand_pct - out.position_pct) / 100.0 * self.stroke
+        values = {
+            "state": out.state, "mode": self.controller.mode,
+            "demand_pct": out.demand_pct, "position_pct": out.position_pct, "tracking_error_rad": tracking,
+            "current_a": out.current_a, "limit_cycle_estimate_rad": self.recent_position_spread(),
+            "friction_valve_estimate_nm": est.valve_friction_nm, "friction_motor_estimate_nm": est.motor_friction_nm,
+            "friction_trend": law.friction_trend() if hasattr(law, "friction_trend") else None,
+            "deadband_rad": getattr(law, "deadband", None),
+            "i2t_budget_used": self.controller.limiter.budget_used / max(self.controller.limiter.budget, 1e-12),
+            "faults": ",".join(out.faults) or "none", "warnings": ",".join(out.warnings) or "none",
+        }
+        return Health(level, message, values)
+
+
+@dataclass
+class Health:
+    level: int          # 0 OK, 1 WARN, 2 ERROR (diagnostic_msgs levels)
+    message: str
+    values: dict

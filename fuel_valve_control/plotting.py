@@ -1,0 +1,110 @@
+"""Multi-panel PNG of a run, shared by ``fuel_valve_sim --plot`` and ``fuel_valve_report --plot``.
+
+Input is a mapping of equal-length arrays on a common time base (missing keys are skipped):
+
+``t`` [s], ``demand`` [rad], ``position`` [rad] (true valve angle), ``measured`` [rad]
+(resolver), ``current_cmd`` [A], ``i_q`` / ``i_d`` [A], ``friction_valve`` /
+``friction_valve_est`` [N*m], ``friction_motor`` / ``friction_motor_est`` [N*m], ``enable``.
+
+Panels: demand vs position, error, currents, true vs estimated friction, and a zoom on the
+settled window (the limit-cycle view), whose span is chosen from the metrics segments when
+given, otherwise the last quarter of the run.
+"""
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+RESOLVER_COUNT_RAD = 2.0 * np.pi / 65536
+
+
+def plot_series(series: Mapping[str, np.ndarray], path: str, title: str = "",
+                segments: Sequence[Mapping] | None = None, metrics: Mapping | None = None) -> str:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.asarray(series["t"])
+    fig, axes = plt.subplots(5, 1, figsize=(11, 13), constrained_layout=True)
+    ax = axes[0]
+    if "demand" in series:
+        ax.plot(t, np.degrees(series["demand"]), "k-", lw=1.2, label="demand")
+    if "position" in series:
+        ax.plot(t, np.degrees(series["position"]), "r-", lw=1.0, label="valve (true)")
+    if "measured" in series:
+        ax.plot(t, np.degrees(series["measured"]), "b:", lw=0.8, label="resolver")
+    ax.set_ylabel("angle [deg]")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(title)
+
+    ax = axes[1]
+    if "demand" in series and "position" in series:
+        err = np.asarray(series["demand"]) - np.asarray(series["position"])
+        ax.plot(t, err * 1e3, "m-", lw=0.8)
+        ax.axhline(0.0, color="k", lw=0.5)
+    ax.set_ylabel("error [mrad]")
+
+    ax = axes[2]
+    for key, style, label in (("current_cmd", "k-", "command"), ("i_q", "g-", "i_q"), ("i_d", "c-", "i_d")):
+        if key in series:
+            ax.plot(t, series[key], style, lw=0.8, label=label)
+    ax.axhline(37.0, color="r", lw=0.5, ls="--")
+    ax.axhline(-37.0, color="r", lw=0.5, ls="--")
+    ax.set_ylabel("current [A]")
+    ax.legend(loc="best", fontsize=8)
+
+    ax = axes[3]
+    for key, style, label in (("friction_valve", "r-", "valve true"), ("friction_valve_est", "r--", "valve est."),
+                              ("friction_motor", "b-", "motor true x N"),
+                              ("friction_motor_est", "b--", "motor est. x N")):
+        if key in series:
+            y = np.asarray(series[key])
+            if key.startswith("friction_motor"):
+                y = y * 48.019
+            ax.plot(t, y, style, lw=0.8, label=label)
+    ax.set_ylabel("friction [N*m]")
+    ax.legend(loc="best", fontsize=8)
+
+    ax = axes[4]
+    lo, hi = _zoom_window(t, segments)
+    sel = (t >= lo) & (t <= hi)
+    if "position" in series and np.any(sel):
+        pos = np.asarray(series["position"])[sel]
+        ax.plot(t[sel], (pos - np.mean(pos)) / RESOLVER_COUNT_RAD, "r-", lw=0.8, label="valve - mean")
+        if "demand" in series:
+            d = np.asarray(series["demand"])[sel]
+            ax.plot(t[sel], (d - np.mean(pos)) / RESOLVER_COUNT_RAD, "k-", lw=0.8, label="demand - mean")
+    ax.set_ylabel("zoom [resolver counts]")
+    ax.set_xlabel("time [s]")
+    label = f"settled window {lo:.2f}-{hi:.2f} s"
+    if metrics and metrics.get("limit_cycle_amplitude_rad") is not None:
+        label += (f": limit cycle {metrics['limit_cycle_amplitude_rad']:.2e} rad at "
+                  f"{metrics.get('limit_cycle_frequency_hz', 0):.2f} Hz")
+    ax.set_title(label, fontsize=9)
+    ax.legend(loc="best", fontsize=8)
+    for a in axes[:4]:
+        a.grid(True, alpha=0.3)
+    axes[4].grid(True, alpha=0.3)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def _zoom_window(t: np.ndarray, segments) -> tuple[float, float]:
+    holds = [s for s in (segments or []) if s.get("kind") == "hold"]
+    if holds:
+        h = max(holds, key=lambda s: s["t_end_s"] - s["t_start_s"])
+        return 0.5 * (h["t_start_s"] + h["t_end_s"]), h["t_end_s"]
+    return t[0] + 0.75 * (t[-1] - t[0]), t[-1]
+
+
+def plot_result(result, path: str) -> str:
+    """Plot a :class:`~fuel_valve_control.sim.SimResult`."""
+    c = result.column
+    series = {"t": c("t"), "demand": c("demand_rad"), "position": c("position_rad"), "measured": c("measured_rad"),
+              "current_cmd": c("current_cmd_a"), "i_q": c("i_q_a"), "i_d": c("i_d_a"),
+              "friction_valve": -c("friction_valve_nm"), "friction_valve_est": c("friction_est_valve_nm"),
+              "friction_motor": -c("friction_motor_nm"), "friction_motor_est": c("friction_est_motor_nm")}
+    title = f"{result.scenario} - mode {result.controller}"
+    return plot_series(series, path, title, result.segments, result.metrics)
