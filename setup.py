@@ -25,7 +25,14 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
+            "plant = fuel_valve_plant.plant_node:main",
+            "controller = fuel_valve_control.controller_node:main",
+            "demand = fuel_valve_control.demand_node:main",
+            "recorder = fuel_valve_control.recorder:main",
+            "fuel_valve_sim = fuel_valve_control.sim:main",
+            "fuel_valve_report = fuel_valve_control.report:main",
             "fuel_valve_datasheet = fuel_valve_plant.datasheet:main",
+            "fuel_valve_demo = fuel_valve_control.demo:main",
         ],
     },
 )

@@ -1,0 +1,238 @@
+"""``ros2 run fuel_valve controller``: the valve driver (position controller + fault logic).
+
+A thin layer over :class:`~fuel_valve_control.driver.ValveDriver`, the same object the
+offline simulator runs.  Each ``resolver`` sample triggers one control period (the sample
+is the loop's clock, so the command leaves as soon as the measurement arrives); a watchdog
+timer keeps the fault logic running when samples stop, so silence trips the drive too.
+
+Topics (SPEC §4): subscribes ``demand`` (percent), ``demand_ma`` (4-20 mA), ``resolver``
+and, optionally, the plant's ``drive`` telemetry (measured current for the over-current
+check); publishes ``current_command`` (A), ``drive_enable``, ``position`` (percent),
+``estimate`` and ``/diagnostics``.  Services ``~/trip`` and ``~/reset`` (std_srvs/Trigger).
+
+With ``lockstep:=true`` (and ``use_sim_time:=true``) each period waits for a fresh demand as
+well as the resolver sample whenever a demand publisher exists, so runs are deterministic.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+from rclpy.node import Node
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+
+from fuel_valve_plant import ros_interface as ri
+from fuel_valve_plant.paramspec import ConfigError
+
+from .controller_params import CONTROLLER_SPEC, load_controller_params
+from .driver import ValveDriver
+
+LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
+
+
+class ControllerNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("controller", **kwargs)
+        ri.declare_spec(self, CONTROLLER_SPEC)
+        self.declare_parameter("lockstep", False, ParameterDescriptor(
+            description="wait for a fresh demand each period (deterministic lockstep runs)", read_only=True))
+        self.declare_parameter("diagnostics_rate_hz", 2.0, ParameterDescriptor(
+            description="rate of /diagnostics [Hz]", read_only=True))
+        self.declare_parameter("telemetry_decimation", 10, ParameterDescriptor(
+            description="publish position and estimate every N-th period (1 = every period)", read_only=True))
+        self.declare_parameter("monitor_drive_telemetry", False, ParameterDescriptor(
+            description="subscribe to the plant's drive telemetry for the measured-current check "
+                        "(one more 1 kHz subscription)", read_only=True))
+        try:
+            ps = load_controller_params(None, ri.read_spec(self, CONTROLLER_SPEC))
+        except ConfigError as exc:
+            raise SystemExit(f"controller: invalid parameters: {exc}") from None
+        self.driver = ValveDriver(ps)
+        self.lockstep = bool(self.get_parameter("lockstep").value)
+        self.stroke = self.driver.stroke
+        self._fresh_demand = False
+        self._pending_sample = None
+        self._last_sample_stamp = None
+        self._bad_messages = 0
+        self._demand_publishers = 0
+        self._demand_check = 0.0
+        self._last_enable = None
+        self._level = 0
+
+        from diagnostic_msgs.msg import DiagnosticArray
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Bool, Float64, Float64MultiArray
+        from std_srvs.srv import Trigger
+        from builtin_interfaces.msg import Time
+        self._float, self._bool, self._time = Float64, Bool, Time
+        self.pub_current = ri.quiet_publisher(self, Float64, ri.CURRENT_COMMAND)
+        self.pub_enable = ri.quiet_publisher(self, Bool, ri.DRIVE_ENABLE)
+        self.pub_position = ri.quiet_publisher(self, Float64, ri.POSITION)
+        self.pub_estimate = ri.quiet_publisher(self, JointState, ri.ESTIMATE)
+        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, ri.DIAGNOSTICS)
+        ri.quiet_subscription(self, Float64, ri.DEMAND, self.on_demand)
+        ri.quiet_subscription(self, Float64, ri.DEMAND_MA, self.on_demand_ma)
+        ri.quiet_subscription(self, JointState, ri.RESOLVER, self.on_resolver)
+        if self.get_parameter("monitor_drive_telemetry").value:
+            ri.quiet_subscription(self, Float64MultiArray, ri.DRIVE, self.on_drive)
+        self._decimation = max(int(self.get_parameter("telemetry_decimation").value), 1)
+        self._periods = 0
+        self.create_service(Trigger, "~/trip", self.on_trip)
+        self.create_service(Trigger, "~/reset", self.on_reset)
+        self.add_on_set_parameters_callback(self.on_set_parameters)
+        period = self.driver.period
+        # the watchdog runs the fault logic when no samples arrive (silence must trip)
+        self.create_timer(max(5.0 * period, 0.01), self.watchdog)
+        self.create_timer(1.0 / float(self.get_parameter("diagnostics_rate_hz").value), self.publish_diagnostics)
+        self.get_logger().info(f"controller up: mode {ps['mode']}, loop {ps['loop_rate_hz']:g} Hz, demand from "
+                               f"{ps['demand_source']}{', lockstep' if self.lockstep else ''}")
+
+    # ------------------------------------------------------------------ time
+    def now_s(self) -> float:
+        """The loop's time, s.  In lockstep it is the stamp of the latest resolver sample (the
+        plant's clock, exact and deterministic); otherwise the node clock."""
+        if self.lockstep:
+            return self._last_sample_stamp if self._last_sample_stamp is not None else 0.0
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    # ------------------------------------------------------------------ inputs
+    def on_demand(self, msg) -> None:
+        self.driver.demand_percent(self.now_s(), msg.data)
+        self._demand_arrived()
+
+    def on_demand_ma(self, msg) -> None:
+        self.driver.demand_ma(self.now_s(), msg.data)
+        self._demand_arrived()
+
+    def _demand_arrived(self) -> None:
+        self._fresh_demand = True
+        if self._pending_sample is not None:       # lockstep: the sample was waiting for it
+            sample, self._pending_sample = self._pending_sample, None
+            self.run_period(sample)
+
+    def on_drive(self, msg) -> None:
+        values = ri.array_values(msg)
+        if "i_d" in values and "i_q" in values:
+            self.driver.measured_current(self.now_s(), math.hypot(values["i_d"], values["i_q"]))
+
+    def on_resolver(self, msg) -> None:
+        values = ri.joint_values(msg)
+        motor, valve = values.get(ri.MOTOR_JOINT), values.get(ri.VALVE_JOINT)
+        if motor is None or valve is None:
+            self._bad_messages += 1
+            self.get_logger().warn(f"resolver message without {ri.MOTOR_JOINT}/{ri.VALVE_JOINT} positions ignored",
+                                   throttle_duration_sec=1.0)
+            return
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        sample = (stamp, motor, valve)
+        if self.lockstep and self._demand_expected() and not self._fresh_demand:
+            self._pending_sample = sample           # wait for this period's demand
+            return
+        self.run_period(sample)
+
+    def _demand_expected(self) -> bool:
+        """Lockstep gating applies while something publishes the selected demand topic."""
+        now = time.monotonic()
+        if now - self._demand_check > 0.5:
+            topic = ri.DEMAND if self.driver.ps["demand_source"] == "percent" else ri.DEMAND_MA
+            self._demand_publishers = self.count_publishers(topic)
+            self._demand_check = now
+        return self._demand_publishers > 0
+
+    # ------------------------------------------------------------------ loop
+    def run_period(self, sample) -> None:
+        stamp, motor, valve = sample
+        self._fresh_demand = False
+        self._last_sample_stamp = stamp
+        self.driver.resolver(stamp, motor, valve)
+        self.publish_step(stamp if self.lockstep else self.now_s())
+
+    def watchdog(self) -> None:
+        timeout = self.driver.ps["faults.resolver_timeout_s"]
+        if self.lockstep:
+            return                       # sim time stands still while nobody steps the plant
+        last = self.driver._meas_t
+        if last is not None and self.now_s() - last > timeout:
+            self.publish_step(self.now_s())
+
+    def publish_step(self, t: float) -> None:
+        """One driver period: the command first (the plant is waiting for it), then the rest."""
+        out = self.driver.step(t)
+        self.pub_current.publish(self._float(data=float(out.current_a)))
+        if out.enable != self._last_enable:       # latched topic: publish changes only
+            self.pub_enable.publish(self._bool(data=bool(out.enable)))
+        self._periods += 1
+        if self._periods % self._decimation == 0:
+            if out.position_pct is not None:
+                self.pub_position.publish(self._float(data=float(out.position_pct)))
+            est = self.driver.controller.estimate()
+            sec = int(t)
+            stamp = self._time(sec=sec, nanosec=int((t - sec) * 1e9)) if self.lockstep \
+                else self.get_clock().now().to_msg()
+            self.pub_estimate.publish(ri.joint_state(
+                stamp, (est.motor_angle, est.valve_angle), (est.motor_velocity, est.valve_velocity),
+                (est.motor_friction_nm, est.valve_friction_nm)))
+        if out.enable != self._last_enable:
+            if self._last_enable is not None:
+                log = self.get_logger().info if out.enable else self.get_logger().error
+                log(f"drive {'enabled' if out.enable else 'DISABLED'}: state {out.state}"
+                    + (f", faults: {'; '.join(out.faults.values())}" if out.faults else ""))
+            self._last_enable = out.enable
+
+    # ------------------------------------------------------------------ services
+    def on_trip(self, request, response):
+        self.driver.trip("trip requested through ~/trip")
+        self.publish_step(self.now_s())
+        response.success = True
+        response.message = "tripped: drive disabled, the return spring closes the valve; call ~/reset to re-arm"
+        self.get_logger().warn(response.message)
+        return response
+
+    def on_reset(self, request, response):
+        ok, message = self.driver.reset()
+        response.success, response.message = ok, message
+        (self.get_logger().info if ok else self.get_logger().warn)(f"reset: {message}")
+        return response
+
+    # ------------------------------------------------------------------ parameters
+    def on_set_parameters(self, params) -> SetParametersResult:
+        changes = {p.name: p.value for p in params if p.name in CONTROLLER_SPEC}
+        if not changes:
+            return SetParametersResult(successful=True)
+        try:
+            self.driver.set_params(changes)
+        except (ConfigError, ValueError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        self.get_logger().info(f"parameters changed: {changes}")
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------ diagnostics
+    def publish_diagnostics(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+        h = self.driver.health()
+        values = dict(h.values, malformed_messages=self._bad_messages)
+        st = DiagnosticStatus(level=bytes([h.level]), name=f"{self.get_fully_qualified_name()}: valve driver",
+                              message=h.message, hardware_id="fuel_valve_driver",
+                              values=[KeyValue(key=k, value=_fmt(v)) for k, v in values.items()])
+        msg = DiagnosticArray(status=[st])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(msg)
+        if h.level != self._level:
+            self.get_logger().info(f"status {LEVEL_NAMES[h.level]}: {h.message}")
+            self._level = h.level
+
+
+def _fmt(x) -> str:
+    if x is None:
+        return "n/a"
+    if isinstance(x, float):
+        return f"{x:.6g}"
+    return str(x)
+
+
+def main(args=None) -> int:
+    return ri.run_node(ControllerNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

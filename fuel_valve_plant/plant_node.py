@@ -1,0 +1,253 @@
+"""``ros2 run fuel_valve plant``: the actuator simulation as a ROS 2 node (SPEC §4).
+
+Subscribes ``current_command`` (q-current reference, A) and ``drive_enable``; publishes
+``resolver`` (measured angles, stamp = sample time), ``joint_states`` (ground truth) and
+``drive`` (labelled telemetry) at ``publish_rate_hz``, plus loop statistics on
+``/diagnostics`` once a second.
+
+Two timing modes:
+
+* real time (default): a dedicated loop thread ticks at ``publish_rate_hz`` (a precise
+  sleep-until schedule; an rclpy timer at 1 kHz costs a large share of a core in executor
+  overhead); each tick integrates the time elapsed since the previous tick (whole physics
+  steps) with the latest command, then publishes.  The executor thread only receives
+  commands.  The round trip (resolver published -> command received) and the ticks that
+  found no new command (missed control periods) are measured and reported.
+* lockstep (``lockstep:=true``): the plant owns ``/clock``.  It waits until the loop's
+  participants are connected, then publishes ``/clock`` and a resolver sample, and advances
+  exactly one period per received ``current_command``.  Runs are deterministic and as fast
+  as the loop allows; every node should run with ``use_sim_time:=true``.
+
+Malformed commands (NaN, inf) never reach the physics: the drive treats them as zero
+current with the drive disabled, like a drive that rejects a corrupt set-point.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+from rclpy.node import Node
+from rcl_interfaces.msg import SetParametersResult
+
+from . import ros_interface as ri
+from .paramspec import ConfigError
+from .plant import TELEMETRY_LABELS, Plant
+from .plant_params import PLANT_SPEC, check_consistency
+
+
+class LoopStats:
+    """Round-trip times and missed periods of the control loop, seen from the plant."""
+
+    def __init__(self, keep: int = 200000):
+        self.keep = keep
+        self.rtts: list[float] = []
+        self.ticks = 0
+        self.missed = 0
+        self.commands = 0
+
+    def add_rtt(self, seconds: float) -> None:
+        if len(self.rtts) < self.keep:
+            self.rtts.append(seconds)
+
+    def summary(self) -> dict:
+        out = {"ticks": self.ticks, "missed": self.missed, "commands": self.commands,
+               "missed_fraction": self.missed / self.ticks if self.ticks else 0.0}
+        if self.rtts:
+            s = sorted(self.rtts)
+            pick = lambda q: s[min(int(q * len(s)), len(s) - 1)]  # noqa: E731
+            out.update(rtt_median_ms=1e3 * pick(0.5), rtt_p99_ms=1e3 * pick(0.99), rtt_max_ms=1e3 * s[-1],
+                       rtt_samples=len(s))
+        return out
+
+
+class PlantNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("plant", **kwargs)
+        ri.declare_spec(self, PLANT_SPEC)
+        from rcl_interfaces.msg import ParameterDescriptor
+        self.declare_parameter("lockstep_participants", 2, ParameterDescriptor(
+            description="lockstep: number of nodes subscribed to /clock (use_sim_time nodes: controller, "
+                        "demand, recorder...) to wait for before the first step", read_only=True))
+        try:
+            ps = PLANT_SPEC.validate(ri.read_spec(self, PLANT_SPEC))
+            self.ps = PLANT_SPEC.defaults().replace(ps)
+            check_consistency(self.ps)
+        except ConfigError as exc:
+            raise SystemExit(f"plant: invalid parameters: {exc}") from None
+        self.plant = Plant(self.ps)
+        self.period = 1.0 / self.ps["publish_rate_hz"]
+        self.lockstep = bool(self.ps["lockstep"])
+        self._iq = 0.0
+        self._enable = False
+        self._command_rejected = False
+        self._bad_commands = 0
+        self.stats = LoopStats()
+        self._got_command = False
+        self._last_publish_mono = None
+
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Bool, Float64, Float64MultiArray
+        from diagnostic_msgs.msg import DiagnosticArray
+        self.pub_resolver = ri.quiet_publisher(self, JointState, ri.RESOLVER)
+        self.pub_truth = ri.quiet_publisher(self, JointState, ri.JOINT_STATES)
+        self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, ri.DRIVE)
+        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, ri.DIAGNOSTICS)
+        ri.quiet_subscription(self, Float64, ri.CURRENT_COMMAND, self.on_command)
+        ri.quiet_subscription(self, Bool, ri.DRIVE_ENABLE, self.on_enable)
+        self.add_on_set_parameters_callback(self.on_set_parameters)
+        self.create_timer(1.0, self.publish_diagnostics)
+        if self.lockstep:
+            from rosgraph_msgs.msg import Clock
+            self.pub_clock = ri.quiet_publisher(self, Clock, ri.CLOCK, ri.TELEMETRY_QOS)
+            self._started = False
+            self._waiting_since = time.monotonic()
+            self._participants = int(self.get_parameter("lockstep_participants").value)
+            self._start_timer = self.create_timer(0.05, self.try_start)
+        else:
+            self._lock = threading.Lock()
+            self._running = True
+            self._thread = threading.Thread(target=self.realtime_loop, name="plant-loop", daemon=True)
+            self._thread.start()
+        self.get_logger().info(
+            f"plant up: {'lockstep' if self.lockstep else 'real time'}, publish {1 / self.period:g} Hz, physics "
+            f"{self.ps['physics_rate_hz']:g} Hz, dp {self.ps['pressure_differential_kpa']:g} kPa")
+
+    # ------------------------------------------------------------------ inputs
+    def on_command(self, msg) -> None:
+        value = msg.data
+        if not ri.finite(value):
+            self._bad_commands += 1
+            self.get_logger().warn(f"non-finite current command {value!r}: drive held off", throttle_duration_sec=1.0)
+            self._iq, self._command_rejected = 0.0, True
+        else:
+            self._iq, self._command_rejected = float(value), False
+        self.stats.commands += 1
+        if self._last_publish_mono is not None and not self._got_command:
+            self.stats.add_rtt(time.monotonic() - self._last_publish_mono)
+        self._got_command = True
+        if self.lockstep and self._started:
+            self.step_and_publish(self.period)
+
+    def on_enable(self, msg) -> None:
+        self._enable = bool(msg.data)
+
+    def _apply_command(self) -> None:
+        enabled = self._enable and not self._command_rejected
+        self.plant.set_command(self._iq if enabled else 0.0, enabled)
+
+    # ------------------------------------------------------------------ timing
+    def realtime_loop(self) -> None:
+        """Real-time mode: tick every period on a sleep-until schedule."""
+        last = time.monotonic()
+        next_tick = last + self.period
+        while self._running:
+            delay = next_tick - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            now = time.monotonic()
+            if now - next_tick > 10 * self.period:      # fell far behind (stall): resynchronise
+                next_tick = now
+            next_tick += self.period
+            elapsed = min(now - last, 10.0 * self.period)
+            last = now
+            with self._lock:
+                self.stats.ticks += 1
+                if self._last_publish_mono is not None and not self._got_command:
+                    self.stats.missed += 1
+                try:
+                    self.step_and_publish(elapsed)
+                except Exception:                       # noqa: BLE001 - context shut down under us
+                    if self.context.ok():
+                        raise
+                    return
+
+    def stop(self) -> None:
+        if not self.lockstep:
+            self._running = False
+            self._thread.join(timeout=1.0)
+
+    def try_start(self) -> None:
+        """Lockstep: start once the controller (and the other participants) are connected."""
+        clock_nodes = {(i.node_namespace, i.node_name) for i in self.get_subscriptions_info_by_topic(ri.CLOCK)}
+        ready = (self.count_subscribers(ri.RESOLVER) >= 1 and self.count_publishers(ri.CURRENT_COMMAND) >= 1
+                 and len(clock_nodes) >= self._participants)
+        if not ready:
+            if time.monotonic() - self._waiting_since > 5.0:
+                self.get_logger().info("lockstep: waiting for the controller and clock subscribers",
+                                       throttle_duration_sec=5.0)
+            return
+        self._start_timer.cancel()
+        self._started = True
+        self.get_logger().info("lockstep: participants connected, starting")
+        self.publish_outputs()
+
+    def step_and_publish(self, duration: float) -> None:
+        self._apply_command()
+        self.plant.advance(duration)
+        self.publish_outputs()
+
+    def publish_outputs(self) -> None:
+        from builtin_interfaces.msg import Time
+        t = self.plant.time
+        if self.lockstep:
+            from rosgraph_msgs.msg import Clock
+            sec = int(t)
+            stamp = Time(sec=sec, nanosec=int(round((t - sec) * 1e9)))
+            self.pub_clock.publish(Clock(clock=stamp))
+        else:
+            stamp = self.get_clock().now().to_msg()
+        sample = self.plant.resolver()
+        self._got_command = False
+        self._last_publish_mono = time.monotonic()
+        if sample is not None:
+            self.pub_resolver.publish(ri.joint_state(stamp, (sample.motor_rad, sample.valve_rad)))
+        truth = self.plant.truth()
+        self.pub_truth.publish(ri.joint_state(
+            stamp, (truth.motor_angle, truth.valve_angle), (truth.motor_velocity, truth.valve_velocity),
+            (truth.electromagnetic_torque, truth.coupling_torque)))
+        self.pub_drive.publish(ri.labelled_array(TELEMETRY_LABELS, self.plant.telemetry()))
+
+    # ------------------------------------------------------------------ parameters
+    def on_set_parameters(self, params) -> SetParametersResult:
+        changes = {p.name: p.value for p in params if p.name in PLANT_SPEC}
+        if not changes:
+            return SetParametersResult(successful=True)
+        try:
+            if self.lockstep:
+                self.plant.set_params(changes)
+            else:
+                with self._lock:
+                    self.plant.set_params(changes)
+        except (ConfigError, ValueError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        self.get_logger().info(f"parameters changed: {changes}")
+        return SetParametersResult(successful=True)
+
+    def publish_diagnostics(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+        s = self.stats.summary()
+        st = DiagnosticStatus(name=f"{self.get_fully_qualified_name()}: loop", hardware_id="fuel_valve_plant")
+        st.level = DiagnosticStatus.OK
+        st.message = "simulating" if (not self.lockstep or self._started) else "waiting for lockstep participants"
+        if self._bad_commands:
+            st.level = DiagnosticStatus.WARN
+            st.message = f"{self._bad_commands} non-finite current commands rejected"
+        values = {"plant_time_s": f"{self.plant.time:.3f}", "valve_angle_rad": f"{self.plant.valve_angle:.5f}",
+                  "pressure_differential_kpa": f"{self.plant.params['pressure_differential_kpa']:g}",
+                  "fault_injection": self.plant.params["fault_injection"]}
+        values.update({k: f"{v:.6g}" if isinstance(v, float) else str(v) for k, v in s.items()})
+        st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        msg = DiagnosticArray(status=[st])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(msg)
+
+
+def main(args=None) -> int:
+    def report(node):
+        node.stop()
+        print(f"[plant] loop statistics: {node.stats.summary()}", flush=True)
+    return ri.run_node(PlantNode, args, on_exit=report)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

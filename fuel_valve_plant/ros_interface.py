@@ -1,0 +1,198 @@
+"""The ROS 2 interface contract of SPEC §4 in one place: topic names, joint names, QoS, message
+builders/readers and ROS-parameter declaration from a :class:`~.paramspec.ParamSpec`.
+
+Imported only by nodes and tools (it needs rclpy and the message packages); the simulation
+cores never import it.
+
+QoS (documented in README): every topic is RELIABLE so any subscriber (a recorder with a
+deep reliable queue, ``ros2 topic echo``) can connect.  Loop topics (``resolver``,
+``current_command``, ``demand``, ``demand_ma``) keep only the newest sample (depth 1): a
+control loop wants the latest value, never a backlog.  ``drive_enable`` is TRANSIENT_LOCAL so
+a plant that starts late still learns whether the drive may run.  Telemetry keeps 10.
+"""
+from __future__ import annotations
+
+import math
+from typing import Iterable, Sequence
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+# --- topics (relative: they follow the node namespace) ---------------------------------------
+DEMAND = "demand"
+DEMAND_MA = "demand_ma"
+POSITION = "position"
+CURRENT_COMMAND = "current_command"
+DRIVE_ENABLE = "drive_enable"
+RESOLVER = "resolver"
+JOINT_STATES = "joint_states"
+DRIVE = "drive"
+ESTIMATE = "estimate"
+DIAGNOSTICS = "/diagnostics"
+CLOCK = "/clock"
+
+#: every topic of the suite with its message type name (the recorder's default list)
+TOPIC_TYPES = {
+    DEMAND: "std_msgs/msg/Float64",
+    DEMAND_MA: "std_msgs/msg/Float64",
+    POSITION: "std_msgs/msg/Float64",
+    CURRENT_COMMAND: "std_msgs/msg/Float64",
+    DRIVE_ENABLE: "std_msgs/msg/Bool",
+    RESOLVER: "sensor_msgs/msg/JointState",
+    JOINT_STATES: "sensor_msgs/msg/JointState",
+    DRIVE: "std_msgs/msg/Float64MultiArray",
+    ESTIMATE: "sensor_msgs/msg/JointState",
+    DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
+}
+
+MOTOR_JOINT = "motor_shaft"
+VALVE_JOINT = "valve_shaft"
+JOINT_NAMES = (MOTOR_JOINT, VALVE_JOINT)
+
+# --- QoS ---------------------------------------------------------------------------------------
+LOOP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+TELEMETRY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.VOLATILE)
+
+
+def quiet_publisher(node, msg_type, topic: str, qos: QoSProfile | None = None):
+    """A publisher without rclpy's default QoS-event handlers: each handler is one more entity
+    in every executor wait, and in a 1 kHz loop that overhead is most of the cost."""
+    from rclpy.event_handler import PublisherEventCallbacks
+    return node.create_publisher(msg_type, topic, qos or qos_for(topic),
+                                 event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
+
+
+def quiet_subscription(node, msg_type, topic: str, callback, qos: QoSProfile | None = None):
+    """A subscription without the default QoS-event handlers (see :func:`quiet_publisher`)."""
+    from rclpy.event_handler import SubscriptionEventCallbacks
+    return node.create_subscription(msg_type, topic, callback, qos or qos_for(topic),
+                                    event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+
+
+def qos_for(topic: str) -> QoSProfile:
+    if topic in (RESOLVER, CURRENT_COMMAND, DEMAND, DEMAND_MA):
+        return LOOP_QOS
+    if topic == DRIVE_ENABLE:
+        return LATCHED_QOS
+    return TELEMETRY_QOS
+
+
+# --- messages ----------------------------------------------------------------------------------
+def joint_state(stamp, positions: Sequence[float], velocities: Sequence[float] = (),
+                efforts: Sequence[float] = ()):
+    """A ``sensor_msgs/JointState`` for (motor_shaft, valve_shaft)."""
+    from sensor_msgs.msg import JointState
+    msg = JointState()
+    msg.header.stamp = stamp
+    msg.name = list(JOINT_NAMES)
+    msg.position = [float(x) for x in positions]
+    msg.velocity = [float(x) for x in velocities]
+    msg.effort = [float(x) for x in efforts]
+    return msg
+
+
+def joint_values(msg, field: str = "position") -> dict[str, float]:
+    """``{joint name: value}`` of a JointState field; malformed messages give ``{}``."""
+    values = getattr(msg, field, None)
+    if values is None or len(values) != len(msg.name):
+        return {}
+    return {name: float(v) for name, v in zip(msg.name, values)}
+
+
+def labelled_array(labels: Iterable[str], values: Sequence[float]):
+    """``std_msgs/Float64MultiArray`` whose layout has one dimension per entry, labelled with
+    the entry's name (size 1, stride 1), so readers can find values by name."""
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=1, stride=1) for label in labels]
+    msg.layout.data_offset = 0
+    msg.data = [float(v) for v in values]
+    return msg
+
+
+def array_values(msg) -> dict[str, float]:
+    """Decode :func:`labelled_array` (works on rclpy and rosbags message objects)."""
+    labels = [d.label for d in msg.layout.dim]
+    data = list(msg.data)
+    if len(labels) != len(data):
+        return {}
+    return dict(zip(labels, (float(x) for x in data)))
+
+
+def finite(x) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
+# --- parameters -------------------------------------------------------------------------------
+def declare_spec(node, spec, values=None, names: Iterable[str] | None = None) -> None:
+    """Declare ``spec``'s parameters on ``node`` with descriptors (description, unit, range,
+    read-only unless run-time changeable), defaulting to ``values`` (a ParamSet)."""
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+    wanted = set(names) if names is not None else None
+    for p in spec:
+        if wanted is not None and p.name not in wanted:
+            continue
+        desc = ParameterDescriptor(description=f"{p.description} [{p.unit}]" if p.unit else p.description,
+                                   read_only=not p.runtime)
+        desc.additional_constraints = p.range_text()
+        if p.kind is float and (p.low is not None or p.high is not None):
+            desc.floating_point_range = [FloatingPointRange(
+                from_value=float(p.low if p.low is not None else -1e300),
+                to_value=float(p.high if p.high is not None else 1e300), step=0.0)]
+        elif p.kind is int and (p.low is not None or p.high is not None):
+            desc.integer_range = [IntegerRange(from_value=int(p.low if p.low is not None else -2**62),
+                                               to_value=int(p.high if p.high is not None else 2**62), step=0)]
+        default = p.default if values is None else values[p.name]
+        node.declare_parameter(p.name, default, desc)
+
+
+def read_spec(node, spec, names: Iterable[str] | None = None) -> dict:
+    """Current values of the declared parameters of ``spec`` as ``{name: value}``."""
+    out = {}
+    for p in spec:
+        if names is not None and p.name not in names:
+            continue
+        out[p.name] = node.get_parameter(p.name).value
+    return out
+
+
+# --- process entry point -----------------------------------------------------------------------
+def run_node(factory, args=None, on_exit=None) -> int:
+    """Run a node until Ctrl-C / SIGTERM, then shut down cleanly.
+
+    rclpy's own signal handlers (SIGINT and SIGTERM) shut the context down and the executor
+    returns; ``factory()`` builds the node (a ``SystemExit`` from it is a configuration error:
+    message printed, exit code 2); ``on_exit(node)`` runs before the node is destroyed (the
+    context may already be shut down: print, do not publish).  The single-threaded executor is
+    used: the experimental events executor of this rclpy ignores signals and spins a core.
+    """
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = factory()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except SystemExit as exc:
+        print(exc, flush=True)
+        code = 2
+    except Exception:                       # noqa: BLE001 - a shutdown race inside spin()
+        if rclpy.ok():
+            raise
+    finally:
+        if node is not None:
+            if on_exit is not None:
+                on_exit(node)
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code
