@@ -1,0 +1,284 @@
+"""``fuel_valve_report BAG [--json PATH] [--plot PATH]``: SPEC §5 metrics of a recorded run.
+
+Reads a bag (MCAP or sqlite3, from ``recorder`` or ``ros2 bag record``) with :mod:`.bag_io`,
+rebuilds the trace the offline simulator logs and runs the *same* metric code on it
+(:func:`fuel_valve_control.metrics.compute`: step / hold / sweep / trip detection in the
+demand).  Prints a readable report and one JSON line shaped like ``fuel_valve_sim``'s
+output (``scenario`` = bag name, ``controller`` = the mode the controller reported on
+``/diagnostics``, else ``"unknown"``, ``metrics``, ``segments``).  Bad input (not a bag,
+empty, required topics missing): a message on stderr and exit code 2.
+
+Trace reconstruction (all angles rad):
+
+* time base and valve angle: ``joint_states`` (plant ground truth, header stamp = sample
+  time), else ``resolver`` (measured), else the decimated ``position`` feedback;
+* demand: ``demand`` (%), else ``demand_ma`` (4-20 mA); current: |(i_d, i_q)| from
+  ``drive``, else |``current_command``|; enable: ``drive_enable`` (held between changes;
+  assumed on when absent);
+* topics without a header (demand, drive, current_command) are aligned with the time base
+  one to one when they have exactly one message per sample (a lockstep run publishes each
+  once per control period), otherwise by receive time (the value in force at each sample).
+  Receive times in another clock than the stamps (``ros2 bag record`` without sim time
+  on a lockstep run) are mapped onto sim time through ``/clock``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from . import metrics as M
+from .bag_io import Bag, BagError, TopicData, read_bag
+
+STROKE_RAD_DEFAULT = 1.0472
+REQUIRED = {
+    "demand": ("demand", "demand_ma"),
+    "valve angle": ("joint_states", "resolver", "position"),
+    "current": ("drive", "current_command"),
+}
+
+
+class ReportError(Exception):
+    """Input problem: exit code 2."""
+
+
+def _stroke() -> float:
+    try:
+        from fuel_valve_plant.plant_params import PLANT_SPEC
+        return float(PLANT_SPEC.defaults()["valve.stroke_rad"])
+    except Exception:  # noqa: BLE001 - the report must work on a bag alone
+        return STROKE_RAD_DEFAULT
+
+
+def _hold(src_t: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Value in force at each ``t`` (zero-order hold; before the first sample: the first)."""
+    idx = np.searchsorted(src_t, t, side="right") - 1
+    return np.asarray(values, dtype=float)[np.clip(idx, 0, len(values) - 1)]
+
+
+class _Timeline:
+    """Maps a topic's samples onto the base time (seconds of the base's clock)."""
+
+    def __init__(self, bag: Bag, base: TopicData, base_t_ns: np.ndarray, base_is_stamped: bool):
+        self.base = base
+        self.t_ns = base_t_ns
+        self.to_base = None
+        clock = bag.find("/clock")
+        if base_is_stamped and clock is not None and len(clock) > 1:
+            offset = np.median(base.log_ns - base.stamp_ns)
+            if abs(offset) > 1e9:     # receive times in another clock: map them through /clock
+                order = np.argsort(clock.log_ns, kind="stable")
+                cl_log, cl_val = clock.log_ns[order], clock.stamp_ns[order]
+                self.to_base = lambda ns: cl_val[np.clip(np.searchsorted(cl_log, ns, side="right") - 1, 0,
+                                                         len(cl_val) - 1)]
+        self.log_offset_ok = True
+
+    def time_of(self, topic: TopicData) -> np.ndarray:
+        ns = topic.log_ns
+        return self.to_base(ns) if self.to_base is not None else ns
+
+    def align(self, topic: TopicData, values: np.ndarray) -> np.ndarray:
+        n = len(self.t_ns)
+        if len(topic) == n and len(self.base) == n:
+            return np.asarray(values, dtype=float)          # one per sample: pair in order
+        if topic.stamp_ns is not None:
+            order = np.argsort(topic.stamp_ns, kind="stable")
+            return _hold(topic.stamp_ns[order], np.asarray(values)[order], self.t_ns)
+        tt = self.time_of(topic)
+        order = np.argsort(tt, kind="stable")
+        return _hold(tt[order], np.asarray(values)[order], self.t_ns)
+
+
+def _first(bag: Bag, names) -> TopicData | None:
+    for name in names:
+        t = bag.find(name)
+        if t is not None and len(t):
+            return t
+    return None
+
+
+def build_series(bag: Bag) -> tuple[M.Trace, dict, dict]:
+    """(metrics trace, plot series, source notes) of a bag."""
+    missing = [what + " (" + " | ".join(names) + ")" for what, names in REQUIRED.items()
+               if _first(bag, names) is None]
+    if missing:
+        have = ", ".join(f"{n} [{c}]" for n, c in sorted(bag.counts.items())) or "none"
+        raise ReportError(f"bag {bag.name} lacks messages for: {'; '.join(missing)}. Topics in the bag: {have}")
+    stroke = _stroke()
+    sources = {}
+    base = _first(bag, ("joint_states", "resolver"))
+    if base is not None and base.stamp_ns is not None and f"{'valve_shaft'}.position" in base:
+        order = np.argsort(base.stamp_ns, kind="stable")
+        if not np.all(order == np.arange(len(order))):
+            base = _reorder(base, order)
+        t_ns = base.stamp_ns
+        position = base["valve_shaft.position"]
+        stamped = True
+        sources["position"] = base.topic + " (valve_shaft)"
+    else:
+        base = _first(bag, ("position",))
+        t_ns = base.log_ns
+        position = base["data"] / 100.0 * stroke
+        stamped = False
+        sources["position"] = base.topic + " (percent feedback)"
+    # duplicated stamps (a republished sample) would make zero time steps: keep the first
+    keep = np.concatenate([[True], np.diff(t_ns) > 0])
+    tl = _Timeline(bag, base, t_ns, stamped)
+    if not np.all(keep):
+        base = _reorder(base, np.flatnonzero(keep))
+        tl = _Timeline(bag, base, t_ns[keep], stamped)
+        position = position[keep]
+        t_ns = t_ns[keep]
+    t0 = t_ns[0]
+    t = (t_ns - t0) * 1e-9
+    series: dict = {"t": t, "position": position}
+
+    dem = _first(bag, ("demand",))
+    if dem is not None:
+        pct = dem["data"]
+        sources["demand"] = dem.topic
+    else:
+        dem = _first(bag, ("demand_ma",))
+        pct = np.clip((dem["data"] - 4.0) / 16.0 * 100.0, 0.0, 100.0)
+        sources["demand"] = dem.topic + " (4-20 mA)"
+    series["demand"] = tl.align(dem, pct / 100.0 * stroke)
+
+    drive = _first(bag, ("drive",))
+    if drive is not None and "i_d" in drive and "i_q" in drive:
+        current = tl.align(drive, np.hypot(drive["i_d"], drive["i_q"]))
+        series["i_d"] = tl.align(drive, drive["i_d"])
+        series["i_q"] = tl.align(drive, drive["i_q"])
+        for key, name in (("friction_valve", "friction_valve_nm"), ("friction_motor", "friction_motor_nm")):
+            if name in drive:
+                series[key] = -tl.align(drive, drive[name])
+        sources["current"] = drive.topic + " |(i_d, i_q)|"
+    else:
+        cmd = _first(bag, ("current_command",))
+        current = np.abs(tl.align(cmd, cmd["data"]))
+        sources["current"] = cmd.topic + " (command)"
+    cmd = _first(bag, ("current_command",))
+    if cmd is not None:
+        series["current_cmd"] = tl.align(cmd, cmd["data"])
+    en = _first(bag, ("drive_enable",))
+    if en is not None:
+        enable = _hold(np.sort(tl.time_of(en)), en["data"][np.argsort(tl.time_of(en), kind="stable")], t_ns)
+        sources["enable"] = en.topic
+    else:
+        enable = np.ones_like(t)
+        sources["enable"] = "assumed on (no drive_enable)"
+    series["enable"] = enable
+    res = _first(bag, ("resolver",))
+    if res is not None and res is not base and "valve_shaft.position" in res:
+        series["measured"] = tl.align(res, res["valve_shaft.position"])
+    est = _first(bag, ("estimate",))
+    if est is not None:
+        for key, name in (("friction_valve_est", "valve_shaft.effort"), ("friction_motor_est", "motor_shaft.effort")):
+            if name in est:
+                series[key] = tl.align(est, est[name])
+    trace = M.Trace(t, series["demand"], position, current, enable, stroke)
+    return trace, series, sources
+
+
+def _reorder(topic: TopicData, idx: np.ndarray) -> TopicData:
+    return TopicData(topic.topic, topic.msgtype, topic.log_ns[idx],
+                     None if topic.stamp_ns is None else topic.stamp_ns[idx],
+                     {k: v[idx] for k, v in topic.columns.items()})
+
+
+def controller_mode(bag: Bag) -> str:
+    for name, values in bag.diagnostics.items():
+        if "valve driver" in name and values.get("mode"):
+            return str(values["mode"])
+    return "unknown"
+
+
+def _jsonable(obj):
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, (np.floating, np.integer)):
+        return _jsonable(obj.item())
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    return obj
+
+
+def analyse(bag: Bag) -> tuple[dict, dict]:
+    """(report dict, plot series) of a bag already read."""
+    if bag.message_count == 0:
+        raise ReportError(f"bag {bag.name} is empty (no messages)")
+    trace, series, sources = build_series(bag)
+    metrics, segments = M.compute(trace)
+    doc = {"scenario": bag.name, "controller": controller_mode(bag), "metrics": metrics,
+           "sim_time_s": float(trace.t[-1] - trace.t[0]), "segments": segments,
+           "bag": {"path": str(bag.path), "storage": bag.storage, "messages": bag.message_count,
+                   "topics": dict(sorted(bag.counts.items())), "sources": sources}}
+    return _jsonable(doc), series
+
+
+def analyse_bag(path: str | Path, plot: str | Path | None = None) -> dict:
+    """SPEC §5 metrics of the bag at ``path`` as ``fuel_valve_sim`` reports them (plus a
+    ``bag`` section); writes the multi-panel PNG to ``plot`` when given.  Raises
+    :class:`ReportError` / :class:`~.bag_io.BagError` for bad input."""
+    doc, series = analyse(read_bag(path))
+    if plot:
+        from .plotting import plot_series
+        plot_series(series, str(plot), f"{doc['scenario']} - mode {doc['controller']} (bag)", doc["segments"],
+                    doc["metrics"])
+    return doc
+
+
+UNITS = {"rise_time_s": "s", "overshoot_pct": "%", "settling_time_s": "s", "steady_state_error_rad": "rad",
+         "limit_cycle_amplitude_rad": "rad", "limit_cycle_frequency_hz": "Hz", "peak_current_a": "A",
+         "rms_current_a": "A", "stroke_time_s": "s", "close_time_s": "s", "bandwidth_hz": "Hz", "iae_rad_s": "rad*s"}
+
+
+def format_report(doc: dict) -> str:
+    b = doc["bag"]
+    lines = [f"bag {b['path']} ({b['storage']}, {b['messages']} messages, {doc['sim_time_s']:.3f} s)",
+             f"controller mode: {doc['controller']}",
+             "sources: " + "; ".join(f"{k} <- {v}" for k, v in b["sources"].items()),
+             "segments:"]
+    for s in doc["segments"]:
+        extra = ""
+        if s["kind"] == "step":
+            extra = f" {s['from_rad']:.4f} -> {s['to_rad']:.4f} rad"
+        elif s["kind"] == "hold":
+            extra = f" at {s['demand_rad']:.4f} rad"
+        lines.append(f"  {s['kind']:<6} {s['t_start_s']:8.3f} - {s['t_end_s']:8.3f} s{extra}")
+    if not doc["segments"]:
+        lines.append("  (no steps, holds, sweeps or trips found in the demand)")
+    lines.append("metrics:")
+    for key, value in doc["metrics"].items():
+        text = "n/a (not reached)" if value is None else f"{value:.6g} {UNITS.get(key, '')}"
+        lines.append(f"  {key:<27} {text}")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="fuel_valve_report", description="SPEC §5 metrics of a recorded "
+                                     "fuel_valve run (rosbag2 bag, MCAP or sqlite3).")
+    parser.add_argument("bag", help="bag directory (or its .mcap / .db3 file)")
+    parser.add_argument("--json", metavar="PATH", help="also write the JSON result here")
+    parser.add_argument("--plot", metavar="PATH", help="write a multi-panel PNG here")
+    args = parser.parse_args(argv)
+    try:
+        doc = analyse_bag(args.bag, args.plot)
+    except (BagError, ReportError) as exc:
+        print(f"fuel_valve_report: error: {exc}", file=sys.stderr)
+        return 2
+    print(format_report(doc))
+    print(json.dumps(doc))
+    if args.json:
+        with open(args.json, "w") as f:
+            f.write(json.dumps(doc, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
