@@ -1,0 +1,347 @@
+"""The ``recorder`` node on a live lockstep run (plant, controller, demand as processes, like
+step_small: max dp, held at 20 %, step to 22 % at 0.5 s).
+
+* the MCAP bag reads back with rosbags' AnyReader: expected topics and counts, metadata
+  version 9, every message deserialises, per-topic receive times monotonic, type hashes
+  and definitions those of Jazzy, MCAP publish time = DDS source time (not the receive time);
+* fuel_valve_report on it agrees with fuel_valve_sim --scenario step_small (tolerance below);
+* sqlite3 storage, stopped by SIGINT in the middle of the run: a finalised, readable bag;
+* refuses to overwrite an existing output unless told to, never deletes a non-bag directory.
+
+Each test run uses its own ROS_DOMAIN_ID.  Wall time: about 30 s on 2 cores.
+"""
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip("rclpy")
+pytest.importorskip("rosbags")
+
+from rosbags.highlevel import AnyReader  # noqa: E402
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+NS = "/fv_rec"
+DURATION_S = 2.0
+PERIODS = int(round(DURATION_S * 1000)) + 1      # samples 0 .. 2.000 s at 1 kHz
+#: report vs offline simulator on the same scenario: times within one control period, the
+#: rest relative (the bag has the sample at 2.000 s the simulator's log stops short of)
+TIME_TOL_S = 1.5e-3
+REL_TOL = 2e-3
+TS = get_typestore(Stores.ROS2_JAZZY)
+
+
+def exe(name: str) -> list[str]:
+    here = Path(sys.executable).parent / name
+    return [str(here)] if here.exists() else [sys.executable, "-m", {
+        "plant": "fuel_valve_plant.plant_node", "controller": "fuel_valve_control.controller_node",
+        "demand": "fuel_valve_control.demand_node", "recorder": "fuel_valve_control.recorder"}[name]]
+
+
+def step_small_params():
+    """Node parameters of step_small (what suite.plan_for produces for it)."""
+    from fuel_valve_control.controller_params import load_controller_params
+    from fuel_valve_control.model import NominalModel
+    from fuel_valve_control.scenarios import load_scenario
+    from fuel_valve_plant.plant import Plant
+    from fuel_valve_plant.plant_params import load_plant_params
+    sc = load_scenario("step_small")
+    dp = float(sc.pressure_kpa)
+    ps = load_plant_params(overrides={"pressure_differential_kpa": dp})
+    theta0 = sc.initial_percent / 100.0 * ps["valve.stroke_rad"]
+    hold_a = Plant(ps).hold_at(theta0)
+    kt_plant = 1.5 * ps["motor.pole_pairs"] * ps["motor.flux_linkage_wb"]
+    kt_nominal = NominalModel.from_params(load_controller_params(
+        overrides={"pressure_differential_kpa": dp})).torque_constant_nm_per_a
+    plant = {"pressure_differential_kpa": dp, "initial_position_rad": float(theta0), "start_held": True,
+             "stop_after_s": DURATION_S}
+    controller = {"pressure_differential_kpa": dp, "initial_current_a": float(hold_a * kt_plant / kt_nominal)}
+    demand = {"profile": "step", "initial": 20.0, "final": 22.0, "at_s": 0.5}
+    return plant, controller, demand
+
+
+GATE = """
+import rclpy
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+rclpy.init()
+node = Node("lockstep_gate", parameter_overrides=[Parameter("use_sim_time", value=True)])
+try:
+    rclpy.spin(node)
+except BaseException:
+    pass
+"""
+
+
+class LockstepRun:
+    """recorder + controller + demand, then the plant (lockstep) once the others are up."""
+
+    def __init__(self, tmp: Path, bag: Path, storage: str = "mcap"):
+        self.tmp, self.bag, self.storage = tmp, bag, storage
+        self.env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(120, 220)), PYTHONUNBUFFERED="1")
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def _spawn(self, name, params, base=None):
+        pfile = self.tmp / f"{name}.params.yaml"
+        pfile.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))
+        cmd = exe(name) + ["--ros-args", "-r", f"__ns:={NS}"]
+        if base:
+            cmd += ["--params-file", str(ROOT / "config" / base)]
+        cmd += ["--params-file", str(pfile)]
+        self.procs[name] = subprocess.Popen(cmd, env=self.env, stdin=subprocess.DEVNULL,
+                                            stdout=open(self.tmp / f"{name}.log", "w"), stderr=subprocess.STDOUT)
+
+    def log(self, name) -> str:
+        return (self.tmp / f"{name}.log").read_text()
+
+    def wait_for(self, name, text, timeout=40.0):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if text in self.log(name):
+                return
+            if self.procs[name].poll() is not None:
+                raise AssertionError(f"{name} exited:\n{self.log(name)}")
+            time.sleep(0.05)
+        raise AssertionError(f"{name}: no {text!r} within {timeout} s:\n{self.log(name)}")
+
+    def start(self):
+        plant, controller, demand = step_small_params()
+        self._spawn("recorder", {"output": str(self.bag), "storage": self.storage, "use_sim_time": True})
+        self._spawn("controller", dict(controller, lockstep=True, use_sim_time=True), "controller.yaml")
+        self._spawn("demand", dict(demand, lockstep=True, use_sim_time=True), "demand.yaml")
+        self._spawn("plant", dict(plant, lockstep=True, lockstep_participants=4), "plant.yaml")
+        for name, text in (("recorder", "recording"), ("controller", "controller up"), ("demand", "demand up"),
+                           ("plant", "plant up")):
+            self.wait_for(name, text)
+        # The plant starts stepping once it sees 4 /clock subscriber nodes, judged from the ROS
+        # graph, which can run ahead of its publishers' matching: a first sample sent before the
+        # controller's subscription is matched is lost and the lockstep loop never starts.  So
+        # the 4th participant is a gate node started after everything had time to match.
+        time.sleep(1.0)
+        self.procs["gate"] = subprocess.Popen(
+            [sys.executable, "-c", GATE], env=self.env, stdin=subprocess.DEVNULL,
+            stdout=open(self.tmp / "gate.log", "w"), stderr=subprocess.STDOUT)
+
+    def stop(self, names=("recorder", "demand", "controller", "plant", "gate")) -> dict:
+        codes = {}
+        for name in names:
+            p = self.procs.get(name)
+            if p is None:
+                continue
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                try:
+                    p.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+            codes[name] = p.returncode
+        return codes
+
+
+def read_all(bag: Path):
+    """{topic: [(log_ns, msg)]}, connections (every message deserialised)."""
+    out: dict[str, list] = {}
+    with AnyReader([bag], default_typestore=TS) as reader:
+        conns = {c.topic: c for c in reader.connections}
+        for conn, t, raw in reader.messages():
+            out.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
+    return out, conns
+
+
+def mcap_messages(path: Path):
+    """(channel topic, sequence, log_time, publish_time) of every message: a minimal MCAP
+    reader for uncompressed chunks (what the recorder writes)."""
+    import struct
+    data = path.read_bytes()
+    assert data[:8] == b"\x89MCAP0\r\n"
+    channels, out = {}, []
+
+    def records(buf, pos, end):
+        while pos + 9 <= end:
+            op, length = buf[pos], struct.unpack_from("<Q", buf, pos + 1)[0]
+            yield op, buf[pos + 9:pos + 9 + length]
+            pos += 9 + length
+
+    def handle(op, body):
+        if op == 0x04:
+            cid, _sid, tlen = struct.unpack_from("<HHI", body, 0)
+            channels[cid] = body[8:8 + tlen].decode()
+        elif op == 0x05:
+            cid, seq, log, pub = struct.unpack_from("<HIQQ", body, 0)
+            out.append((channels[cid], seq, log, pub))
+    for op, body in records(data, 8, len(data) - 8):
+        if op == 0x06:                                      # chunk
+            _s, _e, _usize, _crc = struct.unpack_from("<QQQI", body, 0)
+            clen = struct.unpack_from("<I", body, 28)[0]
+            comp = body[32:32 + clen].decode()
+            assert comp == "", comp
+            size = struct.unpack_from("<Q", body, 32 + clen)[0]
+            inner = body[40 + clen:40 + clen + size]
+            for op2, b2 in records(inner, 0, len(inner)):
+                handle(op2, b2)
+        elif op == 0x04 and not out:
+            handle(op, body)
+    return out
+
+
+@pytest.fixture(scope="module")
+def lockstep_bag(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("rec_mcap")
+    run = LockstepRun(tmp, tmp / "step_small_bag", "mcap")
+    t0 = time.monotonic()
+    try:
+        run.start()
+        run.wait_for("plant", "stop_after_s reached", timeout=60)
+    finally:
+        codes = run.stop()
+    run.wall_s = time.monotonic() - t0
+    run.codes = codes
+    return run
+
+
+def test_recorded_bag_reads_back(lockstep_bag):
+    run = lockstep_bag
+    assert run.codes["recorder"] == 0, run.log("recorder")
+    meta = yaml.safe_load((run.bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["version"] == 9 and meta["storage_identifier"] == "mcap"
+    counts = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
+    msgs, conns = read_all(run.bag)
+    # metadata counts are the messages in the file
+    assert {k: len(v) for k, v in msgs.items()} == {k: v for k, v in counts.items() if v}
+    assert meta["message_count"] == sum(counts.values())
+    expected = {"/clock", "/diagnostics"} | {f"{NS}/{t}" for t in (
+        "demand", "demand_ma", "position", "current_command", "drive_enable", "resolver", "joint_states",
+        "drive", "estimate")}
+    assert set(counts) == expected
+    for topic in ("/clock", "resolver", "joint_states", "drive", "current_command", "demand"):
+        name = topic if topic.startswith("/") else f"{NS}/{topic}"
+        assert counts[name] == PERIODS, (name, counts[name])
+    assert counts[f"{NS}/position"] == PERIODS // 10 and counts[f"{NS}/demand_ma"] == 0
+    assert counts[f"{NS}/drive_enable"] >= 1
+    for topic, items in msgs.items():
+        log = np.array([t for t, _ in items])
+        assert np.all(np.diff(log) >= 0), topic
+    # sim-time receive stamps: the clock's receive time is the time it carries (or later)
+    clock = np.array([m.clock.sec * 10**9 + m.clock.nanosec for _, m in msgs["/clock"]])
+    assert np.all(np.diff(clock) == 1_000_000) and clock[0] == 0
+    assert np.all(np.array([t for t, _ in msgs["/clock"]]) >= clock)
+    js = msgs[f"{NS}/joint_states"]
+    stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in js])
+    np.testing.assert_array_equal(stamps, clock)
+    # definitions and hashes are Jazzy's
+    for topic, conn in conns.items():
+        assert conn.digest == TS.hash_rihs01(conn.msgtype), topic
+        assert conn.msgdef.data == TS.generate_msgdef(conn.msgtype, ros_version=2)[0]
+    assert {t["topic_metadata"]["type_description_hash"] for t in meta["topics_with_message_count"]} == \
+        {TS.hash_rihs01(c.msgtype) for c in conns.values()}
+
+
+def test_mcap_publish_time_and_sequence(lockstep_bag):
+    (mcap,) = lockstep_bag.bag.glob("*.mcap")
+    recs = mcap_messages(mcap)
+    by_topic: dict[str, list] = {}
+    for topic, seq, log, pub in recs:
+        by_topic.setdefault(topic, []).append((seq, log, pub))
+    js = by_topic[f"{NS}/joint_states"]
+    assert [s for s, _, _ in js] == list(range(1, len(js) + 1))
+    pub = np.array([p for _, _, p in js])
+    assert np.all(pub > 1_000_000_000 * 10**9)          # DDS source time: system clock, not sim time
+    assert np.all(np.diff(pub) >= 0)
+    log = np.array([lg for _, lg, _ in js])
+    assert log.max() < 10 * 10**9                        # receive time: sim time
+
+
+def test_report_agrees_with_offline_sim(lockstep_bag, capsys):
+    from fuel_valve_control import report, sim
+    code = report.main([str(lockstep_bag.bag)])
+    out = capsys.readouterr().out
+    print(out)
+    assert code == 0
+    doc = report.analyse_bag(lockstep_bag.bag)
+    ref = sim.run("step_small")
+    assert doc["controller"] == ref.controller
+    assert [s["kind"] for s in doc["segments"]] == [s["kind"] for s in ref.segments] == ["step"]
+    m = doc["metrics"]
+    assert set(m) == set(ref.metrics)
+    for key, value in ref.metrics.items():
+        if key.endswith("_s") and key != "iae_rad_s":
+            assert abs(m[key] - value) <= TIME_TOL_S, (key, m[key], value)
+        else:
+            assert m[key] == pytest.approx(value, rel=REL_TOL, abs=1e-9), (key, m[key], value)
+
+
+def test_sigint_mid_run_leaves_a_readable_sqlite3_bag(tmp_path):
+    from fuel_valve_control import report
+    run = LockstepRun(tmp_path, tmp_path / "interrupted", "sqlite3")
+    try:
+        run.start()
+        run.wait_for("plant", "participants connected", timeout=60)
+        time.sleep(1.0)                                   # mid-run (the 2 s run takes ~5 s of wall time)
+        assert "stop_after_s reached" not in run.log("plant")
+        codes = run.stop(("recorder",))
+        assert codes["recorder"] == 0, run.log("recorder")
+    finally:
+        run.stop()
+    meta = yaml.safe_load((run.bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["storage_identifier"] == "sqlite3"
+    msgs, _ = read_all(run.bag)
+    counts = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
+    assert {k: len(v) for k, v in msgs.items()} == {k: v for k, v in counts.items() if v}
+    n = counts[f"{NS}/joint_states"]
+    assert 50 < n < PERIODS
+    assert "closed:" in run.log("recorder")
+    doc = report.analyse_bag(run.bag)
+    assert doc["bag"]["storage"] == "sqlite3" and doc["metrics"]["peak_current_a"] > 0
+
+
+def _recorder(tmp_path, *params):
+    cmd = exe("recorder") + ["--ros-args", "-r", f"__ns:={NS}"]
+    for p in params:
+        cmd += ["-p", p]
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(120, 220)))
+    return subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def test_existing_output_is_not_overwritten(tmp_path):
+    existing = tmp_path / "bag1"
+    existing.mkdir()
+    (existing / "metadata.yaml").write_text("x")
+    p = _recorder(tmp_path, f"output:={existing}")
+    out, _ = p.communicate(timeout=30)
+    assert p.returncode == 2 and "exists already" in out and "overwrite:=true" in out
+    assert (existing / "metadata.yaml").read_text() == "x"
+    # a directory that is not a bag is never deleted, even with overwrite
+    other = tmp_path / "photos"
+    other.mkdir()
+    (other / "a.jpg").write_text("keep")
+    p = _recorder(tmp_path, f"output:={other}", "overwrite:=true")
+    out, _ = p.communicate(timeout=30)
+    assert p.returncode == 2 and "not a bag" in out and (other / "a.jpg").exists()
+    # bad storage: configuration error
+    p = _recorder(tmp_path, "output:=x", "storage:=rosbag1")
+    out, _ = p.communicate(timeout=30)
+    assert p.returncode == 2 and "storage" in out
+    # overwrite:=true replaces an existing bag; SIGTERM with no traffic gives an empty, valid bag
+    p = _recorder(tmp_path, f"output:={existing}", "overwrite:=true", "topics:=['demand']")
+    end = time.monotonic() + 20
+    while not any(existing.glob("*.mcap")):              # the old bag is gone, the new one open
+        assert time.monotonic() < end and p.poll() is None
+        time.sleep(0.05)
+    time.sleep(0.3)
+    p.send_signal(signal.SIGTERM)
+    out, _ = p.communicate(timeout=20)
+    assert p.returncode == 0, out
+    meta = yaml.safe_load((existing / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["message_count"] == 0
+    assert [t["topic_metadata"]["name"] for t in meta["topics_with_message_count"]] == [f"{NS}/demand"]
