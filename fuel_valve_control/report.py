@@ -75,7 +75,6 @@ class _Timeline:
                 cl_log, cl_val = clock.log_ns[order], clock.stamp_ns[order]
                 self.to_base = lambda ns: cl_val[np.clip(np.searchsorted(cl_log, ns, side="right") - 1, 0,
                                                          len(cl_val) - 1)]
-        self.log_offset_ok = True
 
     def time_of(self, topic: TopicData) -> np.ndarray:
         ns = topic.log_ns
