@@ -178,13 +178,17 @@ def robustness_table(results: list[dict]) -> str:
             continue
         os_ = st["metrics"].get("overshoot_pct")
         step = abs(st["step_rad"])
+        peak = max(st["metrics"]["peak_current_a"], ho["metrics"]["peak_current_a"])
         amp = ho["metrics"].get("limit_cycle_amplitude_rad", 0.0)
         allowance = ho["hunting_allowance_rad"]
         ratio = 2.0 * amp / allowance
-        stable = ho["enabled_at_end"] and ho["final_error_rad"] <= max(SSE_TARGET, allowance)
-        verdict = ["stable" if stable else "NOT STABLE", "no hunting" if ratio <= 1.0 else "HUNTS",
+        # bounded: drive still on (no fault latched) and the current within the rating
+        bounded = ho["enabled_at_end"] and st["enabled_at_end"] and peak <= 37.0
+        on_target = ho["final_error_rad"] <= max(SSE_TARGET, allowance)
+        verdict = ["bounded" if bounded else "FAULT/UNBOUNDED", "no hunting" if ratio <= 1.0 else "HUNTS",
                    "OS ok" if os_ is not None and os_ <= 10.0 else "OS > 10 %"]
-        peak = max(st["metrics"]["peak_current_a"], ho["metrics"]["peak_current_a"])
+        if not on_target:
+            verdict.append(f"stuck {ho['final_error_rad']:.2g} rad off")
         rows.append(f"| {mode} | {name} | {_fmt(ho['jump_rad'])} | {_fmt(os_)} | "
                     f"{_fmt(overshoot_floor_pct(ho['jump_rad'], step))} | "
                     f"{_fmt(st['metrics'].get('settling_time_s'))} | {_fmt(amp)} | {ratio:.2f} | "
