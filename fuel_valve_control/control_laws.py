@@ -157,9 +157,13 @@ class JumpLearner:
     nominal jump would then hunt.  Each hold-phase breakaway (stuck -> sliding -> stuck) gives
     a measured jump; the ratio measured/nominal is tracked with gain ``gain``.  Moves shorter
     than ``min_jump`` (three resolver counts) are reading noise and are ignored.
+
+    The upper limit must cover the robustness box of SPEC §6: friction x 3 on a coupling
+    x 0.1 jumps 30x the nominal jump at any Δp (a cap of 20 left that corner hunting at
+    Δp = 0); 50 gives margin.
     """
 
-    def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 20.0), min_jump: float = 3e-4):
+    def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4):
         self.gain = gain
         self.min_jump = min_jump          # rad: smaller "jumps" are resolver noise, not breakaways
         self.limits = limits
