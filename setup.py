@@ -31,8 +31,8 @@ setup(
             "recorder = fuel_valve_control.recorder:main",
             "fuel_valve_sim = fuel_valve_control.sim:main",
             "fuel_valve_report = fuel_valve_control.report:main",
+            "fuel_valve_demo = fuel_valve_control.suite:main",
             "fuel_valve_datasheet = fuel_valve_plant.datasheet:main",
-            "fuel_valve_demo = fuel_valve_control.demo:main",
         ],
     },
 )

@@ -73,6 +73,7 @@ class ValveDriver:
         self._meas_bad: str | None = None
         self._armed = False
         self._arm_torque = 0.0
+        self._t: float | None = None               # time of the latest step
         self._tracking_since: float | None = None
         self._positions: deque = deque(maxlen=int(2.0 / self.period))
         self.last = DriverOutput(0.0, False, "waiting", None, None)
@@ -185,6 +186,13 @@ class ValveDriver:
             return False, f"cannot reset: {self._demand_bad}"
         if self._meas_bad:
             return False, f"cannot reset: {self._meas_bad}"
+        ps, t = self.ps, self._t
+        if t is not None:       # a cause that is still present would latch again at once
+            if ps["demand_timeout_action"] == "trip" and (
+                    self._demand_t is None or t - self._demand_t > ps["demand_timeout_s"]):
+                return False, "cannot reset: no valid demand"
+            if self._meas_t is None or t - self._meas_t > ps["faults.resolver_timeout_s"]:
+                return False, "cannot reset: no resolver samples"
         cleared = sorted(self.faults) + sorted(k for k in self.warnings if k == DEMAND_STALE)
         self.faults.clear()
         self.warnings.pop(DEMAND_STALE, None)
@@ -199,6 +207,7 @@ class ValveDriver:
     # ------------------------------------------------------------------ loop
     def step(self, t: float) -> DriverOutput:
         ps = self.ps
+        self._t = t
         # --- staleness checks
         if self._meas_t is not None and t - self._meas_t > ps["faults.resolver_timeout_s"]:
             self._latch(RESOLVER_STALE, f"no resolver sample for {(t - self._meas_t) * 1e3:.0f} ms")

@@ -170,6 +170,7 @@ def run_node(factory, args=None, on_exit=None) -> int:
     used: the experimental events executor of this rclpy ignores signals and spins a core.
     """
     import rclpy
+    from rclpy.exceptions import InvalidParameterValueException, ParameterException
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
     rclpy.init(args=args)
@@ -184,6 +185,10 @@ def run_node(factory, args=None, on_exit=None) -> int:
         pass
     except SystemExit as exc:
         print(exc, flush=True)
+        code = 2
+    except (ParameterException, InvalidParameterValueException) as exc:
+        # a parameter file or -p value outside a declared range: a configuration error
+        print(f"invalid parameter: {exc}", flush=True)
         code = 2
     except Exception:                       # noqa: BLE001 - a shutdown race inside spin()
         if rclpy.ok():

@@ -15,16 +15,19 @@ if [ ! -x .venv/bin/python ]; then
     "$PYTHON" -m venv .venv
   fi
 fi
-PIP=(.venv/bin/python -m pip install --quiet --disable-pip-version-check)
+# pip, quiet, without the "Location" warnings of system-site venvs; its exit code is kept
+pip_install() {
+  .venv/bin/python -m pip install --quiet --disable-pip-version-check "$@" 2>&1 | { grep -v "^WARNING: Location" || true; }
+}
 stamp=.venv/.fuel_valve_installed
 if [ ! -f "$stamp" ] || [ requirements.txt -nt "$stamp" ] || [ requirements-ros.txt -nt "$stamp" ] || [ setup.py -nt "$stamp" ]; then
   echo "[setup] installing Python dependencies into .venv (first run takes a minute)"
-  "${PIP[@]}" -r requirements.txt 2>&1 | grep -v "^WARNING: Location" || true
+  pip_install -r requirements.txt
   if ! .venv/bin/python -c "import rclpy" 2>/dev/null; then
     echo "[setup] installing ROS 2 Jazzy wheels from PyPI"
-    "${PIP[@]}" -r requirements-ros.txt 2>&1 | grep -v "^WARNING: Location" || true
+    pip_install -r requirements-ros.txt
   fi
-  "${PIP[@]}" -e . 2>&1 | grep -v "^WARNING: Location" || true
+  pip_install -e .
   .venv/bin/python -c "import numpy, scipy, yaml, fuel_valve_plant" # fail loudly if anything is missing
   touch "$stamp"
 fi
