@@ -11,7 +11,8 @@ check); publishes ``current_command`` (A), ``drive_enable``, ``position`` (perce
 ``estimate`` and ``/diagnostics``.  Services ``~/trip`` and ``~/reset`` (std_srvs/Trigger).
 
 With ``lockstep:=true`` (and ``use_sim_time:=true``) each period waits for a fresh demand as
-well as the resolver sample whenever a demand publisher exists, so runs are deterministic.
+well as the resolver sample, so runs are deterministic: the demand source is part of the
+lockstep loop (the ``demand`` node with ``lockstep:=true`` publishes once per ``/clock``).
 """
 from __future__ import annotations
 
@@ -40,6 +41,9 @@ class ControllerNode(Node):
             description="rate of /diagnostics [Hz]", read_only=True))
         self.declare_parameter("telemetry_decimation", 10, ParameterDescriptor(
             description="publish position and estimate every N-th period (1 = every period)", read_only=True))
+        self.declare_parameter("initial_current_a", 0.0, ParameterDescriptor(
+            description="q-current the loop starts from when it first arms [A]: bumpless take-over of a "
+                        "valve already held by a drive (the plant's start_held)", read_only=True))
         self.declare_parameter("monitor_drive_telemetry", False, ParameterDescriptor(
             description="subscribe to the plant's drive telemetry for the measured-current check "
                         "(one more 1 kHz subscription)", read_only=True))
@@ -48,14 +52,15 @@ class ControllerNode(Node):
         except ConfigError as exc:
             raise SystemExit(f"controller: invalid parameters: {exc}") from None
         self.driver = ValveDriver(ps)
+        initial_a = float(self.get_parameter("initial_current_a").value)
+        if initial_a:
+            self.driver.start_from_torque(initial_a * self.driver.controller.model.torque_constant_nm_per_a)
         self.lockstep = bool(self.get_parameter("lockstep").value)
         self.stroke = self.driver.stroke
         self._fresh_demand = False
         self._pending_sample = None
         self._last_sample_stamp = None
         self._bad_messages = 0
-        self._demand_publishers = 0
-        self._demand_check = 0.0
         self._last_enable = None
         self._level = 0
 
@@ -77,6 +82,7 @@ class ControllerNode(Node):
             ri.quiet_subscription(self, Float64MultiArray, ri.DRIVE, self.on_drive)
         self._decimation = max(int(self.get_parameter("telemetry_decimation").value), 1)
         self._periods = 0
+        self._compute = ComputeTime()
         self.create_service(Trigger, "~/trip", self.on_trip)
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.add_on_set_parameters_callback(self.on_set_parameters)
@@ -125,27 +131,23 @@ class ControllerNode(Node):
             return
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         sample = (stamp, motor, valve)
-        if self.lockstep and self._demand_expected() and not self._fresh_demand:
-            self._pending_sample = sample           # wait for this period's demand
-            return
+        if self.lockstep:
+            if self._last_sample_stamp is not None and stamp <= self._last_sample_stamp:
+                return                              # a re-sent sample of a period already run
+            if not self._fresh_demand:
+                self._pending_sample = sample       # wait for this period's demand
+                return
         self.run_period(sample)
-
-    def _demand_expected(self) -> bool:
-        """Lockstep gating applies while something publishes the selected demand topic."""
-        now = time.monotonic()
-        if now - self._demand_check > 0.5:
-            topic = ri.DEMAND if self.driver.ps["demand_source"] == "percent" else ri.DEMAND_MA
-            self._demand_publishers = self.count_publishers(topic)
-            self._demand_check = now
-        return self._demand_publishers > 0
 
     # ------------------------------------------------------------------ loop
     def run_period(self, sample) -> None:
+        t0 = time.perf_counter()
         stamp, motor, valve = sample
         self._fresh_demand = False
         self._last_sample_stamp = stamp
         self.driver.resolver(stamp, motor, valve)
         self.publish_step(stamp if self.lockstep else self.now_s())
+        self._compute.add(time.perf_counter() - t0)
 
     def watchdog(self) -> None:
         timeout = self.driver.ps["faults.resolver_timeout_s"]
@@ -158,9 +160,9 @@ class ControllerNode(Node):
     def publish_step(self, t: float) -> None:
         """One driver period: the command first (the plant is waiting for it), then the rest."""
         out = self.driver.step(t)
+        if out.enable != self._last_enable:       # latched topic: publish changes only, before
+            self.pub_enable.publish(self._bool(data=bool(out.enable)))   # the command it applies to
         self.pub_current.publish(self._float(data=float(out.current_a)))
-        if out.enable != self._last_enable:       # latched topic: publish changes only
-            self.pub_enable.publish(self._bool(data=bool(out.enable)))
         self._periods += 1
         if self._periods % self._decimation == 0:
             if out.position_pct is not None:
@@ -174,9 +176,12 @@ class ControllerNode(Node):
                 (est.motor_friction_nm, est.valve_friction_nm)))
         if out.enable != self._last_enable:
             if self._last_enable is not None:
-                log = self.get_logger().info if out.enable else self.get_logger().error
-                log(f"drive {'enabled' if out.enable else 'DISABLED'}: state {out.state}"
-                    + (f", faults: {'; '.join(out.faults.values())}" if out.faults else ""))
+                # one call site per severity: rclpy refuses a site that changes severity
+                if out.enable:
+                    self.get_logger().info(f"drive enabled: state {out.state}")
+                else:
+                    self.get_logger().error(f"drive DISABLED: state {out.state}"
+                                            + (f", faults: {'; '.join(out.faults.values())}" if out.faults else ""))
             self._last_enable = out.enable
 
     # ------------------------------------------------------------------ services
@@ -191,7 +196,10 @@ class ControllerNode(Node):
     def on_reset(self, request, response):
         ok, message = self.driver.reset()
         response.success, response.message = ok, message
-        (self.get_logger().info if ok else self.get_logger().warn)(f"reset: {message}")
+        if ok:
+            self.get_logger().info(f"reset: {message}")
+        else:
+            self.get_logger().warn(f"reset refused: {message}")
         return response
 
     # ------------------------------------------------------------------ parameters
@@ -210,7 +218,8 @@ class ControllerNode(Node):
     def publish_diagnostics(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
         h = self.driver.health()
-        values = dict(h.values, malformed_messages=self._bad_messages)
+        values = dict(h.values, malformed_messages=self._bad_messages, periods=self._periods,
+                      **self._compute.take())
         st = DiagnosticStatus(level=bytes([h.level]), name=f"{self.get_fully_qualified_name()}: valve driver",
                               message=h.message, hardware_id="fuel_valve_driver",
                               values=[KeyValue(key=k, value=_fmt(v)) for k, v in values.items()])
@@ -220,6 +229,25 @@ class ControllerNode(Node):
         if h.level != self._level:
             self.get_logger().info(f"status {LEVEL_NAMES[h.level]}: {h.message}")
             self._level = h.level
+
+
+class ComputeTime:
+    """Time spent per control period (sample in -> command out, plus telemetry), since the
+    last report: shows whether the node keeps up with the loop rate."""
+
+    def __init__(self):
+        self.n, self.total, self.worst = 0, 0.0, 0.0
+
+    def add(self, seconds: float) -> None:
+        self.n += 1
+        self.total += seconds
+        self.worst = max(self.worst, seconds)
+
+    def take(self) -> dict:
+        out = {"compute_mean_ms": 1e3 * self.total / self.n if self.n else None,
+               "compute_max_ms": 1e3 * self.worst if self.n else None, "samples_since_last_report": self.n}
+        self.n, self.total, self.worst = 0, 0.0, 0.0
+        return out
 
 
 def _fmt(x) -> str:

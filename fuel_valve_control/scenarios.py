@@ -52,6 +52,7 @@ class Scenario:
     plant: dict = field(default_factory=dict)
     controller: dict = field(default_factory=dict)
     events: list[Event] = field(default_factory=list)
+    demand_spec: dict = field(default_factory=dict)   # the demand description as written
 
 
 def scenario_dir() -> Path:
@@ -109,4 +110,4 @@ def parse_scenario(doc: Any, path: Path | str = "<scenario>") -> Scenario:
     return Scenario(str(doc["name"]), str(doc.get("description", "")), duration, profile,
                     None if pressure is None else float(pressure), initial,
                     dict(doc.get("plant") or {}), dict(doc.get("controller") or {}),
-                    sorted(events, key=lambda e: e.at_s))
+                    sorted(events, key=lambda e: e.at_s), dict(doc["demand"]))

@@ -35,6 +35,12 @@ from .plant import TELEMETRY_LABELS, Plant
 from .plant_params import PLANT_SPEC, check_consistency
 
 
+#: lockstep: wall time without a first command after which the plant re-sends its first sample, s
+LOCKSTEP_RESEND_S = 0.5
+#: lockstep: wall time between seeing every participant and starting, s
+LOCKSTEP_SETTLE_S = 0.5
+
+
 class LoopStats:
     """Round-trip times and missed periods of the control loop, seen from the plant."""
 
@@ -68,6 +74,13 @@ class PlantNode(Node):
         self.declare_parameter("lockstep_participants", 2, ParameterDescriptor(
             description="lockstep: number of nodes subscribed to /clock (use_sim_time nodes: controller, "
                         "demand, recorder...) to wait for before the first step", read_only=True))
+        self.declare_parameter("stop_after_s", 0.0, ParameterDescriptor(
+            description="lockstep: stop advancing once the plant time reaches this [s] (0: never), so a "
+                        "recorded run has exactly this length", read_only=True))
+        self.declare_parameter("start_held", False, ParameterDescriptor(
+            description="start at rest at initial_position_rad held there by the drive (coupling twisted, "
+                        "holding current flowing), as the offline simulator's initial_percent does; "
+                        "false: at rest with the drive off", read_only=True))
         try:
             ps = PLANT_SPEC.validate(ri.read_spec(self, PLANT_SPEC))
             self.ps = PLANT_SPEC.defaults().replace(ps)
@@ -79,6 +92,8 @@ class PlantNode(Node):
         self.lockstep = bool(self.ps["lockstep"])
         self._iq = 0.0
         self._enable = False
+        if self.get_parameter("start_held").value:
+            self._iq, self._enable = self.plant.hold_at(self.ps["initial_position_rad"]), True
         self._command_rejected = False
         self._bad_commands = 0
         self.stats = LoopStats()
@@ -92,8 +107,10 @@ class PlantNode(Node):
         self.pub_truth = ri.quiet_publisher(self, JointState, ri.JOINT_STATES)
         self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, ri.DRIVE)
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, ri.DIAGNOSTICS)
-        ri.quiet_subscription(self, Float64, ri.CURRENT_COMMAND, self.on_command)
+        # drive_enable first: when both are ready, the executor takes them in creation order,
+        # and in lockstep a command steps the plant at once
         ri.quiet_subscription(self, Bool, ri.DRIVE_ENABLE, self.on_enable)
+        ri.quiet_subscription(self, Float64, ri.CURRENT_COMMAND, self.on_command)
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(1.0, self.publish_diagnostics)
         if self.lockstep:
@@ -102,6 +119,9 @@ class PlantNode(Node):
             self._started = False
             self._waiting_since = time.monotonic()
             self._participants = int(self.get_parameter("lockstep_participants").value)
+            self._stop_after = float(self.get_parameter("stop_after_s").value)
+            self._finished = False
+            self._ready_since = None
             self._start_timer = self.create_timer(0.05, self.try_start)
         else:
             self._lock = threading.Lock()
@@ -126,6 +146,11 @@ class PlantNode(Node):
             self.stats.add_rtt(time.monotonic() - self._last_publish_mono)
         self._got_command = True
         if self.lockstep and self._started:
+            if 0.0 < self._stop_after <= self.plant.time + 0.5 * self.period:
+                if not self._finished:
+                    self._finished = True
+                    self.get_logger().info(f"lockstep: stop_after_s reached at t = {self.plant.time:.3f} s")
+                return
             self.step_and_publish(self.period)
 
     def on_enable(self, msg) -> None:
@@ -172,14 +197,32 @@ class PlantNode(Node):
         ready = (self.count_subscribers(ri.RESOLVER) >= 1 and self.count_publishers(ri.CURRENT_COMMAND) >= 1
                  and len(clock_nodes) >= self._participants)
         if not ready:
+            self._ready_since = None
             if time.monotonic() - self._waiting_since > 5.0:
                 self.get_logger().info("lockstep: waiting for the controller and clock subscribers",
                                        throttle_duration_sec=5.0)
+            return
+        # discovery is seen from this side first: give the other side time to match too, or
+        # the first messages of the run could be lost
+        if self._ready_since is None:
+            self._ready_since = time.monotonic()
+        if time.monotonic() - self._ready_since < LOCKSTEP_SETTLE_S:
             return
         self._start_timer.cancel()
         self._started = True
         self.get_logger().info("lockstep: participants connected, starting")
         self.publish_outputs()
+        self.create_timer(LOCKSTEP_RESEND_S, self.resend_if_stalled)
+
+    def resend_if_stalled(self) -> None:
+        """Lockstep, first period only: a participant whose subscriptions were still being set
+        up may have missed the first sample; re-send it (same stamp; the controller ignores
+        a sample of a period it has already run).  Never later: a re-sent /clock makes the
+        demand node publish again, and a surplus demand would shift the run by a period."""
+        if self.stats.commands or self._finished or self._last_publish_mono is None:
+            return
+        if time.monotonic() - self._last_publish_mono > LOCKSTEP_RESEND_S:
+            self.publish_outputs()
 
     def step_and_publish(self, duration: float) -> None:
         self._apply_command()
