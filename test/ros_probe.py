@@ -1,0 +1,187 @@
+"""Test-side rclpy helper: a node in its own context, spun in a background thread, that keeps
+the latest message (and, on request, every message) of the suite's topics, publishes test
+inputs and calls services and parameter services with timeouts."""
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from fuel_valve_plant import ros_interface as ri
+
+DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def unique_domain_id() -> str:
+    """A DDS domain of its own per test process, so parallel runs never cross-talk."""
+    return str(1 + os.getpid() % 200)
+
+
+class Probe:
+    def __init__(self, namespace: str, keep_all: tuple[str, ...] = ()):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Bool, Float64, Float64MultiArray
+
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("test_probe", namespace=namespace, context=self.context)
+        self.lock = threading.Lock()
+        self.latest: dict[str, tuple[float, object]] = {}
+        self.history: dict[str, list[tuple[float, object]]] = {t: [] for t in keep_all}
+        self.diagnostics: dict[str, object] = {}       # status name -> latest DiagnosticStatus
+        types = {ri.POSITION: Float64, ri.CURRENT_COMMAND: Float64, ri.DRIVE_ENABLE: Bool,
+                 ri.RESOLVER: JointState, ri.JOINT_STATES: JointState, ri.ESTIMATE: JointState,
+                 ri.DRIVE: Float64MultiArray}
+        for topic, mtype in types.items():
+            qos = ri.LATCHED_QOS if topic == ri.DRIVE_ENABLE else DEEP
+            self.node.create_subscription(mtype, topic, lambda m, t=topic: self._store(t, m), qos)
+        self.node.create_subscription(DiagnosticArray, ri.DIAGNOSTICS, self._on_diag, DEEP)
+        self.pub_demand = self.node.create_publisher(Float64, ri.DEMAND, ri.LOOP_QOS)
+        self.pub_demand_ma = self.node.create_publisher(Float64, ri.DEMAND_MA, ri.LOOP_QOS)
+        self.pub_resolver = self.node.create_publisher(JointState, ri.RESOLVER, ri.LOOP_QOS)
+        self._float = Float64
+        self._demand: tuple[str, float] | None = None
+        self.node.create_timer(0.01, self._publish_demand)      # a supervisor at 100 Hz
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        try:
+            self.executor.spin()
+        except Exception:               # noqa: BLE001 - shutdown race at close()
+            pass
+
+    def _store(self, topic, msg):
+        now = time.monotonic()
+        with self.lock:
+            self.latest[topic] = (now, msg)
+            if topic in self.history:
+                self.history[topic].append((now, msg))
+
+    def _on_diag(self, msg):
+        with self.lock:
+            for st in msg.status:
+                self.diagnostics[st.name] = st
+
+    # ---------------------------------------------------------------- inputs
+    def set_demand(self, value: float | None, topic: str = ri.DEMAND) -> None:
+        """Publish ``value`` on ``topic`` every 10 ms from now on (None: fall silent)."""
+        self._demand = None if value is None else (topic, value)
+
+    def _publish_demand(self):
+        if self._demand is not None:
+            topic, value = self._demand
+            (self.pub_demand if topic == ri.DEMAND else self.pub_demand_ma).publish(self._float(data=value))
+
+    def seize_valve(self, valve_rad: float | None, gear_ratio: float = 48.019, rate_hz: float = 1000.0) -> None:
+        """Act as a plant whose valve is seized at ``valve_rad``: publish consistent resolver
+        readings at ``rate_hz`` from a thread (None: stop)."""
+        self._seized = valve_rad
+        if valve_rad is None or getattr(self, "_seize_thread", None) is not None:
+            return
+        from sensor_msgs.msg import JointState
+
+        def loop():
+            next_t = time.monotonic()
+            while self._seized is not None and self.context.ok():
+                stamp = self.node.get_clock().now().to_msg()
+                self.pub_resolver.publish(JointState(header=__import__("std_msgs.msg").msg.Header(stamp=stamp),
+                                                     name=list(ri.JOINT_NAMES),
+                                                     position=[self._seized * gear_ratio, self._seized]))
+                next_t += 1.0 / rate_hz
+                time.sleep(max(0.0, next_t - time.monotonic()))
+            self._seize_thread = None
+        self._seize_thread = threading.Thread(target=loop, daemon=True)
+        self._seize_thread.start()
+
+    def publish_raw(self, topic: str, value: float) -> None:
+        (self.pub_demand if topic == ri.DEMAND else self.pub_demand_ma).publish(self._float(data=value))
+
+    # ---------------------------------------------------------------- reading
+    def get(self, topic: str):
+        with self.lock:
+            item = self.latest.get(topic)
+        return None if item is None else item[1]
+
+    def since(self, topic: str, t0: float) -> list:
+        with self.lock:
+            return [m for t, m in self.history.get(topic, []) if t >= t0]
+
+    def valve_angle(self) -> float | None:
+        msg = self.get(ri.JOINT_STATES)
+        return None if msg is None else msg.position[1]
+
+    def driver_status(self):
+        """The controller's latest /diagnostics status (or None)."""
+        with self.lock:
+            for name, st in self.diagnostics.items():
+                # /diagnostics is global: take this namespace's controller only
+                if name.startswith(self.node.get_namespace() + "/") and name.endswith("valve driver"):
+                    return st
+        return None
+
+    def driver_level(self) -> int | None:
+        st = self.driver_status()
+        return None if st is None else (st.level[0] if isinstance(st.level, bytes) else int(st.level))
+
+    def driver_values(self) -> dict:
+        st = self.driver_status()
+        return {} if st is None else {kv.key: kv.value for kv in st.values}
+
+    def wait_for(self, predicate, timeout: float, what: str = "condition"):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            value = predicate()
+            if value:
+                return value
+            time.sleep(0.01)
+        raise AssertionError(f"timed out after {timeout} s waiting for {what}; driver status: "
+                             f"{getattr(self.driver_status(), 'message', None)!r}")
+
+    # ---------------------------------------------------------------- services
+    def trigger(self, service: str, timeout: float = 5.0):
+        from std_srvs.srv import Trigger
+        client = self.node.create_client(Trigger, service)
+        assert client.wait_for_service(timeout_sec=timeout), f"service {service} not available"
+        return self._wait_future(client.call_async(Trigger.Request()), timeout, service)
+
+    def set_params(self, node: str, params: dict, timeout: float = 5.0) -> list:
+        """SetParameters on ``node`` (relative to the namespace); returns the results."""
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter
+        client = self.node.create_client(SetParameters, f"{node}/set_parameters")
+        assert client.wait_for_service(timeout_sec=timeout), f"{node}/set_parameters not available"
+        req = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in params.items()])
+        return self._wait_future(client.call_async(req), timeout, f"{node}/set_parameters").results
+
+    def get_params(self, node: str, names: list[str], timeout: float = 5.0) -> list:
+        from rcl_interfaces.srv import GetParameters
+        from rclpy.parameter import parameter_value_to_python
+        client = self.node.create_client(GetParameters, f"{node}/get_parameters")
+        assert client.wait_for_service(timeout_sec=timeout), f"{node}/get_parameters not available"
+        resp = self._wait_future(client.call_async(GetParameters.Request(names=names)), timeout,
+                                 f"{node}/get_parameters")
+        return [parameter_value_to_python(v) for v in resp.values]
+
+    @staticmethod
+    def _wait_future(future, timeout, what):
+        end = time.monotonic() + timeout
+        while not future.done():
+            if time.monotonic() > end:
+                raise AssertionError(f"no response from {what} within {timeout} s")
+            time.sleep(0.005)
+        return future.result()
+
+    def close(self):
+        self._seized = None
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+        self._thread.join(timeout=2.0)
