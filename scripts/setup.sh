@@ -3,6 +3,7 @@
 # - numerical stack and tools from requirements.txt
 # - ROS 2 Jazzy wheels from PyPI (requirements-ros.txt) only when rclpy is not already
 #   importable (with a sourced ROS install the venv sees the system packages instead)
+# - colcon and ament_package (requirements-build.txt) for building it the ROS way
 # - this package itself, editable, so the console scripts (plant, controller, ...) exist
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -20,13 +21,14 @@ pip_install() {
   .venv/bin/python -m pip install --quiet --disable-pip-version-check "$@" 2>&1 | { grep -v "^WARNING: Location" || true; }
 }
 stamp=.venv/.fuel_valve_installed
-if [ ! -f "$stamp" ] || [ requirements.txt -nt "$stamp" ] || [ requirements-ros.txt -nt "$stamp" ] || [ setup.py -nt "$stamp" ]; then
+if [ ! -f "$stamp" ] || [ requirements.txt -nt "$stamp" ] || [ requirements-ros.txt -nt "$stamp" ] || [ requirements-build.txt -nt "$stamp" ] || [ setup.py -nt "$stamp" ]; then
   echo "[setup] installing Python dependencies into .venv (first run takes a minute)"
   pip_install -r requirements.txt
   if ! .venv/bin/python -c "import rclpy" 2>/dev/null; then
     echo "[setup] installing ROS 2 Jazzy wheels from PyPI"
     pip_install -r requirements-ros.txt
   fi
+  pip_install -r requirements-build.txt
   pip_install -e .
   .venv/bin/python -c "import numpy, scipy, yaml, fuel_valve_plant" # fail loudly if anything is missing
   touch "$stamp"

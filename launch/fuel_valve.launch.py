@@ -1,0 +1,101 @@
+"""Launch the fuel-valve actuator stack: plant, controller and demand (+ recorder).
+
+    ros2 launch fuel_valve fuel_valve.launch.py
+    ros2 launch fuel_valve fuel_valve.launch.py mode:=pi lockstep:=true
+    ros2 launch fuel_valve fuel_valve.launch.py record:=true bag:=run1 demand_profile:=step
+
+All nodes run in the namespace ``namespace`` (default ``fuel_valve``; topics are relative, so
+they follow it) with the parameter files ``config/plant.yaml``, ``config/controller.yaml`` and
+``config/demand.yaml`` of the installed package share directory.
+
+Launch arguments:
+
+* ``namespace`` -- namespace of every node (default ``fuel_valve``).
+* ``mode`` -- controller ``mode`` (empty: the one in ``config/controller.yaml``).
+* ``lockstep`` -- ``true``: deterministic simulated time.  The plant gets ``lockstep: true``
+  and publishes ``/clock`` (its own ``use_sim_time`` stays false); the controller, the demand
+  node (both ``lockstep: true``) and the recorder run with ``use_sim_time: true``; the plant
+  waits for ``lockstep_participants`` = 2 ``/clock`` subscribers (3 with ``record:=true``).
+* ``record`` -- ``true``: also start the ``recorder`` node, writing the bag ``bag``.
+* ``bag`` -- recorder ``output`` directory (default ``fuel_valve_bag``).
+* ``demand_profile`` -- overrides the demand node's ``profile`` (empty: the one in
+  ``config/demand.yaml``).
+
+Boolean arguments accept ``true``/``false`` (any case) and ``1``/``0``.
+"""
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+PACKAGE = 'fuel_valve'
+
+ARGUMENTS = (
+    ('namespace', 'fuel_valve', 'namespace of all nodes (topic names are relative)'),
+    ('mode', '', "controller mode: pi, pi_dither, observer, observer_fc, kalman_fc, fc_gain, "
+                 "observer_ff (empty: config/controller.yaml)"),
+    ('lockstep', 'false', 'true: deterministic simulated time, the plant publishes /clock and '
+                          'advances one control period per command'),
+    ('record', 'false', 'true: also start the recorder (rosbag2 of the suite topics)'),
+    ('bag', 'fuel_valve_bag', 'bag directory written by the recorder (record:=true)'),
+    ('demand_profile', '', 'demand profile: constant, step, ramp, sine, chirp, points, startup, '
+                           'csv (empty: config/demand.yaml)'),
+)
+
+
+def _flag(context, name):
+    """A boolean launch argument, parsed like launch's own conditions."""
+    text = LaunchConfiguration(name).perform(context).strip().lower()
+    if text in ('true', '1'):
+        return True
+    if text in ('false', '0'):
+        return False
+    raise ValueError(f"launch argument '{name}' must be true or false, got {text!r}")
+
+
+def _nodes(context, *args, **kwargs):
+    """The nodes, once the launch arguments are known."""
+    config = os.path.join(get_package_share_directory(PACKAGE), 'config')
+    namespace = LaunchConfiguration('namespace').perform(context)
+    mode = LaunchConfiguration('mode').perform(context).strip()
+    profile = LaunchConfiguration('demand_profile').perform(context).strip()
+    bag = LaunchConfiguration('bag').perform(context)
+    lockstep = _flag(context, 'lockstep')
+    record = _flag(context, 'record')
+
+    # later entries of `parameters` override earlier ones (the YAML file)
+    plant = {'lockstep': lockstep}
+    controller = {'lockstep': lockstep}
+    demand = {'lockstep': lockstep}
+    recorder = {'output': bag}
+    if lockstep:
+        plant['use_sim_time'] = False          # the plant owns /clock
+        plant['lockstep_participants'] = 3 if record else 2
+        for params in (controller, demand, recorder):
+            params['use_sim_time'] = True
+    if mode:
+        controller['mode'] = mode
+    if profile:
+        demand['profile'] = profile
+
+    def node(executable, params_file, overrides):
+        parameters = [os.path.join(config, params_file)] if params_file else []
+        return Node(package=PACKAGE, executable=executable, name=executable, namespace=namespace,
+                    parameters=parameters + [overrides], output='screen')
+
+    nodes = [node('plant', 'plant.yaml', plant),
+             node('controller', 'controller.yaml', controller),
+             node('demand', 'demand.yaml', demand)]
+    if record:
+        nodes.append(node('recorder', None, recorder))
+    return nodes
+
+
+def generate_launch_description():
+    return LaunchDescription(
+        [DeclareLaunchArgument(name, default_value=default, description=text)
+         for name, default, text in ARGUMENTS]
+        + [OpaqueFunction(function=_nodes)])

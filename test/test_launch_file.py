@@ -1,0 +1,242 @@
+"""Structure of ``launch/fuel_valve.launch.py`` (SPEC §4) without ROS 2 ``launch``.
+
+``launch``, ``launch_ros`` and ``ament_index_python``'s package lookup are not installable from
+PyPI here, so this test imports the launch file with small *fake* modules put into
+``sys.modules``.  The fakes accept only the keyword arguments that the real Jazzy classes accept
+(``launch.LaunchDescription``, ``launch.actions.DeclareLaunchArgument`` / ``OpaqueFunction``,
+``launch.substitutions.LaunchConfiguration``, ``launch_ros.actions.Node``) and record what is
+constructed; ``LaunchConfiguration.perform`` reads a context's launch configurations the way
+the real one does.  The test then calls ``generate_launch_description()``, evaluates the
+``OpaqueFunction`` with a fake context for several argument sets, and checks the declared
+arguments, executables, namespace, parameter files (they must exist in the source tree's
+``config/``) and parameter overrides (each name must be a parameter the node declares).
+
+What this verifies is the *structure* the launch file hands to launch / launch_ros; it does not
+verify launch semantics (substitution, process start-up, parameter-file loading by rcl): that
+needs a real ROS 2 install (``ros2 launch fuel_valve fuel_valve.launch.py``).
+"""
+from __future__ import annotations
+
+import ast
+import importlib.util
+import py_compile
+import re
+import sys
+import types
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+LAUNCH_FILE = ROOT / "launch" / "fuel_valve.launch.py"
+NODE_SOURCES = {
+    "plant": ROOT / "fuel_valve_plant" / "plant_node.py",
+    "controller": ROOT / "fuel_valve_control" / "controller_node.py",
+    "demand": ROOT / "fuel_valve_control" / "demand_node.py",
+    "recorder": ROOT / "fuel_valve_control" / "recorder.py",
+}
+CONFIG_FILES = {"plant": "plant.yaml", "controller": "controller.yaml", "demand": "demand.yaml"}
+ARGUMENTS = {"namespace": "fuel_valve", "mode": "", "lockstep": "false", "record": "false",
+             "bag": "fuel_valve_bag", "demand_profile": ""}
+# rclpy declares use_sim_time on every node
+ROS_PARAMS = {"use_sim_time"}
+# keyword arguments of the real launch_ros Node / launch ExecuteProcess that the file may use
+NODE_KWARGS = {"executable", "package", "name", "namespace", "exec_name", "parameters", "remappings",
+               "ros_arguments", "arguments", "output", "emulate_tty", "respawn", "respawn_delay",
+               "condition", "additional_env", "cwd", "sigterm_timeout", "sigkill_timeout"}
+
+
+def _fake_modules(share_dir: Path) -> dict[str, types.ModuleType]:
+    """Minimal stand-ins that record construction (structure only, no launch semantics)."""
+    launch = types.ModuleType("launch")
+    actions = types.ModuleType("launch.actions")
+    substitutions = types.ModuleType("launch.substitutions")
+    launch_ros = types.ModuleType("launch_ros")
+    ros_actions = types.ModuleType("launch_ros.actions")
+    ament = types.ModuleType("ament_index_python")
+    ament_packages = types.ModuleType("ament_index_python.packages")
+
+    class LaunchDescription:
+        def __init__(self, initial_entities=None, *, deprecated_reason=None):
+            self.entities = list(initial_entities or [])
+
+    class DeclareLaunchArgument:
+        def __init__(self, name, *, default_value=None, description=None, choices=None):
+            assert isinstance(name, str)
+            self.name, self.default_value, self.description, self.choices = name, default_value, description, choices
+
+    class OpaqueFunction:
+        def __init__(self, *, function, args=None, kwargs=None):
+            assert callable(function)
+            self.function, self.args, self.kwargs = function, list(args or []), dict(kwargs or {})
+
+        def execute(self, context):
+            return self.function(context, *self.args, **self.kwargs)
+
+    class LaunchConfiguration:
+        def __init__(self, variable_name, *, default=None):
+            self.variable_name, self.default = variable_name, default
+
+        def perform(self, context):
+            if self.variable_name in context.launch_configurations:
+                return context.launch_configurations[self.variable_name]
+            if self.default is not None:
+                return self.default
+            raise LookupError(f"launch configuration '{self.variable_name}' does not exist")
+
+    class Node:
+        def __init__(self, *, executable, **kwargs):
+            unknown = set(kwargs) - NODE_KWARGS
+            assert not unknown, f"Node() got unexpected keyword arguments {unknown}"
+            params = kwargs.get("parameters") or []
+            assert isinstance(params, (list, tuple)), "parameters must be a list"
+            for entry in params:
+                if isinstance(entry, dict):
+                    for key, value in entry.items():   # types normalize_parameter_dict accepts
+                        assert isinstance(key, str) and isinstance(value, (str, bool, int, float)), (key, value)
+                else:
+                    assert isinstance(entry, (str, Path)), entry
+            self.executable, self.kwargs = executable, kwargs
+
+    def get_package_share_directory(package_name):
+        assert package_name == "fuel_valve"
+        return str(share_dir)
+
+    launch.LaunchDescription = LaunchDescription
+    launch.actions, launch.substitutions = actions, substitutions
+    actions.DeclareLaunchArgument, actions.OpaqueFunction = DeclareLaunchArgument, OpaqueFunction
+    substitutions.LaunchConfiguration = LaunchConfiguration
+    launch_ros.actions = ros_actions
+    ros_actions.Node = Node
+    ament.packages = ament_packages
+    ament_packages.get_package_share_directory = get_package_share_directory
+    return {"launch": launch, "launch.actions": actions, "launch.substitutions": substitutions,
+            "launch_ros": launch_ros, "launch_ros.actions": ros_actions,
+            "ament_index_python": ament, "ament_index_python.packages": ament_packages}
+
+
+@pytest.fixture
+def description(monkeypatch):
+    for name, module in _fake_modules(ROOT).items():
+        monkeypatch.setitem(sys.modules, name, module)
+    spec = importlib.util.spec_from_file_location("fuel_valve_launch_under_test", LAUNCH_FILE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.generate_launch_description()
+
+
+def _evaluate(description, **overrides) -> dict:
+    """Run the OpaqueFunction(s) with the declared defaults + overrides; {executable: node}."""
+    declared = {e.name: e.default_value for e in description.entities if type(e).__name__ == "DeclareLaunchArgument"}
+    context = types.SimpleNamespace(launch_configurations={**declared, **overrides})
+    nodes = [e for e in description.entities if type(e).__name__ == "Node"]
+    for entity in description.entities:
+        if type(entity).__name__ == "OpaqueFunction":
+            nodes += entity.execute(context) or []
+    by_exe = {n.executable: n for n in nodes}
+    assert len(by_exe) == len(nodes), "an executable is started twice"
+    return by_exe
+
+
+def _overrides(node) -> dict:
+    merged = {}
+    for entry in node.kwargs.get("parameters") or []:
+        if isinstance(entry, dict):
+            merged.update(entry)
+    return merged
+
+
+def _files(node) -> list[Path]:
+    return [Path(e) for e in node.kwargs.get("parameters") or [] if not isinstance(e, dict)]
+
+
+def _declared_params(executable: str) -> set[str]:
+    names = set(re.findall(r'declare_parameter\(\s*"([A-Za-z_][\w.]*)"', NODE_SOURCES[executable].read_text()))
+    if executable in CONFIG_FILES:
+        doc = yaml.safe_load((ROOT / "config" / CONFIG_FILES[executable]).read_text())
+        names |= set(doc["/**"]["ros__parameters"])
+    return names | ROS_PARAMS
+
+
+def test_launch_file_compiles_and_imports_only_launch_api(tmp_path):
+    py_compile.compile(str(LAUNCH_FILE), cfile=str(tmp_path / "launch.pyc"), doraise=True)
+    tree = ast.parse(LAUNCH_FILE.read_text())
+    imported = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            imported |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            imported.add(node.module.split(".")[0])
+    assert imported <= {"os", "launch", "launch_ros", "ament_index_python"}, imported
+    assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description" for n in tree.body)
+
+
+def test_declared_arguments_and_defaults(description):
+    declared = {e.name: e for e in description.entities if type(e).__name__ == "DeclareLaunchArgument"}
+    assert {k: v.default_value for k, v in declared.items()} == ARGUMENTS
+    assert all(v.description for v in declared.values())
+
+
+def test_default_launch_starts_three_nodes_in_namespace_with_config_files(description):
+    nodes = _evaluate(description)
+    assert set(nodes) == {"plant", "controller", "demand"}
+    for exe, node in nodes.items():
+        assert node.kwargs["package"] == "fuel_valve"
+        assert node.kwargs["namespace"] == "fuel_valve"
+        assert node.kwargs.get("name", exe) == exe      # keeps the node name the code uses (~/trip ...)
+        files = _files(node)
+        assert files == [ROOT / "config" / CONFIG_FILES[exe]], files
+        assert files[0].is_file()
+        over = _overrides(node)
+        assert over.get("lockstep") is False
+        assert "use_sim_time" not in over                 # real time: ROS default (false)
+    assert "mode" not in _overrides(nodes["controller"])  # config/controller.yaml decides
+    assert "profile" not in _overrides(nodes["demand"])
+
+
+@pytest.mark.parametrize("record", ["false", "true"])
+def test_lockstep_settings(description, record):
+    nodes = _evaluate(description, lockstep="true", record=record)
+    plant = _overrides(nodes["plant"])
+    assert plant["lockstep"] is True and plant["use_sim_time"] is False  # the plant publishes /clock
+    assert plant["lockstep_participants"] == (3 if record == "true" else 2)
+    for exe in ("controller", "demand"):
+        assert _overrides(nodes[exe])["lockstep"] is True
+        assert _overrides(nodes[exe])["use_sim_time"] is True
+    if record == "true":
+        assert _overrides(nodes["recorder"])["use_sim_time"] is True
+    else:
+        assert "recorder" not in nodes
+
+
+def test_record_starts_recorder_with_bag_output(description):
+    nodes = _evaluate(description, record="True", bag="/tmp/run7")
+    assert set(nodes) == {"plant", "controller", "demand", "recorder"}
+    rec = nodes["recorder"]
+    assert rec.kwargs["namespace"] == "fuel_valve"
+    assert _overrides(rec)["output"] == "/tmp/run7"
+    assert _overrides(rec).get("use_sim_time", False) is False
+    assert _evaluate(description, record="1")["recorder"].kwargs["package"] == "fuel_valve"
+
+
+def test_mode_profile_and_namespace_overrides(description):
+    nodes = _evaluate(description, mode="pi", demand_profile="step", namespace="valve2")
+    assert _overrides(nodes["controller"])["mode"] == "pi"
+    assert _overrides(nodes["demand"])["profile"] == "step"
+    assert {n.kwargs["namespace"] for n in nodes.values()} == {"valve2"}
+    # overrides come after the YAML file so they win
+    params = nodes["controller"].kwargs["parameters"]
+    assert isinstance(params[-1], dict) and not isinstance(params[0], dict)
+
+
+def test_every_override_is_a_parameter_the_node_declares(description):
+    for args in ({}, {"lockstep": "true", "record": "true", "mode": "pi", "demand_profile": "sine"}):
+        for exe, node in _evaluate(description, **args).items():
+            unknown = set(_overrides(node)) - _declared_params(exe)
+            assert not unknown, f"{exe}: launch sets undeclared parameters {unknown}"
+
+
+def test_bad_boolean_is_rejected(description):
+    with pytest.raises(ValueError, match="lockstep"):
+        _evaluate(description, lockstep="maybe")
