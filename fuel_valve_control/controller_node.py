@@ -16,7 +16,9 @@ lockstep loop (the ``demand`` node with ``lockstep:=true`` publishes once per ``
 """
 from __future__ import annotations
 
+import functools
 import math
+import threading
 import time
 
 from rclpy.node import Node
@@ -31,6 +33,16 @@ from .driver import ValveDriver
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
 
 
+def locked(method):
+    """Run a callback under the node's lock: the resolver arrives on the loop thread, the
+    rest on the executor's thread, and both use the driver."""
+    @functools.wraps(method)
+    def wrapper(self, *args):
+        with self._lock:
+            return method(self, *args)
+    return wrapper
+
+
 class ControllerNode(Node):
     def __init__(self, **kwargs):
         super().__init__("controller", **kwargs)
@@ -41,6 +53,9 @@ class ControllerNode(Node):
             description="rate of /diagnostics [Hz]", read_only=True))
         self.declare_parameter("telemetry_decimation", 10, ParameterDescriptor(
             description="publish position and estimate every N-th period (1 = every period)", read_only=True))
+        self.declare_parameter("loop_thread", True, ParameterDescriptor(
+            description="real time: take resolver samples on a lean helper node in its own thread (lower "
+                        "latency than the main executor with its services and timers)", read_only=True))
         self.declare_parameter("initial_current_a", 0.0, ParameterDescriptor(
             description="q-current the loop starts from when it first arms [A]: bumpless take-over of a "
                         "valve already held by a drive (the plant's start_held)", read_only=True))
@@ -77,7 +92,15 @@ class ControllerNode(Node):
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, ri.DIAGNOSTICS)
         ri.quiet_subscription(self, Float64, ri.DEMAND, self.on_demand)
         ri.quiet_subscription(self, Float64, ri.DEMAND_MA, self.on_demand_ma)
-        ri.quiet_subscription(self, JointState, ri.RESOLVER, self.on_resolver)
+        # one lock serialises the driver between the loop thread and the executor's callbacks
+        self._lock = threading.Lock()
+        self.loop_io = None
+        # lockstep runs keep everything on one thread: simpler and measured deterministic
+        if self.get_parameter("loop_thread").value and not self.lockstep:
+            self.loop_io = ri.LoopIO(self)
+            self.loop_io.subscribe(JointState, ri.RESOLVER, self.on_resolver)
+        else:
+            ri.quiet_subscription(self, JointState, ri.RESOLVER, self.on_resolver)
         if self.get_parameter("monitor_drive_telemetry").value:
             ri.quiet_subscription(self, Float64MultiArray, ri.DRIVE, self.on_drive)
         self._decimation = max(int(self.get_parameter("telemetry_decimation").value), 1)
@@ -90,6 +113,8 @@ class ControllerNode(Node):
         # the watchdog runs the fault logic when no samples arrive (silence must trip)
         self.create_timer(max(5.0 * period, 0.01), self.watchdog)
         self.create_timer(1.0 / float(self.get_parameter("diagnostics_rate_hz").value), self.publish_diagnostics)
+        if self.loop_io is not None:
+            self.loop_io.start()
         self.get_logger().info(f"controller up: mode {ps['mode']}, loop {ps['loop_rate_hz']:g} Hz, demand from "
                                f"{ps['demand_source']}{', lockstep' if self.lockstep else ''}")
 
@@ -102,10 +127,12 @@ class ControllerNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     # ------------------------------------------------------------------ inputs
+    @locked
     def on_demand(self, msg) -> None:
         self.driver.demand_percent(self.now_s(), msg.data)
         self._demand_arrived()
 
+    @locked
     def on_demand_ma(self, msg) -> None:
         self.driver.demand_ma(self.now_s(), msg.data)
         self._demand_arrived()
@@ -116,11 +143,13 @@ class ControllerNode(Node):
             sample, self._pending_sample = self._pending_sample, None
             self.run_period(sample)
 
+    @locked
     def on_drive(self, msg) -> None:
         values = ri.array_values(msg)
         if "i_d" in values and "i_q" in values:
             self.driver.measured_current(self.now_s(), math.hypot(values["i_d"], values["i_q"]))
 
+    @locked
     def on_resolver(self, msg) -> None:
         values = ri.joint_values(msg)
         motor, valve = values.get(ri.MOTOR_JOINT), values.get(ri.VALVE_JOINT)
@@ -149,6 +178,7 @@ class ControllerNode(Node):
         self.publish_step(stamp if self.lockstep else self.now_s())
         self._compute.add(time.perf_counter() - t0)
 
+    @locked
     def watchdog(self) -> None:
         timeout = self.driver.ps["faults.resolver_timeout_s"]
         if self.lockstep:
@@ -184,7 +214,13 @@ class ControllerNode(Node):
                                             + (f", faults: {'; '.join(out.faults.values())}" if out.faults else ""))
             self._last_enable = out.enable
 
+    def destroy_node(self):
+        if self.loop_io is not None:
+            self.loop_io.stop()
+        super().destroy_node()
+
     # ------------------------------------------------------------------ services
+    @locked
     def on_trip(self, request, response):
         self.driver.trip("trip requested through ~/trip")
         self.publish_step(self.now_s())
@@ -193,6 +229,7 @@ class ControllerNode(Node):
         self.get_logger().warn(response.message)
         return response
 
+    @locked
     def on_reset(self, request, response):
         ok, message = self.driver.reset()
         response.success, response.message = ok, message
@@ -203,6 +240,7 @@ class ControllerNode(Node):
         return response
 
     # ------------------------------------------------------------------ parameters
+    @locked
     def on_set_parameters(self, params) -> SetParametersResult:
         changes = {p.name: p.value for p in params if p.name in CONTROLLER_SPEC}
         if not changes:
@@ -215,6 +253,7 @@ class ControllerNode(Node):
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ diagnostics
+    @locked
     def publish_diagnostics(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
         h = self.driver.health()

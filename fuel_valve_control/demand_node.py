@@ -71,9 +71,13 @@ class DemandNode(Node):
         self.pub_ma = ri.quiet_publisher(self, Float64, ri.DEMAND_MA)
         self.t0 = None
         self.add_on_set_parameters_callback(self.on_set_parameters)
+        self._pending_tick = None
         if self.get_parameter("lockstep").value:
             from rosgraph_msgs.msg import Clock
             ri.quiet_subscription(self, Clock, ri.CLOCK, self.on_clock, ri.TELEMETRY_QOS)
+            from rclpy.clock import Clock as WallClock, ClockType
+            # a wall-clock timer: simulated time stands still while the tick waits
+            self.create_timer(0.01, self._answer_tick, clock=WallClock(clock_type=ClockType.STEADY_TIME))
         else:
             self.create_timer(1.0 / self.get_parameter("publish_rate_hz").value, self.publish)
         self.get_logger().info(f"demand up: profile {self.get_parameter('profile').value}, output {self.output}")
@@ -99,7 +103,21 @@ class DemandNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_clock(self, msg) -> None:
-        self.publish(msg.clock.sec + 1e-9 * msg.clock.nanosec)
+        self._pending_tick = msg.clock.sec + 1e-9 * msg.clock.nanosec
+        self._answer_tick()
+
+    def _answer_tick(self) -> None:
+        """Lockstep: publish the demand for the latest tick, but only once every subscriber
+        discovery has seen is matched: the controller waits for this very message, and one
+        published before its subscription matched would be lost (the run would stall)."""
+        if self._pending_tick is None:
+            return
+        topic, pub = (ri.DEMAND, self.pub_pct) if self.output == "percent" else (ri.DEMAND_MA, self.pub_ma)
+        seen = self.count_subscribers(topic)
+        if seen == 0 or pub.get_subscription_count() < seen:
+            return                          # the retry timer asks again shortly
+        t, self._pending_tick = self._pending_tick, None
+        self.publish(t)
 
     def publish(self, now: float | None = None) -> None:
         now = self.now_s() if now is None else now

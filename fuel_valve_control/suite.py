@@ -48,6 +48,10 @@ from .model import NominalModel
 from .scenarios import Scenario, load_scenario
 
 NODES = ("plant", "controller", "demand")
+#: what a real-time demo records: everything the report uses, without the two 1 kHz loop
+#: topics (resolver, current_command) whose recording costs CPU the loop needs on 2 cores
+REPORT_TOPICS = ["demand", "demand_ma", "joint_states", "drive", "drive_enable", "position", "estimate",
+                 "/diagnostics"]
 #: wall-clock limit for the suite to come up (DDS discovery, imports), s
 STARTUP_TIMEOUT_S = 30.0
 
@@ -420,7 +424,7 @@ def run(plan: SuitePlan, namespace: str = "/fuel_valve", bag: Path | None = None
         with Suite(plan, namespace, run_dir, bag, bag_storage, env) as suite:
             summary["run_dir"] = str(suite.run_dir)
             if bag:
-                suite.start_recorder()
+                suite.start_recorder(None if lockstep else REPORT_TOPICS)
             if lockstep:                    # profile time = simulated time: all at once
                 suite.start(NODES)
             else:                           # profile time starts with the demand node: start it

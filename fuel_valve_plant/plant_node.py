@@ -35,8 +35,6 @@ from .plant import TELEMETRY_LABELS, Plant
 from .plant_params import PLANT_SPEC, check_consistency
 
 
-#: lockstep: wall time without a first command after which the plant re-sends its first sample, s
-LOCKSTEP_RESEND_S = 0.5
 #: lockstep: wall time between seeing every participant and starting, s
 LOCKSTEP_SETTLE_S = 0.5
 
@@ -107,10 +105,18 @@ class PlantNode(Node):
         self.pub_truth = ri.quiet_publisher(self, JointState, ri.JOINT_STATES)
         self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, ri.DRIVE)
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, ri.DIAGNOSTICS)
-        # drive_enable first: when both are ready, the executor takes them in creation order,
-        # and in lockstep a command steps the plant at once
-        ri.quiet_subscription(self, Bool, ri.DRIVE_ENABLE, self.on_enable)
-        ri.quiet_subscription(self, Float64, ri.CURRENT_COMMAND, self.on_command)
+        # the loop's inputs are taken by their own lean thread (see LoopIO); drive_enable first:
+        # in lockstep a command steps the plant at once, with the enable state it applies to
+        # (lockstep runs keep everything on the executor's thread: measured deterministic)
+        self.loop_io = None
+        if self.lockstep:
+            ri.quiet_subscription(self, Bool, ri.DRIVE_ENABLE, self.on_enable)
+            ri.quiet_subscription(self, Float64, ri.CURRENT_COMMAND, self.on_command)
+        else:
+            self.loop_io = ri.LoopIO(self)
+            self.loop_io.subscribe(Bool, ri.DRIVE_ENABLE, self.on_enable)
+            self.loop_io.subscribe(Float64, ri.CURRENT_COMMAND, self.on_command)
+            self.loop_io.start()
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(1.0, self.publish_diagnostics)
         if self.lockstep:
@@ -190,12 +196,19 @@ class PlantNode(Node):
         if not self.lockstep:
             self._running = False
             self._thread.join(timeout=1.0)
+        if self.loop_io is not None:
+            self.loop_io.stop()
 
     def try_start(self) -> None:
         """Lockstep: start once the controller (and the other participants) are connected."""
+        if self._started:                # a call already queued when the timer was cancelled
+            return
         clock_nodes = {(i.node_namespace, i.node_name) for i in self.get_subscriptions_info_by_topic(ri.CLOCK)}
+        # the graph (what discovery has seen) and the publishers' matched subscriptions (what a
+        # message published now would actually reach) must both be complete
         ready = (self.count_subscribers(ri.RESOLVER) >= 1 and self.count_publishers(ri.CURRENT_COMMAND) >= 1
-                 and len(clock_nodes) >= self._participants)
+                 and len(clock_nodes) >= self._participants and self.pub_resolver.get_subscription_count() >= 1
+                 and self.pub_clock.get_subscription_count() >= self._participants)
         if not ready:
             self._ready_since = None
             if time.monotonic() - self._waiting_since > 5.0:
@@ -212,17 +225,6 @@ class PlantNode(Node):
         self._started = True
         self.get_logger().info("lockstep: participants connected, starting")
         self.publish_outputs()
-        self.create_timer(LOCKSTEP_RESEND_S, self.resend_if_stalled)
-
-    def resend_if_stalled(self) -> None:
-        """Lockstep, first period only: a participant whose subscriptions were still being set
-        up may have missed the first sample; re-send it (same stamp; the controller ignores
-        a sample of a period it has already run).  Never later: a re-sent /clock makes the
-        demand node publish again, and a surplus demand would shift the run by a period."""
-        if self.stats.commands or self._finished or self._last_publish_mono is None:
-            return
-        if time.monotonic() - self._last_publish_mono > LOCKSTEP_RESEND_S:
-            self.publish_outputs()
 
     def step_and_publish(self, duration: float) -> None:
         self._apply_command()

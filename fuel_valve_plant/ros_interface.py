@@ -8,7 +8,8 @@ QoS (documented in README): every topic is RELIABLE so any subscriber (a recorde
 deep reliable queue, ``ros2 topic echo``) can connect.  Loop topics (``resolver``,
 ``current_command``, ``demand``, ``demand_ma``) keep only the newest sample (depth 1): a
 control loop wants the latest value, never a backlog.  ``drive_enable`` is TRANSIENT_LOCAL so
-a plant that starts late still learns whether the drive may run.  Telemetry keeps 10.
+a plant that starts late still learns whether the drive may run.  Telemetry keeps 100 (0.1 s
+at 1 kHz: a recorder or monitor that is briefly descheduled loses nothing).
 """
 from __future__ import annotations
 
@@ -157,6 +158,83 @@ def read_spec(node, spec, names: Iterable[str] | None = None) -> dict:
             continue
         out[p.name] = node.get_parameter(p.name).value
     return out
+
+
+# --- the loop's hot path -----------------------------------------------------------------------
+class LoopIO:
+    """The loop's hot subscriptions, taken by a dedicated thread with a private wait set.
+
+    rclpy's executor costs a few hundred microseconds of Python per wake-up (it rebuilds
+    its wait set from every entity and wraps each callback in a task), which at 1 kHz is
+    most of a core and most of the round trip.  Here the loop subscriptions live on a lean
+    helper node (``<name>_loop``: no parameter services, no rosout) that no executor spins;
+    a thread waits on them alone and calls the callbacks directly, in subscription order.  The main
+    node keeps services, parameters, timers and slow topics.  Callbacks run in this thread:
+    the owner serialises access to shared state (a lock).  The wait set is rclpy's own
+    (``_rclpy.WaitSet``), the same object its executors use.
+    """
+
+    #: GIL switch interval while a loop thread runs, s: a sample arriving while another thread
+    #: runs Python waits at most this long (CPython's default is 5 ms, five control periods)
+    SWITCH_INTERVAL_S = 0.0002
+
+    def __init__(self, owner):
+        import rclpy
+        self.node = rclpy.create_node(f"{owner.get_name()}_loop", namespace=owner.get_namespace(),
+                                      context=owner.context, start_parameter_services=False,
+                                      enable_rosout=False)
+        self.subs = []
+        self._wake = self.node.create_guard_condition(lambda: None)
+        self._running = False
+        self._thread = None
+
+    def subscribe(self, msg_type, topic: str, callback, qos: QoSProfile | None = None) -> None:
+        """Add a subscription; when several have messages, they are taken in this order."""
+        self.subs.append(quiet_subscription(self.node, msg_type, topic, callback, qos))
+
+    def start(self) -> None:
+        import sys
+        import threading
+        sys.setswitchinterval(min(sys.getswitchinterval(), self.SWITCH_INTERVAL_S))
+        self._running = True
+        self._thread = threading.Thread(target=self._spin, name=self.node.get_name(), daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+        import contextlib
+        context = self.node.context
+        subs, wake = self.subs, self._wake
+        try:
+            with contextlib.ExitStack() as stack:
+                for entity in (context, wake, *subs):
+                    stack.enter_context(entity.handle)
+                ws = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, context.handle)
+                while self._running and context.ok():
+                    ws.clear_entities()
+                    for sub in subs:
+                        ws.add_subscription(sub.handle)
+                    ws.add_guard_condition(wake.handle)
+                    ws.wait(100_000_000)                       # 0.1 s: re-check for shutdown
+                    for sub in subs:                           # in order, everything queued
+                        while self._running:
+                            info = sub.handle.take_message(sub.msg_type, sub.raw)
+                            if info is None:
+                                break
+                            sub.callback(info[0])
+        except Exception:                       # noqa: BLE001 - context shut down under us
+            if context.ok() and self._running:
+                raise
+
+    def stop(self) -> None:
+        self._running = False
+        try:
+            self._wake.trigger()
+        except Exception:                       # noqa: BLE001 - already destroyed with the context
+            pass
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+        self.node.destroy_node()
 
 
 # --- process entry point -----------------------------------------------------------------------
