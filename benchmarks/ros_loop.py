@@ -45,6 +45,7 @@ def cpu_seconds(pid: int) -> float:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--demand-rate", type=float, default=200.0, help="demand publish rate, Hz")
     parser.add_argument("--mode", default=None, help="controller mode (default: controller.yaml)")
     args = parser.parse_args()
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(100, 200)), PYTHONWARNINGS="ignore")
@@ -57,7 +58,7 @@ def main() -> int:
         "plant": [executable("plant"), "--ros-args", "--params-file", str(cfg / "plant.yaml"), *ns],
         "controller": ctrl,
         "demand": [executable("demand"), "--ros-args", "--params-file", str(cfg / "demand.yaml"), *ns,
-                   "-p", "profile:=sine", "-p", "offset:=40.0", "-p", "amplitude:=5.0", "-p", "frequency_hz:=0.5"],
+                   "-p", "profile:=sine", "-p", f"publish_rate_hz:={args.demand_rate}", "-p", "offset:=40.0", "-p", "amplitude:=5.0", "-p", "frequency_hz:=0.5"],
     }
     procs = {name: subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
              for name, cmd in cmds.items()}

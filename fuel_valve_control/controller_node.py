@@ -90,17 +90,20 @@ class ControllerNode(Node):
         self.pub_position = ri.quiet_publisher(self, Float64, ri.POSITION)
         self.pub_estimate = ri.quiet_publisher(self, JointState, ri.ESTIMATE)
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, ri.DIAGNOSTICS)
-        ri.quiet_subscription(self, Float64, ri.DEMAND, self.on_demand)
-        ri.quiet_subscription(self, Float64, ri.DEMAND_MA, self.on_demand_ma)
         # one lock serialises the driver between the loop thread and the executor's callbacks
         self._lock = threading.Lock()
         self.loop_io = None
         # lockstep runs keep everything on one thread: simpler and measured deterministic
         if self.get_parameter("loop_thread").value and not self.lockstep:
+            # the demand too: a supervisor at 100-200 Hz would otherwise wake the main
+            # executor (a few hundred µs of Python each time) and hold up the next sample
             self.loop_io = ri.LoopIO(self)
-            self.loop_io.subscribe(JointState, ri.RESOLVER, self.on_resolver)
+            subscribe = self.loop_io.subscribe
         else:
-            ri.quiet_subscription(self, JointState, ri.RESOLVER, self.on_resolver)
+            subscribe = functools.partial(ri.quiet_subscription, self)
+        subscribe(Float64, ri.DEMAND, self.on_demand)
+        subscribe(Float64, ri.DEMAND_MA, self.on_demand_ma)
+        subscribe(JointState, ri.RESOLVER, self.on_resolver)
         if self.get_parameter("monitor_drive_telemetry").value:
             ri.quiet_subscription(self, Float64MultiArray, ri.DRIVE, self.on_drive)
         self._decimation = max(int(self.get_parameter("telemetry_decimation").value), 1)
@@ -111,10 +114,11 @@ class ControllerNode(Node):
         self.add_on_set_parameters_callback(self.on_set_parameters)
         period = self.driver.period
         # the watchdog runs the fault logic when no samples arrive (silence must trip)
-        self.create_timer(max(5.0 * period, 0.01), self.watchdog)
+        if self.loop_io is None:
+            self.create_timer(max(5.0 * period, 0.01), self.watchdog)
         self.create_timer(1.0 / float(self.get_parameter("diagnostics_rate_hz").value), self.publish_diagnostics)
         if self.loop_io is not None:
-            self.loop_io.start()
+            self.loop_io.start(idle=self.watchdog, idle_period_s=max(5.0 * period, 0.01))
         self.get_logger().info(f"controller up: mode {ps['mode']}, loop {ps['loop_rate_hz']:g} Hz, demand from "
                                f"{ps['demand_source']}{', lockstep' if self.lockstep else ''}")
 

@@ -14,6 +14,7 @@ at 1 kHz: a recorder or monitor that is briefly descheduled loses nothing).
 from __future__ import annotations
 
 import math
+import time
 from typing import Iterable, Sequence
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -192,9 +193,12 @@ class LoopIO:
         """Add a subscription; when several have messages, they are taken in this order."""
         self.subs.append(quiet_subscription(self.node, msg_type, topic, callback, qos))
 
-    def start(self) -> None:
+    def start(self, idle=None, idle_period_s: float = 0.01) -> None:
+        """Start the thread; ``idle()``, if given, also runs on it every ``idle_period_s``
+        (a watchdog that needs no timer, and so no executor wake-ups, on the main node)."""
         import sys
         import threading
+        self._idle, self._idle_period = idle, idle_period_s
         sys.setswitchinterval(min(sys.getswitchinterval(), self.SWITCH_INTERVAL_S))
         self._running = True
         self._thread = threading.Thread(target=self._spin, name=self.node.get_name(), daemon=True)
@@ -210,12 +214,17 @@ class LoopIO:
                 for entity in (context, wake, *subs):
                     stack.enter_context(entity.handle)
                 ws = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, context.handle)
+                timeout_ns = int(1e9 * (self._idle_period if self._idle else 0.1))
+                next_idle = time.monotonic() + self._idle_period
                 while self._running and context.ok():
                     ws.clear_entities()
                     for sub in subs:
                         ws.add_subscription(sub.handle)
                     ws.add_guard_condition(wake.handle)
-                    ws.wait(100_000_000)                       # 0.1 s: re-check for shutdown
+                    ws.wait(timeout_ns)
+                    if self._idle is not None and time.monotonic() >= next_idle:
+                        next_idle = time.monotonic() + self._idle_period
+                        self._idle()
                     for sub in subs:                           # in order, everything queued
                         while self._running:
                             info = sub.handle.take_message(sub.msg_type, sub.raw)
