@@ -8,8 +8,8 @@ QoS (documented in README): every topic is RELIABLE so any subscriber (a recorde
 deep reliable queue, ``ros2 topic echo``) can connect.  Loop topics (``resolver``,
 ``current_command``, ``demand``, ``demand_ma``) keep only the newest sample (depth 1): a
 control loop wants the latest value, never a backlog.  ``drive_enable`` is TRANSIENT_LOCAL so
-a plant that starts late still learns whether the drive may run.  Telemetry keeps 100 (0.1 s
-at 1 kHz: a recorder or monitor that is briefly descheduled loses nothing).
+a plant that starts late still learns whether the drive may run.  Telemetry keeps 10 (the 1 kHz
+loop measured worse with 100 in one comparison; recorders keep deep reader queues).
 """
 from __future__ import annotations
 
