@@ -67,6 +67,13 @@ def _non_friction_accels(model: NominalModel, ctx: Context) -> tuple[float, floa
     return wm, wv
 
 
+def _seed_levels(motor: FrictionObserver, valve: FrictionObserver, model: NominalModel, pressure_kpa: float) -> None:
+    """Start both shafts' observers at the nominal Coulomb levels (as accelerations, rad/s²)."""
+    fl = model.friction(pressure_kpa)
+    motor.reset(fl.motor_coulomb_nm / model.motor_inertia_kgm2)
+    valve.reset(fl.valve_coulomb_nm / model.valve_inertia_kgm2)
+
+
 class FriedlandPark(Compensator):
     """Two parallel Friedland–Park observers (motor and valve shaft) on estimated velocities."""
 
@@ -76,9 +83,7 @@ class FriedlandPark(Compensator):
 
     def reset(self, model, pressure_kpa):
         self.model = model
-        fl = model.friction(pressure_kpa)
-        self.motor.reset(fl.motor_coulomb_nm / model.motor_inertia_kgm2)
-        self.valve.reset(fl.valve_coulomb_nm / model.valve_inertia_kgm2)
+        _seed_levels(self.motor, self.valve, model, pressure_kpa)
 
     def update(self, ctx):
         m = self.model
@@ -130,9 +135,7 @@ class ReferenceFeedforward(Compensator):
 
     def reset(self, model, pressure_kpa):
         self.model = model
-        fl = model.friction(pressure_kpa)
-        self.motor.reset(fl.motor_coulomb_nm / model.motor_inertia_kgm2)
-        self.valve.reset(fl.valve_coulomb_nm / model.valve_inertia_kgm2)
+        _seed_levels(self.motor, self.valve, model, pressure_kpa)
 
     def scale(self, pressure_kpa: float) -> tuple[float, float]:
         """Adapted / nominal Coulomb level of (motor, valve)."""
