@@ -23,6 +23,20 @@ def _nominal(name: str, plant_name: str, description: str) -> Param:
     return Param(f"model.{name}", src.default, src.unit, description, src.low, src.high, src.low_open)
 
 
+def _friedland_park_params(shaft: str, freeze_default: float, freeze_high: float) -> list[Param]:
+    """The Friedland-Park observer parameters of one shaft (same meaning on both)."""
+    return [
+        Param(f"fp.{shaft}.alpha", 2.0, "", f"{shaft}-shaft observer gain alpha", 0.0, 1e6, low_open=True,
+              runtime=True),
+        Param(f"fp.{shaft}.beta", 1.5, "", f"{shaft}-shaft observer exponent beta", 0.0, 200.0, low_open=True,
+              runtime=True),
+        Param(f"fp.{shaft}.gain_cap", 200.0, "1/s", f"cap on alpha*beta*|v|^(beta-1), {shaft} shaft", 0.0, 1e4,
+              low_open=True, runtime=True),
+        Param(f"fp.{shaft}.freeze_velocity_rad_s", freeze_default, "rad/s",
+              f"{shaft} speed below which the estimate is frozen", 0.0, freeze_high, runtime=True),
+    ]
+
+
 CONTROLLER_SPEC = ParamSpec("controller", [
     # --- interface contract (SPEC §4) -----------------------------------------------------
     Param("mode", DEFAULT_MODE, "", "control law", choices=MODES, runtime=True),
@@ -103,20 +117,8 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("seat.overtravel_rad", 0.1, "rad", "how far beyond the stop a seating move is aimed", 0.0, 0.5),
     Param("seat.torque_nm", 3.0, "N*m", "seating torque beyond the known load (valve side)", 0.0, 50.0),
     # --- Friedland-Park friction observers --------------------------------------------------
-    Param("fp.motor.alpha", 2.0, "", "motor-shaft observer gain alpha", 0.0, 1e6, low_open=True, runtime=True),
-    Param("fp.motor.beta", 1.5, "", "motor-shaft observer exponent beta", 0.0, 200.0, low_open=True,
-          runtime=True),
-    Param("fp.motor.gain_cap", 200.0, "1/s", "cap on alpha*beta*|v|^(beta-1), motor shaft", 0.0, 1e4,
-          low_open=True, runtime=True),
-    Param("fp.motor.freeze_velocity_rad_s", 2.0, "rad/s", "motor speed below which the estimate is frozen",
-          0.0, 1000.0, runtime=True),
-    Param("fp.valve.alpha", 2.0, "", "valve-shaft observer gain alpha", 0.0, 1e6, low_open=True, runtime=True),
-    Param("fp.valve.beta", 1.5, "", "valve-shaft observer exponent beta", 0.0, 200.0, low_open=True,
-          runtime=True),
-    Param("fp.valve.gain_cap", 200.0, "1/s", "cap on alpha*beta*|v|^(beta-1), valve shaft", 0.0, 1e4,
-          low_open=True, runtime=True),
-    Param("fp.valve.freeze_velocity_rad_s", 0.05, "rad/s", "valve speed below which the estimate is frozen",
-          0.0, 100.0, runtime=True),
+    *_friedland_park_params("motor", freeze_default=2.0, freeze_high=1000.0),
+    *_friedland_park_params("valve", freeze_default=0.05, freeze_high=100.0),
     Param("fp.compensation_fraction", 1.0, "", "fraction of the estimated friction fed to the command",
           0.0, 1.5, runtime=True),
     # --- observer_ff: friction feed-forward along the reference ------------------------------
