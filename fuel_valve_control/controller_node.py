@@ -22,7 +22,7 @@ import threading
 import time
 
 from rclpy.node import Node
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 
 from fuel_valve_plant import ros_interface as ri
 from fuel_valve_plant.paramspec import ConfigError
@@ -47,21 +47,17 @@ class ControllerNode(Node):
     def __init__(self, **kwargs):
         super().__init__("controller", **kwargs)
         ri.declare_spec(self, CONTROLLER_SPEC)
-        self.declare_parameter("lockstep", False, ParameterDescriptor(
-            description="wait for a fresh demand each period (deterministic lockstep runs)", read_only=True))
-        self.declare_parameter("diagnostics_rate_hz", 2.0, ParameterDescriptor(
-            description="rate of /diagnostics [Hz]", read_only=True))
-        self.declare_parameter("telemetry_decimation", 10, ParameterDescriptor(
-            description="publish position and estimate every N-th period (1 = every period)", read_only=True))
-        self.declare_parameter("loop_thread", True, ParameterDescriptor(
-            description="real time: take resolver samples on a lean helper node in its own thread (lower "
-                        "latency than the main executor with its services and timers)", read_only=True))
-        self.declare_parameter("initial_current_a", 0.0, ParameterDescriptor(
-            description="q-current the loop starts from when it first arms [A]: bumpless take-over of a "
-                        "valve already held by a drive (the plant's start_held)", read_only=True))
-        self.declare_parameter("monitor_drive_telemetry", False, ParameterDescriptor(
-            description="subscribe to the plant's drive telemetry for the measured-current check "
-                        "(one more 1 kHz subscription)", read_only=True))
+        ri.declare_read_only(self, {
+            "lockstep": (False, "wait for a fresh demand each period (deterministic lockstep runs)"),
+            "diagnostics_rate_hz": (2.0, "rate of /diagnostics [Hz]"),
+            "telemetry_decimation": (10, "publish position and estimate every N-th period (1 = every period)"),
+            "loop_thread": (True, "real time: take resolver samples and demands on a lean helper node in its own "
+                                  "thread (lower latency than the main executor with its services and timers)"),
+            "initial_current_a": (0.0, "q-current the loop starts from when it first arms [A]: bumpless take-over "
+                                       "of a valve already held by a drive (the plant's start_held)"),
+            "monitor_drive_telemetry": (False, "subscribe to the plant's drive telemetry for the measured-current "
+                                               "check (one more 1 kHz subscription)"),
+        })
         try:
             ps = load_controller_params(None, ri.read_spec(self, CONTROLLER_SPEC))
         except ConfigError as exc:

@@ -151,6 +151,13 @@ def declare_spec(node, spec, values=None, names: Iterable[str] | None = None) ->
         node.declare_parameter(p.name, default, desc)
 
 
+def declare_read_only(node, params: dict) -> None:
+    """Declare node-level, start-up-only parameters: ``{name: (default, description)}``."""
+    from rcl_interfaces.msg import ParameterDescriptor
+    for name, (default, description) in params.items():
+        node.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True))
+
+
 def read_spec(node, spec, names: Iterable[str] | None = None) -> dict:
     """Current values of the declared parameters of ``spec`` as ``{name: value}``."""
     out = {}
