@@ -68,17 +68,15 @@ class PlantNode(Node):
     def __init__(self, **kwargs):
         super().__init__("plant", **kwargs)
         ri.declare_spec(self, PLANT_SPEC)
-        from rcl_interfaces.msg import ParameterDescriptor
-        self.declare_parameter("lockstep_participants", 2, ParameterDescriptor(
-            description="lockstep: number of nodes subscribed to /clock (use_sim_time nodes: controller, "
-                        "demand, recorder...) to wait for before the first step", read_only=True))
-        self.declare_parameter("stop_after_s", 0.0, ParameterDescriptor(
-            description="lockstep: stop advancing once the plant time reaches this [s] (0: never), so a "
-                        "recorded run has exactly this length", read_only=True))
-        self.declare_parameter("start_held", False, ParameterDescriptor(
-            description="start at rest at initial_position_rad held there by the drive (coupling twisted, "
-                        "holding current flowing), as the offline simulator's initial_percent does; "
-                        "false: at rest with the drive off", read_only=True))
+        ri.declare_read_only(self, {
+            "lockstep_participants": (2, "lockstep: number of nodes subscribed to /clock (use_sim_time nodes: "
+                                         "controller, demand, recorder...) to wait for before the first step"),
+            "stop_after_s": (0.0, "lockstep: stop advancing once the plant time reaches this [s] (0: never), so "
+                                  "a recorded run has exactly this length"),
+            "start_held": (False, "start at rest at initial_position_rad held there by the drive (coupling "
+                                  "twisted, holding current flowing), as the offline simulator's initial_percent "
+                                  "does; false: at rest with the drive off"),
+        })
         try:
             ps = PLANT_SPEC.validate(ri.read_spec(self, PLANT_SPEC))
             self.ps = PLANT_SPEC.defaults().replace(ps)
@@ -120,7 +118,9 @@ class PlantNode(Node):
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(1.0, self.publish_diagnostics)
         if self.lockstep:
+            from builtin_interfaces.msg import Time
             from rosgraph_msgs.msg import Clock
+            self._clock_msg, self._time_msg = Clock, Time     # built every period: resolve once
             self.pub_clock = ri.quiet_publisher(self, Clock, ri.CLOCK, ri.TELEMETRY_QOS)
             self._started = False
             self._waiting_since = time.monotonic()
@@ -232,13 +232,11 @@ class PlantNode(Node):
         self.publish_outputs()
 
     def publish_outputs(self) -> None:
-        from builtin_interfaces.msg import Time
         t = self.plant.time
         if self.lockstep:
-            from rosgraph_msgs.msg import Clock
             sec = int(t)
-            stamp = Time(sec=sec, nanosec=int(round((t - sec) * 1e9)))
-            self.pub_clock.publish(Clock(clock=stamp))
+            stamp = self._time_msg(sec=sec, nanosec=int(round((t - sec) * 1e9)))
+            self.pub_clock.publish(self._clock_msg(clock=stamp))
         else:
             stamp = self.get_clock().now().to_msg()
         sample = self.plant.resolver()
