@@ -43,8 +43,7 @@ from fuel_valve_plant.paramspec import ConfigError, parse_overrides
 from fuel_valve_plant.plant import Plant
 from fuel_valve_plant.plant_params import PLANT_SPEC, default_config_dir
 
-from .controller_params import CONTROLLER_SPEC, MODES
-from .model import NominalModel
+from .controller_params import MODES
 from .scenarios import Scenario, load_scenario
 
 NODES = ("plant", "controller", "demand")
@@ -91,10 +90,13 @@ def plan_for(scenario: Scenario | None, lockstep: bool, mode: str | None = None,
     if mode is not None:
         controller["mode"] = mode
     if scenario is not None and scenario.initial_percent > 0.0:
-        hold_a = _holding_current(plant, scenario.initial_percent)
-        plant["initial_position_rad"] = scenario.initial_percent / 100.0 * _stroke(plant)
+        # as fuel_valve_sim does: the plant starts held there, the loop from the holding current
+        # (the controller turns it into torque with its nominal torque constant, like the simulator)
+        ps = _plant_params(plant)
+        angle = scenario.initial_percent / 100.0 * ps["valve.stroke_rad"]
+        plant["initial_position_rad"] = angle
         plant["start_held"] = True
-        controller["initial_current_a"] = hold_a * _torque_constant(plant) / _nominal_kt(controller)
+        controller["initial_current_a"] = Plant(ps).hold_at(angle)
     duration = float(duration_s if duration_s is not None else duration)
     plant["lockstep"] = lockstep
     controller["lockstep"] = lockstep
@@ -123,27 +125,6 @@ def _plant_params(overrides: dict):
     ps = PLANT_SPEC.defaults()
     known = {k: v for k, v in overrides.items() if k in PLANT_SPEC}
     return ps.replace(PLANT_SPEC.validate(known))
-
-
-def _stroke(plant_overrides: dict) -> float:
-    return _plant_params(plant_overrides)["valve.stroke_rad"]
-
-
-def _holding_current(plant_overrides: dict, percent: float) -> float:
-    ps = _plant_params(plant_overrides)
-    return Plant(ps).hold_at(percent / 100.0 * ps["valve.stroke_rad"])
-
-
-def _torque_constant(plant_overrides: dict) -> float:
-    ps = _plant_params(plant_overrides)
-    return 1.5 * ps["motor.pole_pairs"] * ps["motor.flux_linkage_wb"]
-
-
-def _nominal_kt(controller_overrides: dict) -> float:
-    """The controller multiplies initial_current_a by its nominal torque constant."""
-    from .controller_params import load_controller_params
-    known = {k: v for k, v in controller_overrides.items() if k in CONTROLLER_SPEC}
-    return NominalModel.from_params(load_controller_params(overrides=known)).torque_constant_nm_per_a
 
 
 def write_params_file(path: Path, params: dict) -> None:
