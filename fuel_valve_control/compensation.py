@@ -16,7 +16,6 @@ estimate is friction acting toward closed (the shaft moves toward open).
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from .friction_observer import FrictionObserver
