@@ -152,7 +152,11 @@ def _files(node) -> list[Path]:
 
 
 def _declared_params(executable: str) -> set[str]:
-    names = set(re.findall(r'declare_parameter\(\s*"([A-Za-z_][\w.]*)"', NODE_SOURCES[executable].read_text()))
+    source = NODE_SOURCES[executable].read_text()
+    names = set(re.findall(r'declare_parameter\(\s*"([A-Za-z_][\w.]*)"', source))
+    # and the entries of ros_interface.declare_read_only(self, {"name": (default, text), ...}) tables
+    for table in re.findall(r"declare_read_only\(self, \{(.*?)\n\s*\}\)", source, re.S):
+        names |= set(re.findall(r'^\s*"([A-Za-z_][\w.]*)": \(', table, re.M))
     if executable in CONFIG_FILES:
         doc = yaml.safe_load((ROOT / "config" / CONFIG_FILES[executable]).read_text())
         names |= set(doc["/**"]["ros__parameters"])
