@@ -207,8 +207,12 @@ class PlantNode(Node):
         # the graph (what discovery has seen) and the publishers' matched subscriptions (what a
         # message published now would actually reach) must both be complete
         ready = (self.count_subscribers(ri.RESOLVER) >= 1 and self.count_publishers(ri.CURRENT_COMMAND) >= 1
-                 and len(clock_nodes) >= self._participants and self.pub_resolver.get_subscription_count() >= 1
-                 and self.pub_clock.get_subscription_count() >= self._participants)
+                 and len(clock_nodes) >= self._participants
+                 and self.pub_resolver.get_subscription_count() >= max(1, self.count_subscribers(ri.RESOLVER))
+                 # every discovered /clock subscription, not one per node: the demand node has two
+                 # (its time source and its tick handler) and needs the second for the first tick
+                 and self.pub_clock.get_subscription_count() >= max(self._participants,
+                                                                    self.count_subscribers(ri.CLOCK)))
         if not ready:
             self._ready_since = None
             if time.monotonic() - self._waiting_since > 5.0:
