@@ -14,12 +14,18 @@ new profile starts from the current time.
 """
 from __future__ import annotations
 
+import time
+
 from rclpy.node import Node
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 
 from fuel_valve_plant import ros_interface as ri
 
 from .profiles import ProfileError, make_profile
+
+#: lockstep: longest wall time a tick waits for the demand's subscribers to match; after it the
+#: demand goes out anyway (a graph entry that never matches, e.g. a vanished node, must not stall)
+MATCH_WAIT_S = 2.0
 
 PROFILE_KEYS = {
     # name: (default, description)
@@ -104,6 +110,7 @@ class DemandNode(Node):
 
     def on_clock(self, msg) -> None:
         self._pending_tick = msg.clock.sec + 1e-9 * msg.clock.nanosec
+        self._tick_since = time.monotonic()
         self._answer_tick()
 
     def _answer_tick(self) -> None:
@@ -114,7 +121,8 @@ class DemandNode(Node):
             return
         topic, pub = (ri.DEMAND, self.pub_pct) if self.output == "percent" else (ri.DEMAND_MA, self.pub_ma)
         seen = self.count_subscribers(topic)
-        if seen == 0 or pub.get_subscription_count() < seen:
+        waited = time.monotonic() - self._tick_since
+        if (seen == 0 or pub.get_subscription_count() < seen) and waited < MATCH_WAIT_S:
             return                          # the retry timer asks again shortly
         t, self._pending_tick = self._pending_tick, None
         self.publish(t)
