@@ -1,14 +1,14 @@
 """ament_python package ``fuel_valve`` (also pip-installable for machines without ROS)."""
 from glob import glob
 
-from setuptools import setup
+from setuptools import find_packages, setup
 
 PACKAGE = "fuel_valve"
 
 setup(
     name=PACKAGE,
     version="0.1.0",
-    packages=["fuel_valve_plant", "fuel_valve_control"],
+    packages=find_packages(include=["fuel_valve_plant", "fuel_valve_plant.*", "fuel_valve_control", "fuel_valve_control.*"]),
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -25,14 +25,14 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
-            "plant = fuel_valve_plant.plant_node:main",
-            "controller = fuel_valve_control.controller_node:main",
-            "demand = fuel_valve_control.demand_node:main",
-            "recorder = fuel_valve_control.recorder:main",
-            "fuel_valve_sim = fuel_valve_control.sim:main",
-            "fuel_valve_report = fuel_valve_control.report:main",
-            "fuel_valve_demo = fuel_valve_control.suite:main",
-            "fuel_valve_datasheet = fuel_valve_plant.datasheet:main",
+            "plant = fuel_valve_plant.ros.plant_node:main",
+            "controller = fuel_valve_control.ros.controller_node:main",
+            "demand = fuel_valve_control.ros.demand_node:main",
+            "recorder = fuel_valve_control.tools.recorder:main",
+            "fuel_valve_sim = fuel_valve_control.tools.sim:main",
+            "fuel_valve_report = fuel_valve_control.tools.report:main",
+            "fuel_valve_demo = fuel_valve_control.tools.demo:main",
+            "fuel_valve_datasheet = fuel_valve_plant.tools.datasheet:main",
         ],
     },
 )

@@ -35,12 +35,12 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from fuel_valve_control import sim  # noqa: E402
-from fuel_valve_control.controller_params import DEFAULT_MODE, MODES  # noqa: E402
-from fuel_valve_control.metrics import RESOLVER_COUNT_RAD  # noqa: E402
-from fuel_valve_control.scenarios import builtin_names, load_scenario  # noqa: E402
-from fuel_valve_plant.friction import friction_levels  # noqa: E402
-from fuel_valve_plant.plant_params import PLANT_SPEC  # noqa: E402
+from fuel_valve_control.tools import sim  # noqa: E402
+from fuel_valve_control.core.params import DEFAULT_MODE, MODES  # noqa: E402
+from fuel_valve_control.tools.metrics import RESOLVER_COUNT_RAD  # noqa: E402
+from fuel_valve_control.tools.scenarios import builtin_names, load_scenario  # noqa: E402
+from fuel_valve_plant.physics.friction import friction_levels  # noqa: E402
+from fuel_valve_plant.physics.params import PLANT_SPEC  # noqa: E402
 
 METRIC_KEYS = ("rise_time_s", "overshoot_pct", "settling_time_s", "steady_state_error_rad",
                "limit_cycle_amplitude_rad", "limit_cycle_frequency_hz", "peak_current_a", "rms_current_a",

@@ -23,9 +23,9 @@ import time
 
 
 def measure(seconds: float, rate_hz: float, period_s: float = 1e-3) -> dict:
-    from fuel_valve_plant import kernel
-    from fuel_valve_plant.plant import Plant
-    from fuel_valve_plant.plant_params import load_plant_params
+    from fuel_valve_plant.physics import kernel
+    from fuel_valve_plant.physics.plant import Plant
+    from fuel_valve_plant.physics.params import load_plant_params
 
     plant = Plant(load_plant_params(overrides={"physics_rate_hz": rate_hz}))
     plant.set_command(0.0, True)

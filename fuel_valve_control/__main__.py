@@ -2,14 +2,14 @@
 parameter specification (values, units, ranges and descriptions in one place)."""
 import sys
 
-from fuel_valve_plant.paramspec import to_ros_yaml
-from fuel_valve_plant.plant_params import default_config_dir
+from .common.paramspec import to_ros_yaml
+from .common.config_dir import default_config_dir
 
-from .controller_params import CONTROLLER_SPEC
+from .core.params import CONTROLLER_SPEC
 
 HEADER = """Controller (valve driver) parameters, ROS 2 parameter-file format.
 Used by `ros2 run fuel_valve controller --ros-args --params-file config/controller.yaml`, by the
-launch file and by fuel_valve_sim.  Generated from fuel_valve_control/controller_params.py
+launch file and by fuel_valve_sim.  Generated from fuel_valve_control/core/params.py
 (`python -m fuel_valve_control write-config`); each line says unit, range and meaning.
 Gains are not here: they are designed at start-up from model.* and design.*."""
 

@@ -11,7 +11,8 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from fuel_valve_plant import ros_interface as ri
+from fuel_valve_control.common import contract  # noqa: E402
+from fuel_valve_control.ros import interface as ri
 
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -34,16 +35,16 @@ class Probe:
         self.latest: dict[str, tuple[float, object]] = {}
         self.history: dict[str, list[tuple[float, object]]] = {t: [] for t in keep_all}
         self.diagnostics: dict[str, object] = {}       # status name -> latest DiagnosticStatus
-        types = {ri.POSITION: Float64, ri.CURRENT_COMMAND: Float64, ri.DRIVE_ENABLE: Bool,
-                 ri.RESOLVER: JointState, ri.JOINT_STATES: JointState, ri.ESTIMATE: JointState,
-                 ri.DRIVE: Float64MultiArray}
+        types = {contract.POSITION: Float64, contract.CURRENT_COMMAND: Float64, contract.DRIVE_ENABLE: Bool,
+                 contract.RESOLVER: JointState, contract.JOINT_STATES: JointState, contract.ESTIMATE: JointState,
+                 contract.DRIVE: Float64MultiArray}
         for topic, mtype in types.items():
-            qos = ri.LATCHED_QOS if topic == ri.DRIVE_ENABLE else DEEP
+            qos = ri.LATCHED_QOS if topic == contract.DRIVE_ENABLE else DEEP
             self.node.create_subscription(mtype, topic, lambda m, t=topic: self._store(t, m), qos)
-        self.node.create_subscription(DiagnosticArray, ri.DIAGNOSTICS, self._on_diag, DEEP)
-        self.pub_demand = self.node.create_publisher(Float64, ri.DEMAND, ri.LOOP_QOS)
-        self.pub_demand_ma = self.node.create_publisher(Float64, ri.DEMAND_MA, ri.LOOP_QOS)
-        self.pub_resolver = self.node.create_publisher(JointState, ri.RESOLVER, ri.LOOP_QOS)
+        self.node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, self._on_diag, DEEP)
+        self.pub_demand = self.node.create_publisher(Float64, contract.DEMAND, ri.LOOP_QOS)
+        self.pub_demand_ma = self.node.create_publisher(Float64, contract.DEMAND_MA, ri.LOOP_QOS)
+        self.pub_resolver = self.node.create_publisher(JointState, contract.RESOLVER, ri.LOOP_QOS)
         self._float = Float64
         self._demand: tuple[str, float] | None = None
         self.node.create_timer(0.01, self._publish_demand)      # a supervisor at 100 Hz
@@ -71,14 +72,14 @@ class Probe:
                 self.diagnostics[st.name] = st
 
     # ---------------------------------------------------------------- inputs
-    def set_demand(self, value: float | None, topic: str = ri.DEMAND) -> None:
+    def set_demand(self, value: float | None, topic: str = contract.DEMAND) -> None:
         """Publish ``value`` on ``topic`` every 10 ms from now on (None: fall silent)."""
         self._demand = None if value is None else (topic, value)
 
     def _publish_demand(self):
         if self._demand is not None:
             topic, value = self._demand
-            (self.pub_demand if topic == ri.DEMAND else self.pub_demand_ma).publish(self._float(data=value))
+            (self.pub_demand if topic == contract.DEMAND else self.pub_demand_ma).publish(self._float(data=value))
 
     def seize_valve(self, valve_rad: float | None, gear_ratio: float = 48.019, rate_hz: float = 1000.0) -> None:
         """Act as a plant whose valve is seized at ``valve_rad``: publish consistent resolver
@@ -93,7 +94,7 @@ class Probe:
             while self._seized is not None and self.context.ok():
                 stamp = self.node.get_clock().now().to_msg()
                 self.pub_resolver.publish(JointState(header=__import__("std_msgs.msg").msg.Header(stamp=stamp),
-                                                     name=list(ri.JOINT_NAMES),
+                                                     name=list(contract.JOINT_NAMES),
                                                      position=[self._seized * gear_ratio, self._seized]))
                 next_t += 1.0 / rate_hz
                 time.sleep(max(0.0, next_t - time.monotonic()))
@@ -102,7 +103,7 @@ class Probe:
         self._seize_thread.start()
 
     def publish_raw(self, topic: str, value: float) -> None:
-        (self.pub_demand if topic == ri.DEMAND else self.pub_demand_ma).publish(self._float(data=value))
+        (self.pub_demand if topic == contract.DEMAND else self.pub_demand_ma).publish(self._float(data=value))
 
     # ---------------------------------------------------------------- reading
     def get(self, topic: str):
@@ -115,7 +116,7 @@ class Probe:
             return [m for t, m in self.history.get(topic, []) if t >= t0]
 
     def valve_angle(self) -> float | None:
-        msg = self.get(ri.JOINT_STATES)
+        msg = self.get(contract.JOINT_STATES)
         return None if msg is None else msg.position[1]
 
     def driver_status(self):

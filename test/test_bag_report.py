@@ -16,8 +16,8 @@ pytest.importorskip("rosbags")
 from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
-from fuel_valve_control import report, sim  # noqa: E402
-from fuel_valve_control.bag_io import BagError, read_bag  # noqa: E402
+from fuel_valve_control.tools import report, sim  # noqa: E402
+from fuel_valve_control.tools.bag_io import BagError, read_bag  # noqa: E402
 
 TS = get_typestore(Stores.ROS2_JAZZY)
 NS = "/fv"

@@ -16,12 +16,12 @@ import math
 
 import pytest
 
-from fuel_valve_control import sim
-from fuel_valve_control.controller_params import DEFAULT_MODE
-from fuel_valve_control.metrics import RESOLVER_COUNT_RAD
-from fuel_valve_control.scenarios import builtin_names, load_scenario
-from fuel_valve_plant.friction import friction_levels
-from fuel_valve_plant.plant_params import PLANT_SPEC
+from fuel_valve_control.tools import sim
+from fuel_valve_control.core.params import DEFAULT_MODE
+from fuel_valve_control.tools.metrics import RESOLVER_COUNT_RAD
+from fuel_valve_control.tools.scenarios import builtin_names, load_scenario
+from fuel_valve_plant.physics.friction import friction_levels
+from fuel_valve_plant.physics.params import PLANT_SPEC
 
 TWO_COUNTS = 2.0 * RESOLVER_COUNT_RAD            # 1.92e-4 rad
 SSE_TARGET = 1e-3                                 # SPEC §6 hold steady-state error, rad

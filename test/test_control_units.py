@@ -12,13 +12,13 @@ import pytest
 from scipy.linalg import solve_discrete_are
 from scipy.signal import cont2discrete, lfilter
 
-from fuel_valve_control import design
-from fuel_valve_control import metrics as M
-from fuel_valve_control.controller_params import CONTROLLER_SPEC
-from fuel_valve_control.friction_observer import FrictionObserver
-from fuel_valve_control.limits import CurrentLimiter
-from fuel_valve_control.model import NominalModel, zoh
-from fuel_valve_control.position_controller import design_all
+from fuel_valve_control.core import design
+from fuel_valve_control.tools import metrics as M
+from fuel_valve_control.core.params import CONTROLLER_SPEC
+from fuel_valve_control.core.friction_observer import FrictionObserver
+from fuel_valve_control.core.limits import CurrentLimiter
+from fuel_valve_control.core.model import NominalModel, zoh
+from fuel_valve_control.core.position_controller import design_all
 
 PS = CONTROLLER_SPEC.defaults()
 MODEL = NominalModel.from_params(PS)

@@ -135,7 +135,7 @@ def test_share_directory_and_ament_index(install):
 
 def test_sourced_install_is_found_by_ament_index(install):
     code = ("from ament_index_python.packages import get_package_share_directory as g; "
-            "import fuel_valve_plant.plant_params as pp; print(g('fuel_valve')); print(pp.default_config_dir())")
+            "import fuel_valve_plant.physics.params as pp; print(g('fuel_valve')); print(pp.default_config_dir())")
     result = _sourced(install, sys.executable, "-c", code)
     assert result.returncode == 0, result.stderr
     share, config = result.stdout.split()

@@ -31,10 +31,10 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = ROOT / "launch" / "fuel_valve.launch.py"
 NODE_SOURCES = {
-    "plant": ROOT / "fuel_valve_plant" / "plant_node.py",
-    "controller": ROOT / "fuel_valve_control" / "controller_node.py",
-    "demand": ROOT / "fuel_valve_control" / "demand_node.py",
-    "recorder": ROOT / "fuel_valve_control" / "recorder.py",
+    "plant": ROOT / "fuel_valve_plant" / "ros" / "plant_node.py",
+    "controller": ROOT / "fuel_valve_control" / "ros" / "controller_node.py",
+    "demand": ROOT / "fuel_valve_control" / "ros" / "demand_node.py",
+    "recorder": ROOT / "fuel_valve_control" / "tools" / "recorder.py",
 }
 CONFIG_FILES = {"plant": "plant.yaml", "controller": "controller.yaml", "demand": "demand.yaml"}
 ARGUMENTS = {"namespace": "fuel_valve", "mode": "", "lockstep": "false", "record": "false",

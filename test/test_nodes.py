@@ -21,9 +21,9 @@ os.environ["ROS_DOMAIN_ID"] = __import__("ros_probe").unique_domain_id()
 
 from ros_probe import Probe  # noqa: E402
 
-from fuel_valve_control import sim, suite  # noqa: E402
-from fuel_valve_control.scenarios import load_scenario  # noqa: E402
-from fuel_valve_plant import ros_interface as ri  # noqa: E402
+from fuel_valve_control.tools import demo as suite, sim  # noqa: E402
+from fuel_valve_control.tools.scenarios import load_scenario  # noqa: E402
+from fuel_valve_control.common import contract  # noqa: E402
 
 STROKE = 1.0471975511965976
 BIN = Path(sys.executable).parent
@@ -101,9 +101,9 @@ def rig(tmp_path_factory):
                                                 "faults.resolver_timeout_s": 0.1})
     s = suite.Suite(plan, "/rig", tmp_path_factory.mktemp("rig"), monitor=False)
     s.start(("plant", "controller"))
-    probe = Probe("/rig", keep_all=(ri.CURRENT_COMMAND, ri.DRIVE_ENABLE))
+    probe = Probe("/rig", keep_all=(contract.CURRENT_COMMAND, contract.DRIVE_ENABLE))
     try:
-        probe.set_demand(4.0 + 16.0 * 0.30, ri.DEMAND_MA)      # 30 %
+        probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)      # 30 %
         probe.wait_for(lambda: probe.driver_level() == 0 and _near(probe, 0.30), 30.0, "valve at 30 %")
         yield s, probe
     finally:
@@ -116,7 +116,7 @@ def rig(tmp_path_factory):
 def healthy(rig):
     """Each fault test starts from a running loop holding 30 %, whatever the previous left."""
     s, probe = rig
-    probe.set_demand(4.0 + 16.0 * 0.30, ri.DEMAND_MA)
+    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
     if probe.driver_level() != 0:
         _reset_and_recover(probe)
     probe.wait_for(lambda: probe.driver_level() == 0 and _near(probe, 0.30, 0.02), 10.0, "healthy at 30 %")
@@ -133,11 +133,11 @@ def _assert_fail_safe(probe, t0, fault_words, timeout=3.0):
     probe.wait_for(lambda: probe.driver_level() == 2, timeout, f"ERROR ({fault_words})")
     st = probe.driver_status()
     assert any(w in st.message for w in fault_words), st.message
-    probe.wait_for(lambda: probe.get(ri.DRIVE_ENABLE) is not None and not probe.get(ri.DRIVE_ENABLE).data,
+    probe.wait_for(lambda: probe.get(contract.DRIVE_ENABLE) is not None and not probe.get(contract.DRIVE_ENABLE).data,
                    2.0, "drive_enable false")
     probe.wait_for(lambda: probe.valve_angle() < 0.02 * STROKE, 2.0, "valve closed by the spring")
     time.sleep(0.05)
-    late = [m.data for m in probe.since(ri.CURRENT_COMMAND, time.monotonic() - 0.04)]
+    late = [m.data for m in probe.since(contract.CURRENT_COMMAND, time.monotonic() - 0.04)]
     assert late and all(c == 0.0 for c in late), late[-5:]
 
 
@@ -161,9 +161,9 @@ def test_trip_service_closes_the_valve_and_reset_rearms(healthy):
 @pytest.mark.parametrize("bad_ma, words", [(3.0, ("NE43",)), (21.5, ("NE43",)), (math.nan, ("finite",))])
 def test_ne43_signal_failure_latches(healthy, bad_ma, words):
     _, probe = healthy
-    probe.set_demand(bad_ma, ri.DEMAND_MA)
+    probe.set_demand(bad_ma, contract.DEMAND_MA)
     _assert_fail_safe(probe, time.monotonic(), words)
-    probe.set_demand(4.0 + 16.0 * 0.30, ri.DEMAND_MA)
+    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
     time.sleep(0.1)
     assert probe.driver_level() == 2                  # a good signal alone does not clear it
     _reset_and_recover(probe)
@@ -173,7 +173,7 @@ def test_silent_demand_trips_and_resets(healthy):
     _, probe = healthy
     probe.set_demand(None)
     _assert_fail_safe(probe, time.monotonic(), ("demand",))
-    probe.set_demand(4.0 + 16.0 * 0.30, ri.DEMAND_MA)
+    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
     _reset_and_recover(probe)
 
 
@@ -197,7 +197,7 @@ def seized(tmp_path):
         "faults.resolver_timeout_s": 1.0})       # the test's Python thread plays the resolver: allow it gaps
     s = suite.Suite(plan, "/seized", tmp_path, monitor=False)
     s.start(("controller",))
-    probe = Probe("/seized", keep_all=(ri.CURRENT_COMMAND,))
+    probe = Probe("/seized", keep_all=(contract.CURRENT_COMMAND,))
     try:
         probe.seize_valve(0.30 * STROKE, rate_hz=250.0)      # a Python thread: a modest rate
         probe.set_demand(30.0)
@@ -212,10 +212,10 @@ def _assert_latched_off(probe, words, timeout):
     probe.wait_for(lambda: probe.driver_level() == 2, timeout, f"ERROR ({words})")
     st = probe.driver_status()
     assert any(w in st.message for w in words), st.message
-    probe.wait_for(lambda: probe.get(ri.DRIVE_ENABLE) is not None and not probe.get(ri.DRIVE_ENABLE).data,
+    probe.wait_for(lambda: probe.get(contract.DRIVE_ENABLE) is not None and not probe.get(contract.DRIVE_ENABLE).data,
                    2.0, "drive_enable false")
     time.sleep(0.05)
-    late = [m.data for m in probe.since(ri.CURRENT_COMMAND, time.monotonic() - 0.04)]
+    late = [m.data for m in probe.since(contract.CURRENT_COMMAND, time.monotonic() - 0.04)]
     assert late and all(c == 0.0 for c in late), late[-5:]
 
 
@@ -234,7 +234,7 @@ def test_i2t_budget_latches(seized):
     t0 = time.monotonic()
     probe.set_demand(60.0)                             # the loop asks for full current, for ever
     _assert_latched_off(probe, ("I2t",), 10.0)
-    peak = [m.data for m in probe.since(ri.CURRENT_COMMAND, t0)]
+    peak = [m.data for m in probe.since(contract.CURRENT_COMMAND, t0)]
     assert max(abs(c) for c in peak) <= 37.0 + 1e-9    # never beyond the peak rating meanwhile
     probe.set_demand(30.0)
     probe.wait_for(lambda: probe.trigger("controller/reset").success, 5.0, "reset")
@@ -283,20 +283,20 @@ def test_malformed_inputs_never_crash_or_drive_unsafely(healthy):
     from sensor_msgs.msg import JointState
     t0 = time.monotonic()
     for value in (math.nan, math.inf, -math.inf, 1e308, -1e308, 0.0, 25.0):
-        probe.publish_raw(ri.DEMAND_MA, value)
-        probe.publish_raw(ri.DEMAND, value)            # not the selected source: ignored
+        probe.publish_raw(contract.DEMAND_MA, value)
+        probe.publish_raw(contract.DEMAND, value)            # not the selected source: ignored
         time.sleep(0.02)     # loop topics keep only the newest sample: let each one be taken
     for _ in range(2000):                              # a burst
-        probe.publish_raw(ri.DEMAND_MA, 12.0)
+        probe.publish_raw(contract.DEMAND_MA, 12.0)
     bad = JointState(name=["something_else"], position=[1.0])
     probe.pub_resolver.publish(bad)
-    probe.pub_resolver.publish(JointState(name=list(ri.JOINT_NAMES), position=[math.nan, math.inf]))
+    probe.pub_resolver.publish(JointState(name=list(contract.JOINT_NAMES), position=[math.nan, math.inf]))
     time.sleep(0.5)
     assert not s.failed(), s.log_tail("controller")
-    commands = [m.data for m in probe.since(ri.CURRENT_COMMAND, t0)]
+    commands = [m.data for m in probe.since(contract.CURRENT_COMMAND, t0)]
     assert commands and all(math.isfinite(c) and abs(c) <= 37.0 for c in commands)
     probe.wait_for(lambda: probe.driver_level() == 2, 2.0, "fault from the malformed inputs")
-    probe.set_demand(4.0 + 16.0 * 0.30, ri.DEMAND_MA)
+    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
     _reset_and_recover(probe)
 
 

@@ -1,9 +1,9 @@
 """Plant configuration loading and validation: clear errors naming the key and its range."""
 import pytest
 
-from fuel_valve_plant.paramspec import ConfigError, parse_overrides, read_ros_param_file
-from fuel_valve_plant.plant import Plant
-from fuel_valve_plant.plant_params import PLANT_SPEC, default_config_dir, load_plant_params
+from fuel_valve_control.common.paramspec import ConfigError, parse_overrides, read_ros_param_file
+from fuel_valve_plant.physics.plant import Plant
+from fuel_valve_plant.physics.params import PLANT_SPEC, default_config_dir, load_plant_params
 
 
 def test_shipped_plant_yaml_holds_the_spec_defaults():

@@ -8,11 +8,11 @@ import sys
 import numpy as np
 import pytest
 
-from fuel_valve_plant import datasheet
-from fuel_valve_plant.friction import friction_levels
-from fuel_valve_plant.motor import MotorConstants, abc_to_dq, dq_to_abc
-from fuel_valve_plant.plant import Plant
-from fuel_valve_plant.plant_params import load_plant_params
+from fuel_valve_plant.tools import datasheet
+from fuel_valve_plant.physics.friction import friction_levels
+from fuel_valve_plant.physics.motor import MotorConstants, abc_to_dq, dq_to_abc
+from fuel_valve_plant.physics.plant import Plant
+from fuel_valve_plant.physics.params import load_plant_params
 
 PS = load_plant_params()
 N = PS["gearbox.ratio"]
@@ -318,13 +318,13 @@ def test_dq_transform_round_trip():
 
 def test_compiled_kernel_matches_interpreted():
     """numba must not change the physics: same trajectory, bit for bit up to rounding."""
-    from fuel_valve_plant import kernel
+    from fuel_valve_plant.physics import kernel
     if not kernel.JIT:
         pytest.skip("numba not installed: the interpreted kernel is the only one")
     script = (
         "import json\n"
-        "from fuel_valve_plant.plant import Plant\n"
-        "from fuel_valve_plant.plant_params import load_plant_params\n"
+        "from fuel_valve_plant.physics.plant import Plant\n"
+        "from fuel_valve_plant.physics.params import load_plant_params\n"
         "p = Plant(load_plant_params(overrides={'resolver.valve_noise_counts': 0.0}))\n"
         "out = []\n"
         "for k in range(120):\n"

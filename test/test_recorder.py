@@ -44,17 +44,17 @@ TS = get_typestore(Stores.ROS2_JAZZY)
 def exe(name: str) -> list[str]:
     here = Path(sys.executable).parent / name
     return [str(here)] if here.exists() else [sys.executable, "-m", {
-        "plant": "fuel_valve_plant.plant_node", "controller": "fuel_valve_control.controller_node",
-        "demand": "fuel_valve_control.demand_node", "recorder": "fuel_valve_control.recorder"}[name]]
+        "plant": "fuel_valve_plant.ros.plant_node", "controller": "fuel_valve_control.ros.controller_node",
+        "demand": "fuel_valve_control.ros.demand_node", "recorder": "fuel_valve_control.tools.recorder"}[name]]
 
 
 def step_small_params():
     """Node parameters of step_small (what suite.plan_for produces for it)."""
-    from fuel_valve_control.controller_params import load_controller_params
-    from fuel_valve_control.model import NominalModel
-    from fuel_valve_control.scenarios import load_scenario
-    from fuel_valve_plant.plant import Plant
-    from fuel_valve_plant.plant_params import load_plant_params
+    from fuel_valve_control.core.params import load_controller_params
+    from fuel_valve_control.core.model import NominalModel
+    from fuel_valve_control.tools.scenarios import load_scenario
+    from fuel_valve_plant.physics.plant import Plant
+    from fuel_valve_plant.physics.params import load_plant_params
     sc = load_scenario("step_small")
     dp = float(sc.pressure_kpa)
     ps = load_plant_params(overrides={"pressure_differential_kpa": dp})
@@ -263,7 +263,7 @@ def test_mcap_publish_time_and_sequence(lockstep_bag):
 
 
 def test_report_agrees_with_offline_sim(lockstep_bag, capsys):
-    from fuel_valve_control import report, sim
+    from fuel_valve_control.tools import report, sim
     code = report.main([str(lockstep_bag.bag)])
     out = capsys.readouterr().out
     print(out)
@@ -282,7 +282,7 @@ def test_report_agrees_with_offline_sim(lockstep_bag, capsys):
 
 
 def test_sigint_mid_run_leaves_a_readable_sqlite3_bag(tmp_path):
-    from fuel_valve_control import report
+    from fuel_valve_control.tools import report
     run = LockstepRun(tmp_path, tmp_path / "interrupted", "sqlite3")
     try:
         run.start()

@@ -1,6 +1,6 @@
 """``ros2 run fuel_valve demand``: emulates the turbine supervisory stack's valve demand.
 
-Publishes a profile (see :mod:`~fuel_valve_control.profiles`) on ``demand`` (percent) or,
+Publishes a profile (see :mod:`~fuel_valve_control.tools.profiles`) on ``demand`` (percent) or,
 with ``output:=ma``, on ``demand_ma`` as a 4-20 mA signal (4 mA = closed, 20 mA = open).
 Profile time starts when the node starts (at ROS time 0 in lockstep runs).
 
@@ -19,9 +19,10 @@ import time
 from rclpy.node import Node
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 
-from fuel_valve_plant import ros_interface as ri
+from ..common import contract
+from . import interface as ri
 
-from .profiles import ProfileError, make_profile
+from ..tools.profiles import ProfileError, make_profile
 
 #: lockstep: longest wall time a tick waits for the demand's subscribers to match; after it the
 #: demand goes out anyway (a graph entry that never matches, e.g. a vanished node, must not stall)
@@ -41,10 +42,6 @@ PROFILE_KEYS = {
     "f0_hz": (0.5, "chirp: start frequency, Hz"),
     "f1_hz": (20.0, "chirp: end frequency, Hz"),
 }
-
-
-def ma_from_percent(pct: float) -> float:
-    return 4.0 + 16.0 * min(max(pct, 0.0), 100.0) / 100.0
 
 
 class DemandNode(Node):
@@ -73,14 +70,14 @@ class DemandNode(Node):
         self.output = self._output(self.get_parameter("output").value)
         from std_msgs.msg import Float64
         self._msg_type = Float64
-        self.pub_pct = ri.quiet_publisher(self, Float64, ri.DEMAND)
-        self.pub_ma = ri.quiet_publisher(self, Float64, ri.DEMAND_MA)
+        self.pub_pct = ri.quiet_publisher(self, Float64, contract.DEMAND)
+        self.pub_ma = ri.quiet_publisher(self, Float64, contract.DEMAND_MA)
         self.t0 = None
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self._pending_tick = None
         if self.get_parameter("lockstep").value:
             from rosgraph_msgs.msg import Clock
-            ri.quiet_subscription(self, Clock, ri.CLOCK, self.on_clock, ri.TELEMETRY_QOS)
+            ri.quiet_subscription(self, Clock, contract.CLOCK, self.on_clock, ri.TELEMETRY_QOS)
             from rclpy.clock import Clock as WallClock, ClockType
             # a wall-clock timer: simulated time stands still while the tick waits
             self.create_timer(0.01, self._answer_tick, clock=WallClock(clock_type=ClockType.STEADY_TIME))
@@ -119,7 +116,7 @@ class DemandNode(Node):
         published before its subscription matched would be lost (the run would stall)."""
         if self._pending_tick is None:
             return
-        topic, pub = (ri.DEMAND, self.pub_pct) if self.output == "percent" else (ri.DEMAND_MA, self.pub_ma)
+        topic, pub = (contract.DEMAND, self.pub_pct) if self.output == "percent" else (contract.DEMAND_MA, self.pub_ma)
         seen = self.count_subscribers(topic)
         waited = time.monotonic() - self._tick_since
         if (seen == 0 or pub.get_subscription_count() < seen) and waited < MATCH_WAIT_S:
@@ -135,7 +132,7 @@ class DemandNode(Node):
         if self.output == "percent":
             self.pub_pct.publish(self._msg_type(data=float(pct)))
         else:
-            self.pub_ma.publish(self._msg_type(data=ma_from_percent(pct)))
+            self.pub_ma.publish(self._msg_type(data=contract.percent_to_ma(min(max(pct, 0.0), 100.0))))
 
     def on_set_parameters(self, params) -> SetParametersResult:
         changes = {p.name: p.value for p in params}

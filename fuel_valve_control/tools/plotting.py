@@ -100,7 +100,7 @@ def _zoom_window(t: np.ndarray, segments) -> tuple[float, float]:
 
 
 def plot_result(result, path: str) -> str:
-    """Plot a :class:`~fuel_valve_control.sim.SimResult`."""
+    """Plot a :class:`~fuel_valve_control.tools.sim.SimResult`."""
     c = result.column
     series = {"t": c("t"), "demand": c("demand_rad"), "position": c("position_rad"), "measured": c("measured_rad"),
               "current_cmd": c("current_cmd_a"), "i_q": c("i_q_a"), "i_d": c("i_d_a"),

@@ -18,10 +18,12 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-from fuel_valve_plant.paramspec import ParamSet
+from ..common.contract import (NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_HIGH_MA, NE43_USABLE_LOW_MA,
+                                PERCENT_FAIL_MARGIN, ma_to_percent)
+from ..common.paramspec import ParamSet
 
 from .control_laws import Measurement
-from .controller_params import CONTROLLER_SPEC
+from .params import CONTROLLER_SPEC
 from .position_controller import PositionController
 
 DEMAND_SIGNAL = "demand_signal_failure"
@@ -32,17 +34,6 @@ TRACKING = "tracking_error"
 OVERCURRENT = "overcurrent_i2t"
 TRIPPED = "commanded_trip"
 FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE, TRACKING, OVERCURRENT, TRIPPED)
-
-# NAMUR NE43 for the 4-20 mA demand
-NE43_FAIL_LOW_MA = 3.6
-NE43_FAIL_HIGH_MA = 21.0
-NE43_USABLE_LOW_MA = 3.8
-NE43_USABLE_HIGH_MA = 20.5
-PERCENT_FAIL_MARGIN = 5.0          # percent demands beyond -5 % / 105 % are signal failures
-
-
-def ma_to_percent(ma: float) -> float:
-    return (ma - 4.0) / 16.0 * 100.0
 
 
 @dataclass

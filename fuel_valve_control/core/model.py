@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
-from fuel_valve_plant.friction import FrictionLevels
+from ..common.friction import FrictionCoefficients, FrictionLevels, pressure_fraction
 
 
 @dataclass(frozen=True)
@@ -76,14 +76,18 @@ class NominalModel:
         return math.sqrt(k / self.j1 + k / self.valve_inertia_kgm2)
 
     def pressure_fraction(self, pressure_kpa: float) -> float:
-        return min(max(pressure_kpa / self.pressure_max_kpa, 0.0), 1.0)
+        return pressure_fraction(pressure_kpa, self.pressure_max_kpa)
+
+    @property
+    def friction_coefficients(self) -> FrictionCoefficients:
+        """The nominal friction schedule (the same law the plant integrates)."""
+        return FrictionCoefficients(self.motor_coulomb_nm, self.motor_static_nm, self.valve_coulomb_nm,
+                                    self.valve_coulomb_per_dp_nm, self.valve_static_nm,
+                                    self.valve_static_per_dp_nm, self.pressure_max_kpa)
 
     def friction(self, pressure_kpa: float) -> FrictionLevels:
         """Nominal friction levels at a pressure differential."""
-        f = self.pressure_fraction(pressure_kpa)
-        return FrictionLevels(self.motor_coulomb_nm, self.motor_static_nm,
-                              self.valve_coulomb_nm + self.valve_coulomb_per_dp_nm * f,
-                              self.valve_static_nm + self.valve_static_per_dp_nm * f)
+        return self.friction_coefficients.levels(pressure_kpa)
 
     def load_torque(self, valve_angle: float, pressure_kpa: float) -> float:
         """Known load on the valve toward closed: spring + nominal flow torque, N*m."""

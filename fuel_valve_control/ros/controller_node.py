@@ -1,6 +1,6 @@
 """``ros2 run fuel_valve controller``: the valve driver (position controller + fault logic).
 
-A thin layer over :class:`~fuel_valve_control.driver.ValveDriver`, the same object the
+A thin layer over :class:`~fuel_valve_control.core.driver.ValveDriver`, the same object the
 offline simulator runs.  Each ``resolver`` sample triggers one control period (the sample
 is the loop's clock, so the command leaves as soon as the measurement arrives); a watchdog
 timer keeps the fault logic running when samples stop, so silence trips the drive too.
@@ -24,11 +24,12 @@ import time
 from rclpy.node import Node
 from rcl_interfaces.msg import SetParametersResult
 
-from fuel_valve_plant import ros_interface as ri
-from fuel_valve_plant.paramspec import ConfigError
+from ..common import contract
+from . import interface as ri
+from ..common.paramspec import ConfigError
 
-from .controller_params import CONTROLLER_SPEC, load_controller_params
-from .driver import ValveDriver
+from ..core.params import CONTROLLER_SPEC, load_controller_params
+from ..core.driver import ValveDriver
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
 
@@ -81,11 +82,11 @@ class ControllerNode(Node):
         from std_srvs.srv import Trigger
         from builtin_interfaces.msg import Time
         self._float, self._bool, self._time = Float64, Bool, Time
-        self.pub_current = ri.quiet_publisher(self, Float64, ri.CURRENT_COMMAND)
-        self.pub_enable = ri.quiet_publisher(self, Bool, ri.DRIVE_ENABLE)
-        self.pub_position = ri.quiet_publisher(self, Float64, ri.POSITION)
-        self.pub_estimate = ri.quiet_publisher(self, JointState, ri.ESTIMATE)
-        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, ri.DIAGNOSTICS)
+        self.pub_current = ri.quiet_publisher(self, Float64, contract.CURRENT_COMMAND)
+        self.pub_enable = ri.quiet_publisher(self, Bool, contract.DRIVE_ENABLE)
+        self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION)
+        self.pub_estimate = ri.quiet_publisher(self, JointState, contract.ESTIMATE)
+        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
         # one lock serialises the driver between the loop thread and the executor's callbacks
         self._lock = threading.Lock()
         self.loop_io = None
@@ -97,11 +98,11 @@ class ControllerNode(Node):
             subscribe = self.loop_io.subscribe
         else:
             subscribe = functools.partial(ri.quiet_subscription, self)
-        subscribe(Float64, ri.DEMAND, self.on_demand)
-        subscribe(Float64, ri.DEMAND_MA, self.on_demand_ma)
-        subscribe(JointState, ri.RESOLVER, self.on_resolver)
+        subscribe(Float64, contract.DEMAND, self.on_demand)
+        subscribe(Float64, contract.DEMAND_MA, self.on_demand_ma)
+        subscribe(JointState, contract.RESOLVER, self.on_resolver)
         if self.get_parameter("monitor_drive_telemetry").value:
-            ri.quiet_subscription(self, Float64MultiArray, ri.DRIVE, self.on_drive)
+            ri.quiet_subscription(self, Float64MultiArray, contract.DRIVE, self.on_drive)
         self._decimation = max(int(self.get_parameter("telemetry_decimation").value), 1)
         self._periods = 0
         self._compute = ComputeTime()
@@ -152,10 +153,10 @@ class ControllerNode(Node):
     @locked
     def on_resolver(self, msg) -> None:
         values = ri.joint_values(msg)
-        motor, valve = values.get(ri.MOTOR_JOINT), values.get(ri.VALVE_JOINT)
+        motor, valve = values.get(contract.MOTOR_JOINT), values.get(contract.VALVE_JOINT)
         if motor is None or valve is None:
             self._bad_messages += 1
-            self.get_logger().warn(f"resolver message without {ri.MOTOR_JOINT}/{ri.VALVE_JOINT} positions ignored",
+            self.get_logger().warn(f"resolver message without {contract.MOTOR_JOINT}/{contract.VALVE_JOINT} positions ignored",
                                    throttle_duration_sec=1.0)
             return
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec

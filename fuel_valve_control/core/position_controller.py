@@ -12,13 +12,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fuel_valve_plant.paramspec import ParamSet
+from ..common.paramspec import ParamSet
 
 from . import design
 from .compensation import Compensator, FriedlandPark, ReferenceFeedforward, StictionGain
 from .control_laws import (ControlLaw, Estimate, IntegralPolicy, Measurement, PIDLaw, Seating,
                            StateFeedbackLaw)
-from .controller_params import CONTROLLER_SPEC, MODES
+from .params import CONTROLLER_SPEC, MODES
 from .friction_observer import FrictionObserver
 from .limits import CurrentLimiter
 from .model import NominalModel

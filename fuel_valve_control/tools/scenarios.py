@@ -24,8 +24,8 @@ from typing import Any
 
 import yaml
 
-from fuel_valve_plant.paramspec import ConfigError
-from fuel_valve_plant.plant_params import default_config_dir
+from ..common.paramspec import ConfigError
+from ..common.config_dir import default_config_dir
 
 from .profiles import Profile, ProfileError, make_profile
 

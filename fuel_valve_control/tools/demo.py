@@ -39,11 +39,12 @@ from pathlib import Path
 
 import yaml
 
-from fuel_valve_plant.paramspec import ConfigError, parse_overrides
-from fuel_valve_plant.plant import Plant
-from fuel_valve_plant.plant_params import PLANT_SPEC, default_config_dir
+from ..common.paramspec import ConfigError, parse_overrides
+from fuel_valve_plant.physics.plant import Plant
+from ..common.config_dir import default_config_dir
+from fuel_valve_plant.physics.params import PLANT_SPEC
 
-from .controller_params import MODES
+from ..core.params import MODES
 from .scenarios import Scenario, load_scenario
 
 NODES = ("plant", "controller", "demand")
@@ -157,8 +158,8 @@ def executable(name: str) -> list[str]:
     found = shutil.which(name)
     if found:
         return [found]
-    modules = {"plant": "fuel_valve_plant.plant_node", "controller": "fuel_valve_control.controller_node",
-               "demand": "fuel_valve_control.demand_node", "recorder": "fuel_valve_control.recorder"}
+    modules = {"plant": "fuel_valve_plant.ros.plant_node", "controller": "fuel_valve_control.ros.controller_node",
+               "demand": "fuel_valve_control.ros.demand_node", "recorder": "fuel_valve_control.tools.recorder"}
     return [sys.executable, "-m", modules[name]]
 
 
@@ -276,7 +277,8 @@ class Monitor:
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64
-        from fuel_valve_plant import ros_interface as ri
+        from ..common import contract
+        from ..ros import interface as ri
 
         self.rclpy = rclpy
         self.context = rclpy.context.Context()
@@ -294,18 +296,18 @@ class Monitor:
         self.fault_messages: list[str] = []
         self.errors: list[float] = []              # |demand - position| %, per position sample
         n = self.node
-        ri.quiet_subscription(n, Float64, ri.DEMAND, self._on_demand, ri.TELEMETRY_QOS)
-        ri.quiet_subscription(n, Float64, ri.POSITION, self._on_position)
-        ri.quiet_subscription(n, JointState, ri.ESTIMATE, self._on_estimate)
-        ri.quiet_subscription(n, DiagnosticArray, ri.DIAGNOSTICS, self._on_diagnostics)
+        ri.quiet_subscription(n, Float64, contract.DEMAND, self._on_demand, ri.TELEMETRY_QOS)
+        ri.quiet_subscription(n, Float64, contract.POSITION, self._on_position)
+        ri.quiet_subscription(n, JointState, contract.ESTIMATE, self._on_estimate)
+        ri.quiet_subscription(n, DiagnosticArray, contract.DIAGNOSTICS, self._on_diagnostics)
         if lockstep:
-            ri.quiet_subscription(n, Clock, ri.CLOCK, self._on_clock, ri.TELEMETRY_QOS)
+            ri.quiet_subscription(n, Clock, contract.CLOCK, self._on_clock, ri.TELEMETRY_QOS)
         #: (stamp s, true valve angle rad, true valve velocity rad/s) per plant sample
         self.truth: list[tuple[float, float, float]] = []
         if record_truth:
             from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
             deep = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-            ri.quiet_subscription(n, JointState, ri.JOINT_STATES, self._on_truth, deep)
+            ri.quiet_subscription(n, JointState, contract.JOINT_STATES, self._on_truth, deep)
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
         self.executor.add_node(n)
 

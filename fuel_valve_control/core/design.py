@@ -17,7 +17,7 @@ import numpy as np
 from scipy.linalg import solve_discrete_are
 from scipy.signal import place_poles
 
-from fuel_valve_plant.paramspec import ConfigError
+from ..common.paramspec import ConfigError
 
 from .model import NominalModel
 

@@ -44,7 +44,8 @@ from pathlib import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from fuel_valve_plant import ros_interface as ri
+from ..common import contract
+from ..ros import interface as ri
 
 #: per-topic queue of the subscriptions: a deep reliable queue absorbs bursts while a chunk
 #: is being flushed to disk
@@ -90,20 +91,20 @@ def topic_list(topics: list[str], use_sim_time: bool, is_default: bool) -> list[
             raise RecorderError(f"empty topic name in topics entry {entry!r}")
         if not msgtype:
             base = name.rstrip("/").rsplit("/", 1)[-1]
-            if name in ri.TOPIC_TYPES:
-                msgtype = ri.TOPIC_TYPES[name]
-            elif name.rstrip("/") == ri.CLOCK:
+            if name in contract.TOPIC_TYPES:
+                msgtype = contract.TOPIC_TYPES[name]
+            elif name.rstrip("/") == contract.CLOCK:
                 msgtype = CLOCK_TYPE
-            elif base in ri.TOPIC_TYPES:
-                msgtype = ri.TOPIC_TYPES[base]
-            elif "/" + base in ri.TOPIC_TYPES:          # e.g. /ns/diagnostics
-                msgtype = ri.TOPIC_TYPES["/" + base]
+            elif base in contract.TOPIC_TYPES:
+                msgtype = contract.TOPIC_TYPES[base]
+            elif "/" + base in contract.TOPIC_TYPES:          # e.g. /ns/diagnostics
+                msgtype = contract.TOPIC_TYPES["/" + base]
             else:
                 raise RecorderError(f"unknown type of topic {name!r}: not a fuel_valve topic, write it as "
                                     f"'{name}:pkg/msg/Type'")
         out.append((name, msgtype.strip()))
-    if use_sim_time and is_default and all(n != ri.CLOCK for n, _ in out):
-        out.append((ri.CLOCK, CLOCK_TYPE))
+    if use_sim_time and is_default and all(n != contract.CLOCK for n, _ in out):
+        out.append((contract.CLOCK, CLOCK_TYPE))
     return out
 
 
@@ -119,7 +120,7 @@ def message_class(msgtype: str):
 def subscription_qos(name: str) -> QoSProfile:
     """RELIABLE, KEEP_LAST DEPTH; TRANSIENT_LOCAL only where the suite's publisher is latched."""
     base = name.rstrip("/").rsplit("/", 1)[-1]
-    durability = ri.qos_for(base).durability if base in ri.TOPIC_TYPES else DurabilityPolicy.VOLATILE
+    durability = ri.qos_for(base).durability if base in contract.TOPIC_TYPES else DurabilityPolicy.VOLATILE
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE,
                       durability=durability)
 
@@ -251,7 +252,7 @@ class Recorder(Node):
         from rosbags.rosbag2 import WriterError
         from rosbags.typesys import Stores, get_typestore
 
-        default_topics = list(ri.TOPIC_TYPES)
+        default_topics = list(contract.TOPIC_TYPES)
         self.declare_parameter("topics", default_topics, ParameterDescriptor(
             type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
             description="topics to record; relative names follow the node namespace; entries other than "
@@ -309,7 +310,7 @@ class Recorder(Node):
         self.storage = storage
 
         # /clock first: within one executor wait, entities are taken in creation order
-        for topic in sorted(self._topics.values(), key=lambda tp: tp.name != ri.CLOCK):
+        for topic in sorted(self._topics.values(), key=lambda tp: tp.name != contract.CLOCK):
             sub = self.create_subscription(message_class(topic.msgtype), topic.name, partial(self._on_message, topic),
                                            subscription_qos(topic.name), raw=True)
             self._check_hash(topic, sub)
@@ -326,7 +327,7 @@ class Recorder(Node):
             return
         stamp = self._clock.now().nanoseconds
         if self._use_sim_time:
-            if topic.name == ri.CLOCK and len(data) >= 12:
+            if topic.name == contract.CLOCK and len(data) >= 12:
                 # CDR: 4-byte encapsulation header, then int32 sec, uint32 nanosec
                 sec = int.from_bytes(data[4:8], "little" if data[1] == 1 else "big", signed=True)
                 nsec = int.from_bytes(data[8:12], "little" if data[1] == 1 else "big")

@@ -29,10 +29,11 @@ import time
 from rclpy.node import Node
 from rcl_interfaces.msg import SetParametersResult
 
-from . import ros_interface as ri
-from .paramspec import ConfigError
-from .plant import TELEMETRY_LABELS, Plant
-from .plant_params import PLANT_SPEC, check_consistency
+from fuel_valve_control.common import contract
+from fuel_valve_control.ros import interface as ri
+from fuel_valve_control.common.paramspec import ConfigError
+from ..physics.plant import Plant
+from ..physics.params import PLANT_SPEC, check_consistency
 
 
 #: lockstep: wall time between seeing every participant and starting, s
@@ -99,21 +100,21 @@ class PlantNode(Node):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Bool, Float64, Float64MultiArray
         from diagnostic_msgs.msg import DiagnosticArray
-        self.pub_resolver = ri.quiet_publisher(self, JointState, ri.RESOLVER)
-        self.pub_truth = ri.quiet_publisher(self, JointState, ri.JOINT_STATES)
-        self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, ri.DRIVE)
-        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, ri.DIAGNOSTICS)
+        self.pub_resolver = ri.quiet_publisher(self, JointState, contract.RESOLVER)
+        self.pub_truth = ri.quiet_publisher(self, JointState, contract.JOINT_STATES)
+        self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, contract.DRIVE)
+        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
         # the loop's inputs are taken by their own lean thread (see LoopIO); drive_enable first:
         # in lockstep a command steps the plant at once, with the enable state it applies to
         # (lockstep runs keep everything on the executor's thread: measured deterministic)
         self.loop_io = None
         if self.lockstep:
-            ri.quiet_subscription(self, Bool, ri.DRIVE_ENABLE, self.on_enable)
-            ri.quiet_subscription(self, Float64, ri.CURRENT_COMMAND, self.on_command)
+            ri.quiet_subscription(self, Bool, contract.DRIVE_ENABLE, self.on_enable)
+            ri.quiet_subscription(self, Float64, contract.CURRENT_COMMAND, self.on_command)
         else:
             self.loop_io = ri.LoopIO(self)
-            self.loop_io.subscribe(Bool, ri.DRIVE_ENABLE, self.on_enable)
-            self.loop_io.subscribe(Float64, ri.CURRENT_COMMAND, self.on_command)
+            self.loop_io.subscribe(Bool, contract.DRIVE_ENABLE, self.on_enable)
+            self.loop_io.subscribe(Float64, contract.CURRENT_COMMAND, self.on_command)
             self.loop_io.start()
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(1.0, self.publish_diagnostics)
@@ -121,7 +122,7 @@ class PlantNode(Node):
             from builtin_interfaces.msg import Time
             from rosgraph_msgs.msg import Clock
             self._clock_msg, self._time_msg = Clock, Time     # built every period: resolve once
-            self.pub_clock = ri.quiet_publisher(self, Clock, ri.CLOCK, ri.TELEMETRY_QOS)
+            self.pub_clock = ri.quiet_publisher(self, Clock, contract.CLOCK, ri.TELEMETRY_QOS)
             self._started = False
             self._waiting_since = time.monotonic()
             self._participants = int(self.get_parameter("lockstep_participants").value)
@@ -203,16 +204,16 @@ class PlantNode(Node):
         """Lockstep: start once the controller (and the other participants) are connected."""
         if self._started:                # a call already queued when the timer was cancelled
             return
-        clock_nodes = {(i.node_namespace, i.node_name) for i in self.get_subscriptions_info_by_topic(ri.CLOCK)}
+        clock_nodes = {(i.node_namespace, i.node_name) for i in self.get_subscriptions_info_by_topic(contract.CLOCK)}
         # the graph (what discovery has seen) and the publishers' matched subscriptions (what a
         # message published now would actually reach) must both be complete
-        ready = (self.count_subscribers(ri.RESOLVER) >= 1 and self.count_publishers(ri.CURRENT_COMMAND) >= 1
+        ready = (self.count_subscribers(contract.RESOLVER) >= 1 and self.count_publishers(contract.CURRENT_COMMAND) >= 1
                  and len(clock_nodes) >= self._participants
-                 and self.pub_resolver.get_subscription_count() >= max(1, self.count_subscribers(ri.RESOLVER))
+                 and self.pub_resolver.get_subscription_count() >= max(1, self.count_subscribers(contract.RESOLVER))
                  # every discovered /clock subscription, not one per node: the demand node has two
                  # (its time source and its tick handler) and needs the second for the first tick
                  and self.pub_clock.get_subscription_count() >= max(self._participants,
-                                                                    self.count_subscribers(ri.CLOCK)))
+                                                                    self.count_subscribers(contract.CLOCK)))
         if not ready:
             self._ready_since = None
             if time.monotonic() - self._waiting_since > 5.0:
@@ -252,7 +253,7 @@ class PlantNode(Node):
         self.pub_truth.publish(ri.joint_state(
             stamp, (truth.motor_angle, truth.valve_angle), (truth.motor_velocity, truth.valve_velocity),
             (truth.electromagnetic_torque, truth.coupling_torque)))
-        self.pub_drive.publish(ri.labelled_array(TELEMETRY_LABELS, self.plant.telemetry()))
+        self.pub_drive.publish(ri.labelled_array(contract.TELEMETRY_LABELS, self.plant.telemetry()))
 
     # ------------------------------------------------------------------ parameters
     def on_set_parameters(self, params) -> SetParametersResult:

@@ -2,16 +2,16 @@
 
 These are the measurements the actuator data sheet quotes (dissertation table 2-3): 24.86 N*m
 continuous at 15 A, 62.38 N*m peak at 37 A, 125 ms to open and 120 ms to close (spring) at
-28 V.  The tests assert them and ``python -m fuel_valve_plant.datasheet`` prints them.
+28 V.  The tests assert them and ``python -m fuel_valve_plant.tools.datasheet`` prints them.
 """
 from __future__ import annotations
 
 import argparse
 import json
 
-from .paramspec import ParamSet
-from .plant import Plant
-from .plant_params import load_plant_params
+from fuel_valve_control.common.paramspec import ParamSet
+from ..physics.plant import Plant
+from ..physics.params import load_plant_params
 
 RATED_CONTINUOUS = (15.0, 24.86)   # A, N*m at the valve
 RATED_PEAK = (37.0, 62.38)

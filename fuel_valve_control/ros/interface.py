@@ -1,8 +1,8 @@
-"""The ROS 2 interface contract of SPEC §4 in one place: topic names, joint names, QoS, message
-builders/readers and ROS-parameter declaration from a :class:`~.paramspec.ParamSpec`.
+"""ROS side of the interface contract (SPEC §4): QoS per topic, message builders/readers and
+ROS-parameter declaration from a :class:`~fuel_valve_control.common.paramspec.ParamSpec`.
 
-Imported only by nodes and tools (it needs rclpy and the message packages); the simulation
-cores never import it.
+Names and types of the topics are in :mod:`fuel_valve_control.common.contract` (no rclpy);
+this module is imported only by nodes and tools, never by the cores.
 
 QoS (documented in README): every topic is RELIABLE so any subscriber (a recorder with a
 deep reliable queue, ``ros2 topic echo``) can connect.  Loop topics (``resolver``,
@@ -19,36 +19,7 @@ from typing import Iterable, Sequence
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-# --- topics (relative: they follow the node namespace) ---------------------------------------
-DEMAND = "demand"
-DEMAND_MA = "demand_ma"
-POSITION = "position"
-CURRENT_COMMAND = "current_command"
-DRIVE_ENABLE = "drive_enable"
-RESOLVER = "resolver"
-JOINT_STATES = "joint_states"
-DRIVE = "drive"
-ESTIMATE = "estimate"
-DIAGNOSTICS = "/diagnostics"
-CLOCK = "/clock"
-
-#: every topic of the suite with its message type name (the recorder's default list)
-TOPIC_TYPES = {
-    DEMAND: "std_msgs/msg/Float64",
-    DEMAND_MA: "std_msgs/msg/Float64",
-    POSITION: "std_msgs/msg/Float64",
-    CURRENT_COMMAND: "std_msgs/msg/Float64",
-    DRIVE_ENABLE: "std_msgs/msg/Bool",
-    RESOLVER: "sensor_msgs/msg/JointState",
-    JOINT_STATES: "sensor_msgs/msg/JointState",
-    DRIVE: "std_msgs/msg/Float64MultiArray",
-    ESTIMATE: "sensor_msgs/msg/JointState",
-    DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
-}
-
-MOTOR_JOINT = "motor_shaft"
-VALVE_JOINT = "valve_shaft"
-JOINT_NAMES = (MOTOR_JOINT, VALVE_JOINT)
+from ..common import contract as c
 
 # --- QoS ---------------------------------------------------------------------------------------
 LOOP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -75,9 +46,10 @@ def quiet_subscription(node, msg_type, topic: str, callback, qos: QoSProfile | N
 
 
 def qos_for(topic: str) -> QoSProfile:
-    if topic in (RESOLVER, CURRENT_COMMAND, DEMAND, DEMAND_MA):
+    """The QoS profile of one of the suite's topics (by its relative name)."""
+    if topic in c.LOOP_TOPICS:
         return LOOP_QOS
-    if topic == DRIVE_ENABLE:
+    if topic in c.LATCHED_TOPICS:
         return LATCHED_QOS
     return TELEMETRY_QOS
 
@@ -89,7 +61,7 @@ def joint_state(stamp, positions: Sequence[float], velocities: Sequence[float] =
     from sensor_msgs.msg import JointState
     msg = JointState()
     msg.header.stamp = stamp
-    msg.name = list(JOINT_NAMES)
+    msg.name = list(c.JOINT_NAMES)
     msg.position = [float(x) for x in positions]
     msg.velocity = [float(x) for x in velocities]
     msg.effort = [float(x) for x in efforts]

@@ -22,13 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fuel_valve_plant.paramspec import ConfigError, ParamSet, parse_overrides
-from fuel_valve_plant.plant import Plant
-from fuel_valve_plant.plant_params import load_plant_params
+from ..common.paramspec import ConfigError, ParamSet, parse_overrides
+from fuel_valve_plant.physics.plant import Plant
+from fuel_valve_plant.physics.params import load_plant_params
 
 from . import metrics as M
-from .controller_params import MODES, load_controller_params
-from .driver import ValveDriver
+from ..core.params import MODES, load_controller_params
+from ..core.driver import ValveDriver
 from .scenarios import Scenario, load_scenario
 
 #: columns of :attr:`SimResult.log`

@@ -13,10 +13,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .paramspec import Param, ParamSet, ParamSpec
-
-PRESSURE_MAX_KPA = 6206.0
-STROKE_RAD = 1.0472
+from fuel_valve_control.common.config_dir import default_config_dir
+from fuel_valve_control.common.contract import PRESSURE_MAX_KPA, STROKE_RAD
+from fuel_valve_control.common.paramspec import ConfigError, Param, ParamSet, ParamSpec
 
 FRICTION_MODELS = ("stick_slip", "lugre")
 RESOLVER_FAULTS = ("none", "resolver_stuck", "resolver_dropout", "resolver_noise_burst")
@@ -105,21 +104,6 @@ PLANT_SPEC = ParamSpec("plant", [
 ])
 
 
-def default_config_dir() -> Path:
-    """``config/`` of the source tree or of the installed package share directory."""
-    here = Path(__file__).resolve().parent
-    for candidate in (here.parent / "config",):
-        if candidate.is_dir():
-            return candidate
-    try:  # installed with colcon / ament
-        from ament_index_python.packages import get_package_share_directory
-        return Path(get_package_share_directory("fuel_valve")) / "config"
-    except Exception:  # noqa: BLE001 - ament index absent or package not registered
-        pass
-    import sys
-    share = Path(sys.prefix) / "share" / "fuel_valve" / "config"
-    return share
-
 
 def load_plant_params(path: str | Path | None = "default", overrides=None) -> ParamSet:
     """Plant parameters from ``config/plant.yaml`` (``"default"``), another file, or none."""
@@ -132,7 +116,6 @@ def load_plant_params(path: str | Path | None = "default", overrides=None) -> Pa
 
 def check_consistency(ps: ParamSet) -> None:
     """Cross-parameter rules a single range cannot express."""
-    from .paramspec import ConfigError
     if ps["friction.motor.static_nm"] < ps["friction.motor.coulomb_nm"]:
         raise ConfigError("plant: friction.motor.static_nm must be >= friction.motor.coulomb_nm")
     if ps["friction.valve.static_nm"] < ps["friction.valve.coulomb_nm"]:

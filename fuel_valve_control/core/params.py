@@ -1,27 +1,32 @@
 """Controller parameters (SPEC §3, §4): every design choice is a named value with a unit.
 
 The ``model.*`` section is the controller's *nominal* knowledge of the actuator (what the
-vendor's data sheet and drawings say); gains are designed from it at start-up.  It defaults
-to the plant's nominal parameters, so a perturbed plant (robustness studies) is controlled
-with gains designed for the nominal one.
+vendor's data sheet and drawings say); gains are designed from it at start-up.  It is the
+controller's own parameter set -- a controller deployed on real hardware runs without the
+simulated plant installed -- and its defaults are the data-sheet values the simulated plant
+is also built from (``test_architecture.py`` checks that they agree), so a perturbed plant
+(robustness studies) is controlled with gains designed for the nominal one.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from fuel_valve_plant.paramspec import ConfigError, Param, ParamSet, ParamSpec
-from fuel_valve_plant.plant_params import PLANT_SPEC, PRESSURE_MAX_KPA, default_config_dir
+from ..common.config_dir import default_config_dir
+from ..common.contract import PRESSURE_MAX_KPA, STROKE_RAD
+from ..common.paramspec import ConfigError, Param, ParamSet, ParamSpec
 
 MODES = ("pi", "pi_dither", "observer", "observer_fc", "kalman_fc", "fc_gain", "observer_ff")
 DEFAULT_MODE = "observer_ff"  # best measured (README table); SPEC named observer_fc
 
-_P = PLANT_SPEC.params
+
+def _nominal(name: str, value: float, unit: str, description: str, low: float = 0.0, high: float = 1e6,
+             low_open: bool = False) -> Param:
+    """A ``model.*`` entry: nominal (data-sheet) value of a physical quantity, start-up only."""
+    return Param(f"model.{name}", value, unit, description, low, high, low_open)
 
 
-def _nominal(name: str, plant_name: str, description: str) -> Param:
-    src = _P[plant_name]
-    return Param(f"model.{name}", src.default, src.unit, description, src.low, src.high, src.low_open)
-
+#: data-sheet motor constants the torque constant is derived from (SPEC §2)
+_POLE_PAIRS, _FLUX_LINKAGE_WB = 2, 0.0115
 
 def _friedland_park_params(shaft: str, freeze_default: float, freeze_high: float) -> list[Param]:
     """The Friedland-Park observer parameters of one shaft (same meaning on both)."""
@@ -148,28 +153,29 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("faults.i2t_fault_time_s", 2.0, "s", "time the loop may ask for more than the I2t limit allows "
           "(jam / overload) before the fault latches", 0.05, 60.0, runtime=True),
     # --- nominal model (defaults = plant nominal values) --------------------------------------
-    _nominal("motor_inertia_kgm2", "motor.inertia_kgm2", "rotor inertia Jm"),
-    _nominal("motor_viscous_nms", "motor.viscous_nms", "rotor viscous friction Bm"),
-    Param("model.torque_constant_nm_per_a", 1.5 * _P["motor.pole_pairs"].default * _P["motor.flux_linkage_wb"].default,
+    _nominal("motor_inertia_kgm2", 6.93e-6, "kg*m^2", "rotor inertia Jm", 0.0, 1.0, low_open=True),
+    _nominal("motor_viscous_nms", 2.6e-5, "N*m*s/rad", "rotor viscous friction Bm", 0.0, 1.0),
+    Param("model.torque_constant_nm_per_a", 1.5 * _POLE_PAIRS * _FLUX_LINKAGE_WB,
           "N*m/A", "motor torque per q-axis ampere, 1.5 p psi_f", 0.0, 10.0, low_open=True),
-    _nominal("gear_ratio", "gearbox.ratio", "gear ratio N"),
-    _nominal("coupling_stiffness_nm_per_rad", "coupling.stiffness_nm_per_rad", "coupling stiffness K"),
-    _nominal("coupling_damping_nms", "coupling.damping_nms", "coupling damping c"),
-    _nominal("valve_inertia_kgm2", "valve.inertia_kgm2", "valve inertia JL"),
-    _nominal("valve_viscous_nms", "valve.viscous_nms", "valve viscous friction BL"),
-    _nominal("spring_preload_nm", "spring.preload_nm", "return-spring preload"),
-    _nominal("spring_rate_nm_per_rad", "spring.rate_nm_per_rad", "return-spring rate"),
-    _nominal("flow_torque_max_nm", "flow.torque_max_nm", "peak flow torque at full pressure"),
-    _nominal("stroke_rad", "valve.stroke_rad", "stroke (open stop)"),
-    _nominal("pressure_max_kpa", "friction.pressure_max_kpa", "pressure of the full per_dp friction terms"),
-    _nominal("motor_coulomb_nm", "friction.motor.coulomb_nm", "nominal motor Coulomb friction"),
-    _nominal("motor_static_nm", "friction.motor.static_nm", "nominal motor static friction"),
-    _nominal("valve_coulomb_nm", "friction.valve.coulomb_nm", "nominal valve Coulomb friction at zero pressure"),
-    _nominal("valve_coulomb_per_dp_nm", "friction.valve.coulomb_per_dp_nm", "nominal valve Coulomb friction "
-             "added at full pressure"),
-    _nominal("valve_static_nm", "friction.valve.static_nm", "nominal valve static friction at zero pressure"),
-    _nominal("valve_static_per_dp_nm", "friction.valve.static_per_dp_nm", "nominal valve static friction "
-             "added at full pressure"),
+    _nominal("gear_ratio", 48.019, "", "gear ratio N", 1.0, 1000.0),
+    _nominal("coupling_stiffness_nm_per_rad", 480.0, "N*m/rad", "coupling stiffness K", 0.0, 1e6, low_open=True),
+    _nominal("coupling_damping_nms", 0.05, "N*m*s/rad", "coupling damping c", 0.0, 100.0),
+    _nominal("valve_inertia_kgm2", 1.76e-3, "kg*m^2", "valve inertia JL", 0.0, 10.0, low_open=True),
+    _nominal("valve_viscous_nms", 0.05, "N*m*s/rad", "valve viscous friction BL", 0.0, 100.0),
+    _nominal("spring_preload_nm", 8.0, "N*m", "return-spring preload", 0.0, 200.0),
+    _nominal("spring_rate_nm_per_rad", 4.0, "N*m/rad", "return-spring rate", 0.0, 1000.0),
+    _nominal("flow_torque_max_nm", 2.0, "N*m", "peak flow torque at full pressure", 0.0, 50.0),
+    _nominal("stroke_rad", STROKE_RAD, "rad", "stroke (open stop)", 0.1, 3.2),
+    _nominal("pressure_max_kpa", PRESSURE_MAX_KPA, "kPa", "pressure of the full per_dp friction terms",
+             0.0, 1e5, low_open=True),
+    _nominal("motor_coulomb_nm", 0.0073, "N*m", "nominal motor Coulomb friction", 0.0, 10.0),
+    _nominal("motor_static_nm", 0.010, "N*m", "nominal motor static friction", 0.0, 10.0),
+    _nominal("valve_coulomb_nm", 0.4, "N*m", "nominal valve Coulomb friction at zero pressure", 0.0, 100.0),
+    _nominal("valve_coulomb_per_dp_nm", 4.0, "N*m", "nominal valve Coulomb friction added at full pressure",
+             0.0, 100.0),
+    _nominal("valve_static_nm", 0.5, "N*m", "nominal valve static friction at zero pressure", 0.0, 100.0),
+    _nominal("valve_static_per_dp_nm", 5.0, "N*m", "nominal valve static friction added at full pressure",
+             0.0, 100.0),
 ])
 
 

@@ -2,7 +2,7 @@
 
 Reads a bag (MCAP or sqlite3, from ``recorder`` or ``ros2 bag record``) with :mod:`.bag_io`,
 rebuilds the trace the offline simulator logs and runs the *same* metric code on it
-(:func:`fuel_valve_control.metrics.compute`: step / hold / sweep / trip detection in the
+(:func:`fuel_valve_control.tools.metrics.compute`: step / hold / sweep / trip detection in the
 demand).  Prints a readable report and one JSON line shaped like ``fuel_valve_sim``'s
 output (``scenario`` = bag name, ``controller`` = the mode the controller reported on
 ``/diagnostics``, else ``"unknown"``, ``metrics``, ``segments``).  Bad input (not a bag,
@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..common import contract
 from . import metrics as M
 from .bag_io import Bag, BagError, TopicData, read_bag
 
-STROKE_RAD_DEFAULT = 1.0472
 REQUIRED = {
     "demand": ("demand", "demand_ma"),
     "valve angle": ("joint_states", "resolver", "position"),
@@ -47,11 +47,7 @@ class ReportError(Exception):
 
 
 def _stroke() -> float:
-    try:
-        from fuel_valve_plant.plant_params import PLANT_SPEC
-        return float(PLANT_SPEC.defaults()["valve.stroke_rad"])
-    except Exception:  # noqa: BLE001 - the report must work on a bag alone
-        return STROKE_RAD_DEFAULT
+    return contract.STROKE_RAD
 
 
 def _hold(src_t: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:

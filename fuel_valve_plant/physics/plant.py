@@ -20,16 +20,11 @@ import numpy as np
 from . import kernel as K
 from .friction import flow_torque_peak_nm, friction_levels
 from .motor import MotorConstants, current_pi_gains, dq_to_abc, voltage_limit
-from .paramspec import ParamSet
-from .plant_params import check_consistency, load_plant_params
+from fuel_valve_control.common.contract import TELEMETRY_LABELS
+from fuel_valve_control.common.paramspec import ParamSet
+from .params import check_consistency, load_plant_params
 from .resolver import Resolver, ResolverSample, ValveResolverFaults
 
-#: labels of :meth:`Plant.telemetry` in order (the ``drive`` topic layout)
-TELEMETRY_LABELS = (
-    "i_d", "i_q", "v_d", "v_q", "i_a", "i_b", "i_c",
-    "friction_motor_nm", "friction_valve_nm", "spring_nm", "flow_nm",
-    "electromagnetic_torque_nm", "coupling_torque_nm",
-)
 
 #: largest current reference the inverter accepts, A (hardware clamp; the controller's own
 #: limits are tighter)

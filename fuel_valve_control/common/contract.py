@@ -1,0 +1,78 @@
+"""The interface contract of SPEC §4 in one place, importable without rclpy.
+
+Topic names (relative: they follow the node namespace) and message type names, joint names,
+the ``drive`` telemetry labels, the stroke and pressure range, and the demand scalings
+(percent of the 60° stroke, 4-20 mA with NAMUR NE43 limits).  The plant, the controller,
+the tools and the tests all read these names from here; QoS profiles and message builders
+live in :mod:`fuel_valve_control.ros.interface` (they need rclpy).
+
+Sign conventions: angles in rad, 0 = closed, :data:`STROKE_RAD` = fully open; percent =
+percent of the stroke; currents in A (q axis, positive opening); Δp in kPa.
+"""
+from __future__ import annotations
+
+# --- topics (relative: they follow the node namespace) ---------------------------------------
+DEMAND = "demand"
+DEMAND_MA = "demand_ma"
+POSITION = "position"
+CURRENT_COMMAND = "current_command"
+DRIVE_ENABLE = "drive_enable"
+RESOLVER = "resolver"
+JOINT_STATES = "joint_states"
+DRIVE = "drive"
+ESTIMATE = "estimate"
+PRESSURE_DIFFERENTIAL = "pressure_differential"
+DIAGNOSTICS = "/diagnostics"
+CLOCK = "/clock"
+
+#: every topic of the suite with its message type name (the recorder's default list)
+TOPIC_TYPES = {
+    DEMAND: "std_msgs/msg/Float64",
+    DEMAND_MA: "std_msgs/msg/Float64",
+    POSITION: "std_msgs/msg/Float64",
+    CURRENT_COMMAND: "std_msgs/msg/Float64",
+    DRIVE_ENABLE: "std_msgs/msg/Bool",
+    RESOLVER: "sensor_msgs/msg/JointState",
+    JOINT_STATES: "sensor_msgs/msg/JointState",
+    DRIVE: "std_msgs/msg/Float64MultiArray",
+    ESTIMATE: "sensor_msgs/msg/JointState",
+    PRESSURE_DIFFERENTIAL: "std_msgs/msg/Float64",
+    DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
+}
+
+#: topics of the control loop itself (keep-last-1: a loop wants the newest value, no backlog)
+LOOP_TOPICS = (RESOLVER, CURRENT_COMMAND, DEMAND, DEMAND_MA)
+#: topics that are latched (a late joiner still learns the state)
+LATCHED_TOPICS = (DRIVE_ENABLE,)
+
+MOTOR_JOINT = "motor_shaft"
+VALVE_JOINT = "valve_shaft"
+JOINT_NAMES = (MOTOR_JOINT, VALVE_JOINT)
+
+#: labels of the ``drive`` telemetry array, in order (Float64MultiArray layout labels)
+TELEMETRY_LABELS = (
+    "i_d", "i_q", "v_d", "v_q", "i_a", "i_b", "i_c",
+    "friction_motor_nm", "friction_valve_nm", "spring_nm", "flow_nm",
+    "electromagnetic_torque_nm", "coupling_torque_nm",
+)
+
+# --- the valve -------------------------------------------------------------------------------
+STROKE_RAD = 1.0472              # 60° stroke, open stop
+PRESSURE_MAX_KPA = 6206.0        # maximum gas pressure differential across the valve
+
+# --- demand scalings -------------------------------------------------------------------------
+NE43_FAIL_LOW_MA = 3.6           # NAMUR NE43: at or below = signal failure
+NE43_FAIL_HIGH_MA = 21.0         # at or above = signal failure
+NE43_USABLE_LOW_MA = 3.8         # usable range (clamped to 0..100 %)
+NE43_USABLE_HIGH_MA = 20.5
+PERCENT_FAIL_MARGIN = 5.0        # percent demands beyond -5 % / 105 % are signal failures
+
+
+def ma_to_percent(ma: float) -> float:
+    """4-20 mA -> percent of stroke (4 mA = closed, 20 mA = open); not clamped."""
+    return (ma - 4.0) / 16.0 * 100.0
+
+
+def percent_to_ma(pct: float) -> float:
+    """Percent of stroke -> 4-20 mA (inverse of :func:`ma_to_percent`)."""
+    return 4.0 + 16.0 * pct / 100.0

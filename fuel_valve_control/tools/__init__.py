@@ -1,0 +1,1 @@
+"""Tools: offline simulator, scenarios and demand profiles, demo launcher, recorder, report, metrics, plotting."""

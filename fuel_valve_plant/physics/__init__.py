@@ -1,0 +1,1 @@
+"""ROS-free plant core: the simulated actuator physics."""

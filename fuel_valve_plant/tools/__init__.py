@@ -1,0 +1,1 @@
+"""Plant tools: fuel_valve_datasheet."""
