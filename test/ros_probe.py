@@ -3,7 +3,6 @@ the latest message (and, on request, every message) of the suite's topics, publi
 inputs and calls services and parameter services with timeouts."""
 from __future__ import annotations
 
-import os
 import threading
 import time
 
@@ -15,11 +14,6 @@ from fuel_valve_control.common import contract  # noqa: E402
 from fuel_valve_control.ros import interface as ri
 
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE)
-
-
-def unique_domain_id() -> str:
-    """A DDS domain of its own per test process, so parallel runs never cross-talk."""
-    return str(1 + os.getpid() % 200)
 
 
 class Probe:

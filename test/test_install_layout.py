@@ -32,6 +32,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 EXECUTABLES = ("plant", "controller", "demand", "recorder", "fuel_valve_sim", "fuel_valve_report")
 CONFIGS = ("plant.yaml", "controller.yaml", "demand.yaml")

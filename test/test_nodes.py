@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-os.environ["ROS_DOMAIN_ID"] = __import__("ros_probe").unique_domain_id()
-
 from ros_probe import Probe  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 from fuel_valve_control.tools import demo as suite, sim  # noqa: E402
 from fuel_valve_control.tools.scenarios import load_scenario  # noqa: E402

@@ -8,12 +8,11 @@ step_small: max dp, held at 20 %, step to 22 % at 0.5 s).
 * sqlite3 storage, stopped by SIGINT in the middle of the run: a finalised, readable bag;
 * refuses to overwrite an existing output unless told to, never deletes a non-bag directory.
 
-Each test run uses its own ROS_DOMAIN_ID.  Wall time: about 30 s on 2 cores.
+The module runs in a DDS domain of its own (conftest.py).  Wall time: about 30 s on 2 cores.
 """
 from __future__ import annotations
 
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -29,6 +28,8 @@ pytest.importorskip("rosbags")
 
 from rosbags.highlevel import AnyReader  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 NS = "/fv_rec"
@@ -88,7 +89,7 @@ class LockstepRun:
 
     def __init__(self, tmp: Path, bag: Path, storage: str = "mcap"):
         self.tmp, self.bag, self.storage = tmp, bag, storage
-        self.env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(120, 220)), PYTHONUNBUFFERED="1")
+        self.env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.procs: dict[str, subprocess.Popen] = {}
 
     def _spawn(self, name, params, base=None):
@@ -309,7 +310,7 @@ def _recorder(tmp_path, *params):
     cmd = exe("recorder") + ["--ros-args", "-r", f"__ns:={NS}"]
     for p in params:
         cmd += ["-p", p]
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(120, 220)))
+    env = dict(os.environ)
     return subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
