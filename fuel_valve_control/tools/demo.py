@@ -35,7 +35,7 @@ from ..common.paramspec import ConfigError, parse_overrides
 from ..core.params import MODES
 from .launcher import CLEAN_EXIT_CODES, Launcher
 from .monitor import Monitor, send_event
-from .run_plan import LOCKSTEP, NODES, REAL_TIME, RunPlan, plan_run
+from .run_plan import LOCKSTEP, REAL_TIME, RunPlan, plan_run
 from .scenarios import load_scenario
 
 #: what a real-time demo records: everything the report uses, without the two 1 kHz loop
@@ -65,7 +65,7 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
             if bag:
                 suite.start_recorder(None if lockstep else REPORT_TOPICS)
             if lockstep:                    # profile time = simulated time: all at once
-                suite.start(NODES)
+                suite.start()
             else:                           # profile time starts with the demand node: start it
                 suite.start(("plant", "controller"))       # once the loop runs
                 if not _wait(monitor, suite, monitor.controller_ready):

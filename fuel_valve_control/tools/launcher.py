@@ -2,7 +2,8 @@
 
 :class:`Launcher` starts the plant, controller, demand and recorder nodes of a
 :class:`~.run_plan.RunPlan` as processes (the stand-in for ``ros2 launch`` on machines with
-only the PyPI ROS wheels; ``launch/fuel_valve.launch.py`` takes its lockstep wiring from
+only the PyPI ROS wheels; ``launch/fuel_valve.launch.py``, which imports only launch API,
+writes the same lockstep wiring and ``test/test_launch_file.py`` checks it against
 :func:`lockstep_parameters` and :func:`clock_participants` here):
 
 * command: the installed executable (:func:`executable`), ``--ros-args``, the namespace, the
@@ -16,7 +17,7 @@ only the PyPI ROS wheels; ``launch/fuel_valve.launch.py`` takes its lockstep wir
 * stop: SIGINT (the recorder first, so it finalises the bag with everything), then SIGTERM,
   then SIGKILL for what hangs; the exit codes are returned.
 
-No rclpy here: the launch file and ROS-free tools can import it.
+No rclpy and no simulator imports here (only subprocesses and parameter files).
 """
 from __future__ import annotations
 
@@ -29,11 +30,14 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import yaml
 
 from ..common.config_dir import default_config_dir
-from .run_plan import NODES, RunPlan
+
+if TYPE_CHECKING:                       # no simulator import for a process starter
+    from .run_plan import RunPlan
 
 #: node -> module, for running from a source tree without console scripts
 MODULES = {"plant": "fuel_valve_plant.ros.plant_node", "controller": "fuel_valve_control.ros.controller_node",
@@ -117,7 +121,7 @@ class Launcher:
     ``bag``: the recorder's output (:meth:`start_recorder`); it counts as a participant too.
     """
 
-    def __init__(self, plan: RunPlan, namespace: str = "/fuel_valve", run_dir: Path | None = None,
+    def __init__(self, plan: "RunPlan", namespace: str = "/fuel_valve", run_dir: Path | None = None,
                  bag: Path | None = None, bag_storage: str = "mcap", env: dict | None = None, observers: int = 0):
         self.plan = plan
         self.namespace = "/" + namespace.strip("/")
@@ -130,6 +134,7 @@ class Launcher:
         self.observers = observers
         self.procs: dict[str, subprocess.Popen] = {}
         self.logs: dict[str, Path] = {}
+        self._node_params = plan.node_parameters()
 
     @property
     def lockstep(self) -> bool:
@@ -140,13 +145,14 @@ class Launcher:
 
     def node_parameters(self, name: str) -> dict:
         """What ``name``'s parameter file holds: the plan's node parameters and the clock wiring."""
-        params = dict(self.plan.node_parameters().get(name, {}))
+        params = dict(self._node_params.get(name, {}))
         params.update(lockstep_parameters(name, self.lockstep, self.clock_participants()))
         return params
 
-    def start(self, names=NODES) -> None:
+    def start(self, names=None) -> None:
+        """Start node processes ``names`` (default: the plan's plant, controller and demand)."""
         cfg = default_config_dir()
-        for name in names:
+        for name in names or tuple(self._node_params):
             self._spawn(name, self.node_parameters(name), cfg / f"{name}.yaml")
 
     def start_recorder(self, topics: list[str] | None = None) -> None:
