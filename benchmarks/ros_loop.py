@@ -2,7 +2,8 @@
 """Real-time 1 kHz loop over DDS: plant and controller as separate processes.
 
 Starts ``plant``, ``controller`` and ``demand`` (a slow sine, so the loop works) as real
-processes through their installed executables, lets them run, then stops them and reads
+processes through their installed executables (the run-plan and launcher of
+``fuel_valve_demo``; node logs in a temporary run directory), lets them run, then stops them and reads
 the plant's loop statistics from ``/diagnostics``:
 
 * round trip plant -> controller -> plant: time from publishing a resolver sample to
@@ -20,20 +21,17 @@ import argparse
 import json
 import os
 import random
-import resource
-import shutil
-import signal
-import subprocess
 import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from fuel_valve_control.common.paramspec import ConfigError
+from fuel_valve_control.tools.launcher import Launcher
+from fuel_valve_control.tools.run_plan import REAL_TIME, plan_run
+from fuel_valve_control.tools.scenarios import parse_scenario
 
-
-def executable(name: str) -> str:
-    here = Path(sys.executable).parent / name
-    return str(here) if here.exists() else (shutil.which(name) or name)
+#: the demand: a slow sine around 40 %, so the valve keeps moving
+DEMAND = {"type": "sine", "offset": 40.0, "amplitude": 5.0, "frequency_hz": 0.5}
 
 
 def cpu_seconds(pid: int) -> float:
@@ -48,20 +46,18 @@ def main() -> int:
     parser.add_argument("--demand-rate", type=float, default=200.0, help="demand publish rate, Hz")
     parser.add_argument("--mode", default=None, help="controller mode (default: controller.yaml)")
     args = parser.parse_args()
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(100, 200)), PYTHONWARNINGS="ignore")
-    ns = ["-r", "__ns:=/fuel_valve_bench"]
-    cfg = ROOT / "config"
-    ctrl = [executable("controller"), "--ros-args", "--params-file", str(cfg / "controller.yaml"), *ns]
-    if args.mode:
-        ctrl += ["-p", f"mode:={args.mode}"]
-    cmds = {
-        "plant": [executable("plant"), "--ros-args", "--params-file", str(cfg / "plant.yaml"), *ns],
-        "controller": ctrl,
-        "demand": [executable("demand"), "--ros-args", "--params-file", str(cfg / "demand.yaml"), *ns,
-                   "-p", "profile:=sine", "-p", f"publish_rate_hz:={args.demand_rate}", "-p", "offset:=40.0", "-p", "amplitude:=5.0", "-p", "frequency_hz:=0.5"],
-    }
-    procs = {name: subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-             for name, cmd in cmds.items()}
+    # the DDS domain: ROS_DOMAIN_ID when set, else a random one (not the default 0 of other runs)
+    env = dict(ROS_DOMAIN_ID=os.environ.get("ROS_DOMAIN_ID") or str(random.randint(100, 200)),
+               PYTHONWARNINGS="ignore")
+    try:
+        scenario = parse_scenario({"name": "ros_loop_benchmark", "duration_s": 3600.0, "demand": DEMAND})
+        plan = plan_run(scenario, REAL_TIME, mode=args.mode, demand_overrides={"publish_rate_hz": args.demand_rate})
+    except ConfigError as exc:
+        print(f"ros_loop: {exc}", file=sys.stderr)
+        return 2
+    launcher = Launcher(plan, "/fuel_valve_bench", env=env)
+    launcher.start()
+    procs = launcher.procs
     stats = {}
     try:
         import rclpy
@@ -88,8 +84,7 @@ def main() -> int:
         while time.monotonic() < deadline and float(stats.get("rtt_samples", 0) or 0) < 100:
             rclpy.spin_once(node, timeout_sec=0.1)
         if not stats:
-            raise SystemExit("the loop never started: " + "; ".join(p.stdout.read(2000) for p in procs.values()
-                                                                    if p.poll() is not None))
+            raise SystemExit("the loop never started: " + "; ".join(launcher.log_tail(n) for n in launcher.failed()))
         start_stats = dict(stats)
         cpu0 = {n: cpu_seconds(p.pid) for n, p in procs.items()}
         t0 = time.monotonic()
@@ -105,14 +100,7 @@ def main() -> int:
         node.destroy_node()
         rclpy.shutdown()
     finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in procs.values():
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        launcher.stop()
     ticks = int(stats["ticks"]) - int(start_stats["ticks"])
     missed = int(stats["missed"]) - int(start_stats["missed"])
     result = {

@@ -22,6 +22,8 @@ from ros_probe import Probe  # noqa: E402
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 from fuel_valve_control.tools import demo as suite, sim  # noqa: E402
+from fuel_valve_control.tools.launcher import Launcher, executable  # noqa: E402
+from fuel_valve_control.tools.run_plan import LOCKSTEP, REAL_TIME, plan_run  # noqa: E402
 from fuel_valve_control.tools.scenarios import load_scenario  # noqa: E402
 from fuel_valve_control.common import contract  # noqa: E402
 
@@ -32,7 +34,7 @@ BIN = Path(sys.executable).parent
 def test_nodes_are_installed_executables():
     for name in ("plant", "controller", "demand", "recorder", "fuel_valve_sim", "fuel_valve_report"):
         assert (BIN / name).is_file(), f"console script {name} missing in {BIN}"
-    assert suite.executable("plant") == [str(BIN / "plant")]
+    assert executable("plant") == [str(BIN / "plant")]
 
 
 # ------------------------------------------------------------------------------ lockstep
@@ -42,7 +44,7 @@ def lockstep_runs():
     sc = load_scenario("step_small")
     runs = []
     for k in range(2):
-        plan = suite.plan_for(sc, lockstep=True, duration_s=1.2)
+        plan = plan_run(sc, LOCKSTEP, duration_s=1.2)
         out = io.StringIO()
         summary = suite.run(plan, f"/lockstep{k}", out=out, record_truth=True)
         assert summary["ok"], out.getvalue()
@@ -77,8 +79,8 @@ def test_lockstep_reproduces_the_offline_simulator(lockstep_runs):
 def test_demand_step_moves_the_valve_in_real_time():
     # resolver timeout 0.1 s instead of 20 ms: CI shares 2 cores with other work, and a starved
     # process must not trip this test (the fault itself is tested below)
-    plan = suite.plan_for(load_scenario("step_small"), lockstep=False, duration_s=3.0,
-                          controller_overrides={"faults.resolver_timeout_s": 0.1})
+    plan = plan_run(load_scenario("step_small"), REAL_TIME, duration_s=3.0,
+                    controller_overrides={"faults.resolver_timeout_s": 0.1})
     out = io.StringIO()
     summary = suite.run(plan, "/realtime", out=out)
     text = out.getvalue()
@@ -96,10 +98,10 @@ def test_demand_step_moves_the_valve_in_real_time():
 def rig(tmp_path_factory):
     """Plant (real time, closed, drive off) and controller (demand in mA, NE43) as processes;
     the test is the supervisor."""
-    plan = suite.plan_for(None, lockstep=False, plant_overrides={},
-                          controller_overrides={"demand_source": "ma", "faults.tracking_error_time_s": 0.3,
-                                                "faults.resolver_timeout_s": 0.1})
-    s = suite.Suite(plan, "/rig", tmp_path_factory.mktemp("rig"), monitor=False)
+    plan = plan_run(None, REAL_TIME,
+                    controller_overrides={"demand_source": "ma", "faults.tracking_error_time_s": 0.3,
+                                          "faults.resolver_timeout_s": 0.1})
+    s = Launcher(plan, "/rig", tmp_path_factory.mktemp("rig"))
     s.start(("plant", "controller"))
     probe = Probe("/rig", keep_all=(contract.CURRENT_COMMAND, contract.DRIVE_ENABLE))
     try:
@@ -192,10 +194,10 @@ def test_resolver_faults_latch_and_reset(healthy, injection, words):
 def seized(tmp_path):
     """A controller alone, its plant played by the test: a valve seized at 30 % (resolver
     readings consistent, so only the tracking and current supervision can see it)."""
-    plan = suite.plan_for(None, lockstep=False, controller_overrides={
+    plan = plan_run(None, REAL_TIME, controller_overrides={
         "faults.tracking_error_time_s": 0.3, "faults.i2t_fault_time_s": 0.5,
         "faults.resolver_timeout_s": 1.0})       # the test's Python thread plays the resolver: allow it gaps
-    s = suite.Suite(plan, "/seized", tmp_path, monitor=False)
+    s = Launcher(plan, "/seized", tmp_path)
     s.start(("controller",))
     probe = Probe("/seized", keep_all=(contract.CURRENT_COMMAND,))
     try:

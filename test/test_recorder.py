@@ -15,7 +15,6 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -31,7 +30,6 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
-ROOT = Path(__file__).resolve().parents[1]
 NS = "/fv_rec"
 DURATION_S = 2.0
 PERIODS = int(round(DURATION_S * 1000)) + 1      # samples 0 .. 2.000 s at 1 kHz
@@ -42,112 +40,41 @@ REL_TOL = 2e-3
 TS = get_typestore(Stores.ROS2_JAZZY)
 
 
-def exe(name: str) -> list[str]:
-    here = Path(sys.executable).parent / name
-    return [str(here)] if here.exists() else [sys.executable, "-m", {
-        "plant": "fuel_valve_plant.ros.plant_node", "controller": "fuel_valve_control.ros.controller_node",
-        "demand": "fuel_valve_control.ros.demand_node", "recorder": "fuel_valve_control.tools.recorder"}[name]]
-
-
-def step_small_params():
-    """Node parameters of step_small (what suite.plan_for produces for it)."""
-    from fuel_valve_control.core.params import load_controller_params
-    from fuel_valve_control.core.model import NominalModel
+def step_small_plan():
+    """The run-plan of step_small in lockstep, 2 s long."""
+    from fuel_valve_control.tools.run_plan import LOCKSTEP, plan_run
     from fuel_valve_control.tools.scenarios import load_scenario
-    from fuel_valve_plant.physics.plant import Plant
-    from fuel_valve_plant.physics.params import load_plant_params
-    sc = load_scenario("step_small")
-    dp = float(sc.pressure_kpa)
-    ps = load_plant_params(overrides={"pressure_differential_kpa": dp})
-    theta0 = sc.initial_percent / 100.0 * ps["valve.stroke_rad"]
-    hold_a = Plant(ps).hold_at(theta0)
-    kt_plant = 1.5 * ps["motor.pole_pairs"] * ps["motor.flux_linkage_wb"]
-    kt_nominal = NominalModel.from_params(load_controller_params(
-        overrides={"pressure_differential_kpa": dp})).torque_constant_nm_per_a
-    plant = {"pressure_differential_kpa": dp, "initial_position_rad": float(theta0), "start_held": True,
-             "stop_after_s": DURATION_S}
-    controller = {"pressure_differential_kpa": dp, "initial_current_a": float(hold_a * kt_plant / kt_nominal)}
-    demand = {"profile": "step", "initial": 20.0, "final": 22.0, "at_s": 0.5}
-    return plant, controller, demand
-
-
-GATE = """
-import rclpy
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-rclpy.init()
-node = Node("lockstep_gate", parameter_overrides=[Parameter("use_sim_time", value=True)])
-try:
-    rclpy.spin(node)
-except BaseException:
-    pass
-"""
+    return plan_run(load_scenario("step_small"), LOCKSTEP, duration_s=DURATION_S)
 
 
 class LockstepRun:
-    """recorder + controller + demand, then the plant (lockstep) once the others are up."""
+    """recorder + controller + demand, then the plant (lockstep) once the others are up, then a
+    gate participant (see :meth:`Launcher.start_gate`): the plant only starts when every
+    subscriber had time to match."""
 
     def __init__(self, tmp: Path, bag: Path, storage: str = "mcap"):
-        self.tmp, self.bag, self.storage = tmp, bag, storage
-        self.env = dict(os.environ, PYTHONUNBUFFERED="1")
-        self.procs: dict[str, subprocess.Popen] = {}
-
-    def _spawn(self, name, params, base=None):
-        pfile = self.tmp / f"{name}.params.yaml"
-        pfile.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))
-        cmd = exe(name) + ["--ros-args", "-r", f"__ns:={NS}"]
-        if base:
-            cmd += ["--params-file", str(ROOT / "config" / base)]
-        cmd += ["--params-file", str(pfile)]
-        self.procs[name] = subprocess.Popen(cmd, env=self.env, stdin=subprocess.DEVNULL,
-                                            stdout=open(self.tmp / f"{name}.log", "w"), stderr=subprocess.STDOUT)
+        from fuel_valve_control.tools.launcher import Launcher
+        self.bag = bag
+        self.launcher = Launcher(step_small_plan(), NS, tmp, bag, storage, observers=1)
 
     def log(self, name) -> str:
-        return (self.tmp / f"{name}.log").read_text()
+        return self.launcher.log(name)
 
     def wait_for(self, name, text, timeout=40.0):
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if text in self.log(name):
-                return
-            if self.procs[name].poll() is not None:
-                raise AssertionError(f"{name} exited:\n{self.log(name)}")
-            time.sleep(0.05)
-        raise AssertionError(f"{name}: no {text!r} within {timeout} s:\n{self.log(name)}")
+        self.launcher.wait_for_log(name, text, timeout)
 
     def start(self):
-        plant, controller, demand = step_small_params()
-        self._spawn("recorder", {"output": str(self.bag), "storage": self.storage, "use_sim_time": True})
-        self._spawn("controller", dict(controller, lockstep=True, use_sim_time=True), "controller.yaml")
-        self._spawn("demand", dict(demand, lockstep=True, use_sim_time=True), "demand.yaml")
-        self._spawn("plant", dict(plant, lockstep=True, lockstep_participants=4), "plant.yaml")
+        la = self.launcher
+        la.start_recorder()
+        la.start(("controller", "demand", "plant"))
         for name, text in (("recorder", "recording"), ("controller", "controller up"), ("demand", "demand up"),
                            ("plant", "plant up")):
             self.wait_for(name, text)
-        # The plant starts stepping once it sees 4 /clock subscriber nodes, judged from the ROS
-        # graph, which can run ahead of its publishers' matching: a first sample sent before the
-        # controller's subscription is matched is lost and the lockstep loop never starts.  So
-        # the 4th participant is a gate node started after everything had time to match.
         time.sleep(1.0)
-        self.procs["gate"] = subprocess.Popen(
-            [sys.executable, "-c", GATE], env=self.env, stdin=subprocess.DEVNULL,
-            stdout=open(self.tmp / "gate.log", "w"), stderr=subprocess.STDOUT)
+        la.start_gate()
 
-    def stop(self, names=("recorder", "demand", "controller", "plant", "gate")) -> dict:
-        codes = {}
-        for name in names:
-            p = self.procs.get(name)
-            if p is None:
-                continue
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-                try:
-                    p.wait(timeout=15)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait()
-            codes[name] = p.returncode
-        return codes
+    def stop(self, names=None) -> dict:
+        return self.launcher.stop(names, grace_s=15.0)
 
 
 def read_all(bag: Path):
@@ -307,7 +234,8 @@ def test_sigint_mid_run_leaves_a_readable_sqlite3_bag(tmp_path):
 
 
 def _recorder(tmp_path, *params):
-    cmd = exe("recorder") + ["--ros-args", "-r", f"__ns:={NS}"]
+    from fuel_valve_control.tools.launcher import executable
+    cmd = executable("recorder") + ["--ros-args", "-r", f"__ns:={NS}"]
     for p in params:
         cmd += ["-p", p]
     env = dict(os.environ)

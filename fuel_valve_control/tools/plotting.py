@@ -101,10 +101,6 @@ def _zoom_window(t: np.ndarray, segments) -> tuple[float, float]:
 
 def plot_result(result, path: str) -> str:
     """Plot a :class:`~fuel_valve_control.tools.sim.SimResult`."""
-    c = result.column
-    series = {"t": c("t"), "demand": c("demand_rad"), "position": c("position_rad"), "measured": c("measured_rad"),
-              "current_cmd": c("current_cmd_a"), "i_q": c("i_q_a"), "i_d": c("i_d_a"),
-              "friction_valve": -c("friction_valve_nm"), "friction_valve_est": c("friction_est_valve_nm"),
-              "friction_motor": -c("friction_motor_nm"), "friction_motor_est": c("friction_est_motor_nm")}
+    series = result.series()
     title = f"{result.scenario} - mode {result.controller}"
     return plot_series(series, path, title, result.segments, result.metrics)

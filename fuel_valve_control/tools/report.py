@@ -1,4 +1,4 @@
-"""``fuel_valve_report BAG [--json PATH] [--plot PATH]``: SPEC §5 metrics of a recorded run.
+"""``fuel_valve_report BAG [--json PATH] [--plot PATH] [--trace PATH.csv]``: SPEC §5 metrics of a recorded run.
 
 Reads a bag (MCAP or sqlite3, from ``recorder`` or ``ros2 bag record``) with :mod:`.bag_io`,
 rebuilds the trace the offline simulator logs and runs the *same* metric code on it
@@ -6,7 +6,9 @@ rebuilds the trace the offline simulator logs and runs the *same* metric code on
 demand).  Prints a readable report and one JSON line shaped like ``fuel_valve_sim``'s
 output (``scenario`` = bag name, ``controller`` = the mode the controller reported on
 ``/diagnostics``, else ``"unknown"``, ``metrics``, ``segments``).  Bad input (not a bag,
-empty, required topics missing): a message on stderr and exit code 2.
+empty, required topics missing): a message on stderr and exit code 2.  ``--trace`` writes
+the reconstructed time series as CSV, in the columns of ``fuel_valve_sim --trace``
+(:mod:`.trace`; what the bag lacks is left empty, the fault state always).
 
 Trace reconstruction (all angles rad):
 
@@ -131,6 +133,9 @@ def build_series(bag: Bag) -> tuple[M.Trace, dict, dict]:
     t0 = t_ns[0]
     t = (t_ns - t0) * 1e-9
     series: dict = {"t": t, "position": position}
+    for key, column in (("motor", "motor_shaft.position"), ("velocity", "valve_shaft.velocity")):
+        if column in base:
+            series[key] = base[column]
 
     dem = _first(bag, ("demand",))
     if dem is not None:
@@ -174,6 +179,7 @@ def build_series(bag: Bag) -> tuple[M.Trace, dict, dict]:
         for key, name in (("friction_valve_est", "valve_shaft.effort"), ("friction_motor_est", "motor_shaft.effort")):
             if name in est:
                 series[key] = tl.align(est, est[name])
+    series["current"] = current
     trace = M.Trace(t, series["demand"], position, current, enable, stroke)
     return trace, series, sources
 
@@ -216,11 +222,15 @@ def analyse(bag: Bag) -> tuple[dict, dict]:
     return _jsonable(doc), series
 
 
-def analyse_bag(path: str | Path, plot: str | Path | None = None) -> dict:
+def analyse_bag(path: str | Path, plot: str | Path | None = None, trace: str | Path | None = None) -> dict:
     """SPEC §5 metrics of the bag at ``path`` as ``fuel_valve_sim`` reports them (plus a
-    ``bag`` section); writes the multi-panel PNG to ``plot`` when given.  Raises
-    :class:`ReportError` / :class:`~.bag_io.BagError` for bad input."""
+    ``bag`` section); writes the multi-panel PNG to ``plot`` and the time-series CSV
+    (:mod:`.trace`) to ``trace`` when given.  Raises :class:`ReportError` /
+    :class:`~.bag_io.BagError` for bad input."""
     doc, series = analyse(read_bag(path))
+    if trace:
+        from .trace import write_trace
+        write_trace(trace, series)
     if plot:
         from .plotting import plot_series
         plot_series(series, str(plot), f"{doc['scenario']} - mode {doc['controller']} (bag)", doc["segments"],
@@ -261,9 +271,11 @@ def main(argv=None) -> int:
     parser.add_argument("bag", help="bag directory (or its .mcap / .db3 file)")
     parser.add_argument("--json", metavar="PATH", help="also write the JSON result here")
     parser.add_argument("--plot", metavar="PATH", help="write a multi-panel PNG here")
+    parser.add_argument("--trace", metavar="PATH.csv", help="write the run's time series here (CSV, the columns "
+                        "of fuel_valve_sim --trace)")
     args = parser.parse_args(argv)
     try:
-        doc = analyse_bag(args.bag, args.plot)
+        doc = analyse_bag(args.bag, args.plot, args.trace)
     except (BagError, ReportError) as exc:
         print(f"fuel_valve_report: error: {exc}", file=sys.stderr)
         return 2

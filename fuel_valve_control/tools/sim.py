@@ -1,13 +1,15 @@
 """Offline closed-loop simulator (no ROS): plant + valve driver + demand profile -> metrics.
 
     fuel_valve_sim --scenario NAME|FILE [--controller MODE] [--set section.key=value ...]
-                   [--seed N] [--json PATH] [--plot PATH]
+                   [--seed N] [--json PATH] [--plot PATH] [--trace PATH.csv]
 
 Prints one JSON object: ``{"scenario", "controller", "metrics", "sim_time_s", "wall_time_s",
 "real_time_factor"}`` plus ``"segments"`` (per step/hold/sweep/trip details).  Unknown
 scenario, mode or parameter: a message on stderr and exit code 2.
 
-The loop is the same as on ROS: at every control period the resolver is sampled, the
+``--trace`` writes the run's time series as CSV (columns: :mod:`.trace`).  The run's set-up
+(parameters, initial state, events) is the run-plan's (:mod:`.run_plan`), shared with
+``fuel_valve_demo``.  The loop is the same as on ROS: at every control period the resolver is sampled, the
 driver (the controller node's core) computes the current command, and the plant integrates
 one period with it.
 """
@@ -18,17 +20,17 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..common.paramspec import ConfigError, ParamSet, parse_overrides
 from fuel_valve_plant.physics.plant import Plant
-from fuel_valve_plant.physics.params import load_plant_params
 
-from . import metrics as M
-from ..core.params import MODES, load_controller_params
+from ..common.paramspec import ConfigError, ParamSet, parse_overrides
 from ..core.driver import ValveDriver
+from ..core.params import MODES
+from . import metrics as M
+from .run_plan import OFFLINE, RunPlan, apply_event, plan_run
 from .scenarios import Scenario, load_scenario
 
 #: columns of :attr:`SimResult.log`
@@ -48,9 +50,23 @@ class SimResult:
     sim_time_s: float
     wall_time_s: float
     stroke_rad: float
+    fault: np.ndarray = field(default_factory=lambda: np.zeros(0))   # 1: a latched driver fault
 
     def column(self, name: str) -> np.ndarray:
         return self.log[:, LOG_COLUMNS.index(name)]
+
+    def series(self) -> dict[str, np.ndarray]:
+        """The run as named series (the vocabulary of :mod:`.plotting` and :mod:`.trace`).
+        True friction is given as the torque resisting motion (minus the torque friction
+        applies to the shaft), the sign convention of the controller's estimate."""
+        c = self.column
+        return {"t": c("t"), "demand": c("demand_rad"), "position": c("position_rad"),
+                "measured": c("measured_rad"), "motor": c("motor_rad"), "velocity": c("velocity_rad_s"),
+                "current_cmd": c("current_cmd_a"), "current": np.hypot(c("i_d_a"), c("i_q_a")),
+                "i_q": c("i_q_a"), "i_d": c("i_d_a"),
+                "friction_valve": -c("friction_valve_nm"), "friction_valve_est": c("friction_est_valve_nm"),
+                "friction_motor": -c("friction_motor_nm"), "friction_motor_est": c("friction_est_motor_nm"),
+                "enable": c("enable"), "fault": self.fault}
 
     def summary(self) -> dict:
         return {"scenario": self.scenario, "controller": self.controller, "metrics": self.metrics,
@@ -61,39 +77,37 @@ class SimResult:
 
 def build(scenario: Scenario, plant_overrides=None, controller_overrides=None, seed=None,
           mode: str | None = None) -> tuple[ParamSet, ParamSet]:
-    """Plant and controller parameter sets for a scenario (defaults < scenario < overrides)."""
-    p_over = dict(scenario.plant)
-    c_over = dict(scenario.controller)
-    if scenario.pressure_kpa is not None:
-        p_over["pressure_differential_kpa"] = scenario.pressure_kpa
-        c_over.setdefault("pressure_differential_kpa", scenario.pressure_kpa)
-    p_over.update(plant_overrides or {})
-    c_over.update(controller_overrides or {})
-    if seed is not None:
-        p_over["seed"] = seed
-    if mode is not None:
-        c_over["mode"] = mode
-    return load_plant_params(overrides=p_over), load_controller_params(overrides=c_over)
+    """Plant and controller parameter sets of a scenario's offline run (the run-plan's:
+    defaults < scenario < overrides < seed / mode)."""
+    plan = plan_run(scenario, OFFLINE, mode=mode, seed=seed, plant_overrides=plant_overrides,
+                    controller_overrides=controller_overrides)
+    return plan.plant_params, plan.controller_params
 
 
 def simulate(scenario: Scenario, plant_ps: ParamSet, controller_ps: ParamSet) -> SimResult:
-    plant = Plant(plant_ps)
-    driver = ValveDriver(controller_ps)
+    """Simulate ``scenario`` with parameter sets built elsewhere (e.g. :func:`build`)."""
+    plan = replace(plan_run(scenario, OFFLINE), plant_params=plant_ps, controller_params=controller_ps)
+    return simulate_plan(plan)
+
+
+def simulate_plan(plan: RunPlan) -> SimResult:
+    """Run an offline plan: every control period events due, demand, resolver sample, driver
+    step, plant step (the order of the ROS loop)."""
+    plant = Plant(plan.plant_params)
+    driver = ValveDriver(plan.controller_params)
     period = driver.period
-    stroke = plant_ps["valve.stroke_rad"]
-    kt = driver.controller.model.torque_constant_nm_per_a
-    if scenario.initial_percent > 0.0:
-        hold_a = plant.hold_at(scenario.initial_percent / 100.0 * stroke)
-        driver.start_from_torque(hold_a * kt)
-    n = int(round(scenario.duration_s / period))
+    stroke = plan.plant_params["valve.stroke_rad"]
+    plan.start_held(plant, driver)
+    n = int(round(plan.duration_s / period))
     log = np.empty((n, len(LOG_COLUMNS)))
-    events = list(scenario.events)
-    demand = scenario.demand
+    fault = np.zeros(n)
+    events = plan.event_queue()
+    demand = plan.demand
     start = time.perf_counter()
     for k in range(n):
         t = k * period
-        while events and events[0].at_s <= t + 1e-12:
-            _apply_event(events.pop(0), plant, driver)
+        for ev in events.due(t):
+            apply_event(ev, plant, driver)
         pct = demand.value(t)
         driver.demand_percent(t, pct)
         sample = plant.resolver()
@@ -109,31 +123,21 @@ def simulate(scenario: Scenario, plant_ps: ParamSet, controller_ps: ParamSet) ->
                   out.current_a, i_d, i_q, 1.0 if out.enable else 0.0, fm, fl,
                   est.motor_friction_nm, est.valve_friction_nm, est.valve_angle, est.valve_velocity,
                   truth.motor_velocity, est.motor_velocity, driver.controller.reference_position())
+        if out.faults:
+            fault[k] = 1.0
         plant.set_command(out.current_a, out.enable)
         plant.advance(period)
     wall = time.perf_counter() - start
     trace = M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9], stroke)
     metrics, segments = M.compute(trace)
-    return SimResult(scenario.name, controller_ps["mode"], log, metrics, segments, n * period, wall, stroke)
-
-
-def _apply_event(ev, plant: Plant, driver: ValveDriver) -> None:
-    if ev.action == "trip":
-        driver.trip("scenario trip")
-    elif ev.action == "reset":
-        driver.reset()
-    elif ev.action == "set_plant":
-        plant.set_params(ev.params)
-    elif ev.action == "set_controller":
-        driver.set_params(ev.params)
+    return SimResult(plan.name, plan.mode, log, metrics, segments, n * period, wall, stroke, fault)
 
 
 def run(scenario_name: str, mode: str | None = None, plant_overrides=None, controller_overrides=None,
         seed=None) -> SimResult:
     """Load a scenario and simulate it (convenience for tests and benchmarks)."""
-    sc = load_scenario(scenario_name)
-    p, c = build(sc, plant_overrides, controller_overrides, seed, mode)
-    return simulate(sc, p, c)
+    return simulate_plan(plan_run(load_scenario(scenario_name), OFFLINE, mode=mode, seed=seed,
+                                  plant_overrides=plant_overrides, controller_overrides=controller_overrides))
 
 
 def _jsonable(obj):
@@ -156,17 +160,17 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, help="resolver noise seed")
     parser.add_argument("--json", metavar="PATH", help="also write the JSON result here")
     parser.add_argument("--plot", metavar="PATH", help="write a PNG of the run here")
+    parser.add_argument("--trace", metavar="PATH.csv", help="write the run's time series here (CSV, header row "
+                        "with units)")
     args = parser.parse_args(argv)
     try:
-        if args.controller is not None and args.controller not in MODES:
-            raise ConfigError(f"unknown controller mode {args.controller!r}; allowed: {', '.join(MODES)}")
         over = parse_overrides(args.overrides, ("plant", "controller"))
-        sc = load_scenario(args.scenario)
-        p, c = build(sc, over["plant"], over["controller"], args.seed, args.controller)
+        plan = plan_run(load_scenario(args.scenario), OFFLINE, mode=args.controller, seed=args.seed,
+                        plant_overrides=over["plant"], controller_overrides=over["controller"])
     except ConfigError as exc:
         print(f"fuel_valve_sim: error: {exc}", file=sys.stderr)
         return 2
-    result = simulate(sc, p, c)
+    result = simulate_plan(plan)
     doc = _jsonable(result.summary())
     text = json.dumps(doc)
     print(text)
@@ -176,6 +180,9 @@ def main(argv=None) -> int:
     if args.plot:
         from .plotting import plot_result
         plot_result(result, args.plot)
+    if args.trace:
+        from .trace import write_trace
+        write_trace(args.trace, result.series())
     return 0
 
 

@@ -1,0 +1,251 @@
+"""Start and stop the node processes of one run: the one place that knows how.
+
+:class:`Launcher` starts the plant, controller, demand and recorder nodes of a
+:class:`~.run_plan.RunPlan` as processes (the stand-in for ``ros2 launch`` on machines with
+only the PyPI ROS wheels; ``launch/fuel_valve.launch.py``, which imports only launch API,
+writes the same lockstep wiring and ``test/test_launch_file.py`` checks it against
+:func:`lockstep_parameters` and :func:`clock_participants` here):
+
+* command: the installed executable (:func:`executable`), ``--ros-args``, the namespace, the
+  node's ``config/*.yaml`` and a parameter file with the plan's node parameters on top;
+* lockstep wiring: the plant owns ``/clock`` (``use_sim_time`` false) and waits for
+  ``lockstep_participants`` distinct ``/clock`` subscribers -- controller, demand, recorder
+  and the run's observers (the demo's monitor, a test's gate node) --, every other node runs
+  on simulated time;
+* environment: the caller's plus ``env`` (e.g. ``ROS_DOMAIN_ID``), unbuffered output;
+* logs: ``<run_dir>/<node>.log`` (stdout and stderr);
+* stop: SIGINT (the recorder first, so it finalises the bag with everything), then SIGTERM,
+  then SIGKILL for what hangs; the exit codes are returned.
+
+No rclpy and no simulator imports here (only subprocesses and parameter files).
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import yaml
+
+from ..common.config_dir import default_config_dir
+
+if TYPE_CHECKING:                       # no simulator import for a process starter
+    from .run_plan import RunPlan
+
+#: node -> module, for running from a source tree without console scripts
+MODULES = {"plant": "fuel_valve_plant.ros.plant_node", "controller": "fuel_valve_control.ros.controller_node",
+           "demand": "fuel_valve_control.ros.demand_node", "recorder": "fuel_valve_control.tools.recorder"}
+#: nodes that subscribe to /clock in lockstep (besides observers); the plant publishes it
+CLOCK_NODES = ("controller", "demand")
+#: stop order: the recorder first (it finalises the bag with everything), the plant last
+STOP_ORDER = ("recorder", "demand", "controller", "plant")
+#: exit codes of a node stopped on request (rclpy's SIGINT handling: 0, or killed by SIGINT)
+CLEAN_EXIT_CODES = (0, -signal.SIGINT)
+#: a lockstep participant that does nothing but subscribe to /clock (a test's start gate)
+GATE_SCRIPT = """
+import rclpy
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+rclpy.init()
+node = Node("lockstep_gate", parameter_overrides=[Parameter("use_sim_time", value=True)])
+try:
+    rclpy.spin(node)
+except BaseException:
+    pass
+"""
+
+
+def clock_participants(record: bool, observers: int = 0) -> int:
+    """Distinct nodes subscribed to /clock in a lockstep run (what the plant waits for):
+    controller and demand, the recorder when recording, plus ``observers``."""
+    return len(CLOCK_NODES) + (1 if record else 0) + observers
+
+
+def lockstep_parameters(node: str, lockstep: bool, participants: int) -> dict:
+    """Clock wiring of ``node`` (plant | controller | demand | recorder) for a run: empty in
+    real time (ROS default: wall clock); in lockstep the plant publishes /clock and waits for
+    ``participants``, everything else runs on it."""
+    if not lockstep:
+        return {}
+    if node == "plant":
+        return {"use_sim_time": False, "lockstep_participants": participants}
+    return {"use_sim_time": True}
+
+
+def executable(name: str) -> list[str]:
+    """Command that starts node ``name``: the installed executable next to this Python (the
+    venv's console scripts), on PATH, or in a colcon install's lib/fuel_valve; else the module."""
+    here = Path(sys.executable).parent / name
+    if here.is_file():
+        return [str(here)]
+    found = shutil.which(name)
+    if found:
+        return [found]
+    return [sys.executable, "-m", MODULES[name]]
+
+
+def write_params_file(path: Path, params: dict) -> None:
+    """A ROS 2 parameter file for any node (``/**``), dotted names nested."""
+    tree: dict = {}
+    for name, value in params.items():
+        node = tree
+        parts = name.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = _plain(value)
+    path.write_text(yaml.safe_dump({"/**": {"ros__parameters": tree}}, sort_keys=False))
+
+
+def _plain(value):
+    """YAML-safe Python scalars/lists (numpy floats become float)."""
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if hasattr(value, "item") and not isinstance(value, (str, bytes)):
+        return value.item()
+    return value
+
+
+class Launcher:
+    """The node processes of one run.  Use as a context manager: every process is stopped on
+    exit, whatever happened.
+
+    ``observers``: how many /clock subscribers besides the nodes the caller brings (the
+    demo's monitor node, a test's :meth:`start_gate`); they count as lockstep participants.
+    ``bag``: the recorder's output (:meth:`start_recorder`); it counts as a participant too.
+    """
+
+    def __init__(self, plan: "RunPlan", namespace: str = "/fuel_valve", run_dir: Path | None = None,
+                 bag: Path | None = None, bag_storage: str = "mcap", env: dict | None = None, observers: int = 0):
+        self.plan = plan
+        self.namespace = "/" + namespace.strip("/")
+        self.run_dir = Path(run_dir) if run_dir else Path(tempfile.mkdtemp(prefix="fuel_valve_run_"))
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.bag = Path(bag) if bag else None
+        self.bag_storage = bag_storage
+        self.env = dict(os.environ, **{k: str(v) for k, v in (env or {}).items()})
+        self.env.setdefault("PYTHONUNBUFFERED", "1")
+        self.observers = observers
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, Path] = {}
+        self._node_params = plan.node_parameters()
+
+    @property
+    def lockstep(self) -> bool:
+        return self.plan.lockstep
+
+    def clock_participants(self) -> int:
+        return clock_participants(self.bag is not None, self.observers)
+
+    def node_parameters(self, name: str) -> dict:
+        """What ``name``'s parameter file holds: the plan's node parameters and the clock wiring."""
+        params = dict(self._node_params.get(name, {}))
+        params.update(lockstep_parameters(name, self.lockstep, self.clock_participants()))
+        return params
+
+    def start(self, names=None) -> None:
+        """Start node processes ``names`` (default: the plan's plant, controller and demand)."""
+        cfg = default_config_dir()
+        for name in names or tuple(self._node_params):
+            self._spawn(name, self.node_parameters(name), cfg / f"{name}.yaml")
+
+    def start_recorder(self, topics: list[str] | None = None) -> None:
+        """The recorder writing :attr:`bag` (``topics`` None: every topic of the suite)."""
+        if self.bag is None:
+            raise ValueError("start_recorder needs the launcher's bag")
+        params = {"output": str(self.bag), "storage": self.bag_storage}
+        params.update(lockstep_parameters("recorder", self.lockstep, self.clock_participants()))
+        if topics:
+            params["topics"] = topics
+        self._spawn("recorder", params, None)
+
+    def start_gate(self) -> None:
+        """A do-nothing /clock subscriber (one of the ``observers``): started last, after the
+        nodes had time to match, it lets a lockstep plant begin (its participant count is
+        judged from the ROS graph, which can run ahead of publisher/subscriber matching)."""
+        self._popen("gate", [sys.executable, "-c", GATE_SCRIPT])
+
+    def _spawn(self, name: str, params: dict, base_file: Path | None) -> None:
+        pfile = self.run_dir / f"{name}.params.yaml"
+        write_params_file(pfile, params)
+        cmd = executable(name) + ["--ros-args", "-r", f"__ns:={self.namespace}"]
+        if base_file is not None:
+            cmd += ["--params-file", str(base_file)]
+        cmd += ["--params-file", str(pfile)]
+        self._popen(name, cmd)
+
+    def _popen(self, name: str, cmd: list[str]) -> None:
+        log = self.run_dir / f"{name}.log"
+        self.logs[name] = log
+        with open(log, "w") as fh:
+            self.procs[name] = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=self.env,
+                                                stdin=subprocess.DEVNULL)
+
+    def failed(self) -> list[str]:
+        """Nodes that exited on their own."""
+        return [n for n, p in self.procs.items() if p.poll() is not None]
+
+    def log(self, name: str) -> str:
+        try:
+            return self.logs[name].read_text()
+        except (KeyError, OSError):
+            return ""
+
+    def log_tail(self, name: str, lines: int = 15) -> str:
+        return "\n".join(self.log(name).splitlines()[-lines:])
+
+    def wait_for_log(self, name: str, text: str, timeout_s: float = 40.0) -> None:
+        """Wait until ``text`` appears in ``name``'s log; AssertionError (with the log) when
+        the node exits or the time runs out."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            if text in self.log(name):
+                return
+            if self.procs[name].poll() is not None:
+                raise AssertionError(f"{name} exited ({self.procs[name].returncode}):\n{self.log(name)}")
+            time.sleep(0.05)
+        raise AssertionError(f"{name}: no {text!r} within {timeout_s} s:\n{self.log(name)}")
+
+    def stop(self, names=None, grace_s: float = 10.0) -> dict:
+        """Stop ``names`` (default: all, recorder first, plant last): SIGINT, after ``grace_s``
+        SIGTERM, after 2 s more SIGKILL.  Returns ``{node: exit code}``."""
+        if names is None:
+            names = list(STOP_ORDER) + [n for n in self.procs if n not in STOP_ORDER]
+        codes = {}
+        for name in names:
+            proc = self.procs.get(name)
+            if proc is None:
+                continue
+            if proc.poll() is None:
+                for sig, wait_s in ((signal.SIGINT, grace_s), (signal.SIGTERM, 2.0), (signal.SIGKILL, None)):
+                    proc.send_signal(sig)
+                    try:
+                        proc.wait(timeout=wait_s)
+                        break
+                    except subprocess.TimeoutExpired:
+                        continue
+            codes[name] = proc.returncode
+        return codes
+
+    def loop_statistics(self) -> dict | None:
+        """The plant's loop statistics line (printed when it exits)."""
+        m = re.search(r"loop statistics: (\{.*\})", self.log("plant"))
+        if not m:
+            return None
+        try:
+            return yaml.safe_load(m.group(1).replace("'", '"'))
+        except yaml.YAMLError:
+            return None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+        return False

@@ -1,0 +1,150 @@
+"""The demo's watcher: an in-process rclpy node that follows a running suite and acts as its
+supervisor for scenario events.
+
+It subscribes to the suite's demand, position feedback, friction estimate and
+``/diagnostics`` (and ``/clock`` in lockstep, so it is one of the lockstep participants),
+keeps what the status line and the summary need, and sends scenario events through the
+controller's ``trip`` / ``reset`` services and the nodes' parameter services.  Service and
+parameter calls are asynchronous: in lockstep an event lands within a few control periods of
+its time, not exactly on it (the offline simulator applies events exactly).
+"""
+from __future__ import annotations
+
+import math
+import time
+
+
+class Monitor:
+    """An in-process rclpy node that watches the run: suite time, demand, position, current,
+    friction estimate and driver health, for the status line, the summary and events."""
+
+    def __init__(self, namespace: str, lockstep: bool, record_truth: bool = False):
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Float64
+        from ..common import contract
+        from ..ros import interface as ri
+
+        self.rclpy = rclpy
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("suite_monitor", namespace=namespace, context=self.context)
+        self.lockstep = lockstep
+        self.sim_time = None
+        self.demand = None
+        self.position = None
+        self.friction_estimate = None
+        self.health: dict = {}
+        self.level = None
+        self.message = ""
+        self.worst_level = 0
+        self.fault_messages: list[str] = []
+        self.errors: list[float] = []              # |demand - position| %, per position sample
+        n = self.node
+        ri.quiet_subscription(n, Float64, contract.DEMAND, self._on_demand, ri.TELEMETRY_QOS)
+        ri.quiet_subscription(n, Float64, contract.POSITION, self._on_position)
+        ri.quiet_subscription(n, JointState, contract.ESTIMATE, self._on_estimate)
+        ri.quiet_subscription(n, DiagnosticArray, contract.DIAGNOSTICS, self._on_diagnostics)
+        if lockstep:
+            ri.quiet_subscription(n, Clock, contract.CLOCK, self._on_clock, ri.TELEMETRY_QOS)
+        #: (stamp s, true valve angle rad, true valve velocity rad/s) per plant sample
+        self.truth: list[tuple[float, float, float]] = []
+        if record_truth:
+            from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+            deep = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+            ri.quiet_subscription(n, JointState, contract.JOINT_STATES, self._on_truth, deep)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(n)
+
+    def _on_clock(self, msg):
+        self.sim_time = msg.clock.sec + 1e-9 * msg.clock.nanosec
+
+    def _on_truth(self, msg):
+        st = msg.header.stamp
+        t = st.sec + 1e-9 * st.nanosec
+        if not self.truth or t > self.truth[-1][0]:          # lockstep may re-send a sample
+            self.truth.append((t, msg.position[1], msg.velocity[1]))
+
+    def _on_demand(self, msg):
+        self.demand = msg.data
+
+    def _on_position(self, msg):
+        self.position = msg.data
+        if self.demand is not None and math.isfinite(msg.data):
+            self.errors.append(abs(self.demand - msg.data))
+
+    def _on_estimate(self, msg):
+        if len(msg.effort) >= 2:
+            self.friction_estimate = msg.effort[1]
+
+    def _on_diagnostics(self, msg):
+        for st in msg.status:
+            if "valve driver" not in st.name or not st.name.startswith(self.node.get_namespace() + "/"):
+                continue
+            self.level = st.level[0] if isinstance(st.level, bytes) else int(st.level)
+            self.message = st.message
+            self.health = {kv.key: kv.value for kv in st.values}
+            if self.level > self.worst_level:
+                self.worst_level = self.level
+            if self.level == 2 and st.message not in self.fault_messages:
+                self.fault_messages.append(st.message)
+
+    def spin_for(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=max(0.0, min(0.05, end - time.monotonic())))
+
+    def controller_ready(self) -> bool:
+        return self.level is not None
+
+    def call_trigger(self, service: str):
+        from std_srvs.srv import Trigger
+        client = self.node.create_client(Trigger, service)
+        if not client.wait_for_service(timeout_sec=2.0):
+            return None
+        return client.call_async(Trigger.Request())
+
+    def set_parameters(self, node_name: str, params: dict):
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter
+        client = self.node.create_client(SetParameters, f"{node_name}/set_parameters")
+        if not client.wait_for_service(timeout_sec=2.0):
+            return None
+        req = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in params.items()])
+        return client.call_async(req)
+
+    def status_line(self, t: float) -> str:
+        def num(x, fmt):
+            return format(x, fmt) if isinstance(x, (int, float)) and math.isfinite(x) else "  n/a"
+        err = self.demand - self.position if self.demand is not None and self.position is not None else None
+        current = _float(self.health.get("current_a"))
+        faults = self.health.get("faults", "none")
+        return (f"t {t:6.2f} s | demand {num(self.demand, '6.2f')} % | position {num(self.position, '6.2f')} % | "
+                f"error {num(err, '+6.3f')} % | current {num(current, '6.2f')} A | friction est "
+                f"{num(self.friction_estimate, '5.2f')} N*m | {self.health.get('state', 'starting')} | "
+                f"faults {faults}")
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.rclpy.shutdown(context=self.context)
+
+
+def _float(text):
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return None
+
+
+def send_event(monitor: Monitor, namespace: str, ev, out):
+    """Send a scenario event (trip | reset | set_plant | set_controller) to the suite; returns the
+    pending service future (None when the service is not there)."""
+    ns = "/" + namespace.strip("/")
+    print(f"event at {ev.at_s:g} s: {ev.action} {ev.params or ''}", file=out, flush=True)
+    if ev.action in ("trip", "reset"):
+        return monitor.call_trigger(f"{ns}/controller/{ev.action}")
+    node = "plant" if ev.action == "set_plant" else "controller"
+    return monitor.set_parameters(f"{ns}/{node}", ev.params)
