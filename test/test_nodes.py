@@ -1,8 +1,15 @@
 """The node suite over DDS: plant, controller and demand as real subprocesses started through
 their installed executables (SPEC §4), observed and driven from the test through rclpy.
 
-Timing-dependent checks use generous margins: these tests must pass on a loaded 2-core
-machine; the loop's real-time figures are measured by benchmarks/ros_loop.py instead.
+These tests must pass on a loaded 2-core machine.  Tests whose subject is not timing run in
+lockstep (simulated time, the plant owns ``/clock`` and advances one period per command; the
+test's probe sends one demand per tick): a starved process slows the run down instead of
+tripping a real-time timeout.  Only the tests whose subject is real-time behaviour run in real
+time, with generous margins: the real-time run itself, and the faults raised by *silence*
+(a stale demand, a resolver dropout), which a lockstep loop cannot see because it waits.  The
+valve-seized rig also runs in real time: the test's own thread plays the plant there (with a
+1 s resolver timeout, so a descheduled thread cannot trip it).  The loop's real-time figures
+are measured by benchmarks/ros_loop.py, not here.
 """
 from __future__ import annotations
 
@@ -24,6 +31,8 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 from fuel_valve_control.tools import demo as suite, sim  # noqa: E402
 from fuel_valve_control.tools.scenarios import load_scenario  # noqa: E402
 from fuel_valve_control.common import contract  # noqa: E402
+from fuel_valve_plant.physics.friction import friction_levels  # noqa: E402
+from fuel_valve_plant.physics.params import PLANT_SPEC  # noqa: E402
 
 STROKE = 1.0471975511965976
 BIN = Path(sys.executable).parent
@@ -86,25 +95,35 @@ def test_demand_step_moves_the_valve_in_real_time():
     assert summary["worst_level"] < 2, summary["faults"]
     # the status line reports demand and position; 22 % demanded
     assert "demand  22.00 %" in summary["final_status"]
-    assert abs(summary["final_error_pct"]) < 0.3, text        # 0.3 % of stroke = 3.1e-3 rad
+    # the valve stops inside the integrator deadband, whose edge depends on the loop's timing
+    # here: within one stick-slip jump of the plant (4.6e-3 rad = 0.44 % at max Δp); accuracy
+    # itself is asserted in lockstep and offline (measured 0.29-0.30 % here, 0.24 % offline)
+    ps = PLANT_SPEC.defaults()
+    jump_pct = 100.0 * friction_levels(ps).stick_slip_jump_rad(ps["coupling.stiffness_nm_per_rad"]) / STROKE
+    assert abs(summary["final_error_pct"]) < jump_pct, text
     loop = summary["loop"]
     assert loop["ticks"] > 2000 and loop["commands"] > 500, loop
 
 
 # ------------------------------------------------------------------------------ faults
-@pytest.fixture(scope="module")
-def rig(tmp_path_factory):
-    """Plant (real time, closed, drive off) and controller (demand in mA, NE43) as processes;
-    the test is the supervisor."""
-    plan = suite.plan_for(None, lockstep=False, plant_overrides={},
+def _start_rig(namespace: str, run_dir: Path, lockstep: bool):
+    """Plant (closed, drive off) and controller (demand in mA, NE43) as processes; the test's
+    probe is the supervisor (and, in lockstep, the demand participant).  Yields (suite, probe)."""
+    plan = suite.plan_for(None, lockstep=lockstep, plant_overrides={},
                           controller_overrides={"demand_source": "ma", "faults.tracking_error_time_s": 0.3,
                                                 "faults.resolver_timeout_s": 0.1})
-    s = suite.Suite(plan, "/rig", tmp_path_factory.mktemp("rig"), monitor=False)
+    if lockstep:
+        plan.params["plant"]["stop_after_s"] = 0.0        # run until the tests are done
+        # status is published on simulated time, which runs at a fraction of wall time on a
+        # loaded machine (measured 0.3x with the machine shared): publish it more often
+        plan.params["controller"]["diagnostics_rate_hz"] = 20.0
+    s = suite.Suite(plan, namespace, run_dir, monitor=False)       # participants: controller, probe
     s.start(("plant", "controller"))
-    probe = Probe("/rig", keep_all=(contract.CURRENT_COMMAND, contract.DRIVE_ENABLE))
+    probe = Probe(namespace, keep_all=(contract.CURRENT_COMMAND, contract.DRIVE_ENABLE), lockstep=lockstep)
     try:
         probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)      # 30 %
-        probe.wait_for(lambda: probe.driver_level() == 0 and _near(probe, 0.30), 30.0, "valve at 30 %")
+        probe.wait_for(lambda: probe.driver_level() is not None, 30.0, "the controller's status")
+        _healthy((s, probe))
         yield s, probe
     finally:
         probe.close()
@@ -112,8 +131,19 @@ def rig(tmp_path_factory):
         assert all(c in (0, -2) for c in codes.values()), (codes, s.log_tail("plant"), s.log_tail("controller"))
 
 
-@pytest.fixture
-def healthy(rig):
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory):
+    """The lockstep rig: fault logic, services, parameters and diagnostics over DDS."""
+    yield from _start_rig("/rig", tmp_path_factory.mktemp("rig"), lockstep=True)
+
+
+@pytest.fixture(scope="module")
+def realtime_rig(tmp_path_factory):
+    """The real-time rig, for the faults raised by silence."""
+    yield from _start_rig("/rtrig", tmp_path_factory.mktemp("rtrig"), lockstep=False)
+
+
+def _healthy(rig):
     """Each fault test starts from a running loop holding 30 %, whatever the previous left."""
     s, probe = rig
     probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
@@ -121,6 +151,19 @@ def healthy(rig):
         _reset_and_recover(probe)
     probe.wait_for(lambda: probe.driver_level() == 0 and _near(probe, 0.30, 0.02), 10.0, "healthy at 30 %")
     return rig
+
+
+@pytest.fixture
+def healthy(rig):
+    yield _healthy(rig)
+    # pause the lockstep loop between tests (it waits for the next demand): it would otherwise
+    # run flat out and take the CPU from the real-time tests after it
+    rig[1].set_demand(None)
+
+
+@pytest.fixture
+def realtime_healthy(realtime_rig):
+    return _healthy(realtime_rig)
 
 
 def _near(probe, frac, tol=0.01):
@@ -169,23 +212,16 @@ def test_ne43_signal_failure_latches(healthy, bad_ma, words):
     _reset_and_recover(probe)
 
 
-def test_silent_demand_trips_and_resets(healthy):
-    _, probe = healthy
-    probe.set_demand(None)
-    _assert_fail_safe(probe, time.monotonic(), ("demand",))
-    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
-    _reset_and_recover(probe)
-
-
-@pytest.mark.parametrize("injection, words", [("resolver_dropout", ("resolver sample",)),
-                                              ("resolver_noise_burst", ("jumped", "stroke", "disagree"))])
-def test_resolver_faults_latch_and_reset(healthy, injection, words):
-    _, probe = healthy
+def _resolver_fault(probe, injection, words):
     results = probe.set_params("plant", {"fault_injection": injection})
     assert results[0].successful, results[0].reason
     _assert_fail_safe(probe, time.monotonic(), words)
     assert probe.set_params("plant", {"fault_injection": "none"})[0].successful
     _reset_and_recover(probe)
+
+
+def test_implausible_resolver_latches_and_resets(healthy):
+    _resolver_fault(healthy[1], "resolver_noise_burst", ("jumped", "stroke", "disagree"))
 
 
 @pytest.fixture
@@ -275,7 +311,7 @@ def test_diagnostics_content(healthy):
     plant = [st for name, st in probe.diagnostics.items() if name.startswith("/rig/") and name.endswith("plant: loop")]
     assert plant, list(probe.diagnostics)
     pv = {kv.key: kv.value for kv in plant[0].values}
-    assert float(pv["ticks"]) > 0 and "rtt_median_ms" in pv
+    assert float(pv["commands"]) > 0 and float(pv["plant_time_s"]) > 0.0 and "rtt_median_ms" in pv
 
 
 def test_malformed_inputs_never_crash_or_drive_unsafely(healthy):
@@ -307,3 +343,17 @@ def test_node_rejects_invalid_parameter_file(tmp_path):
                           text=True, timeout=60)
     assert proc.returncode == 2
     assert "pressure_differential_kpa" in proc.stdout + proc.stderr
+
+
+# ------------------------------------------------------------------------------ real-time faults
+# last in the module, so the real-time rig runs alone (module fixtures live to the module's end)
+def test_silent_demand_trips_and_resets(realtime_healthy):
+    _, probe = realtime_healthy
+    probe.set_demand(None)
+    _assert_fail_safe(probe, time.monotonic(), ("demand",))
+    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
+    _reset_and_recover(probe)
+
+
+def test_resolver_dropout_latches_and_resets(realtime_healthy):
+    _resolver_fault(realtime_healthy[1], "resolver_dropout", ("resolver sample",))
