@@ -170,13 +170,13 @@ class Probe:
                              f"{getattr(self.driver_status(), 'message', None)!r}")
 
     # ---------------------------------------------------------------- services
-    def trigger(self, service: str, timeout: float = 5.0):
+    def trigger(self, service: str, timeout: float = 15.0):
         from std_srvs.srv import Trigger
         client = self.node.create_client(Trigger, service)
         assert client.wait_for_service(timeout_sec=timeout), f"service {service} not available"
         return self._wait_future(client.call_async(Trigger.Request()), timeout, service)
 
-    def set_params(self, node: str, params: dict, timeout: float = 5.0) -> list:
+    def set_params(self, node: str, params: dict, timeout: float = 15.0) -> list:
         """SetParameters on ``node`` (relative to the namespace); returns the results."""
         from rcl_interfaces.srv import SetParameters
         from rclpy.parameter import Parameter
@@ -185,7 +185,7 @@ class Probe:
         req = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in params.items()])
         return self._wait_future(client.call_async(req), timeout, f"{node}/set_parameters").results
 
-    def get_params(self, node: str, names: list[str], timeout: float = 5.0) -> list:
+    def get_params(self, node: str, names: list[str], timeout: float = 15.0) -> list:
         from rcl_interfaces.srv import GetParameters
         from rclpy.parameter import parameter_value_to_python
         client = self.node.create_client(GetParameters, f"{node}/get_parameters")

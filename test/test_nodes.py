@@ -5,8 +5,9 @@ These tests must pass on a loaded 2-core machine.  Tests whose subject is not ti
 lockstep (simulated time, the plant owns ``/clock`` and advances one period per command; the
 test's probe sends one demand per tick): a starved process slows the run down instead of
 tripping a real-time timeout.  Only the tests whose subject is real-time behaviour run in real
-time, with generous margins: the real-time run itself, and the faults raised by *silence*
-(a stale demand, a resolver dropout), which a lockstep loop cannot see because it waits.  The
+time, with generous margins: the real-time run itself, the faults raised by *silence* (a
+stale demand, a resolver dropout), which a lockstep loop cannot see because it waits, and
+foreign messages injected on the loop topics (they could displace a lockstep sample).  The
 valve-seized rig also runs in real time: the test's own thread plays the plant there (with a
 1 s resolver timeout, so a descheduled thread cannot trip it).  The loop's real-time figures
 are measured by benchmarks/ros_loop.py, not here.
@@ -109,9 +110,11 @@ def test_demand_step_moves_the_valve_in_real_time():
 def _start_rig(namespace: str, run_dir: Path, lockstep: bool):
     """Plant (closed, drive off) and controller (demand in mA, NE43) as processes; the test's
     probe is the supervisor (and, in lockstep, the demand participant).  Yields (suite, probe)."""
+    # real time: a resolver timeout of 1 s instead of 20 ms, so a process starved by a loaded
+    # machine (measured: 334 ms gaps with two CPU hogs) does not trip the rig by accident
     plan = suite.plan_for(None, lockstep=lockstep, plant_overrides={},
                           controller_overrides={"demand_source": "ma", "faults.tracking_error_time_s": 0.3,
-                                                "faults.resolver_timeout_s": 0.1})
+                                                "faults.resolver_timeout_s": 0.1 if lockstep else 1.0})
     if lockstep:
         plan.params["plant"]["stop_after_s"] = 0.0        # run until the tests are done
         # status is published on simulated time, which runs at a fraction of wall time on a
@@ -123,7 +126,7 @@ def _start_rig(namespace: str, run_dir: Path, lockstep: bool):
     try:
         probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)      # 30 %
         probe.wait_for(lambda: probe.driver_level() is not None, 30.0, "the controller's status")
-        _healthy((s, probe))
+        _healthy(probe)
         yield s, probe
     finally:
         probe.close()
@@ -143,19 +146,25 @@ def realtime_rig(tmp_path_factory):
     yield from _start_rig("/rtrig", tmp_path_factory.mktemp("rtrig"), lockstep=False)
 
 
-def _healthy(rig):
-    """Each fault test starts from a running loop holding 30 %, whatever the previous left."""
-    s, probe = rig
+def _healthy(probe, timeout=20.0):
+    """Each fault test starts from a running loop holding 30 %, whatever the previous left
+    (a latched fault is reset, as often as it takes: under heavy load the real-time plant can
+    integrate several periods between two closely stamped samples while the spring shuts the
+    valve, which reads as an implausible jump)."""
     probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
-    if probe.driver_level() != 0:
-        _reset_and_recover(probe)
-    probe.wait_for(lambda: probe.driver_level() == 0 and _near(probe, 0.30, 0.02), 10.0, "healthy at 30 %")
-    return rig
+
+    def ready():
+        if probe.driver_level() == 2:
+            probe.trigger("controller/reset")
+            time.sleep(0.2)
+        return probe.driver_level() == 0 and _near(probe, 0.30, 0.02)
+    probe.wait_for(ready, timeout, "healthy at 30 %")
 
 
 @pytest.fixture
 def healthy(rig):
-    yield _healthy(rig)
+    _healthy(rig[1])
+    yield rig
     # pause the lockstep loop between tests (it waits for the next demand): it would otherwise
     # run flat out and take the CPU from the real-time tests after it
     rig[1].set_demand(None)
@@ -163,7 +172,8 @@ def healthy(rig):
 
 @pytest.fixture
 def realtime_healthy(realtime_rig):
-    return _healthy(realtime_rig)
+    _healthy(realtime_rig[1])
+    return realtime_rig
 
 
 def _near(probe, frac, tol=0.01):
@@ -184,10 +194,10 @@ def _assert_fail_safe(probe, t0, fault_words, timeout=3.0):
     assert late and all(c == 0.0 for c in late), late[-5:]
 
 
-def _reset_and_recover(probe, frac=0.30):
-    probe.wait_for(lambda: probe.trigger("controller/reset").success, 5.0, "a successful reset")
-    probe.wait_for(lambda: probe.driver_level() == 0, 5.0, "status OK after reset")
-    probe.wait_for(lambda: _near(probe, frac, 0.02), 5.0, f"valve back at {frac:.0%}")
+def _reset_and_recover(probe):
+    """The reset is accepted (the cause is gone), then the loop holds 30 % again."""
+    probe.wait_for(lambda: probe.trigger("controller/reset").success, 10.0, "a successful reset")
+    _healthy(probe)
 
 
 def test_trip_service_closes_the_valve_and_reset_rearms(healthy):
@@ -217,11 +227,11 @@ def _resolver_fault(probe, injection, words):
     assert results[0].successful, results[0].reason
     _assert_fail_safe(probe, time.monotonic(), words)
     assert probe.set_params("plant", {"fault_injection": "none"})[0].successful
-    _reset_and_recover(probe)
 
 
 def test_implausible_resolver_latches_and_resets(healthy):
     _resolver_fault(healthy[1], "resolver_noise_burst", ("jumped", "stroke", "disagree"))
+    _reset_and_recover(healthy[1])
 
 
 @pytest.fixture
@@ -230,7 +240,9 @@ def seized(tmp_path):
     readings consistent, so only the tracking and current supervision can see it)."""
     plan = suite.plan_for(None, lockstep=False, controller_overrides={
         "faults.tracking_error_time_s": 0.3, "faults.i2t_fault_time_s": 0.5,
-        "faults.resolver_timeout_s": 1.0})       # the test's Python thread plays the resolver: allow it gaps
+        # the test's Python threads play the resolver and the supervisor: allow them gaps
+        # (measured: a 0.62 s demand gap with two CPU hogs on the shared machine)
+        "faults.resolver_timeout_s": 1.0, "demand_timeout_s": 3.0})
     s = suite.Suite(plan, "/seized", tmp_path, monitor=False)
     s.start(("controller",))
     probe = Probe("/seized", keep_all=(contract.CURRENT_COMMAND,))
@@ -314,8 +326,35 @@ def test_diagnostics_content(healthy):
     assert float(pv["commands"]) > 0 and float(pv["plant_time_s"]) > 0.0 and "rtt_median_ms" in pv
 
 
-def test_malformed_inputs_never_crash_or_drive_unsafely(healthy):
-    s, probe = healthy
+def test_node_rejects_invalid_parameter_file(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/**:\n  ros__parameters:\n    pressure_differential_kpa: -5.0\n")
+    proc = subprocess.run([str(BIN / "plant"), "--ros-args", "--params-file", str(bad)], capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 2
+    assert "pressure_differential_kpa" in proc.stdout + proc.stderr
+
+
+# ------------------------------------------------------------------------------ real-time faults
+# last in the module, so the real-time rig runs alone (module fixtures live to the module's end)
+def test_silent_demand_trips_and_resets(realtime_healthy):
+    _, probe = realtime_healthy
+    probe.set_demand(None)
+    _assert_fail_safe(probe, time.monotonic(), ("demand",))
+    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
+    _reset_and_recover(realtime_healthy[1])
+
+
+def test_resolver_dropout_latches_and_resets(realtime_healthy):
+    _resolver_fault(realtime_healthy[1], "resolver_dropout", ("resolver sample",))
+    _reset_and_recover(realtime_healthy[1])
+
+
+def test_malformed_inputs_never_crash_or_drive_unsafely(realtime_healthy):
+    # real time: foreign messages on the loop topics (keep-last 1) can displace the plant's
+    # own resolver sample, which would stall a lockstep loop for good (the plant does not
+    # re-send); in real time the next sample follows 1 ms later
+    s, probe = realtime_healthy
     from sensor_msgs.msg import JointState
     t0 = time.monotonic()
     for value in (math.nan, math.inf, -math.inf, 1e308, -1e308, 0.0, 25.0):
@@ -334,26 +373,3 @@ def test_malformed_inputs_never_crash_or_drive_unsafely(healthy):
     probe.wait_for(lambda: probe.driver_level() == 2, 2.0, "fault from the malformed inputs")
     probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
     _reset_and_recover(probe)
-
-
-def test_node_rejects_invalid_parameter_file(tmp_path):
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("/**:\n  ros__parameters:\n    pressure_differential_kpa: -5.0\n")
-    proc = subprocess.run([str(BIN / "plant"), "--ros-args", "--params-file", str(bad)], capture_output=True,
-                          text=True, timeout=60)
-    assert proc.returncode == 2
-    assert "pressure_differential_kpa" in proc.stdout + proc.stderr
-
-
-# ------------------------------------------------------------------------------ real-time faults
-# last in the module, so the real-time rig runs alone (module fixtures live to the module's end)
-def test_silent_demand_trips_and_resets(realtime_healthy):
-    _, probe = realtime_healthy
-    probe.set_demand(None)
-    _assert_fail_safe(probe, time.monotonic(), ("demand",))
-    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
-    _reset_and_recover(probe)
-
-
-def test_resolver_dropout_latches_and_resets(realtime_healthy):
-    _resolver_fault(realtime_healthy[1], "resolver_dropout", ("resolver sample",))
