@@ -85,10 +85,11 @@ def test_lockstep_reproduces_the_offline_simulator(lockstep_runs):
 
 # ------------------------------------------------------------------------------ real time
 def test_demand_step_moves_the_valve_in_real_time():
-    # resolver timeout 0.1 s instead of 20 ms: CI shares 2 cores with other work, and a starved
-    # process must not trip this test (the fault itself is tested below)
+    # resolver timeout 1 s instead of 20 ms: CI shares 2 cores with other work, and a starved
+    # process must not trip this test (measured: a 336 ms gap on the loaded machine; the fault
+    # itself is tested below and in test_driver.py)
     plan = suite.plan_for(load_scenario("step_small"), lockstep=False, duration_s=3.0,
-                          controller_overrides={"faults.resolver_timeout_s": 0.1})
+                          controller_overrides={"faults.resolver_timeout_s": 1.0})
     out = io.StringIO()
     summary = suite.run(plan, "/realtime", out=out)
     text = out.getvalue()
