@@ -1,6 +1,14 @@
 """Test-side rclpy helper: a node in its own context, spun in a background thread, that keeps
 the latest message (and, on request, every message) of the suite's topics, publishes test
-inputs and calls services and parameter services with timeouts."""
+inputs and calls services and parameter services with timeouts.
+
+The probe is the supervisor that sends the demand.  In real time it publishes it every 10 ms
+of wall time.  With ``lockstep=True`` it is a lockstep participant instead, as the ``demand``
+node is in a lockstep run: it subscribes to the plant's ``/clock`` and publishes the demand
+once per tick, which is what the controller waits for before each period; simulated time then
+advances only as fast as every participant keeps up, so a loaded machine slows the run down
+instead of starving the loop into timeouts.  (Silence cannot be tested that way: a lockstep
+loop waits for the demand and the resolver instead of timing out.)"""
 from __future__ import annotations
 
 import threading
@@ -17,10 +25,11 @@ DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=Relia
 
 
 class Probe:
-    def __init__(self, namespace: str, keep_all: tuple[str, ...] = ()):
+    def __init__(self, namespace: str, keep_all: tuple[str, ...] = (), lockstep: bool = False):
         from diagnostic_msgs.msg import DiagnosticArray
+        from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState
-        from std_msgs.msg import Bool, Float64, Float64MultiArray
+        from std_msgs.msg import Bool, Float64
 
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context)
@@ -29,9 +38,10 @@ class Probe:
         self.latest: dict[str, tuple[float, object]] = {}
         self.history: dict[str, list[tuple[float, object]]] = {t: [] for t in keep_all}
         self.diagnostics: dict[str, object] = {}       # status name -> latest DiagnosticStatus
+        # only what the tests read: each 1 kHz subscription is Python work per period, and in
+        # lockstep the probe's executor paces the whole loop
         types = {contract.POSITION: Float64, contract.CURRENT_COMMAND: Float64, contract.DRIVE_ENABLE: Bool,
-                 contract.RESOLVER: JointState, contract.JOINT_STATES: JointState, contract.ESTIMATE: JointState,
-                 contract.DRIVE: Float64MultiArray}
+                 contract.JOINT_STATES: JointState}
         for topic, mtype in types.items():
             qos = ri.LATCHED_QOS if topic == contract.DRIVE_ENABLE else DEEP
             self.node.create_subscription(mtype, topic, lambda m, t=topic: self._store(t, m), qos)
@@ -41,7 +51,16 @@ class Probe:
         self.pub_resolver = self.node.create_publisher(JointState, contract.RESOLVER, ri.LOOP_QOS)
         self._float = Float64
         self._demand: tuple[str, float] | None = None
-        self.node.create_timer(0.01, self._publish_demand)      # a supervisor at 100 Hz
+        self.lockstep = lockstep
+        self.ticks = 0
+        self._last_sent = 0.0
+        if lockstep:        # one demand per /clock tick (same QoS as the plant's /clock publisher)
+            self.node.create_subscription(Clock, contract.CLOCK, self._on_tick, ri.TELEMETRY_QOS)
+            # a loop that has stalled waiting for a demand (the first tick's demand sent before
+            # the controller matched, or a pause with set_demand(None)) gets one again
+            self.node.create_timer(0.05, self._kick)
+        else:
+            self.node.create_timer(0.01, self._publish_demand)      # a supervisor at 100 Hz
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, daemon=True)
@@ -67,13 +86,23 @@ class Probe:
 
     # ---------------------------------------------------------------- inputs
     def set_demand(self, value: float | None, topic: str = contract.DEMAND) -> None:
-        """Publish ``value`` on ``topic`` every 10 ms from now on (None: fall silent)."""
+        """Publish ``value`` on ``topic`` from now on, every 10 ms or, in lockstep, once per
+        ``/clock`` tick (None: fall silent; in lockstep that stalls the run)."""
         self._demand = None if value is None else (topic, value)
+
+    def _on_tick(self, _msg):
+        self.ticks += 1
+        self._publish_demand()
+
+    def _kick(self):
+        if time.monotonic() - self._last_sent > 0.2:
+            self._publish_demand()
 
     def _publish_demand(self):
         if self._demand is not None:
             topic, value = self._demand
             (self.pub_demand if topic == contract.DEMAND else self.pub_demand_ma).publish(self._float(data=value))
+            self._last_sent = time.monotonic()
 
     def seize_valve(self, valve_rad: float | None, gear_ratio: float = 48.019, rate_hz: float = 1000.0) -> None:
         """Act as a plant whose valve is seized at ``valve_rad``: publish consistent resolver
@@ -141,13 +170,13 @@ class Probe:
                              f"{getattr(self.driver_status(), 'message', None)!r}")
 
     # ---------------------------------------------------------------- services
-    def trigger(self, service: str, timeout: float = 5.0):
+    def trigger(self, service: str, timeout: float = 15.0):
         from std_srvs.srv import Trigger
         client = self.node.create_client(Trigger, service)
         assert client.wait_for_service(timeout_sec=timeout), f"service {service} not available"
         return self._wait_future(client.call_async(Trigger.Request()), timeout, service)
 
-    def set_params(self, node: str, params: dict, timeout: float = 5.0) -> list:
+    def set_params(self, node: str, params: dict, timeout: float = 15.0) -> list:
         """SetParameters on ``node`` (relative to the namespace); returns the results."""
         from rcl_interfaces.srv import SetParameters
         from rclpy.parameter import Parameter
@@ -156,7 +185,7 @@ class Probe:
         req = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in params.items()])
         return self._wait_future(client.call_async(req), timeout, f"{node}/set_parameters").results
 
-    def get_params(self, node: str, names: list[str], timeout: float = 5.0) -> list:
+    def get_params(self, node: str, names: list[str], timeout: float = 15.0) -> list:
         from rcl_interfaces.srv import GetParameters
         from rclpy.parameter import parameter_value_to_python
         client = self.node.create_client(GetParameters, f"{node}/get_parameters")

@@ -1,8 +1,16 @@
 """The node suite over DDS: plant, controller and demand as real subprocesses started through
 their installed executables (SPEC §4), observed and driven from the test through rclpy.
 
-Timing-dependent checks use generous margins: these tests must pass on a loaded 2-core
-machine; the loop's real-time figures are measured by benchmarks/ros_loop.py instead.
+These tests must pass on a loaded 2-core machine.  Tests whose subject is not timing run in
+lockstep (simulated time, the plant owns ``/clock`` and advances one period per command; the
+test's probe sends one demand per tick): a starved process slows the run down instead of
+tripping a real-time timeout.  Only the tests whose subject is real-time behaviour run in real
+time, with generous margins: the real-time run itself, the faults raised by *silence* (a
+stale demand, a resolver dropout), which a lockstep loop cannot see because it waits, and
+foreign messages injected on the loop topics (they could displace a lockstep sample).  The
+valve-seized rig also runs in real time: the test's own thread plays the plant there (with a
+1 s resolver timeout, so a descheduled thread cannot trip it).  The loop's real-time figures
+are measured by benchmarks/ros_loop.py, not here.
 """
 from __future__ import annotations
 
@@ -26,6 +34,8 @@ from fuel_valve_control.tools.launcher import Launcher, executable  # noqa: E402
 from fuel_valve_control.tools.run_plan import LOCKSTEP, REAL_TIME, plan_run  # noqa: E402
 from fuel_valve_control.tools.scenarios import load_scenario  # noqa: E402
 from fuel_valve_control.common import contract  # noqa: E402
+from fuel_valve_plant.physics.friction import friction_levels  # noqa: E402
+from fuel_valve_plant.physics.params import PLANT_SPEC  # noqa: E402
 
 STROKE = 1.0471975511965976
 BIN = Path(sys.executable).parent
@@ -77,10 +87,11 @@ def test_lockstep_reproduces_the_offline_simulator(lockstep_runs):
 
 # ------------------------------------------------------------------------------ real time
 def test_demand_step_moves_the_valve_in_real_time():
-    # resolver timeout 0.1 s instead of 20 ms: CI shares 2 cores with other work, and a starved
-    # process must not trip this test (the fault itself is tested below)
+    # resolver timeout 1 s instead of 20 ms: CI shares 2 cores with other work, and a starved
+    # process must not trip this test (measured: a 336 ms gap on the loaded machine; the fault
+    # itself is tested below and in test_driver.py)
     plan = plan_run(load_scenario("step_small"), REAL_TIME, duration_s=3.0,
-                    controller_overrides={"faults.resolver_timeout_s": 0.1})
+                    controller_overrides={"faults.resolver_timeout_s": 1.0})
     out = io.StringIO()
     summary = suite.run(plan, "/realtime", out=out)
     text = out.getvalue()
@@ -88,25 +99,37 @@ def test_demand_step_moves_the_valve_in_real_time():
     assert summary["worst_level"] < 2, summary["faults"]
     # the status line reports demand and position; 22 % demanded
     assert "demand  22.00 %" in summary["final_status"]
-    assert abs(summary["final_error_pct"]) < 0.3, text        # 0.3 % of stroke = 3.1e-3 rad
+    # the valve stops inside the integrator deadband, whose edge depends on the loop's timing
+    # here: within one stick-slip jump of the plant (4.6e-3 rad = 0.44 % at max Δp); accuracy
+    # itself is asserted in lockstep and offline (measured 0.29-0.30 % here, 0.24 % offline)
+    ps = PLANT_SPEC.defaults()
+    jump_pct = 100.0 * friction_levels(ps).stick_slip_jump_rad(ps["coupling.stiffness_nm_per_rad"]) / STROKE
+    assert abs(summary["final_error_pct"]) < jump_pct, text
     loop = summary["loop"]
     assert loop["ticks"] > 2000 and loop["commands"] > 500, loop
 
 
 # ------------------------------------------------------------------------------ faults
-@pytest.fixture(scope="module")
-def rig(tmp_path_factory):
-    """Plant (real time, closed, drive off) and controller (demand in mA, NE43) as processes;
-    the test is the supervisor."""
-    plan = plan_run(None, REAL_TIME,
+def _start_rig(namespace: str, run_dir: Path, lockstep: bool):
+    """Plant (closed, drive off) and controller (demand in mA, NE43) as processes; the test's
+    probe is the supervisor (and, in lockstep, the demand participant).  Yields (suite, probe)."""
+    # real time: a resolver timeout of 1 s instead of 20 ms, so a process starved by a loaded
+    # machine (measured: 334 ms gaps with two CPU hogs) does not trip the rig by accident
+    # lockstep: the plant runs until the tests are done (stop_after_s 0), and the controller
+    # publishes its status more often: simulated time runs at a fraction of wall time on a
+    # loaded machine (measured 0.3x with the machine shared)
+    plan = plan_run(None, LOCKSTEP if lockstep else REAL_TIME,
+                    plant_overrides={"stop_after_s": 0.0} if lockstep else {},
                     controller_overrides={"demand_source": "ma", "faults.tracking_error_time_s": 0.3,
-                                          "faults.resolver_timeout_s": 0.1})
-    s = Launcher(plan, "/rig", tmp_path_factory.mktemp("rig"))
+                                          "faults.resolver_timeout_s": 0.1 if lockstep else 1.0,
+                                          **({"diagnostics_rate_hz": 20.0} if lockstep else {})})
+    s = Launcher(plan, namespace, run_dir)       # /clock participants: controller and the probe
     s.start(("plant", "controller"))
-    probe = Probe("/rig", keep_all=(contract.CURRENT_COMMAND, contract.DRIVE_ENABLE))
+    probe = Probe(namespace, keep_all=(contract.CURRENT_COMMAND, contract.DRIVE_ENABLE), lockstep=lockstep)
     try:
         probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)      # 30 %
-        probe.wait_for(lambda: probe.driver_level() == 0 and _near(probe, 0.30), 30.0, "valve at 30 %")
+        probe.wait_for(lambda: probe.driver_level() is not None, 30.0, "the controller's status")
+        _healthy(probe)
         yield s, probe
     finally:
         probe.close()
@@ -114,15 +137,46 @@ def rig(tmp_path_factory):
         assert all(c in (0, -2) for c in codes.values()), (codes, s.log_tail("plant"), s.log_tail("controller"))
 
 
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory):
+    """The lockstep rig: fault logic, services, parameters and diagnostics over DDS."""
+    yield from _start_rig("/rig", tmp_path_factory.mktemp("rig"), lockstep=True)
+
+
+@pytest.fixture(scope="module")
+def realtime_rig(tmp_path_factory):
+    """The real-time rig, for the faults raised by silence."""
+    yield from _start_rig("/rtrig", tmp_path_factory.mktemp("rtrig"), lockstep=False)
+
+
+def _healthy(probe, timeout=20.0):
+    """Each fault test starts from a running loop holding 30 %, whatever the previous left
+    (a latched fault is reset, as often as it takes: under heavy load the real-time plant can
+    integrate several periods between two closely stamped samples while the spring shuts the
+    valve, which reads as an implausible jump)."""
+    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
+
+    def ready():
+        if probe.driver_level() == 2:
+            probe.trigger("controller/reset")
+            time.sleep(0.2)
+        return probe.driver_level() == 0 and _near(probe, 0.30, 0.02)
+    probe.wait_for(ready, timeout, "healthy at 30 %")
+
+
 @pytest.fixture
 def healthy(rig):
-    """Each fault test starts from a running loop holding 30 %, whatever the previous left."""
-    s, probe = rig
-    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
-    if probe.driver_level() != 0:
-        _reset_and_recover(probe)
-    probe.wait_for(lambda: probe.driver_level() == 0 and _near(probe, 0.30, 0.02), 10.0, "healthy at 30 %")
-    return rig
+    _healthy(rig[1])
+    yield rig
+    # pause the lockstep loop between tests (it waits for the next demand): it would otherwise
+    # run flat out and take the CPU from the real-time tests after it
+    rig[1].set_demand(None)
+
+
+@pytest.fixture
+def realtime_healthy(realtime_rig):
+    _healthy(realtime_rig[1])
+    return realtime_rig
 
 
 def _near(probe, frac, tol=0.01):
@@ -143,10 +197,10 @@ def _assert_fail_safe(probe, t0, fault_words, timeout=3.0):
     assert late and all(c == 0.0 for c in late), late[-5:]
 
 
-def _reset_and_recover(probe, frac=0.30):
-    probe.wait_for(lambda: probe.trigger("controller/reset").success, 5.0, "a successful reset")
-    probe.wait_for(lambda: probe.driver_level() == 0, 5.0, "status OK after reset")
-    probe.wait_for(lambda: _near(probe, frac, 0.02), 5.0, f"valve back at {frac:.0%}")
+def _reset_and_recover(probe):
+    """The reset is accepted (the cause is gone), then the loop holds 30 % again."""
+    probe.wait_for(lambda: probe.trigger("controller/reset").success, 10.0, "a successful reset")
+    _healthy(probe)
 
 
 def test_trip_service_closes_the_valve_and_reset_rearms(healthy):
@@ -171,23 +225,16 @@ def test_ne43_signal_failure_latches(healthy, bad_ma, words):
     _reset_and_recover(probe)
 
 
-def test_silent_demand_trips_and_resets(healthy):
-    _, probe = healthy
-    probe.set_demand(None)
-    _assert_fail_safe(probe, time.monotonic(), ("demand",))
-    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
-    _reset_and_recover(probe)
-
-
-@pytest.mark.parametrize("injection, words", [("resolver_dropout", ("resolver sample",)),
-                                              ("resolver_noise_burst", ("jumped", "stroke", "disagree"))])
-def test_resolver_faults_latch_and_reset(healthy, injection, words):
-    _, probe = healthy
+def _resolver_fault(probe, injection, words):
     results = probe.set_params("plant", {"fault_injection": injection})
     assert results[0].successful, results[0].reason
     _assert_fail_safe(probe, time.monotonic(), words)
     assert probe.set_params("plant", {"fault_injection": "none"})[0].successful
-    _reset_and_recover(probe)
+
+
+def test_implausible_resolver_latches_and_resets(healthy):
+    _resolver_fault(healthy[1], "resolver_noise_burst", ("jumped", "stroke", "disagree"))
+    _reset_and_recover(healthy[1])
 
 
 @pytest.fixture
@@ -196,7 +243,9 @@ def seized(tmp_path):
     readings consistent, so only the tracking and current supervision can see it)."""
     plan = plan_run(None, REAL_TIME, controller_overrides={
         "faults.tracking_error_time_s": 0.3, "faults.i2t_fault_time_s": 0.5,
-        "faults.resolver_timeout_s": 1.0})       # the test's Python thread plays the resolver: allow it gaps
+        # the test's Python threads play the resolver and the supervisor: allow them gaps
+        # (measured: a 0.62 s demand gap with two CPU hogs on the shared machine)
+        "faults.resolver_timeout_s": 1.0, "demand_timeout_s": 3.0})
     s = Launcher(plan, "/seized", tmp_path)
     s.start(("controller",))
     probe = Probe("/seized", keep_all=(contract.CURRENT_COMMAND,))
@@ -277,11 +326,38 @@ def test_diagnostics_content(healthy):
     plant = [st for name, st in probe.diagnostics.items() if name.startswith("/rig/") and name.endswith("plant: loop")]
     assert plant, list(probe.diagnostics)
     pv = {kv.key: kv.value for kv in plant[0].values}
-    assert float(pv["ticks"]) > 0 and "rtt_median_ms" in pv
+    assert float(pv["commands"]) > 0 and float(pv["plant_time_s"]) > 0.0 and "rtt_median_ms" in pv
 
 
-def test_malformed_inputs_never_crash_or_drive_unsafely(healthy):
-    s, probe = healthy
+def test_node_rejects_invalid_parameter_file(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/**:\n  ros__parameters:\n    pressure_differential_kpa: -5.0\n")
+    proc = subprocess.run([str(BIN / "plant"), "--ros-args", "--params-file", str(bad)], capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 2
+    assert "pressure_differential_kpa" in proc.stdout + proc.stderr
+
+
+# ------------------------------------------------------------------------------ real-time faults
+# last in the module, so the real-time rig runs alone (module fixtures live to the module's end)
+def test_silent_demand_trips_and_resets(realtime_healthy):
+    _, probe = realtime_healthy
+    probe.set_demand(None)
+    _assert_fail_safe(probe, time.monotonic(), ("demand",))
+    probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
+    _reset_and_recover(realtime_healthy[1])
+
+
+def test_resolver_dropout_latches_and_resets(realtime_healthy):
+    _resolver_fault(realtime_healthy[1], "resolver_dropout", ("resolver sample",))
+    _reset_and_recover(realtime_healthy[1])
+
+
+def test_malformed_inputs_never_crash_or_drive_unsafely(realtime_healthy):
+    # real time: foreign messages on the loop topics (keep-last 1) can displace the plant's
+    # own resolver sample, which would stall a lockstep loop for good (the plant does not
+    # re-send); in real time the next sample follows 1 ms later
+    s, probe = realtime_healthy
     from sensor_msgs.msg import JointState
     t0 = time.monotonic()
     for value in (math.nan, math.inf, -math.inf, 1e308, -1e308, 0.0, 25.0):
@@ -300,12 +376,3 @@ def test_malformed_inputs_never_crash_or_drive_unsafely(healthy):
     probe.wait_for(lambda: probe.driver_level() == 2, 2.0, "fault from the malformed inputs")
     probe.set_demand(4.0 + 16.0 * 0.30, contract.DEMAND_MA)
     _reset_and_recover(probe)
-
-
-def test_node_rejects_invalid_parameter_file(tmp_path):
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("/**:\n  ros__parameters:\n    pressure_differential_kpa: -5.0\n")
-    proc = subprocess.run([str(BIN / "plant"), "--ros-args", "--params-file", str(bad)], capture_output=True,
-                          text=True, timeout=60)
-    assert proc.returncode == 2
-    assert "pressure_differential_kpa" in proc.stdout + proc.stderr
