@@ -3,15 +3,17 @@
 * the default mode on the nominal plant at max Δp: stroke, overshoot, settling, hold
   (limit cycle, steady-state error), bandwidth, trip close time, peak current everywhere;
 * the robustness box (friction x 0.5…3, Δp 0…max, coupling stiffness x 0.1…1, inertia
-  ±20 %) at the same gains: stable, no hunting beyond the stick-slip jump ``2 (Ts - Tc)/K``
-  of *that* plant plus two counts, and small-step overshoot ≤ 10 % where it holds (the
-  corners where it does not are reported in ``docs/control_results.md``, not asserted);
+  ±20 %) at the same gains, every single-parameter extreme and every corner: stable, no
+  hunting beyond the stick-slip jump ``2 (Ts - Tc)/K`` of *that* plant plus two counts, and
+  small-step overshoot ≤ 10 %; the documented shortfalls (``docs/control_results.md`` §2)
+  are ``xfail(strict=True)`` with the measured reason, so a fix shows as XPASS;
 * the ``pi`` baseline shows the field problem the new controller removes.
 
 Every number comes from a simulation run here; nothing is a stored result.  Runs are cached
 per module so each scenario is simulated once.
 """
 import functools
+import itertools
 import math
 
 import pytest
@@ -115,35 +117,84 @@ def _id(c):
     return "-".join(f"{k}{v:g}" for k, v in c.items()) or "nominal"
 
 
-# single-parameter extremes and corners of the box where the default mode neither hunts nor
-# drifts (measured; see docs/control_results.md)
-STABLE_CORNERS = [
-    dict(friction=0.5), dict(friction=3.0), dict(dp=0.0), dict(stiffness=0.1),
-    dict(inertia=0.8), dict(inertia=1.2),
-    dict(friction=0.5, dp=0.0, stiffness=0.1, inertia=0.8),
-    dict(friction=0.5, dp=0.0, stiffness=0.1, inertia=1.2),
-    dict(friction=3.0, dp=0.0, stiffness=0.1, inertia=0.8),
-    dict(friction=0.5, stiffness=0.1, inertia=0.8),
-    dict(friction=3.0, stiffness=0.1, inertia=0.8),
-    dict(friction=3.0, stiffness=0.1, inertia=1.2),
-    dict(friction=0.5, dp=0.0, inertia=1.2),
-    dict(friction=3.0, dp=0.0, inertia=0.8),
-    dict(friction=3.0, inertia=1.2),
-    # jumps 30x the nominal jump: hunted (1.3 Hz, p-p 1.2x the allowance) while the learned
-    # jump ratio was capped at 20
-    dict(friction=3.0, dp=0.0, stiffness=0.1, inertia=1.2),
-]
-
-# corners where the small-step overshoot target (<= 10 %) holds at the same gains
-OVERSHOOT_CORNERS = [
-    dict(dp=0.0), dict(inertia=1.2),
-    dict(friction=0.5, dp=0.0, inertia=0.8), dict(friction=0.5, dp=0.0, inertia=1.2),
-    dict(friction=3.0, dp=0.0, inertia=0.8), dict(friction=3.0, dp=0.0, inertia=1.2),
-    dict(friction=3.0, dp=0.0, stiffness=0.1, inertia=0.8),
-]
+NOMINAL = dict(friction=1.0, dp=P_MAX, stiffness=1.0, inertia=1.0)
+AXES = dict(friction=(0.5, 3.0), dp=(0.0, P_MAX), stiffness=(0.1, 1.0), inertia=(0.8, 1.2))
 
 
-@pytest.mark.parametrize("c", STABLE_CORNERS, ids=lambda c: _id(c))
+def _box() -> list[dict]:
+    """The robustness box of SPEC §6 as ``benchmarks/control_quality.py`` runs it: the six
+    single-parameter extremes and the 16 corners (the nominal plant has its own tests above).
+    Each as the overrides that differ from nominal (also the test id)."""
+    full = [{**NOMINAL, axis: v} for axis, values in AXES.items() for v in values if v != NOMINAL[axis]]
+    full += [c for c in (dict(zip(AXES, combo)) for combo in itertools.product(*AXES.values()))
+             if c not in full]
+    return [{k: v for k, v in c.items() if v != NOMINAL[k]} for c in full]
+
+
+BOX = _box()
+
+
+def _key(c: dict) -> frozenset:
+    return frozenset(c.items())
+
+
+def _cases(shortfalls: dict) -> list:
+    """Every corner of the box; a documented shortfall (docs/control_results.md §2) is an
+    ``xfail(strict=True)`` with its measured reason, so it is seen to fail and a fix shows."""
+    unknown = set(shortfalls) - {_key(c) for c in BOX}
+    assert not unknown, f"shortfalls outside the box: {unknown}"
+    return [pytest.param(c, id=_id(c), marks=[pytest.mark.xfail(strict=True, reason=shortfalls[_key(c)])]
+                         if _key(c) in shortfalls else []) for c in BOX]
+
+
+def _corner(**c) -> frozenset:
+    return _key(c)
+
+
+# hold: where the default mode ends farther from the demand than that plant's own jump + 2 counts
+HOLD_SHORTFALLS = {
+    _corner(friction=0.5, inertia=0.8):
+        "stops 3.1e-3 rad from the demand, beyond this low-friction plant's jump + 2 counts "
+        "(2.5e-3 rad): the integrator deadband is sized from the controller's nominal friction "
+        "(0.55 x the 4.6e-3 rad nominal jump at max Δp), wider than this plant's own jump; "
+        "no hunting (p-p 0)",
+}
+
+_FF_LOW = ("the friction feed-forward is scheduled on the nominal friction and a 2 % step is too short "
+           "to adapt it: the valve gets about twice the breakaway torque it needs")
+_FF_HIGH = ("the friction feed-forward is a third of the real breakaway torque; the stuck-valve ramp "
+            "winds the coupling up to the real Ts and the valve lets go with the stored twist "
+            "(jump 0.0137 rad > remaining error)")
+_FLOOR = ("physics: the stick-slip jump 2(Ts-Tc)/K exceeds the 0.021 rad step, so a quasi-static "
+          "breakaway overshoots by at least the jump whatever the controller")
+# small step: where overshoot > 10 % (docs/control_results.md §2, benchmarks/control_quality.py)
+STEP_SHORTFALLS = {
+    _corner(friction=0.5): "overshoot 35 %: " + _FF_LOW,
+    _corner(friction=0.5, inertia=0.8): "overshoot 31 %: " + _FF_LOW,
+    _corner(friction=0.5, inertia=1.2): "overshoot 37 %: " + _FF_LOW,
+    _corner(friction=3.0): "overshoot 44 %: " + _FF_HIGH,
+    _corner(friction=3.0, inertia=0.8): "overshoot 43 %: " + _FF_HIGH,
+    _corner(friction=3.0, inertia=1.2): "overshoot 45 %: " + _FF_HIGH,
+    _corner(inertia=0.8): "overshoot 20 %: the acceleration feed-forward and the observer are built on "
+                          "the nominal inertias; a 20 % lighter drivetrain is over-driven at the start",
+    _corner(stiffness=0.1): "overshoot 123 % against a physical floor of 119 %: " + _FLOOR + " (0.046 rad)",
+    _corner(friction=3.0, stiffness=0.1, inertia=0.8): "overshoot 451 %, floor 557 %: " + _FLOOR + " (0.137 rad)",
+    _corner(friction=3.0, stiffness=0.1, inertia=1.2): "overshoot 467 %, floor 557 %: " + _FLOOR + " (0.137 rad)",
+    _corner(friction=0.5, stiffness=0.1, inertia=0.8):
+        "overshoot 21 %, floor 9.4 % (jump 0.023 rad > step); the rest: " + _FF_LOW,
+    _corner(friction=0.5, stiffness=0.1, inertia=1.2):
+        "overshoot 31 %, floor 9.4 % (jump 0.023 rad > step); the rest: " + _FF_LOW,
+    _corner(friction=0.5, dp=0.0, stiffness=0.1, inertia=0.8):
+        "overshoot 44 %: soft coupling plus the nominal-friction feed-forward error (jump only 2e-3 rad, "
+        "not a physical floor)",
+    _corner(friction=0.5, dp=0.0, stiffness=0.1, inertia=1.2):
+        "overshoot 42 %: soft coupling plus the nominal-friction feed-forward error (jump only 2e-3 rad, "
+        "not a physical floor)",
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("c", _cases(HOLD_SHORTFALLS))
 def test_robust_hold_is_stable_without_hunting_beyond_the_jump(c):
     plant, ctrl = corner(**c)
     res, ps = _run("hold", plant=plant, controller=ctrl)
@@ -161,7 +212,8 @@ def test_robust_hold_is_stable_without_hunting_beyond_the_jump(c):
     assert m["peak_current_a"] <= 37.0
 
 
-@pytest.mark.parametrize("c", OVERSHOOT_CORNERS, ids=lambda c: _id(c))
+@pytest.mark.slow
+@pytest.mark.parametrize("c", _cases(STEP_SHORTFALLS))
 def test_robust_small_step_overshoot(c):
     plant, ctrl = corner(**c)
     res, ps = _run("step_small", plant=plant, controller=ctrl)

@@ -54,6 +54,11 @@ class Compensator:
         """(torque to add at the motor, motor friction estimate, valve friction estimate)."""
         return 0.0, 0.0, 0.0
 
+    def scale(self, pressure_kpa: float) -> tuple[float, float] | None:
+        """Learned / nominal Coulomb level of (motor, valve) at ``pressure_kpa`` kPa; None for
+        a strategy that learns nothing."""
+        return None
+
 
 def _non_friction_accels(model: NominalModel, ctx: Context) -> tuple[float, float]:
     """Accelerations from every torque but friction: (motor shaft, rad/s² motor units; valve)."""

@@ -22,9 +22,9 @@ from ..common.contract import (NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_
                                 PERCENT_FAIL_MARGIN, ma_to_percent)
 from ..common.paramspec import ParamSet
 
-from .control_laws import Measurement
 from .params import CONTROLLER_SPEC
 from .position_controller import PositionController
+from .signals import Measurement
 
 DEMAND_SIGNAL = "demand_signal_failure"
 DEMAND_STALE = "demand_stale"
@@ -83,8 +83,8 @@ class ValveDriver:
         old_ps = self.ps
         self.ps = new
         ctl.ps = new
-        ctl.limiter.configure(new["limits.peak_current_a"], new["limits.peak_time_s"],
-                              new["limits.continuous_current_a"])
+        ctl.configure_limits(new["limits.peak_current_a"], new["limits.peak_time_s"],
+                             new["limits.continuous_current_a"])
         if new["mode"] != old_ps["mode"] or any(k.startswith(("fp.", "integral.", "fc_gain.")) for k in changes):
             # rebuild the law with the new settings, bumplessly from the last applied torque
             ctl.switch_law(new["mode"], self._meas if self._armed else None, new["pressure_differential_kpa"])
@@ -188,7 +188,7 @@ class ValveDriver:
         self.faults.clear()
         self.warnings.pop(DEMAND_STALE, None)
         self._tracking_since = None
-        self.controller.limiter.reset()
+        self.controller.reset_limits()
         return True, ("cleared: " + ", ".join(cleared)) if cleared else "nothing to clear"
 
     def _latch(self, code: str, message: str) -> None:
@@ -233,10 +233,10 @@ class ValveDriver:
                                       f"for {t - self._tracking_since:.2f} s")
         else:
             self._tracking_since = None
-        if self.controller.limiter.overload_time > ps["faults.i2t_fault_time_s"]:
+        if self.controller.overload_time > ps["faults.i2t_fault_time_s"]:
             self._latch(OVERCURRENT, f"I2t budget exhausted and more than "
                                      f"{ps['limits.continuous_current_a']:g} A requested for "
-                                     f"{self.controller.limiter.overload_time:.2f} s (jam or overload)")
+                                     f"{self.controller.overload_time:.2f} s (jam or overload)")
         if self.faults:                       # latched this very period: fail safe now
             self._armed = False
             self.last = DriverOutput(0.0, False, "fault", self._demand_pct, position_pct,
@@ -248,6 +248,11 @@ class ValveDriver:
         return self.last
 
     # ------------------------------------------------------------------ diagnostics
+    @property
+    def last_resolver_time(self) -> float | None:
+        """Time stamp (s) of the latest plausible resolver sample; None before the first."""
+        return self._meas_t
+
     def recent_position_spread(self) -> float:
         """Half peak-to-peak of the valve angle over the last 2 s (a live limit-cycle estimate)."""
         if len(self._positions) < 2:
@@ -278,9 +283,9 @@ class ValveDriver:
             "demand_pct": out.demand_pct, "position_pct": out.position_pct, "tracking_error_rad": tracking,
             "current_a": out.current_a, "limit_cycle_estimate_rad": self.recent_position_spread(),
             "friction_valve_estimate_nm": est.valve_friction_nm, "friction_motor_estimate_nm": est.motor_friction_nm,
-            "friction_trend": law.friction_trend() if hasattr(law, "friction_trend") else None,
-            "deadband_rad": getattr(law, "deadband", None),
-            "i2t_budget_used": self.controller.limiter.budget_used / max(self.controller.limiter.budget, 1e-12),
+            "friction_trend": law.friction_trend(),
+            "deadband_rad": law.deadband_rad(),
+            "i2t_budget_used": self.controller.i2t_budget_fraction,
             "faults": ",".join(out.faults) or "none", "warnings": ",".join(out.warnings) or "none",
         }
         return Health(level, message, values)

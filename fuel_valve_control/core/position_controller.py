@@ -16,12 +16,14 @@ from ..common.paramspec import ParamSet
 
 from . import design
 from .compensation import Compensator, FriedlandPark, ReferenceFeedforward, StictionGain
-from .control_laws import (ControlLaw, Estimate, IntegralPolicy, Measurement, PIDLaw, Seating,
-                           StateFeedbackLaw)
-from .params import CONTROLLER_SPEC, MODES
 from .friction_observer import FrictionObserver
+from .integral_policy import IntegralPolicy
+from .laws import ControlLaw, PIDLaw, StateFeedbackLaw
 from .limits import CurrentLimiter
 from .model import NominalModel
+from .params import CONTROLLER_SPEC, MODES
+from .seating import Seating
+from .signals import Estimate, Measurement
 from .trajectory import TrajectoryShaper
 
 
@@ -71,8 +73,8 @@ class PositionController:
         self.period = 1.0 / self.ps["loop_rate_hz"]
         self.designs = design_all(self.ps, self.model)
         lim = self.ps
-        self.limiter = CurrentLimiter(lim["limits.peak_current_a"], lim["limits.peak_time_s"],
-                                      lim["limits.continuous_current_a"], self.period)
+        self._limiter = CurrentLimiter(lim["limits.peak_current_a"], lim["limits.peak_time_s"],
+                                       lim["limits.continuous_current_a"], self.period)
         self.law: ControlLaw = self._build(self.ps["mode"])
         self._started = False
         self.last_current = 0.0
@@ -137,7 +139,7 @@ class PositionController:
 
     def reset(self, meas: Measurement, pressure_kpa: float, torque_nm: float = 0.0) -> None:
         """(Re)arm from a measurement, starting from ``torque_nm`` (0 after a trip)."""
-        self.limiter.reset()
+        self._limiter.reset()
         self.law.reset(meas, torque_nm, pressure_kpa)
         self.last_torque = torque_nm
         self.last_current = torque_nm / self.model.torque_constant_nm_per_a
@@ -150,10 +152,10 @@ class PositionController:
         kt = self.model.torque_constant_nm_per_a
         torque = self.law.update(t, demand_rad, meas, pressure_kpa)
         request = torque / kt
-        current = self.limiter.apply(request)
+        current = self._limiter.apply(request)
         self.last_current = current
         self.last_torque = current * kt
-        self.law.applied(self.last_torque, self.limiter.saturated)
+        self.law.applied(self.last_torque, self._limiter.saturated)
         return current
 
     def estimate(self) -> Estimate:
@@ -161,5 +163,26 @@ class PositionController:
 
     def reference_position(self) -> float:
         """The shaped reference the law tracks this period (rad; NaN when it has none)."""
-        ref = getattr(self.law, "reference", None)
-        return ref.position if ref is not None else float("nan")
+        ref = self.law.reference_position()
+        return ref if ref is not None else float("nan")
+
+    # ------------------------------------------------------------------ current limits
+    def configure_limits(self, peak_a: float, peak_time_s: float, continuous_a: float) -> None:
+        """New current limits (A, s), effective from the next period; the I²t budget spent so
+        far is kept."""
+        self._limiter.configure(peak_a, peak_time_s, continuous_a)
+
+    def reset_limits(self) -> None:
+        """Refill the I²t budget and clear the overload timer (after a fault reset)."""
+        self._limiter.reset()
+
+    @property
+    def overload_time(self) -> float:
+        """How long (s) the loop has asked for more than the continuous current with the I²t
+        budget exhausted: a jam or overload."""
+        return self._limiter.overload_time
+
+    @property
+    def i2t_budget_fraction(self) -> float:
+        """Fraction of the I²t budget spent (0 cold .. 1 exhausted)."""
+        return self._limiter.budget_used / max(self._limiter.budget, 1e-12)

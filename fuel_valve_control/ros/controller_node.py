@@ -184,7 +184,7 @@ class ControllerNode(Node):
         timeout = self.driver.ps["faults.resolver_timeout_s"]
         if self.lockstep:
             return                       # sim time stands still while nobody steps the plant
-        last = self.driver._meas_t
+        last = self.driver.last_resolver_time
         if last is not None and self.now_s() - last > timeout:
             self.publish_step(self.now_s())
 

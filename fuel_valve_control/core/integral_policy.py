@@ -1,0 +1,72 @@
+"""When the state-feedback law may integrate: the friction-sized deadband (SPEC §6) and the
+learner that sizes it from the breakaway jumps the valve really makes."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .model import NominalModel
+
+
+@dataclass(frozen=True)
+class IntegralPolicy:
+    """Integral action near the target (the anti-hunting measure of SPEC §6).
+
+    With stiction above Coulomb friction every breakaway jumps ~2 (Ts - Tc)/K; an integrator
+    that keeps pushing inside that distance can only hunt.  The integrator is therefore frozen
+    while the error is inside ``max(min_rad, jump_fraction * jump(Δp))`` and during planned moves.
+    Outside it, a valve that is stuck gets its torque ramped (at least) at ``Ts(Δp) /
+    stuck_ramp_time_s`` until it breaks away: quasi-static, so the jump stays the physical
+    minimum, but much quicker than the integrator alone (whose rate shrinks with the error).
+    Inside it, once the valve is at rest, the drive relaxes toward the middle of the static
+    band (valve torque = known load) with time constant ``relax_time_s``.
+    """
+
+    jump_fraction: float
+    min_rad: float
+    stuck_speed: float = 0.03          # rad/s: at or below, the valve counts as stuck
+    stuck_ramp_time_s: float = math.inf  # time to ramp through Ts while stuck outside the deadband
+    relax_time_s: float = 0.0          # time constant of relaxing a settled drive (0 = off)
+
+    def deadband(self, model: NominalModel, pressure_kpa: float, jump_ratio: float = 1.0) -> float:
+        """``max(min_rad, jump_fraction * jump)``, the jump being the nominal one times the
+        measured/nominal ratio learned by :class:`JumpLearner`."""
+        jump = model.friction(pressure_kpa).stick_slip_jump_rad(model.coupling_stiffness_nm_per_rad)
+        return max(self.min_rad, self.jump_fraction * jump * jump_ratio)
+
+
+class JumpLearner:
+    """Measures the breakaway jumps the valve actually makes while holding.
+
+    The nominal jump ``2 (Ts - Tc)/K`` assumes nominal friction and coupling; a worn valve or
+    a soft coupling (x 0.1 stiffness) jumps much further, and a deadband sized for the
+    nominal jump would then hunt.  Each hold-phase breakaway (stuck -> sliding -> stuck) gives
+    a measured jump; the ratio measured/nominal is tracked with gain ``gain``.  Moves shorter
+    than ``min_jump`` (three resolver counts) are reading noise and are ignored.
+
+    The upper limit must cover the robustness box of SPEC §6: friction x 3 on a coupling
+    x 0.1 jumps 30x the nominal jump at any Δp (a cap of 20 left that corner hunting at
+    Δp = 0); 50 gives margin.
+    """
+
+    def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4):
+        self.gain = gain
+        self.min_jump = min_jump          # rad: smaller "jumps" are resolver noise, not breakaways
+        self.limits = limits
+        self.ratio = 1.0
+        self._stuck_at: float | None = None
+        self._start: float | None = None
+
+    def update(self, valve: float, stuck: bool, holding: bool, nominal_jump: float) -> None:
+        if not holding:
+            self._start = None
+        elif not stuck and self._stuck_at is not None and self._start is None:
+            self._start = self._stuck_at                      # broke away while holding
+        elif stuck and self._start is not None:
+            jump = abs(valve - self._start)
+            if jump >= self.min_jump:
+                self.ratio += self.gain * (jump / nominal_jump - self.ratio)
+            self.ratio = min(max(self.ratio, self.limits[0]), self.limits[1])
+            self._start = None
+        self._stuck_at = valve if stuck else None
+

@@ -1,0 +1,48 @@
+"""The interface of a position control law.
+
+Conventions: angles rad (valve side unless named motor), velocities rad/s, torques N*m at the
+motor shaft unless a name says valve; ``θ1 = θm / N``.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+from ..signals import Estimate, Measurement
+
+
+class ControlLaw(ABC):
+    """Interface of a control law, called once per loop period by the position controller:
+    :meth:`update` for the torque request, then :meth:`applied` with what the limits let
+    through.  The diagnostic queries default to "not available" (None) for laws without
+    such a notion."""
+
+    name: str = "base"
+
+    @abstractmethod
+    def reset(self, meas: Measurement, torque_nm: float, pressure_kpa: float) -> None:
+        """(Re)start from a measurement so that the first output equals ``torque_nm`` (bumpless)."""
+
+    @abstractmethod
+    def update(self, t: float, demand_rad: float, meas: Measurement, pressure_kpa: float) -> float:
+        """Torque request for this period, N*m at the motor."""
+
+    def applied(self, torque_nm: float, saturated: bool) -> None:
+        """The torque actually applied after limits (for observers and anti-windup)."""
+
+    @abstractmethod
+    def estimate(self) -> Estimate:
+        """What the law believes about both shafts and the friction this period."""
+
+    # ------------------------------------------------------------------ diagnostics
+    def reference_position(self) -> float | None:
+        """The shaped reference tracked this period, rad (None: the law tracks the demand)."""
+        return None
+
+    def deadband_rad(self) -> float | None:
+        """Error band inside which the integrator is frozen, rad (None: no deadband)."""
+        return None
+
+    def friction_trend(self) -> float | None:
+        """Learned valve friction / nominal friction at the present Δp (None: not learned):
+        the wear and contamination trend of the valve."""
+        return None

@@ -1,0 +1,162 @@
+"""Observer-based state feedback with integral action and friction compensation (modes
+``observer``, ``observer_fc``, ``kalman_fc``, ``fc_gain``, ``observer_ff``).
+
+Conventions: angles rad (valve side unless named motor), velocities rad/s, torques N*m at the
+motor shaft unless a name says valve; ``θ1 = θm / N``.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from ..compensation import Compensator, Context
+from ..design import StateFeedback
+from ..integral_policy import IntegralPolicy, JumpLearner
+from ..model import NominalModel
+from ..seating import Seating
+from ..signals import Estimate
+from ..trajectory import Reference, TrajectoryShaper
+from .base import ControlLaw
+
+
+class StateFeedbackLaw(ControlLaw):
+    """Discrete observer-based state feedback with integral action (modes ``observer``,
+    ``observer_fc``, ``kalman_fc``, ``fc_gain``, ``observer_ff``).
+
+    Per period: the disturbance observer ``x̂ = x̄ + L (y - C x̄)`` (``x̄`` predicted from the
+    applied torque, the known loads and the compensator's friction belief), then
+
+        u = u_ff(ref) - K (x̂ - x_ref) + K_I ζ + compensation
+
+    where ``x_ref``/``u_ff`` hold the shaped reference against the known loads (spring,
+    nominal flow torque, inertia and viscous feed-forward) and ``ζ += T (r - θ̂L)`` only
+    outside the friction-sized deadband, outside planned moves and while the current is not
+    limited.  The compensation strategy is a :class:`~..compensation.Compensator`.
+    """
+
+    def __init__(self, name: str, model: NominalModel, period_s: float, feedback: StateFeedback,
+                 observer_gain: np.ndarray, shaper: TrajectoryShaper, integral: IntegralPolicy,
+                 compensator: Compensator, seating: Seating, speed_window: int = 4):
+        self.name = name
+        self.model = model
+        self.period = period_s
+        self.fb = feedback
+        self.ao, self.bu, self.bd, self.co = model.observer_model(period_s)
+        self.obs_gain = observer_gain
+        self.shaper = shaper
+        self.integral = integral
+        self.compensator = compensator
+        self.seating = seating
+        self.jumps = JumpLearner()
+        self.xo = np.zeros(6)      # observer state [θ1, ω1, θL, ωL, d1, dL]
+        self.zeta = 0.0
+        self._valve_history: deque = deque(maxlen=max(speed_window, 1) + 1)
+        self._u_net = 0.0          # motor torque of the last period net of estimated motor friction
+        self._d = 0.0              # known valve load of the last period (toward closed)
+        self._applied = 0.0
+        self._pending = 0.0
+        self._fm = 0.0
+        self._fl = 0.0
+        self.deadband = 0.0        # rad, the integrator's deadband this period
+        self.reference: Reference | None = None
+        self._pressure: float | None = None   # kPa, Δp of the latest update
+
+    def reset(self, meas, torque_nm, pressure_kpa):
+        m = self.model
+        self.xo = np.array([meas.motor_rad / m.gear_ratio, 0.0, meas.valve_rad, 0.0, 0.0, 0.0])
+        self.shaper.reset(meas.valve_rad)
+        self._valve_history.clear()
+        self.compensator.reset(m, pressure_kpa)
+        self._fm = self._fl = 0.0
+        x_ref, u_ff = m.equilibrium(meas.valve_rad, pressure_kpa)
+        # bumpless: the integral state makes the first output equal the present torque
+        self.zeta = (torque_nm - u_ff + float(self.fb.k @ (self.xo[:4] - x_ref))) / self.fb.ki
+        self._applied = self._u_net = torque_nm
+        self._d = m.load_torque(meas.valve_rad, pressure_kpa) - m.spring_rate_nm_per_rad * meas.valve_rad
+
+    def update(self, t, demand_rad, meas, pressure_kpa):
+        m = self.model
+        n = m.gear_ratio
+        self._pressure = pressure_kpa
+        # ---- disturbance observer (current estimator)
+        x_bar = self.ao @ self.xo + self.bu[:, 0] * self._u_net + self.bd[:, 0] * self._d
+        self.xo = x_bar + self.obs_gain @ (np.array([meas.motor_rad / n, meas.valve_rad]) - self.co @ x_bar)
+        th1, w1, thl, wl = self.xo[:4]
+        hist = self._valve_history
+        hist.append(meas.valve_rad)
+        valve_speed = (hist[-1] - hist[0]) / (self.period * (len(hist) - 1)) if len(hist) > 1 else 0.0
+        # ---- seating: demands at a stop drive the valve onto it and hold it there
+        target, seat = self.seating.target(demand_rad)
+        if seat and self.seating.seated(self.shaper, target, thl):
+            stop = 0.0 if seat < 0 else m.stroke_rad
+            self.shaper.reset(stop)
+            self.reference = Reference(stop, 0.0, 0.0, False)
+            self._pending, self._fm, self._fl = 0.0, 0.0, 0.0
+            self._d = m.load_torque(stop, pressure_kpa) - m.spring_rate_nm_per_rad * stop
+            return self.seating.torque(m, stop, seat, pressure_kpa)
+        # ---- reference, deadband
+        was_moving = self.reference is not None and self.reference.moving
+        ref = self.shaper.update(target)
+        if ref.moving and not was_moving:
+            # a move starts: uncock the drive first (valve torque back to the known load) so the
+            # move's feed-forward starts from neutral, not from a drive wound up to breakaway
+            net = n * self._applied - m.load_torque(thl, pressure_kpa)
+            self.zeta -= net / n / self.fb.ki
+        self.reference = ref
+        stuck = abs(valve_speed) <= self.integral.stuck_speed
+        nominal_jump = m.friction(pressure_kpa).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
+        self.jumps.update(meas.valve_rad, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad))
+        self.deadband = self.integral.deadband(m, pressure_kpa, self.jumps.ratio)
+        error = ref.position - thl
+        outside = abs(target - thl) > self.deadband and not ref.moving
+        # ---- friction compensation
+        comp, self._fm, self._fl = self.compensator.update(Context(
+            pressure_kpa, th1, w1, thl, wl, valve_speed, self._applied, ref.velocity, ref.acceleration, ref.moving,
+            error, outside))
+        # ---- state feedback around the dynamically consistent reference state
+        x_ref, u_ff = m.reference_state(ref.position, ref.velocity, ref.acceleration, pressure_kpa,
+                                        0.0, self._fl)
+        u = u_ff + (comp - self._fl / n) - float(self.fb.k @ (self.xo[:4] - x_ref)) + self.fb.ki * self.zeta
+        self._pending = 0.0
+        if not outside and not ref.moving and stuck and self.integral.relax_time_s > 0.0:
+            # settled: relax the drive to the middle of the static-friction band.  The valve
+            # torque is the applied motor torque times N less the known load (robust to the
+            # coupling stiffness, which may be far from nominal); shrinking it cannot break the
+            # valve loose, and the next move starts from a neutral drive, not a cocked one
+            net = n * self._applied - m.load_torque(thl, pressure_kpa)
+            self._pending = -net / n * self.period / self.integral.relax_time_s / self.fb.ki
+        if outside:
+            self._pending = self.period * error
+            if stuck:
+                # stuck short of the target: ramp the torque quasi-statically to breakaway
+                # instead of waiting for the slow integrator (the jump is the same either way)
+                rate = m.friction(pressure_kpa).valve_static_nm / self.integral.stuck_ramp_time_s
+                ramp = rate / n * self.period / self.fb.ki
+                self._pending = math.copysign(max(abs(self._pending), ramp), error)
+        known_load = m.load_torque(thl, pressure_kpa) - m.spring_rate_nm_per_rad * thl   # preload + flow
+        self._d = known_load + self._fl
+        return u
+
+    def applied(self, torque_nm, saturated):
+        self._applied = torque_nm
+        self._u_net = torque_nm - self._fm
+        if not saturated:
+            self.zeta += self._pending
+
+    def estimate(self):
+        n = self.model.gear_ratio
+        th1, w1, thl, wl = self.xo[:4]
+        return Estimate(th1 * n, w1 * n, thl, wl, self._fm, self._fl)
+
+    def reference_position(self) -> float | None:
+        return self.reference.position if self.reference is not None else None
+
+    def deadband_rad(self) -> float | None:
+        return self.deadband
+
+    def friction_trend(self) -> float | None:
+        scale = self.compensator.scale(self._pressure) if self._pressure is not None else None
+        return scale[1] if scale is not None else None
+
