@@ -89,7 +89,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("lqr.velocity_rad_s", 2.0, "rad/s", "Bryson scale: acceptable shaft velocities", 1e-3, 1000.0),
     Param("lqr.twist_rad", 5e-3, "rad", "Bryson scale: acceptable coupling twist", 1e-6, 1.0),
     Param("lqr.integral_rad_s", 2e-4, "rad*s", "Bryson scale: acceptable integrated error", 1e-9, 10.0),
-    Param("lqr.current_a", 10.0, "A", "Bryson scale: acceptable current", 0.01, 40.0),
+    Param("lqr.current_a", 1.0, "A", "Bryson scale: acceptable current (1 A: a current weight 100x the "
+          "former 10 A one; 10 A gave a ~7300 N*m/rad motor-angle gain and a 104 Hz pair at zeta 0.3 that "
+          "sat at the 37 A limit)", 0.01, 40.0),
     Param("kalman.torque_noise_nm", 2.0, "N*m", "process noise: unmodelled valve torque (friction)", 1e-6, 100.0),
     Param("kalman.motor_torque_noise_nm", 0.01, "N*m", "process noise: unmodelled motor torque", 1e-9, 10.0),
     Param("kalman.measurement_counts", 0.5, "counts", "resolver noise incl. quantisation, rms counts",

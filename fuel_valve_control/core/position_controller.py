@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..common.contract import RESOLVER_COUNT_RAD
 from ..common.paramspec import ParamSet
 
 from . import design
@@ -57,9 +58,8 @@ def design_all(ps: ParamSet, model: NominalModel) -> Designs:
     # the measurements carry resolver noise and quantisation
     g = np.vstack([np.zeros((4, 2)), np.eye(2)])
     qn = np.diag([(ps["kalman.motor_torque_noise_nm"] * model.gear_ratio) ** 2, ps["kalman.torque_noise_nm"] ** 2])
-    lsb = 2.0 * np.pi / 65536
-    rn = np.diag([(ps["kalman.measurement_counts"] * lsb / model.gear_ratio) ** 2,
-                  (ps["kalman.measurement_counts"] * lsb) ** 2])
+    rn = np.diag([(ps["kalman.measurement_counts"] * RESOLVER_COUNT_RAD / model.gear_ratio) ** 2,
+                  (ps["kalman.measurement_counts"] * RESOLVER_COUNT_RAD) ** 2])
     kalman = design.kalman_gain(ao, g, co, qn, rn)
     return Designs(pid, placement, poles, lqr, observer_gain, kalman)
 
@@ -109,16 +109,21 @@ class PositionController:
             return StictionGain(ps["fc_gain.gain"], ps["fc_gain.error_scale_rad"])
         if mode not in ("observer_fc", "kalman_fc", "observer_ff"):
             return Compensator()
+        # boundary layer of the friction sign: the velocity one valve resolver count per loop
+        # period stands for (observer_fc / kalman_fc; observer_ff signs by its reference)
+        v_count = RESOLVER_COUNT_RAD / period
         fps = (FrictionObserver(ps["fp.motor.alpha"], ps["fp.motor.beta"], ps["fp.motor.gain_cap"],
                                 ps["fp.motor.freeze_velocity_rad_s"], period,
-                                max_level=3.0 * m.motor_static_nm / m.motor_inertia_kgm2),
+                                max_level=3.0 * m.motor_static_nm / m.motor_inertia_kgm2,
+                                boundary_velocity=v_count * m.gear_ratio),
                FrictionObserver(ps["fp.valve.alpha"], ps["fp.valve.beta"], ps["fp.valve.gain_cap"],
                                 ps["fp.valve.freeze_velocity_rad_s"], period,
-                                max_level=3.0 * (m.valve_static_nm + m.valve_static_per_dp_nm) / m.valve_inertia_kgm2))
+                                max_level=3.0 * (m.valve_static_nm + m.valve_static_per_dp_nm) / m.valve_inertia_kgm2,
+                                boundary_velocity=v_count))
         if mode == "observer_ff":
             return ReferenceFeedforward(*fps, ps["ff.velocity_smoothing_rad_s"], ps["ff.stuck_speed_rad_s"],
                                         ps["ff.static_start"], ps["fp.compensation_fraction"])
-        return FriedlandPark(*fps, ps["fp.compensation_fraction"])
+        return FriedlandPark(*fps, ps["fp.compensation_fraction"], ps["ff.stuck_speed_rad_s"])
 
     # ------------------------------------------------------------------ run time
     @property

@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-RESOLVER_COUNT_RAD = 2.0 * math.pi / 65536
+from ..common.contract import RESOLVER_COUNT_RAD
+
 TENTH_DEGREE_RAD = math.radians(0.1)
 MIN_PLATEAU_S = 0.1
 MAX_STEP_WIDTH_S = 0.02
