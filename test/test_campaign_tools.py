@@ -1,8 +1,6 @@
 """Tools of the robustness campaign (issue 14): plateau-sequence demand, analog demand noise,
 per-plateau metrics (final error, hunting) and the campaign's seeded sampling."""
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -103,16 +101,8 @@ def test_plateau_results_final_error_and_hunting():
     assert not one_move["hunts"] and one_move["final_error_rad"] < 1e-12     # a late correction
 
 
-def _robustness():
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "robustness.py"
-    spec = importlib.util.spec_from_file_location("robustness_bench", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_campaign_cases_are_seeded_and_cover_the_box():
-    rb = _robustness()
+def test_campaign_cases_are_seeded_and_cover_the_box(robustness_bench):
+    rb = robustness_bench
     cases = [rb.sample_case(1000 + i) for i in range(200)]
     assert cases[0] == rb.sample_case(1000)
     assert {c["friction_model"] for c in cases} == {"stick_slip", "stribeck", "lugre"}
