@@ -59,3 +59,14 @@ def ros_domain(request):
         else:
             os.environ["ROS_DOMAIN_ID"] = old
         handle.close()
+
+
+@pytest.fixture(scope="session")
+def robustness_bench():
+    """``benchmarks/robustness.py`` as a module (its case sampling and runner)."""
+    import importlib.util
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "robustness.py"
+    spec = importlib.util.spec_from_file_location("robustness_bench", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod

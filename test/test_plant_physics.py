@@ -316,16 +316,19 @@ def test_dq_transform_round_trip():
         assert abc_to_dq(a, b, c, theta) == pytest.approx((1.5, -2.0))
 
 
-def test_compiled_kernel_matches_interpreted():
+@pytest.mark.parametrize("over", [{}, {"friction.valve.static_scatter": 0.1, "friction.valve.ripple": 0.1}],
+                         ids=["nominal", "scatter_ripple"])
+def test_compiled_kernel_matches_interpreted(over):
     """numba must not change the physics: same trajectory, bit for bit up to rounding."""
     from fuel_valve_plant.physics import kernel
     if not kernel.JIT:
         pytest.skip("numba not installed: the interpreted kernel is the only one")
     script = (
+        f"OVER = {over!r}\n"
         "import json\n"
         "from fuel_valve_plant.physics.plant import Plant\n"
         "from fuel_valve_plant.physics.params import load_plant_params\n"
-        "p = Plant(load_plant_params(overrides={'resolver.valve_noise_counts': 0.0}))\n"
+        "p = Plant(load_plant_params(overrides={'resolver.valve_noise_counts': 0.0, **OVER}))\n"
         "out = []\n"
         "for k in range(120):\n"
         "    p.set_command(37.0 if k < 60 else -5.0, k < 100)\n"
@@ -339,3 +342,121 @@ def test_compiled_kernel_matches_interpreted():
                              check=True, timeout=300)
         runs.append(np.array(json.loads(res.stdout)))
     assert np.allclose(runs[0], runs[1], rtol=1e-9, atol=1e-9)
+
+
+# ---------------------------------------------------------------- friction that does not repeat
+def _breakaways(ps, cycles, motor_speed=5.0):
+    """Wind the coupling with a stiffly position-held motor (as in the jump test) through
+    ``cycles`` stick-slip cycles.  Returns [(valve friction reaction at the last stuck step,
+    static level the plant had in force, valve angle)] per breakaway, N*m and rad."""
+    plant = Plant(ps)
+    hold_a = plant.hold_at(0.3 * STROKE)
+    kp, kd = 50.0, 0.15
+    ref = plant.truth().motor_angle
+    out, last_reaction = [], 0.0
+    for _ in range(int(cycles * 0.1 / plant.dt)):
+        ref += motor_speed * plant.dt
+        t = plant.truth()
+        stuck = plant.valve_velocity == 0.0
+        level = plant.valve_friction_levels()[1]
+        plant.set_command(hold_a + kp * (ref - t.motor_angle) - kd * t.motor_velocity, True)
+        plant.step(1)
+        if stuck and plant.valve_velocity != 0.0:
+            out.append((last_reaction, level, plant.valve_angle))
+            if len(out) == cycles:
+                break
+        last_reaction = -plant.friction_torques()[1]
+    return out
+
+
+def test_static_scatter_statistics_match_the_parameter():
+    """Every breakaway happens at the static level then in force, and those levels scatter
+    about the nominal one with the configured relative rms."""
+    sigma = 0.05
+    ps = PS.replace({**QUIET, "friction.valve.static_scatter": sigma})
+    ts = friction_levels(ps).valve_static_nm
+    rows = np.array(_breakaways(ps, 150))
+    assert len(rows) == 150
+    reaction, level = rows[:, 0], rows[:, 1]
+    # the physics uses the drawn level: breakaway within one physics step's torque increment
+    assert np.allclose(reaction, level, rtol=0, atol=0.01)
+    ratio = level / ts
+    assert abs(ratio.mean() - 1.0) < 3.0 * sigma / math.sqrt(len(ratio))
+    assert ratio.std() == pytest.approx(sigma, rel=0.2)
+    assert len(np.unique(level.round(6))) == len(level)          # never repeats exactly
+    assert level.min() >= friction_levels(ps).valve_coulomb_nm
+
+
+def test_without_scatter_every_breakaway_is_at_the_nominal_level():
+    ps = PS.replace(QUIET)
+    rows = np.array(_breakaways(ps, 5))
+    assert np.allclose(rows[:, 1], friction_levels(ps).valve_static_nm, rtol=0, atol=0)
+    assert np.allclose(rows[:, 0], rows[:, 1], rtol=0, atol=0.01)
+
+
+@pytest.mark.parametrize("model", ["stick_slip", "lugre"])
+def test_friction_ripple_follows_the_valve_angle(model):
+    """Sliding friction = Coulomb level x (1 + a sin(2 pi theta / period + phase))."""
+    a, period, phase = 0.1, 0.02, 0.7
+    ps = PS.replace({"friction.model": model, "initial_position_rad": 0.1, "friction.valve.ripple": a,
+                     "friction.valve.ripple_period_rad": period, "friction.valve.ripple_phase_rad": phase})
+    tc = friction_levels(ps).valve_coulomb_nm
+    plant = Plant(ps)
+    plant.set_command(14.0, True)
+    plant.advance(0.02)                       # sliding steadily (LuGre: Stribeck decayed)
+    theta, friction = [], []
+    for _ in range(400):
+        theta.append(plant.valve_angle)       # the step's friction acts at its start angle
+        plant.step(1)
+        friction.append(-plant.friction_torques()[1])
+    theta, friction = np.array(theta), np.array(friction)
+    assert plant.valve_velocity > 1.0 and np.ptp(theta) > 2 * period       # several ripple periods
+    angle = 2 * np.pi * theta / period + phase
+    if model == "stick_slip":
+        assert np.max(np.abs(friction - tc * (1.0 + a * np.sin(angle)))) <= 1e-9
+    else:
+        # LuGre's bristles lag (and, with their damping, amplify) the ripple at speed: fit
+        # mean + amplitude at any phase
+        coef = np.linalg.lstsq(np.column_stack([np.ones_like(angle), np.sin(angle), np.cos(angle)]),
+                               friction, rcond=None)[0]
+        assert coef[0] == pytest.approx(tc, rel=0.03)
+        assert 0.7 * a * tc <= math.hypot(coef[1], coef[2]) <= 1.5 * a * tc
+    assert np.ptp(friction) > 1.5 * a * tc                  # the ripple is really there
+
+
+def test_friction_scatter_is_seeded():
+    """Same seed: the same trajectory bit for bit; another seed: other breakaway levels; and
+    the scatter has its own random stream (switching it on leaves the resolver noise alone)."""
+    base = {"friction.valve.static_scatter": 0.05, "friction.valve.ripple": 0.05}
+    a = np.array(_breakaways(PS.replace({**QUIET, **base}), 8))
+    b = np.array(_breakaways(PS.replace({**QUIET, **base}), 8))
+    c = np.array(_breakaways(PS.replace({**QUIET, **base, "seed": 7}), 8))
+    assert np.array_equal(a, b)
+    assert not np.allclose(a[:, 1], c[:, 1])
+    readings = []
+    for over in ({}, base):
+        plant = Plant(PS.replace(over))
+        plant.hold_at(0.3 * STROKE)
+        samples = []
+        for _ in range(50):
+            plant.advance(1e-3)
+            s = plant.resolver()
+            samples.append((s.motor_rad, s.valve_rad))
+        readings.append(samples)
+    assert readings[0] == readings[1]
+
+
+def test_ripple_and_scatter_off_leave_the_physics_unchanged():
+    """Amplitudes 0 (the default): other ripple period/phase values change nothing at all."""
+    runs = []
+    for over in ({}, {"friction.valve.ripple_period_rad": 0.003, "friction.valve.ripple_phase_rad": 2.0}):
+        plant = Plant(PS.replace(over))
+        hold_a = plant.hold_at(0.3 * STROKE)
+        out = []
+        for k in range(200):
+            plant.set_command(hold_a + (20.0 if k < 100 else -20.0), True)
+            plant.advance(1e-3)
+            out.append((plant.valve_angle, plant.valve_velocity, *plant.currents, *plant.friction_torques()))
+        runs.append(np.array(out))
+    assert np.array_equal(runs[0], runs[1])
+    assert Plant(PS).static_friction_factor == 1.0

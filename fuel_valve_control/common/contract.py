@@ -59,6 +59,7 @@ TELEMETRY_LABELS = (
 # --- the valve -------------------------------------------------------------------------------
 STROKE_RAD = 1.0472              # 60° stroke, open stop
 PRESSURE_MAX_KPA = 6206.0        # maximum gas pressure differential across the valve
+RESOLVER_COUNT_RAD = 2.0 * 3.141592653589793 / 65536   # one count of the 16-bit resolvers, rad
 
 # --- demand scalings -------------------------------------------------------------------------
 NE43_FAIL_LOW_MA = 3.6           # NAMUR NE43: at or below = signal failure

@@ -14,6 +14,7 @@ Malformed input never raises: NaN/inf/out-of-range values become faults or warni
 """
 from __future__ import annotations
 
+import json
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -288,6 +289,9 @@ class ValveDriver:
             "i2t_budget_used": self.controller.i2t_budget_fraction,
             "faults": ",".join(out.faults) or "none", "warnings": ",".join(out.warnings) or "none",
         }
+        # what the law learned about this valve (fine positioning: twists per direction/Δp band)
+        for key, value in (law.learned_state() or {}).items():
+            values[key] = json.dumps(value) if isinstance(value, (dict, list)) else value
         return Health(level, message, values)
 
 

@@ -13,8 +13,9 @@ from zero.  Practicalities (SPEC §6) for use with *estimated* velocities in a 1
   stays stable (``T * gain_cap < 1``) at motor-shaft speeds, where it would explode for β >= 2;
 * below ``freeze_velocity`` the estimate is frozen: at rest the friction is a reaction, not
   Coulomb friction, and the velocity sign is noise;
-* the compensation uses a smooth sign ``sat(v / freeze_velocity)``, never the raw sign of a
-  noisy velocity estimate, so it fades to zero at rest instead of chattering.
+* the compensation uses a smooth sign ``sat(v / boundary)`` (boundary layer; default the
+  freeze velocity), never the raw sign of a noisy velocity estimate, so it fades to zero at
+  rest instead of chattering.
 """
 from __future__ import annotations
 
@@ -23,13 +24,14 @@ import math
 
 class FrictionObserver:
     def __init__(self, alpha: float, beta: float, gain_cap: float, freeze_velocity: float, period_s: float,
-                 initial_level: float = 0.0, max_level: float = math.inf):
+                 initial_level: float = 0.0, max_level: float = math.inf, boundary_velocity: float | None = None):
         if period_s * gain_cap >= 1.0:
             raise ValueError(f"gain_cap {gain_cap:g} 1/s too large for a {period_s:g} s update (needs T*cap < 1)")
         self.alpha = alpha
         self.beta = beta
         self.gain_cap = gain_cap
         self.freeze_velocity = freeze_velocity
+        self.boundary_velocity = freeze_velocity if boundary_velocity is None else boundary_velocity
         self.period = period_s
         self.max_level = max_level
         self.level = initial_level          # â, rad/s² (friction / inertia)
@@ -63,6 +65,6 @@ class FrictionObserver:
 
     def compensation(self, velocity: float) -> float:
         """Estimated friction per unit inertia with a smooth sign (fades to 0 at rest)."""
-        if self.freeze_velocity <= 0.0:
+        if self.boundary_velocity <= 0.0:
             return self.level * (1.0 if velocity > 0 else -1.0 if velocity < 0 else 0.0)
-        return self.level * min(max(velocity / self.freeze_velocity, -1.0), 1.0)
+        return self.level * min(max(velocity / self.boundary_velocity, -1.0), 1.0)

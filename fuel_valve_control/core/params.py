@@ -15,7 +15,7 @@ from ..common.config_dir import default_config_dir
 from ..common.contract import PRESSURE_MAX_KPA, STROKE_RAD
 from ..common.paramspec import ConfigError, Param, ParamSet, ParamSpec
 
-MODES = ("pi", "pi_dither", "observer", "observer_fc", "kalman_fc", "fc_gain", "observer_ff")
+MODES = ("pi", "pi_dither", "observer", "observer_fc", "kalman_fc", "fc_gain", "observer_ff", "observer_fp")
 DEFAULT_MODE = "observer_ff"  # best measured (README table); SPEC named observer_fc
 
 
@@ -89,7 +89,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("lqr.velocity_rad_s", 2.0, "rad/s", "Bryson scale: acceptable shaft velocities", 1e-3, 1000.0),
     Param("lqr.twist_rad", 5e-3, "rad", "Bryson scale: acceptable coupling twist", 1e-6, 1.0),
     Param("lqr.integral_rad_s", 2e-4, "rad*s", "Bryson scale: acceptable integrated error", 1e-9, 10.0),
-    Param("lqr.current_a", 10.0, "A", "Bryson scale: acceptable current", 0.01, 40.0),
+    Param("lqr.current_a", 1.0, "A", "Bryson scale: acceptable current (1 A: a current weight 100x the "
+          "former 10 A one; 10 A gave a ~7300 N*m/rad motor-angle gain and a 104 Hz pair at zeta 0.3 that "
+          "sat at the 37 A limit)", 0.01, 40.0),
     Param("kalman.torque_noise_nm", 2.0, "N*m", "process noise: unmodelled valve torque (friction)", 1e-6, 100.0),
     Param("kalman.motor_torque_noise_nm", 0.01, "N*m", "process noise: unmodelled motor torque", 1e-9, 10.0),
     Param("kalman.measurement_counts", 0.5, "counts", "resolver noise incl. quantisation, rms counts",
@@ -135,6 +137,35 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "pulling a valve at rest", runtime=True),
     Param("ff.speed_window_periods", 4, "", "periods over which the valve speed is measured from the "
           "valve resolver", 1, 100),
+    # --- observer_fp: fine positioning of a stuck valve (issue 14) ---------------------------
+    Param("fine.tolerance_counts", 3.0, "counts", "a plateau is done when the valve is within this many "
+          "valve resolver counts of the demand", 0.5, 100.0, runtime=True),
+    Param("fine.engage_time_s", 0.01, "s", "valve at rest this long (reference arrived) before fine "
+          "positioning starts", 0.002, 1.0, runtime=True),
+    Param("fine.park_time_s", 0.005, "s", "least time to move the twist to its preload", 0.001, 0.1, runtime=True),
+    Param("fine.park_speed_rad_s", 0.5, "rad/s", "largest twist rate while preloading (quasi-static: the "
+          "gear-output hold must not overshoot into breakaway)", 0.01, 10.0, runtime=True),
+    Param("fine.observe_time_s", 0.015, "s", "wait after a pulse for the valve to stop (>= half a period of "
+          "the valve on the softest coupling, pi / sqrt(0.3 K / JL) = 11 ms)", 0.002, 0.5, runtime=True),
+    Param("fine.overdrive_fraction", 0.15, "", "pulse peak beyond the learned breakaway twist, fraction of "
+          "the static band (breakaway - swing centre)", 0.0, 2.0, runtime=True),
+    Param("fine.preload_margin", 0.3, "", "preload twist below the learned breakaway, fraction of the static "
+          "band (covers the per-breakaway scatter)", 0.0, 1.0, runtime=True),
+    Param("fine.rise_time_s", 0.002, "s", "pulse: preload to peak (sin^2 blend)", 0.001, 0.05, runtime=True),
+    Param("fine.fall_time_s", 0.003, "s", "pulse: peak to the final twist, well inside the valve's 6 ms "
+          "half swing so the swing is the one planned", 0.001, 0.05, runtime=True),
+    Param("fine.learn_gain", 0.7, "", "fraction of each measured correction taken into the learned twists",
+          0.0, 1.0, runtime=True),
+    Param("fine.max_pulses", 6, "", "pulses per plateau before the stage holds where it is", 1, 1000,
+          runtime=True),
+    Param("fine.servo_hz", 60.0, "Hz", "bandwidth of the stiff gear-output hold on the motor resolver",
+          1.0, 200.0),
+    Param("fine.max_move_rad", 0.02, "rad", "errors larger than this are left to the main law", 1e-4, 1.0,
+          runtime=True),
+    Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
+          1, 64),
+    Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "
+          "coupling x0.3: (3 Ts + load) / (0.3 K) ~ 0.14 rad)", 1e-4, 1.0),
     # --- fc_gain (appendix A) ------------------------------------------------------------------
     Param("fc_gain.gain", 0.8, "", "stiction-breaking torque as a fraction of the nominal valve "
           "static friction at the current pressure", 0.0, 3.0, runtime=True),

@@ -12,13 +12,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..common.contract import RESOLVER_COUNT_RAD
 from ..common.paramspec import ParamSet
 
 from . import design
 from .compensation import Compensator, FriedlandPark, ReferenceFeedforward, StictionGain
 from .friction_observer import FrictionObserver
 from .integral_policy import IntegralPolicy
-from .laws import ControlLaw, PIDLaw, StateFeedbackLaw
+from .fine_positioning import FineConfig, FineLearner, FinePositioner
+from .laws import ControlLaw, FinePositioningLaw, PIDLaw, StateFeedbackLaw
 from .limits import CurrentLimiter
 from .model import NominalModel
 from .params import CONTROLLER_SPEC, MODES
@@ -57,9 +59,8 @@ def design_all(ps: ParamSet, model: NominalModel) -> Designs:
     # the measurements carry resolver noise and quantisation
     g = np.vstack([np.zeros((4, 2)), np.eye(2)])
     qn = np.diag([(ps["kalman.motor_torque_noise_nm"] * model.gear_ratio) ** 2, ps["kalman.torque_noise_nm"] ** 2])
-    lsb = 2.0 * np.pi / 65536
-    rn = np.diag([(ps["kalman.measurement_counts"] * lsb / model.gear_ratio) ** 2,
-                  (ps["kalman.measurement_counts"] * lsb) ** 2])
+    rn = np.diag([(ps["kalman.measurement_counts"] * RESOLVER_COUNT_RAD / model.gear_ratio) ** 2,
+                  (ps["kalman.measurement_counts"] * RESOLVER_COUNT_RAD) ** 2])
     kalman = design.kalman_gain(ao, g, co, qn, rn)
     return Designs(pid, placement, poles, lqr, observer_gain, kalman)
 
@@ -72,6 +73,9 @@ class PositionController:
         self.model = NominalModel.from_params(self.ps)
         self.period = 1.0 / self.ps["loop_rate_hz"]
         self.designs = design_all(self.ps, self.model)
+        #: what the fine-positioning stage learns about this valve (kept across mode switches;
+        #: :meth:`reset_learning` forgets it, ``learner.save/load`` persist it)
+        self.learner = FineLearner(self.ps["fine.pressure_bands"], self.ps["fine.learn_limit_rad"])
         lim = self.ps
         self._limiter = CurrentLimiter(lim["limits.peak_current_a"], lim["limits.peak_time_s"],
                                        lim["limits.continuous_current_a"], self.period)
@@ -100,25 +104,45 @@ class PositionController:
             feedback = d.lqr
         seating = Seating(ps["seat.margin_pct"] / 100.0 * m.stroke_rad, ps["seat.overtravel_rad"],
                           ps["seat.torque_nm"], m.stroke_rad)
-        return StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode),
+        main = StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode),
                                 seating, speed_window=ps["ff.speed_window_periods"])
+        if mode != "observer_fp":
+            return main
+        return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(), self.learner))
+
+    def _fine_config(self) -> FineConfig:
+        ps, per = self.ps, self.period
+        return FineConfig(ps["fine.tolerance_counts"] * RESOLVER_COUNT_RAD,
+                          max(int(round(ps["fine.engage_time_s"] / per)), 1),
+                          max(int(round(ps["fine.observe_time_s"] / per)), 1),
+                          max(int(round(ps["fine.park_time_s"] / per)), 1), ps["fine.park_speed_rad_s"],
+                          ps["fine.overdrive_fraction"], ps["fine.preload_margin"],
+                          max(int(round(ps["fine.rise_time_s"] / per)), 1),
+                          max(int(round(ps["fine.fall_time_s"] / per)), 1),
+                          ps["fine.learn_gain"], ps["fine.max_pulses"],
+                          ps["fine.servo_hz"], ps["fine.max_move_rad"])
 
     def _compensator(self, mode: str) -> Compensator:
         ps, m, period = self.ps, self.model, self.period
         if mode == "fc_gain":
             return StictionGain(ps["fc_gain.gain"], ps["fc_gain.error_scale_rad"])
-        if mode not in ("observer_fc", "kalman_fc", "observer_ff"):
+        if mode not in ("observer_fc", "kalman_fc", "observer_ff", "observer_fp"):
             return Compensator()
+        # boundary layer of the friction sign: the velocity one valve resolver count per loop
+        # period stands for (observer_fc / kalman_fc; observer_ff signs by its reference)
+        v_count = RESOLVER_COUNT_RAD / period
         fps = (FrictionObserver(ps["fp.motor.alpha"], ps["fp.motor.beta"], ps["fp.motor.gain_cap"],
                                 ps["fp.motor.freeze_velocity_rad_s"], period,
-                                max_level=3.0 * m.motor_static_nm / m.motor_inertia_kgm2),
+                                max_level=3.0 * m.motor_static_nm / m.motor_inertia_kgm2,
+                                boundary_velocity=v_count * m.gear_ratio),
                FrictionObserver(ps["fp.valve.alpha"], ps["fp.valve.beta"], ps["fp.valve.gain_cap"],
                                 ps["fp.valve.freeze_velocity_rad_s"], period,
-                                max_level=3.0 * (m.valve_static_nm + m.valve_static_per_dp_nm) / m.valve_inertia_kgm2))
-        if mode == "observer_ff":
+                                max_level=3.0 * (m.valve_static_nm + m.valve_static_per_dp_nm) / m.valve_inertia_kgm2,
+                                boundary_velocity=v_count))
+        if mode in ("observer_ff", "observer_fp"):
             return ReferenceFeedforward(*fps, ps["ff.velocity_smoothing_rad_s"], ps["ff.stuck_speed_rad_s"],
                                         ps["ff.static_start"], ps["fp.compensation_fraction"])
-        return FriedlandPark(*fps, ps["fp.compensation_fraction"])
+        return FriedlandPark(*fps, ps["fp.compensation_fraction"], ps["ff.stuck_speed_rad_s"])
 
     # ------------------------------------------------------------------ run time
     @property
@@ -136,6 +160,10 @@ class PositionController:
             self.law.reset(meas, self.last_torque, pressure_kpa)
         else:
             self._started = False
+
+    def reset_learning(self) -> None:
+        """Forget what the fine-positioning stage learned (back to the nominal model)."""
+        self.learner.reset()
 
     def reset(self, meas: Measurement, pressure_kpa: float, torque_nm: float = 0.0) -> None:
         """(Re)arm from a measurement, starting from ``torque_nm`` (0 after a trip)."""

@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-RESOLVER_COUNT_RAD = 2.0 * math.pi / 65536
+from ..common.contract import RESOLVER_COUNT_RAD
+
 TENTH_DEGREE_RAD = math.radians(0.1)
 MIN_PLATEAU_S = 0.1
 MAX_STEP_WIDTH_S = 0.02
@@ -258,3 +259,61 @@ def compute(tr: Trace) -> tuple[dict, list[dict]]:
     err = np.abs(tr.demand - tr.position)
     metrics["iae_rad_s"] = float(np.sum(0.5 * (err[1:] + err[:-1]) * dt))
     return metrics, details
+
+
+# --------------------------------------------------------------------------- plateau sequences
+#: a plateau hunts when, after this long, its angle still reverses twice (moves of more than one
+#: count) and its half peak-to-peak exceeds HUNT_COUNTS resolver counts
+HUNT_SETTLE_S = 0.3
+HUNT_COUNTS = 2.0
+
+
+def reversals(angle: np.ndarray, hysteresis: float = RESOLVER_COUNT_RAD) -> int:
+    """Direction reversals of ``angle``, counting only moves larger than ``hysteresis``."""
+    n, direction = 0, 0
+    lo = hi = ext = float(angle[0])
+    for x in map(float, angle[1:]):
+        if direction == 0:
+            lo, hi = min(lo, x), max(hi, x)
+            if x > lo + hysteresis:
+                direction, ext = 1, x
+            elif x < hi - hysteresis:
+                direction, ext = -1, x
+        elif direction * (x - ext) > 0.0:
+            ext = x                              # the present move goes on
+        elif direction * (ext - x) > hysteresis:
+            n, direction, ext = n + 1, -direction, x
+    return n
+
+
+def plateau_results(tr: Trace, settle_s: float = HUNT_SETTLE_S) -> list[dict]:
+    """Per step onto a plateau (see :func:`find_segments`): the step metrics plus
+
+    * ``final_error_rad``: |demand - angle| at the plateau's last sample (where the valve was
+      left before the next demand);
+    * ``overshoot_rad``: largest excursion beyond the new demand;
+    * ``hunting_amplitude_rad``: half peak-to-peak of the angle from ``settle_s`` after the step
+      to the plateau's end, ``hunting_reversals``: reversals there (moves > 1 count);
+      ``hunts``: both sustained (>= 2 reversals) and larger than ``HUNT_COUNTS`` counts.
+    """
+    out = []
+    for seg in find_segments(tr):
+        if seg.kind != "step":
+            continue
+        m = step_metrics(tr, seg)
+        pos = tr.position[seg.i0:seg.i1]
+        r0, r1 = seg.info["from"], seg.info["to"]
+        sgn = 1.0 if r1 > r0 else -1.0
+        m["final_error_rad"] = float(abs(r1 - pos[-1]))
+        m["overshoot_rad"] = float(max(0.0, sgn * (pos.max() if sgn > 0 else pos.min()) - sgn * r1))
+        late = pos[tr.t[seg.i0:seg.i1] - tr.t[seg.i0] >= settle_s]
+        if len(late) >= 2:
+            amp = 0.5 * float(np.ptp(late))
+            rev = reversals(late)
+        else:
+            amp, rev = 0.0, 0
+        m.update(hunting_amplitude_rad=amp, hunting_reversals=rev,
+                 hunts=bool(rev >= 2 and amp > HUNT_COUNTS * RESOLVER_COUNT_RAD),
+                 duration_s=float(tr.t[seg.i1 - 1] - tr.t[seg.i0]))
+        out.append(m)
+    return out

@@ -12,8 +12,19 @@ A profile is built from a mapping (YAML or ROS parameters) with a ``type``:
 * ``startup``: the start-up to core-idle profile (23 -> 28 % ramps and steps, 20 s), see
   :data:`STARTUP_POINTS`
 * ``csv``: ``path`` to a file with ``t,percent`` rows (a header line is allowed)
+* ``plateaus``: a seeded random sequence of plateaus (robustness campaigns, SPEC §6):
+  ``seed``, ``count``, ``initial`` (percent, also the value before ``start_s``), ``start_s``,
+  ``min_step_pct``/``max_step_pct`` (step sizes, log-uniform, random sign; a step that would
+  leave ``low``..``high`` percent goes the other way), ``hold_s`` (plateau length; a
+  ``[min, max]`` pair draws it uniformly) and ``final_hold_s`` (length of the last plateau)
 
-``value(t)`` returns percent (0 = closed, 100 = open).
+Any profile may add an analog-signal imperfection on top (what the supervisor's 4-20 mA
+loop delivers, not what it means): ``noise_rms_pct`` (white noise, percent rms, sampled and
+held every ``noise_sample_s``, default 1 ms, seeded by ``noise_seed``) and ``glitches``
+(``[[t, percent], ...]``: one sample of ``noise_sample_s`` offset by that much).
+
+``value(t)`` returns percent (0 = closed, 100 = open); ``nominal(t)`` the demand without
+noise and glitches (what metrics judge the valve against).
 """
 from __future__ import annotations
 
@@ -22,6 +33,8 @@ import csv
 import math
 from pathlib import Path
 from typing import Any, Mapping
+
+import numpy as np
 
 # Start-up to core idle as in the field recordings (dissertation figs 2-1, 2-5): light-off
 # and acceleration with the demand moving between 23 and 28 % in ramps and steps, then
@@ -42,6 +55,10 @@ class Profile:
 
     def value(self, t: float) -> float:
         raise NotImplementedError
+
+    def nominal(self, t: float) -> float:
+        """The demand as meant, without signal noise (percent)."""
+        return self.value(t)
 
 
 class Points(Profile):
@@ -102,6 +119,61 @@ class Chirp(Profile):
         return self.offset + self.amplitude * math.sin(phase)
 
 
+def plateau_points(seed: int, count: int, initial: float, start_s: float, min_step_pct: float,
+                   max_step_pct: float, hold_s, final_hold_s: float, low: float = 5.0,
+                   high: float = 95.0) -> list[tuple[float, float]]:
+    """(t, percent) corners of a random plateau sequence (see the module docstring)."""
+    if not 0.0 < min_step_pct <= max_step_pct or count < 1 or not low < high:
+        raise ProfileError("plateaus needs 0 < min_step_pct <= max_step_pct, count >= 1, low < high")
+    lo_hold, hi_hold = (hold_s, hold_s) if np.isscalar(hold_s) else (float(hold_s[0]), float(hold_s[1]))
+    if not 0.0 < lo_hold <= hi_hold:
+        raise ProfileError("plateaus hold_s must be > 0 (or a [min, max] pair)")
+    rng = np.random.default_rng(int(seed))
+    pct = min(max(float(initial), low), high)
+    t = float(start_s)
+    pts = [(0.0, pct)]
+    for k in range(int(count)):
+        size = math.exp(rng.uniform(math.log(min_step_pct), math.log(max_step_pct)))
+        sign = 1.0 if rng.random() < 0.5 else -1.0
+        if not low <= pct + sign * size <= high:
+            sign = -sign
+        pts += [(t, pct), (t, pct + sign * size)]
+        pct += sign * size
+        t += final_hold_s if k == count - 1 else rng.uniform(lo_hold, hi_hold)
+    pts.append((t, pct))
+    return pts
+
+
+class Noisy(Profile):
+    """A profile with analog-signal noise and single-sample glitches added (percent)."""
+
+    BLOCK = 4096
+
+    def __init__(self, inner: Profile, noise_rms_pct: float, seed: int, sample_s: float, glitches=()):
+        if noise_rms_pct < 0.0 or sample_s <= 0.0:
+            raise ProfileError("noise_rms_pct must be >= 0 and noise_sample_s > 0")
+        self.inner, self.rms, self.sample_s = inner, float(noise_rms_pct), float(sample_s)
+        self.type, self.duration_s = inner.type, inner.duration_s
+        self._rng = np.random.default_rng(int(seed))
+        self._noise = np.zeros(0)
+        try:
+            self._glitches = {int(math.floor(float(t) / self.sample_s + 1e-9)): float(p) for t, p in glitches}
+        except (TypeError, ValueError):
+            raise ProfileError("glitches must be [[t, percent], ...]") from None
+
+    def _sample(self, k: int) -> float:
+        while k >= len(self._noise):          # drawn in order, so any access pattern is reproducible
+            self._noise = np.concatenate([self._noise, self._rng.standard_normal(self.BLOCK)])
+        return self.rms * float(self._noise[k])
+
+    def value(self, t: float) -> float:
+        k = max(int(math.floor(t / self.sample_s + 1e-9)), 0)
+        return self.inner.value(t) + self._sample(k) + self._glitches.get(k, 0.0)
+
+    def nominal(self, t: float) -> float:
+        return self.inner.nominal(t)
+
+
 def _need(spec: Mapping[str, Any], *keys: str) -> list:
     missing = [k for k in keys if k not in spec]
     if missing:
@@ -135,6 +207,19 @@ def read_csv_points(path: str | Path) -> list[tuple[float, float]]:
 
 def make_profile(spec: Mapping[str, Any], base_dir: Path | None = None) -> Profile:
     """Build a profile from its description (see the module docstring)."""
+    profile = _make_clean(spec, base_dir)
+    rms = spec.get("noise_rms_pct") or 0.0
+    glitches = spec.get("glitches") or ()
+    if rms or glitches:
+        try:
+            return Noisy(profile, float(rms), int(spec.get("noise_seed", 0)), float(spec.get("noise_sample_s", 1e-3)),
+                         glitches)
+        except (TypeError, ValueError):
+            raise ProfileError("noise_rms_pct, noise_seed and noise_sample_s must be numbers") from None
+    return profile
+
+
+def _make_clean(spec: Mapping[str, Any], base_dir: Path | None) -> Profile:
     kind = spec.get("type")
     if kind == "constant":
         (pct,) = _need(spec, "percent")
@@ -162,5 +247,12 @@ def make_profile(spec: Mapping[str, Any], base_dir: Path | None = None) -> Profi
         if base_dir is not None and not path.is_absolute():
             path = base_dir / path
         return Points(read_csv_points(path), spec.get("interpolation", "linear"))
+    if kind == "plateaus":
+        seed, count, initial, start, lo, hi, final = _need(spec, "seed", "count", "initial", "start_s", "min_step_pct",
+                                                           "max_step_pct", "final_hold_s")
+        if "hold_s" not in spec:
+            raise ProfileError("plateaus profile needs hold_s")
+        return Points(plateau_points(int(seed), int(count), initial, start, lo, hi, spec["hold_s"], final,
+                                     float(spec.get("low", 5.0)), float(spec.get("high", 95.0))), "previous")
     raise ProfileError(f"unknown profile type {kind!r}; allowed: constant, step, ramp, sine, chirp, points, "
-                       f"startup, csv")
+                       f"startup, csv, plateaus")

@@ -118,7 +118,7 @@ def simulate_plan(plan: RunPlan) -> SimResult:
         truth = plant.truth()
         i_d, i_q = plant.currents
         fm, fl = plant.friction_torques()
-        log[k] = (t, pct / 100.0 * stroke, truth.valve_angle,
+        log[k] = (t, demand.nominal(t) / 100.0 * stroke, truth.valve_angle,
                   math.nan if sample is None else sample.valve_rad, truth.motor_angle, truth.valve_velocity,
                   out.current_a, i_d, i_q, 1.0 if out.enable else 0.0, fm, fl,
                   est.motor_friction_nm, est.valve_friction_nm, est.valve_angle, est.valve_velocity,

@@ -20,6 +20,15 @@ Per step:
    stuck and no chattering at zero speed.  LuGre is the alternative smooth model.
 3. Valve stops at 0 and the stroke are inelastic: the valve stops dead and the stop supplies
    whatever reaction keeps it there.
+
+Friction that does not repeat exactly (valve shaft, both models): both valve levels are
+multiplied by a position ripple ``1 + a sin(2π θL/λ + φ)``, and the static level by a factor
+drawn anew every time the valve comes to rest (stick-slip) or, having slid faster than the
+Stribeck speed, stops or reverses (LuGre), from the
+caller's array of standard-normal draws ``scatter``: ``1 + σ n`` with ``n`` clipped to ±3,
+never below the Coulomb level.  ``S[S_SCAT_IDX]`` counts the draws used (the caller refills
+the array); ``S[S_SCAT]`` is the factor in force.  With ``a = σ = 0`` both factors are exactly 1
+and the trajectory is bit-for-bit the one without this feature.
 """
 from __future__ import annotations
 
@@ -29,8 +38,8 @@ import os
 import numpy as np
 
 # ---- state vector S -----------------------------------------------------------------------
-S_ID, S_IQ, S_THM, S_WM, S_THL, S_WL, S_XD, S_XQ, S_ZM, S_ZL, S_RING = range(11)
-N_STATE = 11
+S_ID, S_IQ, S_THM, S_WM, S_THL, S_WL, S_XD, S_XQ, S_ZM, S_ZL, S_RING, S_SCAT, S_SCAT_IDX, S_SCAT_ARMED = range(14)
+N_STATE = 14
 
 # ---- outputs O (values of the last step; E_IN accumulates) -----------------------------
 O_VD, O_VQ, O_TE, O_TFM, O_TFL, O_TSPRING, O_TFLOW, O_TCOUPLING, O_EIN = range(9)
@@ -40,8 +49,11 @@ N_OUT = 9
 (P_DT, P_POLES, P_R, P_LD, P_LQ, P_PSI, P_KPD, P_KID, P_KPQ, P_KIQ, P_VLIM, P_DECOUPLE,
  P_AD, P_BD, P_AQ, P_BQ, P_JM, P_BM, P_N, P_BACKLASH_HALF, P_K, P_C, P_JL, P_BL, P_STROKE,
  P_LUGRE, P_TCM, P_TSM, P_VSM, P_TCL, P_TSL, P_VSL, P_SIG0M, P_SIG1M, P_SIG0L, P_SIG1L,
- P_SPRING0, P_SPRINGK, P_FLOWMAX, P_LOAD) = range(40)
-N_PARAM = 40
+ P_SPRING0, P_SPRINGK, P_FLOWMAX, P_LOAD, P_SCATTER, P_RIPPLE, P_RIPPLE_K, P_RIPPLE_PHASE) = range(44)
+N_PARAM = 44
+
+#: clip of the standard-normal draws of the static-level scatter (in standard deviations)
+SCATTER_CLIP = 3.0
 
 
 def _shaft_stick_slip(w, t_ext, inertia, t_coulomb, t_static, v_stribeck, dt):
@@ -89,11 +101,22 @@ def _shaft_lugre(w, z, t_ext, inertia, t_coulomb, t_static, v_stribeck, sigma0, 
     return w + dt * (t_ext + friction) / inertia, z_new, friction
 
 
-def advance(S, O, P, ring, n, iq_ref, enabled):
+def _draw_scatter(S, scatter, sigma):
+    """Next static-level factor ``1 + σ n`` (n clipped to ±SCATTER_CLIP), consuming one draw."""
+    idx = int(S[S_SCAT_IDX])
+    draw = scatter[idx % scatter.shape[0]]
+    S[S_SCAT_IDX] = idx + 1
+    draw = min(max(draw, -SCATTER_CLIP), SCATTER_CLIP)
+    return 1.0 + sigma * draw
+
+
+def advance(S, O, P, ring, n, iq_ref, enabled, scatter):
     """Advance the plant ``n`` physics steps with q-current reference ``iq_ref`` (A).
 
     ``enabled`` (1.0/0.0) is the drive enable.  ``ring`` (R x 2) receives the true motor and
     valve angles of every step, for the resolver delay line; ``S[S_RING]`` is its write index.
+    ``scatter`` holds standard-normal draws for the valve static-level scatter (used only when
+    ``P[P_SCATTER] > 0``; index ``S[S_SCAT_IDX]``, taken modulo its length).
     """
     dt = P[P_DT]
     poles = P[P_POLES]
@@ -116,6 +139,9 @@ def advance(S, O, P, ring, n, iq_ref, enabled):
     zl = S[S_ZL]
     ridx = int(S[S_RING])
     e_in = O[O_EIN]
+    sigma = P[P_SCATTER]
+    ripple = P[P_RIPPLE]
+    scat = S[S_SCAT] if sigma > 0.0 else 1.0
     vd = 0.0
     vq = 0.0
     te = 0.0
@@ -196,14 +222,32 @@ def advance(S, O, P, ring, n, iq_ref, enabled):
         t_flow = P[P_FLOWMAX] * math.sin(math.pi * min(max(thl / stroke, 0.0), 1.0)) + P[P_LOAD]
         text_m = te - t_k / n_gear - P[P_BM] * wm
         text_l = t_k - P[P_BL] * wl - t_spring - t_flow
+        tcl = P[P_TCL]
+        tsl = P[P_TSL]
+        if ripple > 0.0:
+            r = 1.0 + ripple * math.sin(P[P_RIPPLE_K] * thl + P[P_RIPPLE_PHASE])
+            tcl *= r
+            tsl *= r
+        if sigma > 0.0:
+            tsl = max(tsl * scat, tcl)
         if P[P_LUGRE] > 0.5:
             wm_new, zm, tfm = _shaft_lugre(wm, zm, text_m, P[P_JM], P[P_TCM], P[P_TSM], P[P_VSM],
                                            P[P_SIG0M], P[P_SIG1M], dt)
-            wl_new, zl, tfl = _shaft_lugre(wl, zl, text_l, P[P_JL], P[P_TCL], P[P_TSL], P[P_VSL],
+            wl_new, zl, tfl = _shaft_lugre(wl, zl, text_l, P[P_JL], tcl, tsl, P[P_VSL],
                                            P[P_SIG0L], P[P_SIG1L], dt)
+            if sigma > 0.0:
+                # a new contact once the valve has really slid (beyond the Stribeck speed) and
+                # then stops or reverses; the micro-motion of presliding draws nothing
+                if abs(wl_new) > P[P_VSL]:
+                    S[S_SCAT_ARMED] = 1.0
+                elif S[S_SCAT_ARMED] > 0.5 and wl_new * wl <= 0.0:
+                    scat = _draw_scatter(S, scatter, sigma)
+                    S[S_SCAT_ARMED] = 0.0
         else:
             wm_new, tfm = _shaft_stick_slip(wm, text_m, P[P_JM], P[P_TCM], P[P_TSM], P[P_VSM], dt)
-            wl_new, tfl = _shaft_stick_slip(wl, text_l, P[P_JL], P[P_TCL], P[P_TSL], P[P_VSL], dt)
+            wl_new, tfl = _shaft_stick_slip(wl, text_l, P[P_JL], tcl, tsl, P[P_VSL], dt)
+            if sigma > 0.0 and wl != 0.0 and wl_new == 0.0:
+                scat = _draw_scatter(S, scatter, sigma)       # came to rest: next breakaway differs
         # stops: the valve cannot be driven further into a stop it rests on
         if (thl <= 0.0 and wl_new < 0.0) or (thl >= stroke and wl_new > 0.0):
             wl_new = 0.0
@@ -234,6 +278,8 @@ def advance(S, O, P, ring, n, iq_ref, enabled):
     S[S_ZM] = zm
     S[S_ZL] = zl
     S[S_RING] = ridx
+    if sigma > 0.0:
+        S[S_SCAT] = scat
     O[O_VD] = vd
     O[O_VQ] = vq
     O[O_TE] = te
@@ -253,10 +299,11 @@ def _compile():
         import numba
     except ImportError:
         return False
-    global _shaft_stick_slip, _shaft_lugre, advance
+    global _shaft_stick_slip, _shaft_lugre, _draw_scatter, advance
     jit = numba.njit(cache=True, nogil=True)
     _shaft_stick_slip = jit(_shaft_stick_slip)
     _shaft_lugre = jit(_shaft_lugre)
+    _draw_scatter = jit(_draw_scatter)
     advance = jit(advance)
     return True
 

@@ -35,7 +35,8 @@ PLANT_SPEC = ParamSpec("plant", [
           0.0, 1.0, runtime=True),
     Param("initial_position_rad", 0.0, "rad", "valve angle at start (the plant starts at rest there)",
           0.0, STROKE_RAD),
-    Param("seed", 0, "", "seed of the resolver noise generator", 0, 2**31 - 1),
+    Param("seed", 0, "", "seed of the resolver noise and friction scatter generators (independent streams)",
+          0, 2**31 - 1),
     # --- timing ----------------------------------------------------------------------------
     Param("physics_rate_hz", 20000.0, "Hz", "fixed integration rate of the physics (and the current loop)",
           1000.0, 200000.0),
@@ -78,6 +79,14 @@ PLANT_SPEC = ParamSpec("plant", [
           0.0, 100.0),
     Param("friction.valve.stribeck_velocity_rad_s", 0.0, "rad/s",
           "Stribeck velocity of the valve shaft (0 = no Stribeck curve)", 0.0, 100.0),
+    # friction that does not repeat exactly (off by default: nominal results stay reproducible)
+    Param("friction.valve.static_scatter", 0.0, "", "relative rms scatter of the valve static level, drawn "
+          "anew at every breakaway (normal, clipped to +-3 sigma, never below Coulomb; 0 = off)", 0.0, 0.3),
+    Param("friction.valve.ripple", 0.0, "", "relative amplitude of a position ripple of both valve levels, "
+          "1 + a sin(2 pi theta / period + phase) (0 = off)", 0.0, 0.3),
+    Param("friction.valve.ripple_period_rad", 0.02, "rad", "valve angle per ripple period", 1e-4, 2.0),
+    Param("friction.valve.ripple_phase_rad", 0.0, "rad", "phase of the ripple at the closed position",
+          -10.0, 10.0),
     Param("friction.lugre.motor_stiffness_nm_per_rad", 200.0, "N*m/rad", "LuGre bristle stiffness sigma0, motor",
           0.0, 1e6, low_open=True),
     Param("friction.lugre.valve_stiffness_nm_per_rad", 5.0e4, "N*m/rad", "LuGre bristle stiffness sigma0, valve",

@@ -30,6 +30,10 @@ from .resolver import Resolver, ResolverSample, ValveResolverFaults
 #: limits are tighter)
 DRIVE_HARDWARE_LIMIT_A = 40.0
 
+#: friction scatter: draws generated per block, and the generator stream (beside the seed)
+SCATTER_BLOCK = 4096
+SCATTER_STREAM = 1
+
 
 @dataclass(frozen=True)
 class Truth:
@@ -95,6 +99,10 @@ def pack_parameters(ps: ParamSet, P: np.ndarray) -> None:
     P[K.P_SPRINGK] = ps["spring.rate_nm_per_rad"]
     P[K.P_FLOWMAX] = flow_torque_peak_nm(ps)
     P[K.P_LOAD] = ps["load_torque_nm"]
+    P[K.P_SCATTER] = ps["friction.valve.static_scatter"]
+    P[K.P_RIPPLE] = ps["friction.valve.ripple"]
+    P[K.P_RIPPLE_K] = 2.0 * math.pi / ps["friction.valve.ripple_period_rad"]
+    P[K.P_RIPPLE_PHASE] = ps["friction.valve.ripple_phase_rad"]
 
 
 class Plant:
@@ -112,6 +120,9 @@ class Plant:
         self._valve_resolver = Resolver(bits, self._ps["resolver.valve_noise_counts"], rng)
         self._motor_resolver = Resolver(bits, self._ps["resolver.motor_noise_counts"], rng)
         self._faults = ValveResolverFaults()
+        # friction scatter: its own stream, so switching it on leaves the resolver noise alone
+        self._scatter_rng = np.random.default_rng([self._ps["seed"], SCATTER_STREAM])
+        self._scatter = self._scatter_rng.standard_normal(SCATTER_BLOCK)
         self._steps = 0
         self._iq_ref = 0.0
         self._enabled = 0.0
@@ -121,6 +132,29 @@ class Plant:
         self.S[K.S_THM] = theta0 * self._ps["gearbox.ratio"]
         self._ring[:, 0] = self.S[K.S_THM]
         self._ring[:, 1] = theta0
+        self._first_scatter()
+
+    def _first_scatter(self) -> None:
+        """Static-level factor of the first breakaway (uses one draw)."""
+        self.S[K.S_SCAT], self.S[K.S_SCAT_IDX], self.S[K.S_SCAT_ARMED] = 1.0, 0.0, 0.0
+        self.S[K.S_SCAT] = K._draw_scatter(self.S, self._scatter, self.P[K.P_SCATTER])
+
+    @property
+    def static_friction_factor(self) -> float:
+        """Factor on the valve static level for the next breakaway (1 without scatter)."""
+        return float(self.S[K.S_SCAT]) if self.P[K.P_SCATTER] > 0.0 else 1.0
+
+    def valve_friction_levels(self, valve_angle_rad: float | None = None) -> tuple[float, float]:
+        """(Coulomb, static) valve friction in force now at ``valve_angle_rad`` (default: the
+        present angle), ripple and scatter included, N*m."""
+        th = self.valve_angle if valve_angle_rad is None else valve_angle_rad
+        tc, ts = float(self.P[K.P_TCL]), float(self.P[K.P_TSL])
+        if self.P[K.P_RIPPLE] > 0.0:
+            r = 1.0 + self.P[K.P_RIPPLE] * math.sin(self.P[K.P_RIPPLE_K] * th + self.P[K.P_RIPPLE_PHASE])
+            tc, ts = tc * r, ts * r
+        if self.P[K.P_SCATTER] > 0.0:
+            ts = max(ts * self.static_friction_factor, tc)
+        return tc, ts
 
     # ---------------------------------------------------------------- parameters
     @property
@@ -166,7 +200,9 @@ class Plant:
         twist += math.copysign(0.5 * ps["gearbox.backlash_rad"], load)
         iq = load / (n * self._motor.torque_constant)
         S = self.S
+        scat = S[K.S_SCAT], S[K.S_SCAT_IDX], S[K.S_SCAT_ARMED]
         S[:] = 0.0
+        S[K.S_SCAT], S[K.S_SCAT_IDX], S[K.S_SCAT_ARMED] = scat
         S[K.S_THL] = valve_angle_rad
         S[K.S_THM] = (valve_angle_rad + twist) * n
         S[K.S_IQ] = iq
@@ -204,8 +240,12 @@ class Plant:
     def step(self, n: int) -> None:
         """Integrate ``n`` physics steps."""
         if n > 0:
-            K.advance(self.S, self.O, self.P, self._ring, n, self._iq_ref, self._enabled)
+            K.advance(self.S, self.O, self.P, self._ring, n, self._iq_ref, self._enabled, self._scatter)
             self._steps += n
+            if self.S[K.S_SCAT_IDX] >= SCATTER_BLOCK:
+                # fresh draws: the scatter never repeats (the kernel wraps only within one call)
+                self._scatter = self._scatter_rng.standard_normal(SCATTER_BLOCK)
+                self.S[K.S_SCAT_IDX] = 0.0
 
     # ---------------------------------------------------------------- outputs
     def resolver(self) -> ResolverSample | None:

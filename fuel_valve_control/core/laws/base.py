@@ -42,6 +42,10 @@ class ControlLaw(ABC):
         """Error band inside which the integrator is frozen, rad (None: no deadband)."""
         return None
 
+    def learned_state(self) -> dict | None:
+        """What the law has learned about this valve (for diagnostics; None: nothing)."""
+        return None
+
     def friction_trend(self) -> float | None:
         """Learned valve friction / nominal friction at the present Δp (None: not learned):
         the wear and contamination trend of the valve."""

@@ -136,12 +136,12 @@ class StateFeedbackLaw(ControlLaw):
                 ramp = rate / n * self.period / self.fb.ki
                 self._pending = math.copysign(max(abs(self._pending), ramp), error)
         known_load = m.load_torque(thl, pressure_kpa) - m.spring_rate_nm_per_rad * thl   # preload + flow
-        self._d = known_load + self._fl
+        self._d = known_load + (self._fl if self.compensator.feeds_observer else 0.0)
         return u
 
     def applied(self, torque_nm, saturated):
         self._applied = torque_nm
-        self._u_net = torque_nm - self._fm
+        self._u_net = torque_nm - (self._fm if self.compensator.feeds_observer else 0.0)
         if not saturated:
             self.zeta += self._pending
 

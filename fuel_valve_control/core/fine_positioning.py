@@ -1,0 +1,305 @@
+"""Fine positioning of a stuck valve by preloaded twist and a shaped torque pulse (issue 14).
+
+Physics (SPEC §6 feasibility study).  A valve with static friction above its Coulomb level
+cannot be crept to a target: every breakaway under a quasi-static torque jumps
+``2 (Ts - Tc)/K`` (4.6e-3 rad at max Δp), and reacting after breakaway is too late (the jump
+is over in ~6 ms).  What works is acting *before* the valve moves:
+
+1. hold the gear output ``θ1 = θm/N`` stiffly on the motor resolver (48x finer than the valve
+   resolver), with the coupling torque fed forward, so the twist ``φ = θ1 - θL`` is set, not
+   suffered;
+2. *park* the twist where a released valve would swing to the target: a valve released from
+   rest slides about the twist where coupling torque balances load + Coulomb friction
+   (``φe``) and stops again symmetrically, so a move ``d`` needs ``φ_park = φe + d/2`` -- below
+   the breakaway twist ``φb``, so parking does not move it;
+3. break it loose with a short doublet pulse of the gear output (+a, -a, -a, +a over four loop
+   periods, peak ``A`` above the park) that overdrives ``φb`` briefly and returns to the park
+   before the valve has swung far, so the swing is the one the park planned;
+4. learn from each pulse: the measured move gives ``φe = φ_park - d/2`` (pulse contribution
+   included), a pulse that did not move the valve raises ``φb``, one that did lowers it
+   toward the peak that worked.  Both per direction and per Δp band, bounded.
+
+All learned quantities are twists in rad *relative to* the nominal model's prediction
+``(load(θ) ± T(Δp)) / K_nom``, so they stay meaningful across positions; they are the
+:class:`FineLearner`, which can be saved to and loaded from a JSON file.
+
+Angles rad (valve side), torques N*m at the motor unless named, positive = opening.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from .model import NominalModel
+
+IDLE, PARK, PULSE, OBSERVE, HOLD = "idle", "park", "pulse", "observe", "hold"
+
+
+class FineLearner:
+    """Learned twist offsets per direction (+1 opening, -1 closing) and Δp band, rad.
+
+    ``equilibrium[d][b]``: offset of the effective swing centre ``φe`` from its nominal value;
+    ``breakaway[d][b]``: offset of the breakaway twist ``φb`` from its nominal value.  Bounded
+    to ``±limit_rad``; :meth:`reset` returns to the nominal model (0).
+    """
+
+    VERSION = 1
+
+    def __init__(self, bands: int, limit_rad: float):
+        self.bands = max(int(bands), 1)
+        self.limit = limit_rad
+        self.reset()
+
+    def reset(self) -> None:
+        self.equilibrium = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
+        self.breakaway = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
+        self.pulses = 0
+
+    def band(self, pressure_fraction: float) -> int:
+        return min(int(max(pressure_fraction, 0.0) * self.bands), self.bands - 1)
+
+    def _clip(self, x: float) -> float:
+        return min(max(x, -self.limit), self.limit)
+
+    def set(self, table: str, direction: int, band: int, value: float) -> None:
+        getattr(self, table)[direction][band] = self._clip(value)
+
+    # ---- persistence ---------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        return {"version": self.VERSION, "bands": self.bands, "limit_rad": self.limit,
+                "equilibrium": {"open": self.equilibrium[1], "close": self.equilibrium[-1]},
+                "breakaway": {"open": self.breakaway[1], "close": self.breakaway[-1]}, "pulses": self.pulses}
+
+    def from_dict(self, doc: dict) -> None:
+        """Load learned values (validated: shape, finiteness; values are clipped to the bound)."""
+        if doc.get("version") != self.VERSION or int(doc.get("bands", -1)) != self.bands:
+            raise ValueError(f"learned friction file: needs version {self.VERSION} with {self.bands} bands")
+        new = {}
+        for table in ("equilibrium", "breakaway"):
+            rows = doc[table]
+            for key, d in (("open", 1), ("close", -1)):
+                vals = [float(v) for v in rows[key]]
+                if len(vals) != self.bands or not all(math.isfinite(v) for v in vals):
+                    raise ValueError(f"learned friction file: {table}.{key} needs {self.bands} finite values")
+                new[(table, d)] = [self._clip(v) for v in vals]
+        for (table, d), vals in new.items():
+            getattr(self, table)[d] = vals
+        self.pulses = int(doc.get("pulses", 0))
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+
+    def load(self, path: str | Path) -> None:
+        self.from_dict(json.loads(Path(path).read_text()))
+
+
+@dataclass(frozen=True)
+class FineConfig:
+    tolerance_rad: float          # done when |target - valve| is within this
+    engage_periods: int           # valve at rest (within a count) this long before fine positioning
+    observe_periods: int          # periods to wait after a pulse for the valve to stop
+    park_periods: int             # at least this many periods to move the twist to the preload
+    park_speed: float             # ... and at most this twist rate, rad/s
+    overdrive_fraction: float     # pulse peak above the learned breakaway, fraction of (φb - φe)
+    preload_margin: float         # preload below the learned breakaway, fraction of (φb - φe)
+    rise_periods: int             # pulse: periods from the preload to the peak
+    fall_periods: int             # pulse: periods from the peak to the final twist
+    learn_gain: float             # fraction of each measured correction taken into the learned values
+    max_pulses: int               # pulses per plateau before giving up (hold where it is)
+    servo_hz: float               # bandwidth of the stiff gear-output hold
+    max_move_rad: float           # larger errors are left to the main law
+
+
+class FinePositioner:
+    """The fine-positioning stage: a state machine run once per loop period while the main law
+    holds.  :meth:`update` returns a motor torque (N*m) while it is in charge, else ``None``."""
+
+    def __init__(self, model: NominalModel, period_s: float, cfg: FineConfig, learner: FineLearner):
+        self.m, self.period, self.cfg, self.learn = model, period_s, cfg, learner
+        w = 2.0 * math.pi * cfg.servo_hz
+        j1 = model.j1
+        self.kp = j1 * w * w               # N*m/rad at the gear output
+        self.kd = 2.0 * 0.8 * w * j1       # N*m*s/rad
+        self.ki = self.kp * w / 8.0        # slow integral: removes the feed-forward's error
+        self.reset()
+
+    def reset(self) -> None:
+        self.phase = IDLE
+        self._target = None
+        self._rest = 0
+        self._last_valve = None
+        self._last_th1 = None
+        self._last_target = None
+        self._steady = 0
+        self.pulses_this_plateau = 0
+
+    # ------------------------------------------------------------------ nominal twists
+    def _nominal(self, thl: float, pressure_kpa: float, direction: int) -> tuple[float, float]:
+        """Nominal (swing-centre, breakaway) twists for a move in ``direction``, rad."""
+        m = self.m
+        fl = m.friction(pressure_kpa)
+        k = m.coupling_stiffness_nm_per_rad
+        load = m.load_torque(thl, pressure_kpa)
+        return (load + direction * fl.valve_coulomb_nm) / k, (load + direction * fl.valve_static_nm) / k
+
+    def _twists(self, thl, pressure_kpa, direction):
+        e0, b0 = self._nominal(thl, pressure_kpa, direction)
+        band = self.learn.band(self.m.pressure_fraction(pressure_kpa))
+        return e0 + self.learn.equilibrium[direction][band], b0 + self.learn.breakaway[direction][band], band
+
+    # ------------------------------------------------------------------ per period
+    def update(self, target: float, th1: float, thl: float, holding: bool, torque_now: float,
+               pressure_kpa: float) -> float | None:
+        """``target`` valve angle, measured ``th1`` (motor resolver / N) and ``thl`` (valve
+        resolver), ``holding``: the main law's reference has arrived at ``target``;
+        ``torque_now``: the torque applied last period (N*m, motor)."""
+        cfg = self.cfg
+        w1 = 0.0 if self._last_th1 is None else (th1 - self._last_th1) / self.period
+        at_rest = self._last_valve is not None and abs(thl - self._last_valve) < 0.5 * cfg.tolerance_rad
+        self._last_th1, self._last_valve = th1, thl
+        self._rest = self._rest + 1 if at_rest else 0
+        # a demand that keeps changing (ramps, sweeps, noise) is followed by the main law
+        same = self._last_target is not None and abs(target - self._last_target) <= 1e-12
+        self._steady = self._steady + 1 if same else 0
+        self._last_target = target
+        if self.phase != IDLE and (self._target is None or abs(target - self._target) > 1e-9):
+            self.reset()                               # a new demand: the main law moves
+            return None
+        if self.phase == IDLE:
+            err = target - thl
+            if not holding or self._rest < cfg.engage_periods or self._steady < cfg.engage_periods \
+                    or abs(err) <= cfg.tolerance_rad \
+                    or abs(err) > cfg.max_move_rad or self.pulses_this_plateau >= cfg.max_pulses:
+                if not holding:
+                    self.pulses_this_plateau = 0
+                return None
+            self._engage(target, th1, thl, torque_now, pressure_kpa)
+        return self._run(th1, w1, thl, pressure_kpa)
+
+    def _engage(self, target, th1, thl, torque_now, pressure_kpa):
+        self._target = target
+        self._ff0 = torque_now                 # holds the present twist against load + reaction
+        self._phi0 = th1 - thl                 # ... which is this twist
+        self._integral = 0.0
+        self._start_pulse(th1, thl, pressure_kpa)
+
+    def _start_pulse(self, th1, thl, pressure_kpa):
+        cfg = self.cfg
+        err = self._target - thl
+        d = 1 if err > 0 else -1
+        phi_e, phi_b, band = self._twists(thl, pressure_kpa, d)
+        gap = max(d * (phi_b - phi_e), 1e-5)                    # the static band above φe
+        # preload just below breakaway; the pulse rises past it and falls to where the
+        # planned swing (about φe) ends on the target
+        final = phi_e + err / 2.0
+        pre = phi_b - d * cfg.preload_margin * gap
+        peak = phi_b + d * cfg.overdrive_fraction * gap
+        if d * (final - peak) > 0.0:
+            peak = final
+        if d * (pre - final) > 0.0:
+            pre = final
+        self._dir, self._band = d, band
+        self._thl0 = thl
+        self._pre, self._peak_planned, self._final = pre, peak, final
+        self._phi_start = th1 - thl
+        # preload quasi-statically: a fast unwind would overshoot the servo into breakaway
+        self._park_n = max(cfg.park_periods, int(abs(pre - self._phi_start) / (cfg.park_speed * self.period)) + 1)
+        self._k = 0
+        self.phase = PARK
+        self._peak_seen = th1 - thl
+
+    def _track_peak(self, phi: float) -> None:
+        if self._dir * phi > self._dir * self._peak_seen:
+            self._peak_seen = phi
+
+    def _servo(self, th1_ref, a_ref, th1, w1, thl, v_ref=0.0):
+        """Torque holding the gear output on ``th1_ref`` (feed-forward: the engage torque plus
+        the nominal coupling-torque change, and J1 a_ref for the pulse)."""
+        m = self.m
+        n = m.gear_ratio
+        # coupling torque of the *reference* twist (the valve is stuck until breakaway)
+        ff = self._ff0 + m.coupling_stiffness_nm_per_rad * ((th1_ref - thl) - self._phi0) / n
+        e = th1_ref - th1
+        self._integral += e * self.period
+        return ff + (m.j1 * a_ref + self.kp * e + self.kd * (v_ref - w1) + self.ki * self._integral) / n
+
+    @staticmethod
+    def _blend(x0: float, x1: float, tau: float, length: float) -> tuple[float, float, float]:
+        """sin² blend from x0 to x1 over ``length`` s at time ``tau``: (x, v, a)."""
+        u = min(max(tau / length, 0.0), 1.0)
+        w = math.pi / length
+        dx = x1 - x0
+        if u >= 1.0:
+            return x1, 0.0, 0.0
+        return (x0 + dx * 0.5 * (1.0 - math.cos(math.pi * u)), dx * 0.5 * w * math.sin(math.pi * u),
+                dx * 0.5 * w * w * math.cos(math.pi * u))
+
+    def _run(self, th1, w1, thl, pressure_kpa):
+        cfg, per = self.cfg, self.period
+        self._k += 1
+        base = self._thl0
+        if self.phase == PARK:
+            x, v, a = self._blend(self._phi_start, self._pre, self._k * per, self._park_n * per)
+            if self._k >= self._park_n + 2:
+                self.phase, self._k = PULSE, 0
+            if abs(thl - self._thl0) > 2.0 * cfg.tolerance_rad:      # broke away while preloading
+                self._after_move(th1, thl, pressure_kpa, pulsed=False)
+            return self._servo(base + x, a, th1, w1, thl, v)
+        if self.phase == PULSE:
+            # shaped pulse of the gear output: rise past breakaway, then fall to the final twist
+            t = self._k * per
+            t_rise, t_fall = cfg.rise_periods * per, cfg.fall_periods * per
+            if t < t_rise:
+                x, v, a = self._blend(self._pre, self._peak_planned, t, t_rise)
+            else:
+                x, v, a = self._blend(self._peak_planned, self._final, t - t_rise, t_fall)
+            self._track_peak(th1 - thl)
+            if t >= t_rise + t_fall:
+                self.phase, self._k = OBSERVE, 0
+            return self._servo(base + x, a, th1, w1, thl, v)
+        if self.phase == OBSERVE:
+            self._track_peak(th1 - thl)
+            if self._k >= cfg.observe_periods and self._rest >= 3:
+                self._after_move(th1, thl, pressure_kpa, pulsed=True)
+            return self._servo(base + self._final, 0.0, th1, w1, thl)
+        # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
+        return self._servo(self._hold_ref, 0.0, th1, w1, thl)
+
+    def _after_move(self, th1, thl, pressure_kpa, pulsed: bool):
+        cfg, d, b = self.cfg, self._dir, self._band
+        move = thl - self._thl0
+        self.pulses_this_plateau += 1
+        self.learn.pulses += 1
+        e0, b0 = self._nominal(self._thl0, pressure_kpa, d)
+        gap0 = abs(b0 - e0)
+        curb = self.learn.breakaway[d][b]
+        if d * move > 0.5 * cfg.tolerance_rad:
+            if pulsed:
+                # it swung about φe from the twist it was left at: φe = φ_final - move / 2
+                phi_e = (th1 - self._thl0) - move / 2.0
+                cur = self.learn.equilibrium[d][b]
+                self.learn.set("equilibrium", d, b, cur + cfg.learn_gain * ((phi_e - e0) - cur))
+            # breakaway at most the largest twist seen: probe a little lower next time
+            seen = self._peak_seen if pulsed else self._pre
+            new_b = d * min(d * (b0 + curb), d * seen) - d * 0.05 * gap0
+            self.learn.set("breakaway", d, b, curb + cfg.learn_gain * ((new_b - b0) - curb))
+        elif pulsed:
+            # the pulse did not move it: breakaway lies beyond the peak reached
+            new_b = d * max(d * (b0 + curb), d * self._peak_seen) + d * 0.1 * gap0
+            self.learn.set("breakaway", d, b, new_b - b0)
+        err = self._target - thl
+        if abs(err) <= cfg.tolerance_rad or self.pulses_this_plateau >= cfg.max_pulses \
+                or abs(err) > cfg.max_move_rad:
+            self.phase = HOLD
+            self._hold_ref = th1
+            return
+        self._start_pulse(th1, thl, pressure_kpa)
+
+    def health(self) -> dict:
+        return {"fine_phase": self.phase, "fine_pulses_total": self.learn.pulses,
+                "learned_equilibrium_rad": {"open": list(self.learn.equilibrium[1]),
+                                            "close": list(self.learn.equilibrium[-1])},
+                "learned_breakaway_rad": {"open": list(self.learn.breakaway[1]),
+                                          "close": list(self.learn.breakaway[-1])}}

@@ -1,0 +1,73 @@
+"""Mode ``observer_fp``: the reference-feed-forward state feedback (``observer_ff``) for moves,
+and the fine-positioning stage (:mod:`..fine_positioning`) that ends each move within a few
+resolver counts once the valve has stopped near its target (issue 14).
+
+The main law moves the valve; when its reference has arrived and the valve has been at rest
+for a few periods outside the tolerance, the fine positioner takes over the torque (stiff
+gear-output hold, preloaded twist, shaped pulse) until the demand changes; then the main law
+restarts bumplessly from the torque last applied.
+"""
+from __future__ import annotations
+
+from ..fine_positioning import FinePositioner
+from ..signals import Estimate, Measurement
+from .base import ControlLaw
+from .state_feedback import StateFeedbackLaw
+
+
+class FinePositioningLaw(ControlLaw):
+    def __init__(self, name: str, main: StateFeedbackLaw, fine: FinePositioner):
+        self.name = name
+        self.main = main
+        self.fine = fine
+        self._fine_active = False
+        self._main_updated = False
+        self._holding = False
+        self._applied = 0.0
+
+    def reset(self, meas: Measurement, torque_nm: float, pressure_kpa: float) -> None:
+        self.main.reset(meas, torque_nm, pressure_kpa)
+        self.fine.reset()
+        self._fine_active = False
+        self._holding = False
+        self._applied = torque_nm
+
+    def update(self, t, demand_rad, meas, pressure_kpa):
+        target, seat = self.main.seating.target(demand_rad)
+        th1 = meas.motor_rad / self.main.model.gear_ratio
+        torque = None
+        if not seat:
+            torque = self.fine.update(target, th1, meas.valve_rad, self._holding, self._applied, pressure_kpa)
+        if torque is not None:
+            self._fine_active = True
+            self._main_updated = False
+            return torque
+        if self._fine_active:
+            # hand back: the main law restarts from the torque the fine stage left applied
+            self.main.reset(meas, self._applied, pressure_kpa)
+            self._fine_active = False
+        torque = self.main.update(t, demand_rad, meas, pressure_kpa)
+        self._main_updated = True
+        ref = self.main.reference
+        self._holding = (not seat and ref is not None and not ref.moving and abs(ref.position - target) < 1e-12)
+        return torque
+
+    def applied(self, torque_nm, saturated):
+        self._applied = torque_nm
+        if self._main_updated:
+            self.main.applied(torque_nm, saturated)
+
+    def estimate(self) -> Estimate:
+        return self.main.estimate()
+
+    def reference_position(self):
+        return self.main.reference_position()
+
+    def deadband_rad(self):
+        return self.main.deadband_rad()
+
+    def friction_trend(self):
+        return self.main.friction_trend()
+
+    def learned_state(self) -> dict | None:
+        return self.fine.health()

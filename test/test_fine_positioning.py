@@ -1,0 +1,76 @@
+"""Fine positioning (mode ``observer_fp``, issue 14): the learned friction twists (bounded,
+reset, visible, saved and loaded) and what the stage does in closed loop."""
+import functools
+import json
+
+import numpy as np
+import pytest
+
+from fuel_valve_control.core.driver import ValveDriver
+from fuel_valve_control.core.fine_positioning import FineLearner
+from fuel_valve_control.core.params import CONTROLLER_SPEC
+
+
+def test_learned_twists_are_bounded_and_reset():
+    lr = FineLearner(bands=4, limit_rad=0.01)
+    lr.set("equilibrium", 1, 3, 0.5)
+    lr.set("breakaway", -1, 0, -0.5)
+    assert lr.equilibrium[1][3] == 0.01 and lr.breakaway[-1][0] == -0.01
+    assert [lr.band(f) for f in (0.0, 0.24, 0.25, 0.99, 1.0, 1.7, -0.2)] == [0, 0, 1, 3, 3, 3, 0]
+    lr.reset()
+    assert lr.equilibrium == {1: [0.0] * 4, -1: [0.0] * 4} and lr.pulses == 0
+
+
+def test_learned_twists_survive_a_restart(tmp_path):
+    a = FineLearner(4, 0.1)
+    a.set("equilibrium", 1, 2, 1.5e-3)
+    a.set("breakaway", -1, 1, -2e-3)
+    a.pulses = 17
+    path = tmp_path / "valve_friction.json"
+    a.save(path)
+    b = FineLearner(4, 0.1)
+    b.load(path)
+    assert b.to_dict() == a.to_dict()
+    # a file that does not fit is refused and changes nothing
+    doc = json.loads(path.read_text())
+    doc["equilibrium"]["open"][0] = float("nan")
+    with pytest.raises(ValueError, match="finite"):
+        b.from_dict(doc)
+    with pytest.raises(ValueError, match="bands"):
+        FineLearner(3, 0.1).from_dict(a.to_dict())
+    assert b.to_dict() == a.to_dict()
+
+
+def test_learned_state_is_on_the_diagnostics():
+    drv = ValveDriver(CONTROLLER_SPEC.defaults().replace({"mode": "observer_fp"}))
+    values = drv.health().values
+    assert values["fine_phase"] == "idle"
+    assert json.loads(values["learned_breakaway_rad"]) == {"open": [0.0] * 4, "close": [0.0] * 4}
+    # other modes learn nothing of this kind
+    assert "fine_phase" not in ValveDriver(CONTROLLER_SPEC.defaults()).health().values
+
+
+@functools.lru_cache(maxsize=None)
+def _campaign(rb, mode: str, runs: int = 4) -> list[dict]:
+    return [rb.run_case((rb.sample_case(2000 + i, "nominal"), mode, {})) for i in range(runs)]
+
+
+@pytest.mark.slow
+def test_fine_positioning_ends_plateaus_closer_than_the_deadband_does(robustness_bench):
+    """Seeded sample of the nominal campaign (friction scatter + ripple, 0.1-5 % plateaus)."""
+    fp = [pl["final_error_rad"] for r in _campaign(robustness_bench, "observer_fp") for pl in r["plateaus"]]
+    ff = [pl["final_error_rad"] for r in _campaign(robustness_bench, "observer_ff") for pl in r["plateaus"]]
+    assert np.median(fp) < 0.5 * np.median(ff)
+    assert np.percentile(fp, 95) < np.percentile(ff, 95)
+    assert not any(r["hunts"] or r["fault"] for r in _campaign(robustness_bench, "observer_fp"))
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 14 targets not reached by observer_fp yet: plateau final error "
+                   "p95 2.6e-3 (target 5e-4) -- a pulse that breaks the valve loose moves it >= ~1e-3 rad "
+                   "(the 3 ms fall of the gear output is slow against the valve's 6 ms half swing) -- and "
+                   "pulses draw ~36 A (target 30 A)")
+def test_fine_positioning_meets_the_issue_targets(robustness_bench):
+    fp = [pl["final_error_rad"] for r in _campaign(robustness_bench, "observer_fp") for pl in r["plateaus"]]
+    assert np.percentile(fp, 95) <= 5e-4 and max(fp) <= 8e-4
+    assert max(r["peak_current_a"] for r in _campaign(robustness_bench, "observer_fp")) <= 30.0
