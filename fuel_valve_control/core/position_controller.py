@@ -5,10 +5,16 @@ Gains are designed here, at construction, from the nominal model (``model.*``) a
 ``design.*``/``observer.*``/``lqr.*``/``kalman.*`` parameters.  Mode changes at run time are
 bumpless: the new law starts from the last measurement with its integral state set so its
 first output equals the last applied torque.
+
+Run-time parameters: :meth:`PositionController.reconfigure` rebuilds the law whenever a
+parameter it was built from changes.  Which parameters those are is recorded while the law is
+built (:attr:`PositionController.law_params`), so the rule cannot go stale when a law starts
+reading another parameter.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
@@ -62,6 +68,24 @@ def design_all(ps: ParamSet, model: NominalModel) -> Designs:
     return Designs(pid, placement, poles, lqr, observer_gain, kalman)
 
 
+class _ReadLog(Mapping[str, Any]):
+    """A read-only view of a parameter set that records which names were read."""
+
+    def __init__(self, values: Mapping[str, Any]):
+        self._values = values
+        self.read: set[str] = set()
+
+    def __getitem__(self, name: str) -> Any:
+        self.read.add(name)
+        return self._values[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+
 class PositionController:
     """Mode selection, torque-to-current conversion and current limiting."""
 
@@ -73,14 +97,24 @@ class PositionController:
         lim = self.ps
         self.limiter = CurrentLimiter(lim["limits.peak_current_a"], lim["limits.peak_time_s"],
                                       lim["limits.continuous_current_a"], self.period)
-        self.law: ControlLaw = self._build(self.ps["mode"])
+        self.law: ControlLaw
+        self.law_params: frozenset[str]
+        self.law, self.law_params = self._make_law(self.ps["mode"], self.ps)
         self._started = False
         self.last_current = 0.0
         self.last_torque = 0.0
 
     # ------------------------------------------------------------------ construction
-    def _build(self, mode: str) -> ControlLaw:
-        ps, m, period, d = self.ps, self.model, self.period, self.designs
+    def _make_law(self, mode: str, ps: Mapping[str, Any]) -> tuple[ControlLaw, frozenset[str]]:
+        """The law for ``mode`` built from ``ps``, and the parameter names the build read."""
+        if mode not in MODES:
+            raise ValueError(f"unknown mode {mode!r}; allowed: {', '.join(MODES)}")
+        log = _ReadLog(ps)
+        law = self._build(mode, log)
+        return law, frozenset(log.read)
+
+    def _build(self, mode: str, ps: Mapping[str, Any]) -> ControlLaw:
+        m, period, d = self.model, self.period, self.designs
         if mode in ("pi", "pi_dither"):
             amp = ps["pi.dither_pct"] / 100.0 * m.stroke_rad if mode == "pi_dither" else 0.0
             return PIDLaw(d.pid, m, period, amp, ps["pi.dither_hz"])
@@ -98,11 +132,11 @@ class PositionController:
             feedback = d.lqr
         seating = Seating(ps["seat.margin_pct"] / 100.0 * m.stroke_rad, ps["seat.overtravel_rad"],
                           ps["seat.torque_nm"], m.stroke_rad)
-        return StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode),
+        return StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode, ps),
                                 seating, speed_window=ps["ff.speed_window_periods"])
 
-    def _compensator(self, mode: str) -> Compensator:
-        ps, m, period = self.ps, self.model, self.period
+    def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
+        m, period = self.model, self.period
         if mode == "fc_gain":
             return StictionGain(ps["fc_gain.gain"], ps["fc_gain.error_scale_rad"])
         if mode not in ("observer_fc", "kalman_fc", "observer_ff"):
@@ -127,13 +161,38 @@ class PositionController:
         """(Re)build the law for ``mode`` from the present parameters.  With a measurement the
         new law continues bumplessly from the last applied torque; without one it starts at
         the next :meth:`update`."""
-        if mode not in MODES:
-            raise ValueError(f"unknown mode {mode!r}; allowed: {', '.join(MODES)}")
-        self.law = self._build(mode)
+        law, names = self._make_law(mode, self.ps)
+        self._install(law, names, meas, pressure_kpa)
+
+    def _install(self, law: ControlLaw, names: frozenset[str], meas: Measurement | None,
+                 pressure_kpa: float) -> None:
+        self.law, self.law_params = law, names
         if meas is not None and self._started:
             self.law.reset(meas, self.last_torque, pressure_kpa)
         else:
             self._started = False
+
+    def prepare(self, ps: ParamSet) -> tuple[ControlLaw, frozenset[str]] | None:
+        """What :meth:`reconfigure` to ``ps`` would install: a new law (and the names it read)
+        if the mode or a parameter the present law was built from changes, else ``None``.
+        Changes nothing; raises if the law cannot be built."""
+        if ps["mode"] == self.ps["mode"] and all(ps[k] == self.ps[k] for k in self.law_params):
+            return None
+        return self._make_law(ps["mode"], ps)
+
+    def reconfigure(self, ps: ParamSet, meas: Measurement | None, pressure_kpa: float,
+                    prepared: tuple[ControlLaw, frozenset[str]] | None) -> bool:
+        """Adopt run-time parameters ``ps``: current limits at once; the law ``prepared`` by
+        :meth:`prepare` for ``ps`` (``None``: the present law stays) is installed, bumplessly
+        from the last applied torque when ``meas`` is given.  Building first and swapping here
+        keeps a change atomic.  Returns whether the law was replaced."""
+        new_law = prepared
+        self.ps = ps
+        self.limiter.configure(ps["limits.peak_current_a"], ps["limits.peak_time_s"],
+                               ps["limits.continuous_current_a"])
+        if new_law is not None:
+            self._install(*new_law, meas, pressure_kpa)
+        return new_law is not None
 
     def reset(self, meas: Measurement, pressure_kpa: float, torque_nm: float = 0.0) -> None:
         """(Re)arm from a measurement, starting from ``torque_nm`` (0 after a trip)."""

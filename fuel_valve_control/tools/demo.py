@@ -79,9 +79,8 @@ def plan_for(scenario: Scenario | None, lockstep: bool, mode: str | None = None,
     else:
         plant.update(scenario.plant)
         controller.update(scenario.controller)
-        if scenario.pressure_kpa is not None:
+        if scenario.pressure_kpa is not None:      # set on the plant only: the controller measures it
             plant["pressure_differential_kpa"] = scenario.pressure_kpa
-            controller.setdefault("pressure_differential_kpa", scenario.pressure_kpa)
         demand = demand_params(scenario.demand_spec)
         duration = scenario.duration_s
         description = scenario.description

@@ -7,9 +7,9 @@ Prints one JSON object: ``{"scenario", "controller", "metrics", "sim_time_s", "w
 "real_time_factor"}`` plus ``"segments"`` (per step/hold/sweep/trip details).  Unknown
 scenario, mode or parameter: a message on stderr and exit code 2.
 
-The loop is the same as on ROS: at every control period the resolver is sampled, the
-driver (the controller node's core) computes the current command, and the plant integrates
-one period with it.
+The loop is the same as on ROS: at every control period the resolver is sampled (and the
+pressure differential, at the transducer's rate), the driver (the controller node's core)
+computes the current command, and the plant integrates one period with it.
 """
 from __future__ import annotations
 
@@ -64,9 +64,8 @@ def build(scenario: Scenario, plant_overrides=None, controller_overrides=None, s
     """Plant and controller parameter sets for a scenario (defaults < scenario < overrides)."""
     p_over = dict(scenario.plant)
     c_over = dict(scenario.controller)
-    if scenario.pressure_kpa is not None:
+    if scenario.pressure_kpa is not None:      # set on the plant only: the controller measures it
         p_over["pressure_differential_kpa"] = scenario.pressure_kpa
-        c_over.setdefault("pressure_differential_kpa", scenario.pressure_kpa)
     p_over.update(plant_overrides or {})
     c_over.update(controller_overrides or {})
     if seed is not None:
@@ -96,6 +95,9 @@ def simulate(scenario: Scenario, plant_ps: ParamSet, controller_ps: ParamSet) ->
             _apply_event(events.pop(0), plant, driver)
         pct = demand.value(t)
         driver.demand_percent(t, pct)
+        dp = plant.pressure_sample()              # the Δp transducer, at its own rate
+        if dp is not None:
+            driver.pressure_differential(t, dp)
         sample = plant.resolver()
         if sample is not None:
             driver.resolver(sample.stamp_s, sample.motor_rad, sample.valve_rad)
