@@ -62,11 +62,10 @@ def step_small_params():
     theta0 = sc.initial_percent / 100.0 * ps["valve.stroke_rad"]
     hold_a = Plant(ps).hold_at(theta0)
     kt_plant = 1.5 * ps["motor.pole_pairs"] * ps["motor.flux_linkage_wb"]
-    kt_nominal = NominalModel.from_params(load_controller_params(
-        overrides={"pressure_differential_kpa": dp})).torque_constant_nm_per_a
+    kt_nominal = NominalModel.from_params(load_controller_params()).torque_constant_nm_per_a
     plant = {"pressure_differential_kpa": dp, "initial_position_rad": float(theta0), "start_held": True,
              "stop_after_s": DURATION_S}
-    controller = {"pressure_differential_kpa": dp, "initial_current_a": float(hold_a * kt_plant / kt_nominal)}
+    controller = {"initial_current_a": float(hold_a * kt_plant / kt_nominal)}     # Δp: measured
     demand = {"profile": "step", "initial": 20.0, "final": 22.0, "at_s": 0.5}
     return plant, controller, demand
 
@@ -223,13 +222,15 @@ def test_recorded_bag_reads_back(lockstep_bag):
     assert meta["message_count"] == sum(counts.values())
     expected = {"/clock", "/diagnostics"} | {f"{NS}/{t}" for t in (
         "demand", "demand_ma", "position", "current_command", "drive_enable", "resolver", "joint_states",
-        "drive", "estimate")}
+        "drive", "estimate", "pressure_differential")}
     assert set(counts) == expected
     for topic in ("/clock", "resolver", "joint_states", "drive", "current_command", "demand"):
         name = topic if topic.startswith("/") else f"{NS}/{topic}"
         assert counts[name] == PERIODS, (name, counts[name])
     assert counts[f"{NS}/position"] == PERIODS // 10 and counts[f"{NS}/demand_ma"] == 0
     assert counts[f"{NS}/drive_enable"] >= 1
+    # the Δp transducer samples at 100 Hz of plant time: every 10th period, from the first
+    assert counts[f"{NS}/pressure_differential"] == -(-PERIODS // 10)
     for topic, items in msgs.items():
         log = np.array([t for t, _ in items])
         assert np.all(np.diff(log) >= 0), topic
