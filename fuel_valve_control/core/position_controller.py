@@ -6,6 +6,11 @@ Gains are designed here, at construction, from the nominal model (``model.*``) a
 bumpless: the new law starts from the last measurement with its integral state set so its
 first output equals the last applied torque.
 
+A replaced law (mode change, run-time parameter) is also bumpless in the command itself: in
+its first period the old law runs once more and the difference between the two outputs is
+added to the new law's torque, decaying with :attr:`PositionController.TRANSFER_TIME_S`, so the
+command continues from where it was and the new law takes over smoothly.
+
 Run-time parameters: :meth:`PositionController.reconfigure` rebuilds the law whenever a
 parameter it was built from changes.  Which parameters those are is recorded while the law is
 built (:attr:`PositionController.law_params`), so the rule cannot go stale when a law starts
@@ -89,6 +94,10 @@ class _ReadLog(Mapping[str, Any]):
 class PositionController:
     """Mode selection, torque-to-current conversion and current limiting."""
 
+    #: time constant of the bumpless-transfer offset after a law is replaced, s: slower than
+    #: the closed loop (12 Hz) so the new law's integrator takes the torque over smoothly
+    TRANSFER_TIME_S = 0.1
+
     def __init__(self, params: ParamSet | None = None):
         self.ps = params if params is not None else CONTROLLER_SPEC.defaults()
         self.model = NominalModel.from_params(self.ps)
@@ -103,6 +112,9 @@ class PositionController:
         self._started = False
         self.last_current = 0.0
         self.last_torque = 0.0
+        self._outgoing: ControlLaw | None = None   # the replaced law, run once more for the transfer
+        self._transfer = 0.0                        # bumpless-transfer torque offset, N*m
+        self._transfer_decay = float(np.exp(-self.period / self.TRANSFER_TIME_S))
 
     # ------------------------------------------------------------------ construction
     def _make_law(self, mode: str, ps: Mapping[str, Any]) -> tuple[ControlLaw, frozenset[str]]:
@@ -166,11 +178,13 @@ class PositionController:
 
     def _install(self, law: ControlLaw, names: frozenset[str], meas: Measurement | None,
                  pressure_kpa: float) -> None:
-        self.law, self.law_params = law, names
+        outgoing, self.law, self.law_params = self.law, law, names
         if meas is not None and self._started:
             self.law.reset(meas, self.last_torque, pressure_kpa)
+            self._outgoing = outgoing
         else:
             self._started = False
+            self._outgoing, self._transfer = None, 0.0
 
     def prepare(self, ps: ParamSet) -> tuple[ControlLaw, frozenset[str]] | None:
         """What :meth:`reconfigure` to ``ps`` would install: a new law (and the names it read)
@@ -198,6 +212,7 @@ class PositionController:
         """(Re)arm from a measurement, starting from ``torque_nm`` (0 after a trip)."""
         self.limiter.reset()
         self.law.reset(meas, torque_nm, pressure_kpa)
+        self._outgoing, self._transfer = None, 0.0
         self.last_torque = torque_nm
         self.last_current = torque_nm / self.model.torque_constant_nm_per_a
         self._started = True
@@ -208,6 +223,12 @@ class PositionController:
             self.reset(meas, pressure_kpa)
         kt = self.model.torque_constant_nm_per_a
         torque = self.law.update(t, demand_rad, meas, pressure_kpa)
+        if self._outgoing is not None:       # first period of a new law: continue the old command
+            self._transfer = self._outgoing.update(t, demand_rad, meas, pressure_kpa) - torque
+            self._outgoing = None
+        else:
+            self._transfer *= self._transfer_decay
+        torque += self._transfer
         request = torque / kt
         current = self.limiter.apply(request)
         self.last_current = current
