@@ -31,7 +31,8 @@ def changed_value(p: Param) -> Any:
         return next(c for c in p.choices if c != p.default)
     if p.kind is bool:
         return not p.default
-    for candidate in (p.default * 0.8, p.default * 1.2, (p.low or 0.0) + 0.5 * ((p.high or 1.0) - (p.low or 0.0))):
+    low, high = p.low or 0.0, p.high or 1.0
+    for candidate in (p.default * 0.8, p.default * 1.2, low + 0.5 * (high - low), low + 0.75 * (high - low)):
         value = p.kind(candidate)
         if value != p.default:
             try:
