@@ -102,8 +102,9 @@ PLANT_SPEC = ParamSpec("plant", [
     # --- pressure-differential transducer (the controller's Δp input, SPEC §4) ---------------
     Param("pressure_sensor.rate_hz", 100.0, "Hz", "sample rate of the measured pressure differential",
           50.0, 10000.0),
-    Param("pressure_sensor.noise_kpa", 6.0, "kPa", "rms noise of the measured pressure differential "
-          "(about 0.1 % of full scale, an industrial transducer; 0 = exact)", 0.0, 500.0, runtime=True),
+    Param("pressure_sensor.noise_kpa", 0.0, "kPa", "rms noise of the measured pressure differential "
+          "(0 = exact, so the documented control figures hold; ~6 = 0.1 % of full scale, an industrial "
+          "transducer)", 0.0, 500.0, runtime=True),
 ])
 
 #: parameters of the plant *node* only (timing and start-up of the ROS process); the node's
