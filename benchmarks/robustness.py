@@ -159,7 +159,9 @@ def controller_knowledge(case: dict) -> dict:
     """What the controller is told about the operating point: the one place to change when Δp
     becomes a measured input (then the told value goes to the plant's Δp transducer instead)
     and when the controller learns to take a measured resolver delay."""
-    told = {"pressure_differential_kpa": case["dp_told_kpa"]}
+    # Δp is now a measured input (the plant's transducer); until the transducer can be biased,
+    # the "told" value is the controller's fallback (used when the measurement is missing)
+    told = {"pressure.fallback_kpa": case["dp_told_kpa"]}
     if "resolver_delay_s" in CONTROLLER_SPEC.params:
         told["resolver_delay_s"] = case["resolver_delay_s"]
     return told

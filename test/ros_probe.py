@@ -111,14 +111,19 @@ class Probe:
         if valve_rad is None or getattr(self, "_seize_thread", None) is not None:
             return
         from sensor_msgs.msg import JointState
+        pub_pressure = self.node.create_publisher(self._float, contract.PRESSURE_DIFFERENTIAL, ri.TELEMETRY_QOS)
 
         def loop():
             next_t = time.monotonic()
+            k = 0
             while self._seized is not None and self.context.ok():
                 stamp = self.node.get_clock().now().to_msg()
                 self.pub_resolver.publish(JointState(header=__import__("std_msgs.msg").msg.Header(stamp=stamp),
                                                      name=list(contract.JOINT_NAMES),
                                                      position=[self._seized * gear_ratio, self._seized]))
+                if k % max(int(rate_hz / 100.0), 1) == 0:        # and its Δp transducer at ~100 Hz
+                    pub_pressure.publish(self._float(data=contract.PRESSURE_MAX_KPA))
+                k += 1
                 next_t += 1.0 / rate_hz
                 time.sleep(max(0.0, next_t - time.monotonic()))
             self._seize_thread = None

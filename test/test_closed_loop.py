@@ -105,12 +105,12 @@ def test_startup_and_load_step_hold_without_hunting(scenario):
 # ============================================================================ robustness box
 def corner(friction=1.0, dp=P_MAX, stiffness=1.0, inertia=1.0):
     """(plant overrides, controller overrides) as hashable tuples.  The controller keeps its
-    nominal model (same gains); only Δp is reported to it, as the supervisor does."""
+    nominal model (same gains) and measures Δp on the plant's pressure_differential output."""
     plant = {"friction_scale": friction, "pressure_differential_kpa": dp,
              "coupling.stiffness_nm_per_rad": _D["coupling.stiffness_nm_per_rad"] * stiffness,
              "motor.inertia_kgm2": _D["motor.inertia_kgm2"] * inertia,
              "valve.inertia_kgm2": _D["valve.inertia_kgm2"] * inertia}
-    return tuple(sorted(plant.items())), (("pressure_differential_kpa", dp),)
+    return tuple(sorted(plant.items())), ()
 
 
 def _id(c):

@@ -11,7 +11,7 @@ import math
 
 import pytest
 
-from fuel_valve_control.common.contract import (NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_LOW_MA,
+from fuel_valve_control.common.contract import (PRESSURE_MAX_KPA, NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_LOW_MA,
                                                 PERCENT_FAIL_MARGIN, STROKE_RAD, percent_to_ma)
 from fuel_valve_control.core import driver as D
 from fuel_valve_control.core.driver import ValveDriver
@@ -38,6 +38,7 @@ class Rig:
         self.demand = 40.0               # % of stroke (or mA with demand_source ma)
         self.demand_every = 10
         self.resolver = True
+        self.pressure = PRESSURE_MAX_KPA         # Δp reading delivered every period (None: silent)
         self.source = params.get("demand_source", "percent")
 
     def send_demand(self, value) -> None:
@@ -51,6 +52,8 @@ class Rig:
         for _ in range(max(int(round(seconds / T)), 1)):
             self.t += T
             self.k += 1
+            if self.pressure is not None:              # the Δp transducer (kPa)
+                self.d.pressure_differential(self.t, self.pressure)
             if self.resolver:
                 self.d.resolver(self.t, N * self.valve, self.valve)
             if self.demand is not None and self.k % self.demand_every == 0:
@@ -350,6 +353,7 @@ def test_rearm_after_a_fault_starts_like_a_fresh_driver():
     rig.d.resolver(rig.t, N * rig.valve, rig.valve)
     first = rig.d.step(rig.t)
     fresh = ValveDriver(PS)
+    fresh.pressure_differential(0.0, rig.pressure)
     fresh.resolver(0.0, N * rig.valve, rig.valve)
     fresh.demand_percent(0.0, rig.demand)
     expected = fresh.step(0.0)

@@ -9,7 +9,8 @@ constructed; ``LaunchConfiguration.perform`` reads a context's launch configurat
 the real one does.  The test then calls ``generate_launch_description()``, evaluates the
 ``OpaqueFunction`` with a fake context for several argument sets, and checks the declared
 arguments, executables, namespace, parameter files (they must exist in the source tree's
-``config/``) and parameter overrides (each name must be a parameter the node declares).
+``config/``) and parameter overrides (each name must be a parameter the node declares: its
+parameter schema, imported from the code that declares it, is the list).
 
 What this verifies is the *structure* the launch file hands to launch / launch_ros; it does not
 verify launch semantics (substitution, process start-up, parameter-file loading by rcl): that
@@ -20,22 +21,14 @@ from __future__ import annotations
 import ast
 import importlib.util
 import py_compile
-import re
 import sys
 import types
 from pathlib import Path
 
 import pytest
-import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = ROOT / "launch" / "fuel_valve.launch.py"
-NODE_SOURCES = {
-    "plant": ROOT / "fuel_valve_plant" / "ros" / "plant_node.py",
-    "controller": ROOT / "fuel_valve_control" / "ros" / "controller_node.py",
-    "demand": ROOT / "fuel_valve_control" / "ros" / "demand_node.py",
-    "recorder": ROOT / "fuel_valve_control" / "tools" / "recorder.py",
-}
 CONFIG_FILES = {"plant": "plant.yaml", "controller": "controller.yaml", "demand": "demand.yaml"}
 ARGUMENTS = {"namespace": "fuel_valve", "mode": "", "lockstep": "false", "record": "false",
              "bag": "fuel_valve_bag", "demand_profile": ""}
@@ -152,15 +145,15 @@ def _files(node) -> list[Path]:
 
 
 def _declared_params(executable: str) -> set[str]:
-    source = NODE_SOURCES[executable].read_text()
-    names = set(re.findall(r'declare_parameter\(\s*"([A-Za-z_][\w.]*)"', source))
-    # and the entries of ros_interface.declare_read_only(self, {"name": (default, text), ...}) tables
-    for table in re.findall(r"declare_read_only\(self, \{(.*?)\n\s*\}\)", source, re.S):
-        names |= set(re.findall(r'^\s*"([A-Za-z_][\w.]*)": \(', table, re.M))
-    if executable in CONFIG_FILES:
-        doc = yaml.safe_load((ROOT / "config" / CONFIG_FILES[executable]).read_text())
-        names |= set(doc["/**"]["ros__parameters"])
-    return names | ROS_PARAMS
+    """What the node declares: the names of its parameter schema (the node declares exactly
+    that schema, see ``ros.interface.declare_spec``)."""
+    from fuel_valve_control.core.params import CONTROLLER_NODE_SPEC
+    from fuel_valve_control.tools.profiles import DEMAND_NODE_SPEC
+    from fuel_valve_control.tools.recorder import RECORDER_SPEC
+    from fuel_valve_plant.physics.params import PLANT_NODE_SPEC
+    schemas = {"plant": PLANT_NODE_SPEC, "controller": CONTROLLER_NODE_SPEC, "demand": DEMAND_NODE_SPEC,
+               "recorder": RECORDER_SPEC}
+    return set(schemas[executable].params) | ROS_PARAMS
 
 
 def test_launch_file_compiles_and_imports_only_launch_api(tmp_path):

@@ -150,13 +150,15 @@ def test_recorded_bag_reads_back(lockstep_bag):
     assert meta["message_count"] == sum(counts.values())
     expected = {"/clock", "/diagnostics"} | {f"{NS}/{t}" for t in (
         "demand", "demand_ma", "position", "current_command", "drive_enable", "resolver", "joint_states",
-        "drive", "estimate")}
+        "drive", "estimate", "pressure_differential")}
     assert set(counts) == expected
     for topic in ("/clock", "resolver", "joint_states", "drive", "current_command", "demand"):
         name = topic if topic.startswith("/") else f"{NS}/{topic}"
         assert counts[name] == PERIODS, (name, counts[name])
     assert counts[f"{NS}/position"] == PERIODS // 10 and counts[f"{NS}/demand_ma"] == 0
     assert counts[f"{NS}/drive_enable"] >= 1
+    # the Δp transducer samples at 100 Hz of plant time: every 10th period, from the first
+    assert counts[f"{NS}/pressure_differential"] == -(-PERIODS // 10)
     for topic, items in msgs.items():
         log = np.array([t for t, _ in items])
         assert np.all(np.diff(log) >= 0), topic

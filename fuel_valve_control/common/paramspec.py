@@ -15,6 +15,7 @@ offending value and the allowed range, e.g.
 """
 from __future__ import annotations
 
+import array
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,16 +47,29 @@ class Param:
     choices: tuple[str, ...] | None = None
     runtime: bool = False
 
+    def __post_init__(self):
+        if isinstance(self.default, list) and not self.default:
+            raise ValueError(f"{self.name}: a list parameter needs a non-empty default (it fixes the element type)")
+
     @property
     def kind(self) -> type:
         return type(self.default)
+
+    @property
+    def item_kind(self) -> type:
+        """Element type of a list parameter (taken from its non-empty default)."""
+        return type(self.default[0])
 
     def range_text(self) -> str:
         """Human-readable allowed range, used in error messages and ROS descriptors."""
         if self.choices is not None:
             return "one of " + ", ".join(repr(c) for c in self.choices)
+        if self.kind is list:
+            return f"a list of {self.item_kind.__name__}" + (f" [{self.unit}]" if self.unit else "")
         if self.kind is bool:
             return "true or false"
+        if self.kind is str:
+            return "any text"
         lo = "" if self.low is None else f"{self.low:g} {'<' if self.low_open else '<='} "
         hi = "" if self.high is None else f" <= {self.high:g}"
         text = f"{lo}value{hi}" if (lo or hi) else "any finite number"
@@ -64,6 +78,12 @@ class Param:
     def coerce(self, value: Any, where: str) -> Any:
         """Return ``value`` converted to this parameter's type, or raise :class:`ConfigError`."""
         kind = self.kind
+        if kind is list:
+            if not isinstance(value, (list, tuple, array.array)):     # rclpy gives arrays for numeric lists
+                raise ConfigError(f"{where}: {self.name} = {value!r} is not a list; allowed {self.range_text()}")
+            item = Param(self.name, self.item_kind(), self.unit, low=self.low, high=self.high,
+                         low_open=self.low_open, choices=self.choices)
+            return [item.coerce(v, where) for v in value]
         if kind is bool:
             if isinstance(value, bool):
                 return value
@@ -113,6 +133,16 @@ class ParamSpec:
 
     def __contains__(self, name: str) -> bool:
         return name in self.params
+
+    def extended(self, params: Iterable[Param], section: str | None = None) -> "ParamSpec":
+        """A node's schema: ``params`` (node-level keys, listed first) followed by this spec's
+        parameters.  The node declares, documents and writes its YAML file from the result."""
+        return ParamSpec(section or self.section, [*params, *self])
+
+    def pick(self, values: Mapping[str, Any], where: str | None = None) -> "ParamSet":
+        """This spec's parameters taken from ``values`` (e.g. a node's larger set), validated;
+        keys of other specs are ignored, missing keys keep their defaults."""
+        return self.defaults().replace({k: v for k, v in values.items() if k in self.params}, where)
 
     def defaults(self) -> "ParamSet":
         return ParamSet(self, {name: p.default for name, p in self.params.items()})

@@ -1,9 +1,22 @@
 """The valve driver core: demand handling, fault logic and the position controller (SPEC §4).
 
 This is what the controller node runs and what the offline simulator runs, so fault
-reactions are tested without ROS.  Inputs arrive as events (demand, resolver sample, optional
-measured current, trip/reset); :meth:`ValveDriver.step` is called once per loop period and
-returns the current command and drive enable.
+reactions are tested without ROS.  Inputs arrive as events (demand, resolver sample, measured
+pressure differential, optional measured current, trip/reset); :meth:`ValveDriver.step` is
+called once per loop period and returns the current command and drive enable.
+
+The measured pressure differential Δp (kPa) schedules the friction-dependent terms of the
+law.  A missing (none received ``pressure.timeout_s`` after the first period), stale (older
+than ``pressure.timeout_s``) or implausible (not finite, beyond 0..pressure max by more than
+``pressure.range_margin_kpa``, or changing faster than ``pressure.max_rate_kpa_s``) Δp is a
+latched *warning*, not a fault: the drive keeps running with the friction terms scheduled for
+``pressure.fallback_kpa``.  The default fallback, 0 kPa, is the conservative one: valve friction
+grows with Δp, so the Δp = 0 schedule never asks for more friction torque than the valve has
+(under-compensation: a slower, stickier valve), whereas a schedule above the real Δp pushes
+the valve past breakaway on its own and hunts (measured with ``fuel_valve_sim`` on ``hold``,
+observer_fc: told 6206 kPa with the real Δp 0 -> a 4.4e-3 rad limit cycle; told 0 with the
+real Δp 6206 kPa -> no limit cycle).  Valid samples are used again as soon as they arrive; the
+warning stays latched until :meth:`ValveDriver.reset`.
 
 Faults latch until :meth:`reset` and all react the same way: drive enable false and zero
 current, so the return spring closes the valve (fail safe).  A stale demand with
@@ -20,10 +33,10 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from ..common.contract import (NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_HIGH_MA, NE43_USABLE_LOW_MA,
-                                PERCENT_FAIL_MARGIN, ma_to_percent)
+                                PERCENT_FAIL_MARGIN, PRESSURE_MAX_KPA, ma_to_percent)
 from ..common.paramspec import ParamSet
 
-from .params import CONTROLLER_SPEC
+from .params import CONTROLLER_SPEC, check_consistency
 from .position_controller import PositionController
 from .signals import Measurement
 
@@ -35,6 +48,8 @@ TRACKING = "tracking_error"
 OVERCURRENT = "overcurrent_i2t"
 TRIPPED = "commanded_trip"
 FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE, TRACKING, OVERCURRENT, TRIPPED)
+#: warning code of a missing, stale or implausible measured pressure differential
+PRESSURE_INPUT = "pressure_differential"
 
 
 @dataclass
@@ -68,27 +83,38 @@ class ValveDriver:
         self._t: float | None = None               # time of the latest step
         self._tracking_since: float | None = None
         self._positions: deque = deque(maxlen=int(2.0 / self.period))
+        self._t_first: float | None = None         # time of the first step (for a missing Δp)
+        self._dp: float | None = None              # last valid measured Δp, kPa (None: use the fallback)
+        self._dp_t: float | None = None
+        self._dp_prev: tuple[float, float] | None = None   # (t, kPa) of the last finite reading
+        self.pressure_kpa = self.ps["pressure.fallback_kpa"]   # Δp the law is scheduled for now
         self.last = DriverOutput(0.0, False, "waiting", None, None)
 
     # ------------------------------------------------------------------ parameters
-    def set_params(self, changes: dict) -> None:
-        """Apply run-time parameter changes; raises (and changes nothing) if any is invalid
-        or not changeable at run time."""
+    def check_params(self, changes: dict) -> ParamSet:
+        """The parameter set ``changes`` would give, with the law it would need built as a trial;
+        raises (``ConfigError``/``ValueError``) if a value is invalid or not changeable at run
+        time.  Changes nothing (the controller node's validation step)."""
+        return self._prepare(changes)[0]
+
+    def _prepare(self, changes: dict):
         new = self.ps.replace(changes)
         fixed = [k for k in changes if not CONTROLLER_SPEC.params[k].runtime and new[k] != self.ps[k]]
         if fixed:
             raise ValueError(f"{', '.join(fixed)} cannot change at run time")
-        if new["limits.continuous_current_a"] > new["limits.peak_current_a"]:
-            raise ValueError("limits.continuous_current_a must not exceed limits.peak_current_a")
-        ctl = self.controller
-        old_ps = self.ps
+        check_consistency(new)
+        return new, self.controller.prepare(new)
+
+    def set_params(self, changes: dict) -> None:
+        """Apply run-time parameter changes atomically: everything is validated and the new law
+        (if one is needed) built first; only then is anything swapped.  On error nothing
+        changes.  Every run-time parameter takes effect: the driver reads its own (demand,
+        fault, pressure) from the new set every period, the current limits are reconfigured,
+        and the law is rebuilt -- bumplessly, from the last applied torque -- whenever a
+        parameter it was built from (or the mode) changes."""
+        new, prepared = self._prepare(changes)
         self.ps = new
-        ctl.ps = new
-        ctl.configure_limits(new["limits.peak_current_a"], new["limits.peak_time_s"],
-                             new["limits.continuous_current_a"])
-        if new["mode"] != old_ps["mode"] or any(k.startswith(("fp.", "integral.", "fc_gain.")) for k in changes):
-            # rebuild the law with the new settings, bumplessly from the last applied torque
-            ctl.switch_law(new["mode"], self._meas if self._armed else None, new["pressure_differential_kpa"])
+        self.controller.reconfigure(new, self._meas if self._armed else None, self.pressure_kpa, prepared)
 
     # ------------------------------------------------------------------ inputs
     def demand_percent(self, t: float, value: float) -> None:
@@ -158,6 +184,46 @@ class ValveDriver:
                 return f"valve angle jumped {jump:.4f} rad in {max(t - self._meas_t, 0.0) * 1e3:.1f} ms"
         return None
 
+    def pressure_differential(self, t: float, kpa: float) -> None:
+        """A measured pressure differential across the valve, kPa, read at ``t``.  Implausible
+        readings latch the :data:`PRESSURE_INPUT` warning and put the schedule on the fallback
+        until a plausible one arrives; plausible ones are clamped to 0..pressure max."""
+        ps = self.ps
+        why = None
+        if isinstance(kpa, bool) or not isinstance(kpa, (int, float)) or not math.isfinite(kpa):
+            why = f"pressure differential reading {kpa!r} is not a finite number"
+        else:
+            kpa = float(kpa)
+            margin = ps["pressure.range_margin_kpa"]
+            if not -margin <= kpa <= PRESSURE_MAX_KPA + margin:
+                why = f"pressure differential {kpa:.0f} kPa outside 0..{PRESSURE_MAX_KPA:.0f} kPa"
+            elif self._dp_prev is not None:
+                t0, kpa0 = self._dp_prev
+                dt = max(t - t0, self.period)
+                if abs(kpa - kpa0) > ps["pressure.max_rate_kpa_s"] * dt:
+                    why = (f"pressure differential changed {kpa - kpa0:+.0f} kPa in {max(t - t0, 0.0) * 1e3:.1f} ms "
+                           f"(faster than {ps['pressure.max_rate_kpa_s']:g} kPa/s)")
+            self._dp_prev = (t, kpa)
+        if why:
+            self._dp = None
+            self._warn_pressure(why)
+            return
+        self._dp, self._dp_t = min(max(kpa, 0.0), PRESSURE_MAX_KPA), t
+
+    def _warn_pressure(self, why: str) -> None:
+        self.warnings.setdefault(PRESSURE_INPUT, why + f"; friction scheduled for the fallback "
+                                                       f"{self.ps['pressure.fallback_kpa']:g} kPa")
+
+    def _scheduled_pressure(self, t: float) -> float:
+        """Δp for the law this period: the measured one while valid, else the fallback."""
+        timeout = self.ps["pressure.timeout_s"]
+        if self._dp is not None and t - self._dp_t > timeout:
+            self._dp = None
+            self._warn_pressure(f"no pressure differential reading for {(t - self._dp_t) * 1e3:.0f} ms")
+        elif self._dp_t is None and t - self._t_first > timeout:
+            self._warn_pressure("no pressure differential reading received")
+        return self.ps["pressure.fallback_kpa"] if self._dp is None else self._dp
+
     def measured_current(self, t: float, amps: float) -> None:
         """Optional drive telemetry: a current beyond the hardware rating is an over-current."""
         limit = 1.1 * self.ps["limits.peak_current_a"]
@@ -185,9 +251,10 @@ class ValveDriver:
                 return False, "cannot reset: no valid demand"
             if self._meas_t is None or t - self._meas_t > ps["faults.resolver_timeout_s"]:
                 return False, "cannot reset: no resolver samples"
-        cleared = sorted(self.faults) + sorted(k for k in self.warnings if k == DEMAND_STALE)
+        cleared = sorted(self.faults) + sorted(k for k in self.warnings if k in (DEMAND_STALE, PRESSURE_INPUT))
         self.faults.clear()
         self.warnings.pop(DEMAND_STALE, None)
+        self.warnings.pop(PRESSURE_INPUT, None)     # latches again next period if still invalid
         self._tracking_since = None
         self.controller.reset_limits()
         return True, ("cleared: " + ", ".join(cleared)) if cleared else "nothing to clear"
@@ -200,6 +267,9 @@ class ValveDriver:
     def step(self, t: float) -> DriverOutput:
         ps = self.ps
         self._t = t
+        if self._t_first is None:
+            self._t_first = t
+        pressure = self.pressure_kpa = self._scheduled_pressure(t)
         # --- staleness checks
         if self._meas_t is not None and t - self._meas_t > ps["faults.resolver_timeout_s"]:
             self._latch(RESOLVER_STALE, f"no resolver sample for {(t - self._meas_t) * 1e3:.0f} ms")
@@ -219,7 +289,6 @@ class ValveDriver:
                                      dict(self.faults), dict(self.warnings))
             return self.last
         demand_rad = self._demand_pct / 100.0 * self.stroke
-        pressure = ps["pressure_differential_kpa"]
         if not self._armed:
             self.controller.reset(self._meas, pressure, self._arm_torque)
             self._arm_torque = 0.0        # re-arming after a fault starts from zero torque
@@ -286,6 +355,8 @@ class ValveDriver:
             "friction_valve_estimate_nm": est.valve_friction_nm, "friction_motor_estimate_nm": est.motor_friction_nm,
             "friction_trend": law.friction_trend(),
             "deadband_rad": law.deadband_rad(),
+            "pressure_differential_kpa": self.pressure_kpa,
+            "pressure_source": "fallback" if self._dp is None else "measured",
             "i2t_budget_used": self.controller.i2t_budget_fraction,
             "faults": ",".join(out.faults) or "none", "warnings": ",".join(out.warnings) or "none",
         }

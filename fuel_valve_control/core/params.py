@@ -51,9 +51,17 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("demand_timeout_s", 0.5, "s", "demand older than this is stale", 0.005, 60.0, runtime=True),
     Param("demand_timeout_action", "trip", "", "on a stale demand: hold the last demand or trip",
           choices=("hold", "trip"), runtime=True),
-    Param("pressure_differential_kpa", PRESSURE_MAX_KPA, "kPa",
-          "pressure differential reported by the supervisor; schedules friction-dependent terms",
-          0.0, PRESSURE_MAX_KPA, runtime=True),
+    # --- measured pressure differential (input topic pressure_differential) ----------------
+    Param("pressure.fallback_kpa", 0.0, "kPa", "Δp the friction-dependent terms are scheduled for while "
+          "the measured Δp is missing, stale or implausible (0: the lowest friction, which cannot "
+          "over-compensate and hunt)", 0.0, PRESSURE_MAX_KPA, runtime=True),
+    Param("pressure.timeout_s", 0.1, "s", "a measured Δp older than this is stale (also: none received "
+          "this long after the loop started)", 0.005, 60.0, runtime=True),
+    Param("pressure.range_margin_kpa", 310.0, "kPa", "readings beyond 0..pressure max by more than this "
+          "are implausible (within it they are clamped)", 0.0, PRESSURE_MAX_KPA, runtime=True),
+    Param("pressure.max_rate_kpa_s", 5.0e5, "kPa/s", "a change between two readings faster than this is "
+          "implausible (full scale in ~12 ms: faster than any fuel-system hydraulic transient)",
+          1.0, 1e8, low_open=True, runtime=True),
     # --- actuator ratings -----------------------------------------------------------------
     Param("limits.peak_current_a", 37.0, "A", "peak current (data sheet: 37 A for <= 20 ms)", 0.0, 40.0,
           low_open=True, runtime=True),
@@ -209,12 +217,35 @@ CONTROLLER_SPEC = ParamSpec("controller", [
              0.0, 100.0),
 ])
 
+#: parameters of the controller *node* only (ROS timing, telemetry, start-up); the node's schema
+#: is :data:`CONTROLLER_NODE_SPEC` = these + :data:`CONTROLLER_SPEC` (the core's), and
+#: ``config/controller.yaml`` is written from it
+CONTROLLER_NODE_PARAMS = (
+    Param("lockstep", False, "", "wait for a fresh demand each period (deterministic lockstep runs)"),
+    Param("diagnostics_rate_hz", 2.0, "Hz", "rate of /diagnostics", 0.1, 100.0),
+    Param("telemetry_decimation", 10, "", "publish position and estimate every N-th period (1 = every period)",
+          1, 10000),
+    Param("loop_thread", True, "", "real time: take resolver samples and demands on a lean helper node in its "
+          "own thread (lower latency than the main executor with its services and timers)"),
+    Param("initial_current_a", 0.0, "A", "q-current the loop starts from when it first arms: bumpless "
+          "take-over of a valve already held by a drive (the plant's start_held)", -40.0, 40.0),
+    Param("monitor_drive_telemetry", False, "", "subscribe to the plant's drive telemetry for the "
+          "measured-current check (one more 1 kHz subscription)"),
+)
+CONTROLLER_NODE_SPEC = CONTROLLER_SPEC.extended(CONTROLLER_NODE_PARAMS)
+
 
 def load_controller_params(path: str | Path | None = "default", overrides=None) -> ParamSet:
     """Controller parameters from ``config/controller.yaml`` (``"default"``), a file, or none."""
     if path == "default":
         path = default_config_dir() / "controller.yaml"
-    ps = CONTROLLER_SPEC.load(path, overrides)
+    # the file is the node's (CONTROLLER_NODE_SPEC): every key is validated, the core keeps its own
+    ps = CONTROLLER_SPEC.pick(CONTROLLER_NODE_SPEC.load(path), where=f"controller ({path})").replace(overrides or {})
+    check_consistency(ps)
+    return ps
+
+
+def check_consistency(ps: ParamSet) -> None:
+    """Cross-parameter rules a single range cannot express (raises :class:`ConfigError`)."""
     if ps["limits.continuous_current_a"] > ps["limits.peak_current_a"]:
         raise ConfigError("controller: limits.continuous_current_a must not exceed limits.peak_current_a")
-    return ps

@@ -5,10 +5,21 @@ Gains are designed here, at construction, from the nominal model (``model.*``) a
 ``design.*``/``observer.*``/``lqr.*``/``kalman.*`` parameters.  Mode changes at run time are
 bumpless: the new law starts from the last measurement with its integral state set so its
 first output equals the last applied torque.
+
+A replaced law (mode change, run-time parameter) is also bumpless in the command itself: in
+its first period the old law runs once more and the difference between the two outputs is
+added to the new law's torque, decaying with :attr:`PositionController.TRANSFER_TIME_S`, so the
+command continues from where it was and the new law takes over smoothly.
+
+Run-time parameters: :meth:`PositionController.reconfigure` rebuilds the law whenever a
+parameter it was built from changes.  Which parameters those are is recorded while the law is
+built (:attr:`PositionController.law_params`), so the rule cannot go stale when a law starts
+reading another parameter.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
@@ -65,8 +76,30 @@ def design_all(ps: ParamSet, model: NominalModel) -> Designs:
     return Designs(pid, placement, poles, lqr, observer_gain, kalman)
 
 
+class _ReadLog(Mapping[str, Any]):
+    """A read-only view of a parameter set that records which names were read."""
+
+    def __init__(self, values: Mapping[str, Any]):
+        self._values = values
+        self.read: set[str] = set()
+
+    def __getitem__(self, name: str) -> Any:
+        self.read.add(name)
+        return self._values[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+
 class PositionController:
     """Mode selection, torque-to-current conversion and current limiting."""
+
+    #: time constant of the bumpless-transfer offset after a law is replaced, s: slower than
+    #: the closed loop (12 Hz) so the new law's integrator takes the torque over smoothly
+    TRANSFER_TIME_S = 0.1
 
     def __init__(self, params: ParamSet | None = None):
         self.ps = params if params is not None else CONTROLLER_SPEC.defaults()
@@ -79,14 +112,27 @@ class PositionController:
         lim = self.ps
         self._limiter = CurrentLimiter(lim["limits.peak_current_a"], lim["limits.peak_time_s"],
                                        lim["limits.continuous_current_a"], self.period)
-        self.law: ControlLaw = self._build(self.ps["mode"])
+        self.law: ControlLaw
+        self.law_params: frozenset[str]
+        self.law, self.law_params = self._make_law(self.ps["mode"], self.ps)
         self._started = False
         self.last_current = 0.0
         self.last_torque = 0.0
+        self._outgoing: ControlLaw | None = None   # the replaced law, run once more for the transfer
+        self._transfer = 0.0                        # bumpless-transfer torque offset, N*m
+        self._transfer_decay = float(np.exp(-self.period / self.TRANSFER_TIME_S))
 
     # ------------------------------------------------------------------ construction
-    def _build(self, mode: str) -> ControlLaw:
-        ps, m, period, d = self.ps, self.model, self.period, self.designs
+    def _make_law(self, mode: str, ps: Mapping[str, Any]) -> tuple[ControlLaw, frozenset[str]]:
+        """The law for ``mode`` built from ``ps``, and the parameter names the build read."""
+        if mode not in MODES:
+            raise ValueError(f"unknown mode {mode!r}; allowed: {', '.join(MODES)}")
+        log = _ReadLog(ps)
+        law = self._build(mode, log)
+        return law, frozenset(log.read)
+
+    def _build(self, mode: str, ps: Mapping[str, Any]) -> ControlLaw:
+        m, period, d = self.model, self.period, self.designs
         if mode in ("pi", "pi_dither"):
             amp = ps["pi.dither_pct"] / 100.0 * m.stroke_rad if mode == "pi_dither" else 0.0
             return PIDLaw(d.pid, m, period, amp, ps["pi.dither_hz"])
@@ -104,14 +150,14 @@ class PositionController:
             feedback = d.lqr
         seating = Seating(ps["seat.margin_pct"] / 100.0 * m.stroke_rad, ps["seat.overtravel_rad"],
                           ps["seat.torque_nm"], m.stroke_rad)
-        main = StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode),
+        main = StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode, ps),
                                 seating, speed_window=ps["ff.speed_window_periods"])
         if mode != "observer_fp":
             return main
-        return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(), self.learner))
+        return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner))
 
-    def _fine_config(self) -> FineConfig:
-        ps, per = self.ps, self.period
+    def _fine_config(self, ps: Mapping[str, Any]) -> FineConfig:
+        per = self.period
         return FineConfig(ps["fine.tolerance_counts"] * RESOLVER_COUNT_RAD,
                           max(int(round(ps["fine.engage_time_s"] / per)), 1),
                           max(int(round(ps["fine.observe_time_s"] / per)), 1),
@@ -122,8 +168,8 @@ class PositionController:
                           ps["fine.learn_gain"], ps["fine.max_pulses"],
                           ps["fine.servo_hz"], ps["fine.max_move_rad"])
 
-    def _compensator(self, mode: str) -> Compensator:
-        ps, m, period = self.ps, self.model, self.period
+    def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
+        m, period = self.model, self.period
         if mode == "fc_gain":
             return StictionGain(ps["fc_gain.gain"], ps["fc_gain.error_scale_rad"])
         if mode not in ("observer_fc", "kalman_fc", "observer_ff", "observer_fp"):
@@ -153,13 +199,40 @@ class PositionController:
         """(Re)build the law for ``mode`` from the present parameters.  With a measurement the
         new law continues bumplessly from the last applied torque; without one it starts at
         the next :meth:`update`."""
-        if mode not in MODES:
-            raise ValueError(f"unknown mode {mode!r}; allowed: {', '.join(MODES)}")
-        self.law = self._build(mode)
+        law, names = self._make_law(mode, self.ps)
+        self._install(law, names, meas, pressure_kpa)
+
+    def _install(self, law: ControlLaw, names: frozenset[str], meas: Measurement | None,
+                 pressure_kpa: float) -> None:
+        outgoing, self.law, self.law_params = self.law, law, names
         if meas is not None and self._started:
             self.law.reset(meas, self.last_torque, pressure_kpa)
+            self._outgoing = outgoing
         else:
             self._started = False
+            self._outgoing, self._transfer = None, 0.0
+
+    def prepare(self, ps: ParamSet) -> tuple[ControlLaw, frozenset[str]] | None:
+        """What :meth:`reconfigure` to ``ps`` would install: a new law (and the names it read)
+        if the mode or a parameter the present law was built from changes, else ``None``.
+        Changes nothing; raises if the law cannot be built."""
+        if ps["mode"] == self.ps["mode"] and all(ps[k] == self.ps[k] for k in self.law_params):
+            return None
+        return self._make_law(ps["mode"], ps)
+
+    def reconfigure(self, ps: ParamSet, meas: Measurement | None, pressure_kpa: float,
+                    prepared: tuple[ControlLaw, frozenset[str]] | None) -> bool:
+        """Adopt run-time parameters ``ps``: current limits at once; the law ``prepared`` by
+        :meth:`prepare` for ``ps`` (``None``: the present law stays) is installed, bumplessly
+        from the last applied torque when ``meas`` is given.  Building first and swapping here
+        keeps a change atomic.  Returns whether the law was replaced."""
+        new_law = prepared
+        self.ps = ps
+        self.configure_limits(ps["limits.peak_current_a"], ps["limits.peak_time_s"],
+                              ps["limits.continuous_current_a"])
+        if new_law is not None:
+            self._install(*new_law, meas, pressure_kpa)
+        return new_law is not None
 
     def reset_learning(self) -> None:
         """Forget what the fine-positioning stage learned (back to the nominal model)."""
@@ -169,6 +242,7 @@ class PositionController:
         """(Re)arm from a measurement, starting from ``torque_nm`` (0 after a trip)."""
         self._limiter.reset()
         self.law.reset(meas, torque_nm, pressure_kpa)
+        self._outgoing, self._transfer = None, 0.0
         self.last_torque = torque_nm
         self.last_current = torque_nm / self.model.torque_constant_nm_per_a
         self._started = True
@@ -179,6 +253,12 @@ class PositionController:
             self.reset(meas, pressure_kpa)
         kt = self.model.torque_constant_nm_per_a
         torque = self.law.update(t, demand_rad, meas, pressure_kpa)
+        if self._outgoing is not None:       # first period of a new law: continue the old command
+            self._transfer = self._outgoing.update(t, demand_rad, meas, pressure_kpa) - torque
+            self._outgoing = None
+        else:
+            self._transfer *= self._transfer_decay
+        torque += self._transfer
         request = torque / kt
         current = self._limiter.apply(request)
         self.last_current = current
@@ -199,6 +279,11 @@ class PositionController:
         """New current limits (A, s), effective from the next period; the I²t budget spent so
         far is kept."""
         self._limiter.configure(peak_a, peak_time_s, continuous_a)
+
+    @property
+    def current_limits(self) -> tuple[float, float]:
+        """(peak current A, I2t budget above the continuous rating A^2*s) in force."""
+        return self._limiter.peak, self._limiter.budget
 
     def reset_limits(self) -> None:
         """Refill the I²t budget and clear the overload timer (after a fault reset)."""

@@ -5,9 +5,9 @@ offline simulator runs.  Each ``resolver`` sample triggers one control period (t
 is the loop's clock, so the command leaves as soon as the measurement arrives); a watchdog
 timer keeps the fault logic running when samples stop, so silence trips the drive too.
 
-Topics (SPEC §4): subscribes ``demand`` (percent), ``demand_ma`` (4-20 mA), ``resolver``
-and, optionally, the plant's ``drive`` telemetry (measured current for the over-current
-check); publishes ``current_command`` (A), ``drive_enable``, ``position`` (percent),
+Topics (SPEC §4): subscribes ``demand`` (percent), ``demand_ma`` (4-20 mA), ``resolver``,
+``pressure_differential`` (measured Δp, kPa: schedules the friction terms) and, optionally,
+the plant's ``drive`` telemetry (measured current for the over-current check); publishes ``current_command`` (A), ``drive_enable``, ``position`` (percent),
 ``estimate`` and ``/diagnostics``.  Services ``~/trip`` and ``~/reset`` (std_srvs/Trigger).
 
 With ``lockstep:=true`` (and ``use_sim_time:=true``) each period waits for a fresh demand as
@@ -22,13 +22,12 @@ import threading
 import time
 
 from rclpy.node import Node
-from rcl_interfaces.msg import SetParametersResult
 
 from ..common import contract
 from . import interface as ri
 from ..common.paramspec import ConfigError
 
-from ..core.params import CONTROLLER_SPEC, load_controller_params
+from ..core.params import CONTROLLER_NODE_SPEC, CONTROLLER_SPEC, load_controller_params
 from ..core.driver import ValveDriver
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
@@ -47,27 +46,17 @@ def locked(method):
 class ControllerNode(Node):
     def __init__(self, **kwargs):
         super().__init__("controller", **kwargs)
-        ri.declare_spec(self, CONTROLLER_SPEC)
-        ri.declare_read_only(self, {
-            "lockstep": (False, "wait for a fresh demand each period (deterministic lockstep runs)"),
-            "diagnostics_rate_hz": (2.0, "rate of /diagnostics [Hz]"),
-            "telemetry_decimation": (10, "publish position and estimate every N-th period (1 = every period)"),
-            "loop_thread": (True, "real time: take resolver samples and demands on a lean helper node in its own "
-                                  "thread (lower latency than the main executor with its services and timers)"),
-            "initial_current_a": (0.0, "q-current the loop starts from when it first arms [A]: bumpless take-over "
-                                       "of a valve already held by a drive (the plant's start_held)"),
-            "monitor_drive_telemetry": (False, "subscribe to the plant's drive telemetry for the measured-current "
-                                               "check (one more 1 kHz subscription)"),
-        })
+        ri.declare_spec(self, CONTROLLER_NODE_SPEC)
         try:
-            ps = load_controller_params(None, ri.read_spec(self, CONTROLLER_SPEC))
+            node_ps = CONTROLLER_NODE_SPEC.defaults().replace(ri.read_spec(self, CONTROLLER_NODE_SPEC))
+            ps = load_controller_params(None, CONTROLLER_SPEC.pick(node_ps))
         except ConfigError as exc:
             raise SystemExit(f"controller: invalid parameters: {exc}") from None
         self.driver = ValveDriver(ps)
-        initial_a = float(self.get_parameter("initial_current_a").value)
+        initial_a = node_ps["initial_current_a"]
         if initial_a:
             self.driver.start_from_torque(initial_a * self.driver.controller.model.torque_constant_nm_per_a)
-        self.lockstep = bool(self.get_parameter("lockstep").value)
+        self.lockstep = node_ps["lockstep"]
         self.stroke = self.driver.stroke
         self._fresh_demand = False
         self._pending_sample = None
@@ -91,29 +80,31 @@ class ControllerNode(Node):
         self._lock = threading.Lock()
         self.loop_io = None
         # lockstep runs keep everything on one thread: simpler and measured deterministic
-        if self.get_parameter("loop_thread").value and not self.lockstep:
+        if node_ps["loop_thread"] and not self.lockstep:
             # the demand too: a supervisor at 100-200 Hz would otherwise wake the main
             # executor (a few hundred µs of Python each time) and hold up the next sample
             self.loop_io = ri.LoopIO(self)
             subscribe = self.loop_io.subscribe
         else:
             subscribe = functools.partial(ri.quiet_subscription, self)
+        # Δp first: in lockstep it was published before the resolver sample of the same period
+        subscribe(Float64, contract.PRESSURE_DIFFERENTIAL, self.on_pressure)
         subscribe(Float64, contract.DEMAND, self.on_demand)
         subscribe(Float64, contract.DEMAND_MA, self.on_demand_ma)
         subscribe(JointState, contract.RESOLVER, self.on_resolver)
-        if self.get_parameter("monitor_drive_telemetry").value:
+        if node_ps["monitor_drive_telemetry"]:
             ri.quiet_subscription(self, Float64MultiArray, contract.DRIVE, self.on_drive)
-        self._decimation = max(int(self.get_parameter("telemetry_decimation").value), 1)
+        self._decimation = node_ps["telemetry_decimation"]
         self._periods = 0
         self._compute = ComputeTime()
         self.create_service(Trigger, "~/trip", self.on_trip)
         self.create_service(Trigger, "~/reset", self.on_reset)
-        self.add_on_set_parameters_callback(self.on_set_parameters)
+        ri.handle_parameter_changes(self, CONTROLLER_SPEC, self.check_parameters, self.apply_parameters)
         period = self.driver.period
         # the watchdog runs the fault logic when no samples arrive (silence must trip)
         if self.loop_io is None:
             self.create_timer(max(5.0 * period, 0.01), self.watchdog)
-        self.create_timer(1.0 / float(self.get_parameter("diagnostics_rate_hz").value), self.publish_diagnostics)
+        self.create_timer(1.0 / node_ps["diagnostics_rate_hz"], self.publish_diagnostics)
         if self.loop_io is not None:
             self.loop_io.start(idle=self.watchdog, idle_period_s=max(5.0 * period, 0.01))
         self.get_logger().info(f"controller up: mode {ps['mode']}, loop {ps['loop_rate_hz']:g} Hz, demand from "
@@ -143,6 +134,10 @@ class ControllerNode(Node):
         if self._pending_sample is not None:       # lockstep: the sample was waiting for it
             sample, self._pending_sample = self._pending_sample, None
             self.run_period(sample)
+
+    @locked
+    def on_pressure(self, msg) -> None:
+        self.driver.pressure_differential(self.now_s(), msg.data)
 
     @locked
     def on_drive(self, msg) -> None:
@@ -242,16 +237,14 @@ class ControllerNode(Node):
 
     # ------------------------------------------------------------------ parameters
     @locked
-    def on_set_parameters(self, params) -> SetParametersResult:
-        changes = {p.name: p.value for p in params if p.name in CONTROLLER_SPEC}
-        if not changes:
-            return SetParametersResult(successful=True)
-        try:
-            self.driver.set_params(changes)
-        except (ConfigError, ValueError) as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        self.get_logger().info(f"parameters changed: {changes}")
-        return SetParametersResult(successful=True)
+    def check_parameters(self, changes: dict) -> None:
+        """Validation only (on-set): raises ``ValueError`` for a change the driver would refuse."""
+        self.driver.check_params(changes)
+
+    @locked
+    def apply_parameters(self, changes: dict) -> None:
+        """After acceptance (post-set): the driver swaps in the new set (and law) atomically."""
+        self.driver.set_params(changes)
 
     # ------------------------------------------------------------------ diagnostics
     @locked

@@ -123,11 +123,35 @@ def declare_spec(node, spec, values=None, names: Iterable[str] | None = None) ->
         node.declare_parameter(p.name, default, desc)
 
 
-def declare_read_only(node, params: dict) -> None:
-    """Declare node-level, start-up-only parameters: ``{name: (default, description)}``."""
-    from rcl_interfaces.msg import ParameterDescriptor
-    for name, (default, description) in params.items():
-        node.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True))
+def handle_parameter_changes(node, spec, check, apply) -> None:
+    """Run-time parameter changes of ``spec``'s parameters, in two steps as rclpy intends:
+    ``check(changes)`` validates in the on-set callback (raise ``ValueError`` to reject, with
+    the message as the reason; no side effects there), and ``apply(changes)`` takes effect in
+    the post-set callback, once every change of the request has been accepted.  ``changes`` is
+    ``{name: value}`` of the request's parameters that belong to ``spec``."""
+    from rcl_interfaces.msg import SetParametersResult
+
+    def changes_of(params) -> dict:
+        return {p.name: list(p.value) if spec.params[p.name].kind is list else p.value
+                for p in params if p.name in spec}
+
+    def on_set(params) -> SetParametersResult:
+        changes = changes_of(params)
+        try:
+            if changes:
+                check(changes)
+        except ValueError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def post_set(params) -> None:
+        changes = changes_of(params)
+        if changes:
+            apply(changes)
+            node.get_logger().info(f"parameters changed: {changes}")
+
+    node.add_on_set_parameters_callback(on_set)
+    node.add_post_set_parameters_callback(post_set)
 
 
 def read_spec(node, spec, names: Iterable[str] | None = None) -> dict:
@@ -136,7 +160,8 @@ def read_spec(node, spec, names: Iterable[str] | None = None) -> dict:
     for p in spec:
         if names is not None and p.name not in names:
             continue
-        out[p.name] = node.get_parameter(p.name).value
+        value = node.get_parameter(p.name).value
+        out[p.name] = list(value) if p.kind is list else value
     return out
 
 

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
+from ..common.paramspec import ConfigError, Param, ParamSpec
 
 # Start-up to core idle as in the field recordings (dissertation figs 2-1, 2-5): light-off
 # and acceleration with the demand moving between 23 and 28 % in ramps and steps, then
@@ -256,3 +257,62 @@ def _make_clean(spec: Mapping[str, Any], base_dir: Path | None) -> Profile:
                                      float(spec.get("low", 5.0)), float(spec.get("high", 95.0))), "previous")
     raise ProfileError(f"unknown profile type {kind!r}; allowed: constant, step, ramp, sine, chirp, points, "
                        f"startup, csv, plateaus")
+
+
+PROFILE_TYPES = ("constant", "step", "ramp", "sine", "chirp", "points", "startup", "csv")
+
+
+def _pct(name: str, default: float, description: str) -> Param:
+    # a demand emulator may also send out-of-range demands (the controller clamps or rejects them)
+    return Param(name, default, "%", description, -50.0, 150.0, runtime=True)
+
+
+def _time(name: str, default: float, description: str) -> Param:
+    return Param(name, default, "s", description, 0.0, 1e6, runtime=True)
+
+
+#: the demand profile as ROS parameters of the ``demand`` node (all changeable at run time:
+#: the new profile starts from the time of the change)
+PROFILE_SPEC = ParamSpec("demand", [
+    Param("profile", "startup", "", "demand profile type", choices=PROFILE_TYPES, runtime=True),
+    _pct("percent", 20.0, "constant: demand"),
+    _pct("initial", 20.0, "step/ramp: start value"),
+    _pct("final", 22.0, "step/ramp: end value"),
+    _time("at_s", 1.0, "step: time of the step"),
+    _time("start_s", 1.0, "ramp/chirp: start time"),
+    _time("duration_s", 10.0, "ramp/chirp: duration"),
+    _pct("offset", 50.0, "sine/chirp: centre"),
+    _pct("amplitude", 2.0, "sine/chirp: amplitude"),
+    Param("frequency_hz", 1.0, "Hz", "sine: frequency", 0.0, 1000.0, runtime=True),
+    Param("f0_hz", 0.5, "Hz", "chirp: start frequency", 0.0, 1000.0, low_open=True, runtime=True),
+    Param("f1_hz", 20.0, "Hz", "chirp: end frequency", 0.0, 1000.0, low_open=True, runtime=True),
+    Param("points", [0.0, 20.0], "s, %", "points: flat list t0, p0, t1, p1, ...", runtime=True),
+    Param("interpolation", "linear", "", "points/csv: interpolation between points",
+          choices=("linear", "previous"), runtime=True),
+    Param("csv_path", "", "", "csv: file with t,percent rows", runtime=True),
+])
+
+#: parameters of the demand *node* only; its schema is :data:`DEMAND_NODE_SPEC` = these +
+#: :data:`PROFILE_SPEC`, and ``config/demand.yaml`` is written from it
+DEMAND_NODE_PARAMS = (
+    Param("output", "percent", "", "percent: topic demand (%); ma: topic demand_ma (4-20 mA)",
+          choices=("percent", "ma"), runtime=True),
+    Param("publish_rate_hz", 200.0, "Hz", "publish rate in real time", 1.0, 10000.0),
+    Param("lockstep", False, "", "publish once per /clock tick (deterministic lockstep runs)"),
+)
+DEMAND_NODE_SPEC = PROFILE_SPEC.extended(DEMAND_NODE_PARAMS)
+
+
+def profile_from_params(values: Mapping[str, Any]) -> Profile:
+    """The profile described by :data:`PROFILE_SPEC` values (validated first; raises
+    :class:`ProfileError` with the reason)."""
+    try:
+        ps = PROFILE_SPEC.pick(values)
+    except ConfigError as exc:
+        raise ProfileError(str(exc)) from None
+    flat = list(ps["points"])
+    if len(flat) % 2:
+        raise ProfileError("points must hold t, percent pairs")
+    spec = {k: ps[k] for k in PROFILE_SPEC.params if k not in ("profile", "points", "csv_path")}
+    spec.update(type=ps["profile"], points=list(zip(flat[0::2], flat[1::2])), path=ps["csv_path"])
+    return make_profile(spec)

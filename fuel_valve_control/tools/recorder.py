@@ -45,6 +45,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..common import contract
+from ..common.paramspec import Param, ParamSpec
 from ..ros import interface as ri
 
 #: per-topic queue of the subscriptions: a deep reliable queue absorbs bursts while a chunk
@@ -53,6 +54,16 @@ DEPTH = 1000
 BAG_VERSION = 9
 CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
 STORAGES = ("mcap", "sqlite3")
+#: the recorder node's parameters (all start-up only)
+RECORDER_SPEC = ParamSpec("recorder", [
+    Param("topics", list(contract.TOPIC_TYPES), "", "topics to record; relative names follow the node namespace; "
+          "entries other than the suite's topics as 'name:pkg/msg/Type'. Default: every suite topic "
+          "(+ /clock with use_sim_time)"),
+    Param("output", "", "", "bag directory to create (default fuel_valve_<YYYYmmdd_HHMMSS> in the working "
+          "directory)"),
+    Param("overwrite", False, "", "replace an existing bag at output (never a non-bag directory)"),
+    Param("storage", "mcap", "", "rosbag2 storage plugin", choices=STORAGES),
+])
 #: longest time spent, after a stop request, taking messages that are already queued, s
 DRAIN_LIMIT_S = 0.5
 #: the drain ends once no message arrived for this long, s
@@ -248,25 +259,11 @@ class Recorder(Node):
 
     def __init__(self, **kwargs):
         super().__init__("recorder", **kwargs)
-        from rcl_interfaces.msg import ParameterDescriptor, ParameterType
         from rosbags.rosbag2 import WriterError
         from rosbags.typesys import Stores, get_typestore
 
-        default_topics = list(contract.TOPIC_TYPES)
-        self.declare_parameter("topics", default_topics, ParameterDescriptor(
-            type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
-            description="topics to record; relative names follow the node namespace; entries other than "
-                        "the suite's topics as 'name:pkg/msg/Type'. Default: every suite topic "
-                        "(+ /clock with use_sim_time)"))
-        self.declare_parameter("output", "", ParameterDescriptor(
-            type=ParameterType.PARAMETER_STRING, read_only=True,
-            description="bag directory to create (default fuel_valve_<YYYYmmdd_HHMMSS> in the working directory)"))
-        self.declare_parameter("overwrite", False, ParameterDescriptor(
-            type=ParameterType.PARAMETER_BOOL, read_only=True,
-            description="replace an existing bag at output (never a non-bag directory)"))
-        self.declare_parameter("storage", "mcap", ParameterDescriptor(
-            type=ParameterType.PARAMETER_STRING, read_only=True, additional_constraints="mcap | sqlite3",
-            description="rosbag2 storage plugin"))
+        default_topics = RECORDER_SPEC.params["topics"].default
+        ri.declare_spec(self, RECORDER_SPEC)
 
         storage = self.get_parameter("storage").value
         if storage not in STORAGES:

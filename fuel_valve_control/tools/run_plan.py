@@ -172,10 +172,8 @@ def plan_run(scenario: Scenario | None, timing: str = OFFLINE, *, mode: str | No
         scenario = parse_scenario(STARTUP)
     plant = dict(scenario.plant)
     controller = dict(scenario.controller)
-    if scenario.pressure_kpa is not None:
+    if scenario.pressure_kpa is not None:      # set on the plant only: the controller measures it
         plant["pressure_differential_kpa"] = scenario.pressure_kpa
-        # the controller is told the plant's Δp (until it measures Δp as an input)
-        controller.setdefault("pressure_differential_kpa", scenario.pressure_kpa)
     plant.update(plant_overrides or {})
     controller.update(controller_overrides or {})
     if seed is not None:

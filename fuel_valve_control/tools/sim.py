@@ -9,9 +9,9 @@ scenario, mode or parameter: a message on stderr and exit code 2.
 
 ``--trace`` writes the run's time series as CSV (columns: :mod:`.trace`).  The run's set-up
 (parameters, initial state, events) is the run-plan's (:mod:`.run_plan`), shared with
-``fuel_valve_demo``.  The loop is the same as on ROS: at every control period the resolver is sampled, the
-driver (the controller node's core) computes the current command, and the plant integrates
-one period with it.
+``fuel_valve_demo``.  The loop is the same as on ROS: at every control period the resolver is
+sampled (and the pressure differential, at the transducer's rate), the driver (the controller
+node's core) computes the current command, and the plant integrates one period with it.
 """
 from __future__ import annotations
 
@@ -110,6 +110,9 @@ def simulate_plan(plan: RunPlan) -> SimResult:
             apply_event(ev, plant, driver)
         pct = demand.value(t)
         driver.demand_percent(t, pct)
+        dp = plant.pressure_sample()              # the Δp transducer, at its own rate
+        if dp is not None:
+            driver.pressure_differential(t, dp)
         sample = plant.resolver()
         if sample is not None:
             driver.resolver(sample.stamp_s, sample.motor_rad, sample.valve_rad)

@@ -40,8 +40,6 @@ PLANT_SPEC = ParamSpec("plant", [
     # --- timing ----------------------------------------------------------------------------
     Param("physics_rate_hz", 20000.0, "Hz", "fixed integration rate of the physics (and the current loop)",
           1000.0, 200000.0),
-    Param("publish_rate_hz", 1000.0, "Hz", "resolver / telemetry publish rate (ROS node)", 10.0, 10000.0),
-    Param("lockstep", False, "", "advance one control period per current_command and publish /clock (ROS node)"),
     # --- PMS motor and drive ---------------------------------------------------------------
     Param("motor.pole_pairs", 2, "", "pole pairs p", 1, 32),
     Param("motor.resistance_ohm", 0.15, "ohm", "stator phase resistance R", 0.0, 10.0),
@@ -110,7 +108,30 @@ PLANT_SPEC = ParamSpec("plant", [
           0.0, 1000.0, runtime=True),
     Param("resolver.delay_s", 50e-6, "s", "conversion delay of both resolvers (rounded to physics steps)",
           0.0, 0.02),
+    # --- pressure-differential transducer (the controller's Δp input, SPEC §4) ---------------
+    Param("pressure_sensor.rate_hz", 100.0, "Hz", "sample rate of the measured pressure differential",
+          50.0, 10000.0),
+    Param("pressure_sensor.noise_kpa", 0.0, "kPa", "rms noise of the measured pressure differential "
+          "(0 = exact, so the documented control figures hold; ~6 = 0.1 % of full scale, an industrial "
+          "transducer)", 0.0, 500.0, runtime=True),
 ])
+
+#: parameters of the plant *node* only (timing and start-up of the ROS process); the node's
+#: schema is :data:`PLANT_NODE_SPEC` = these + :data:`PLANT_SPEC`, and ``config/plant.yaml`` is
+#: written from it (``python -m fuel_valve_control write-config``)
+PLANT_NODE_PARAMS = (
+    Param("publish_rate_hz", 1000.0, "Hz", "real time: resolver / telemetry publish rate (one control period)",
+          10.0, 10000.0),
+    Param("lockstep", False, "", "advance one control period per current_command and publish /clock"),
+    Param("lockstep_participants", 2, "", "lockstep: number of nodes subscribed to /clock (use_sim_time nodes: "
+          "controller, demand, recorder...) to wait for before the first step", 0, 100),
+    Param("stop_after_s", 0.0, "s", "lockstep: stop advancing once the plant time reaches this (0: never), so "
+          "a recorded run has exactly this length", 0.0, 1e6),
+    Param("start_held", False, "", "start at rest at initial_position_rad held there by the drive (coupling "
+          "twisted, holding current flowing), as the offline simulator's initial_percent does; false: at rest "
+          "with the drive off"),
+)
+PLANT_NODE_SPEC = PLANT_SPEC.extended(PLANT_NODE_PARAMS)
 
 
 
@@ -118,7 +139,8 @@ def load_plant_params(path: str | Path | None = "default", overrides=None) -> Pa
     """Plant parameters from ``config/plant.yaml`` (``"default"``), another file, or none."""
     if path == "default":
         path = default_config_dir() / "plant.yaml"
-    ps = PLANT_SPEC.load(path, overrides)
+    # the file is the node's (PLANT_NODE_SPEC): every key is validated, the physics keeps its own
+    ps = PLANT_SPEC.pick(PLANT_NODE_SPEC.load(path), where=f"plant ({path})").replace(overrides or {})
     check_consistency(ps)
     return ps
 

@@ -6,6 +6,7 @@ Typical use (one control period at a time)::
     plant.set_command(iq_ref_a=3.0, enabled=True)
     plant.advance(1e-3)                 # integrates 20 physics steps at 20 kHz
     sample = plant.resolver()           # ResolverSample or None (dropout)
+    dp = plant.pressure_sample()        # measured Δp, kPa, when the transducer samples, else None
     plant.valve_angle, plant.telemetry()
 
 All angles in rad (0 = closed), velocities rad/s, torques N*m, currents A, time s.
@@ -33,6 +34,8 @@ DRIVE_HARDWARE_LIMIT_A = 40.0
 #: friction scatter: draws generated per block, and the generator stream (beside the seed)
 SCATTER_BLOCK = 4096
 SCATTER_STREAM = 1
+#: random stream of the Δp transducer's noise (its own, like the scatter's)
+PRESSURE_STREAM = 2
 
 
 @dataclass(frozen=True)
@@ -123,6 +126,10 @@ class Plant:
         # friction scatter: its own stream, so switching it on leaves the resolver noise alone
         self._scatter_rng = np.random.default_rng([self._ps["seed"], SCATTER_STREAM])
         self._scatter = self._scatter_rng.standard_normal(SCATTER_BLOCK)
+        # the Δp transducer has a generator of its own: its noise leaves the resolvers' unchanged
+        self._dp_rng = np.random.default_rng([self._ps["seed"], PRESSURE_STREAM])
+        self._dp_every = max(int(round(1.0 / (self._ps["pressure_sensor.rate_hz"] * self.dt))), 1)
+        self._dp_next_step = 0
         self._steps = 0
         self._iq_ref = 0.0
         self._enabled = 0.0
@@ -161,18 +168,23 @@ class Plant:
     def params(self) -> ParamSet:
         return self._ps
 
-    def set_params(self, changes) -> None:
-        """Apply run-time parameter changes (validated; on error nothing changes).
-
-        Structural parameters (rates, inertias, resolver bits...) need a new Plant; changing
-        them here raises ``ValueError``.
-        """
+    def check_params(self, changes) -> ParamSet:
+        """The parameter set ``changes`` would give; raises (``ConfigError``/``ValueError``) if a
+        value is invalid or not changeable at run time.  Changes nothing."""
         new = self._ps.replace(changes)
         check_consistency(new)
         fixed = [k for k in changes if not new.spec.params[k].runtime and new[k] != self._ps[k]]
         if fixed:
             raise ValueError(f"plant: {', '.join(fixed)} cannot change at run time; restart the plant")
-        self._apply(new)
+        return new
+
+    def set_params(self, changes) -> None:
+        """Apply run-time parameter changes (validated first; on error nothing changes).
+
+        Structural parameters (rates, inertias, resolver bits...) need a new Plant; changing
+        them here raises ``ValueError``.
+        """
+        self._apply(self.check_params(changes))
 
     def _apply(self, ps: ParamSet) -> None:
         pack_parameters(ps, self.P)
@@ -258,6 +270,25 @@ class Plant:
             return None
         motor = self._motor_resolver.quantise(true_motor)
         return ResolverSample(self.time - self._delay_steps * self.dt, motor, valve)
+
+    def pressure_differential(self) -> float:
+        """The Δp transducer read now, kPa: the true differential plus seeded Gaussian noise of
+        ``pressure_sensor.noise_kpa`` rms (not clamped: a real transducer reads a little below
+        zero or above full scale too)."""
+        noise = self._ps["pressure_sensor.noise_kpa"]
+        dp = self._ps["pressure_differential_kpa"]
+        return float(dp + noise * self._dp_rng.standard_normal()) if noise > 0.0 else float(dp)
+
+    def pressure_sample(self) -> float | None:
+        """The measured Δp (kPa) if the transducer samples now (every 1/``pressure_sensor.rate_hz``
+        of plant time, the first at the first call), else ``None``.  Call once per control
+        period: the offline simulator and the plant node both do, so both see the same samples."""
+        if self._steps < self._dp_next_step:
+            return None
+        nxt = self._dp_next_step + self._dp_every
+        # behind schedule (a stalled real-time loop): resynchronise instead of a burst of samples
+        self._dp_next_step = nxt if nxt > self._steps else self._steps + self._dp_every
+        return self.pressure_differential()
 
     @property
     def valve_angle(self) -> float:

@@ -2,8 +2,10 @@
 
 Subscribes ``current_command`` (q-current reference, A) and ``drive_enable``; publishes
 ``resolver`` (measured angles, stamp = sample time), ``joint_states`` (ground truth) and
-``drive`` (labelled telemetry) at ``publish_rate_hz``, plus loop statistics on
-``/diagnostics`` once a second.
+``drive`` (labelled telemetry) at ``publish_rate_hz``, ``pressure_differential`` (the Δp
+transducer, kPa, at ``pressure_sensor.rate_hz`` of plant time, with
+``pressure_sensor.noise_kpa`` rms noise), plus loop statistics on ``/diagnostics`` once a
+second.
 
 Two timing modes:
 
@@ -27,13 +29,12 @@ import threading
 import time
 
 from rclpy.node import Node
-from rcl_interfaces.msg import SetParametersResult
 
 from fuel_valve_control.common import contract
 from fuel_valve_control.ros import interface as ri
 from fuel_valve_control.common.paramspec import ConfigError
 from ..physics.plant import Plant
-from ..physics.params import PLANT_SPEC, check_consistency
+from ..physics.params import PLANT_NODE_SPEC, PLANT_SPEC, check_consistency
 
 
 #: lockstep: wall time between seeing every participant and starting, s
@@ -68,28 +69,19 @@ class LoopStats:
 class PlantNode(Node):
     def __init__(self, **kwargs):
         super().__init__("plant", **kwargs)
-        ri.declare_spec(self, PLANT_SPEC)
-        ri.declare_read_only(self, {
-            "lockstep_participants": (2, "lockstep: number of nodes subscribed to /clock (use_sim_time nodes: "
-                                         "controller, demand, recorder...) to wait for before the first step"),
-            "stop_after_s": (0.0, "lockstep: stop advancing once the plant time reaches this [s] (0: never), so "
-                                  "a recorded run has exactly this length"),
-            "start_held": (False, "start at rest at initial_position_rad held there by the drive (coupling "
-                                  "twisted, holding current flowing), as the offline simulator's initial_percent "
-                                  "does; false: at rest with the drive off"),
-        })
+        ri.declare_spec(self, PLANT_NODE_SPEC)
         try:
-            ps = PLANT_SPEC.validate(ri.read_spec(self, PLANT_SPEC))
-            self.ps = PLANT_SPEC.defaults().replace(ps)
+            node_ps = PLANT_NODE_SPEC.defaults().replace(ri.read_spec(self, PLANT_NODE_SPEC))
+            self.ps = PLANT_SPEC.pick(node_ps)
             check_consistency(self.ps)
         except ConfigError as exc:
             raise SystemExit(f"plant: invalid parameters: {exc}") from None
         self.plant = Plant(self.ps)
-        self.period = 1.0 / self.ps["publish_rate_hz"]
-        self.lockstep = bool(self.ps["lockstep"])
+        self.period = 1.0 / node_ps["publish_rate_hz"]
+        self.lockstep = node_ps["lockstep"]
         self._iq = 0.0
         self._enable = False
-        if self.get_parameter("start_held").value:
+        if node_ps["start_held"]:
             self._iq, self._enable = self.plant.hold_at(self.ps["initial_position_rad"]), True
         self._command_rejected = False
         self._bad_commands = 0
@@ -103,6 +95,8 @@ class PlantNode(Node):
         self.pub_resolver = ri.quiet_publisher(self, JointState, contract.RESOLVER)
         self.pub_truth = ri.quiet_publisher(self, JointState, contract.JOINT_STATES)
         self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, contract.DRIVE)
+        self.pub_pressure = ri.quiet_publisher(self, Float64, contract.PRESSURE_DIFFERENTIAL)
+        self._float = Float64
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
         # the loop's inputs are taken by their own lean thread (see LoopIO); drive_enable first:
         # in lockstep a command steps the plant at once, with the enable state it applies to
@@ -116,7 +110,7 @@ class PlantNode(Node):
             self.loop_io.subscribe(Bool, contract.DRIVE_ENABLE, self.on_enable)
             self.loop_io.subscribe(Float64, contract.CURRENT_COMMAND, self.on_command)
             self.loop_io.start()
-        self.add_on_set_parameters_callback(self.on_set_parameters)
+        ri.handle_parameter_changes(self, PLANT_SPEC, self.plant.check_params, self.apply_parameters)
         self.create_timer(1.0, self.publish_diagnostics)
         if self.lockstep:
             from builtin_interfaces.msg import Time
@@ -125,8 +119,8 @@ class PlantNode(Node):
             self.pub_clock = ri.quiet_publisher(self, Clock, contract.CLOCK, ri.TELEMETRY_QOS)
             self._started = False
             self._waiting_since = time.monotonic()
-            self._participants = int(self.get_parameter("lockstep_participants").value)
-            self._stop_after = float(self.get_parameter("stop_after_s").value)
+            self._participants = node_ps["lockstep_participants"]
+            self._stop_after = node_ps["stop_after_s"]
             self._finished = False
             self._ready_since = None
             self._start_timer = self.create_timer(0.05, self.try_start)
@@ -244,6 +238,9 @@ class PlantNode(Node):
             self.pub_clock.publish(self._clock_msg(clock=stamp))
         else:
             stamp = self.get_clock().now().to_msg()
+        dp = self.plant.pressure_sample()
+        if dp is not None:        # first: in lockstep the controller uses it this very period
+            self.pub_pressure.publish(self._float(data=dp))
         sample = self.plant.resolver()
         self._got_command = False
         self._last_publish_mono = time.monotonic()
@@ -256,20 +253,13 @@ class PlantNode(Node):
         self.pub_drive.publish(ri.labelled_array(contract.TELEMETRY_LABELS, self.plant.telemetry()))
 
     # ------------------------------------------------------------------ parameters
-    def on_set_parameters(self, params) -> SetParametersResult:
-        changes = {p.name: p.value for p in params if p.name in PLANT_SPEC}
-        if not changes:
-            return SetParametersResult(successful=True)
-        try:
-            if self.lockstep:
+    def apply_parameters(self, changes: dict) -> None:
+        """Post-set: the plant swaps in the accepted values (between two loop ticks)."""
+        if self.lockstep:
+            self.plant.set_params(changes)
+        else:
+            with self._lock:
                 self.plant.set_params(changes)
-            else:
-                with self._lock:
-                    self.plant.set_params(changes)
-        except (ConfigError, ValueError) as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        self.get_logger().info(f"parameters changed: {changes}")
-        return SetParametersResult(successful=True)
 
     def publish_diagnostics(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue

@@ -1,0 +1,188 @@
+"""Δp as an input, without ROS: the plant's pressure transducer (rate, noise, seeding) and the
+valve driver's handling of the measured pressure differential (used by the law while valid;
+missing, stale or implausible -> latched warning, not a trip, and the fallback schedule).
+
+The DDS side (the plant publishes it, the controller schedules for it, ``ros2 param set`` on
+the plant reaches the controller) is in ``test_parameters.py``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fuel_valve_control.common.contract import PRESSURE_MAX_KPA
+from fuel_valve_control.core.driver import PRESSURE_INPUT, ValveDriver
+from fuel_valve_control.core.params import load_controller_params
+from fuel_valve_plant.physics.params import load_plant_params
+from fuel_valve_plant.physics.plant import Plant
+
+PERIOD = 1e-3
+VALVE = 0.2          # rad, a valve at rest part-open
+N = 48.019           # nominal gear ratio (motor angle of a resting drivetrain)
+
+
+def driver(**overrides) -> ValveDriver:
+    return ValveDriver(load_controller_params(overrides=overrides))
+
+
+def run(drv: ValveDriver, periods: int, dp=None, every: int = 10, t0: float = 0.0):
+    """``periods`` control periods of a valve at rest at 20 % demand; ``dp`` (kPa, or a function
+    of the period index) is fed every ``every`` periods (None: never).  Returns the outputs."""
+    outs = []
+    for k in range(periods):
+        t = t0 + k * PERIOD
+        drv.demand_percent(t, 100.0 * VALVE / drv.stroke)
+        drv.resolver(t, VALVE * N, VALVE)
+        value = dp(k) if callable(dp) else dp
+        if value is not None and k % every == 0:
+            drv.pressure_differential(t, value)
+        outs.append(drv.step(t))
+    return outs
+
+
+# ------------------------------------------------------------------ the plant's transducer
+def test_transducer_samples_at_its_rate_with_exact_value_without_noise():
+    plant = Plant(load_plant_params(overrides={"pressure_differential_kpa": 3103.0,
+                                               "pressure_sensor.noise_kpa": 0.0}))
+    samples = []
+    for _ in range(1000):                       # 1 s of 1 kHz control periods
+        samples.append(plant.pressure_sample())
+        plant.advance(PERIOD)
+    got = [s for s in samples if s is not None]
+    assert len(got) == 100                      # pressure_sensor.rate_hz default 100 Hz
+    assert samples[0] == 3103.0 and samples[1] is None and samples[10] == 3103.0
+    assert set(got) == {3103.0}
+
+
+def test_transducer_noise_is_seeded_and_leaves_the_resolvers_alone():
+    def record(noise, seed=0):
+        plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": noise, "seed": seed,
+                                                   "pressure_differential_kpa": 3000.0}))
+        dps, resolver = [], []
+        for _ in range(2000):
+            dp = plant.pressure_sample()
+            if dp is not None:
+                dps.append(dp)
+            resolver.append(plant.resolver().valve_rad)
+            plant.advance(PERIOD)
+        return np.array(dps), np.array(resolver)
+
+    a, ra = record(20.0)
+    b, rb = record(20.0)
+    c, rc = record(0.0)
+    np.testing.assert_array_equal(a, b)                  # same seed, same readings
+    np.testing.assert_array_equal(ra, rc)                # Δp noise draws do not shift the resolver noise
+    assert abs(a.mean() - 3000.0) < 4 * 20.0 / math.sqrt(len(a))
+    assert 14.0 < a.std() < 26.0
+    assert not np.array_equal(a, record(20.0, seed=1)[0])
+
+
+def test_transducer_noise_changes_at_run_time():
+    plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": 0.0}))
+    assert plant.pressure_differential() == plant.params["pressure_differential_kpa"]
+    plant.set_params({"pressure_sensor.noise_kpa": 50.0})
+    readings = [plant.pressure_differential() for _ in range(50)]
+    assert np.std(readings) > 10.0
+
+
+# ------------------------------------------------------------------ the driver's input
+def test_valid_pressure_schedules_the_law():
+    measured = driver()
+    outs = run(measured, 50, dp=3103.0)
+    assert all(o.enable and not o.warnings for o in outs)
+    assert measured.pressure_kpa == 3103.0
+    assert measured.health().values["pressure_source"] == "measured"
+    # the law sees exactly the measured value: a driver whose fallback is that value and that
+    # never gets a reading commands the same currents (until its missing-Δp warning, 0.1 s)
+    told = driver(**{"pressure.fallback_kpa": 3103.0})
+    assert [o.current_a for o in run(told, 50)] == [o.current_a for o in outs]
+    # and the schedule matters: another Δp gives another command
+    other = run(driver(), 50, dp=0.0)
+    assert max(abs(a.current_a - b.current_a) for a, b in zip(outs, other)) > 0.05
+
+
+def test_reading_within_the_margin_is_clamped_to_full_scale():
+    drv = driver()
+    run(drv, 5, dp=PRESSURE_MAX_KPA + 100.0)
+    assert drv.pressure_kpa == PRESSURE_MAX_KPA and not drv.warnings
+
+
+def test_missing_pressure_warns_after_the_timeout_and_uses_the_fallback():
+    drv = driver(**{"pressure.fallback_kpa": 1000.0})
+    outs = run(drv, 150)                                   # timeout 0.1 s
+    assert not outs[90].warnings
+    assert PRESSURE_INPUT in outs[-1].warnings and "no pressure differential reading received" in \
+        outs[-1].warnings[PRESSURE_INPUT]
+    assert all(o.enable and o.state == "running" for o in outs)    # a warning, never a trip
+    assert drv.pressure_kpa == 1000.0
+    h = drv.health()
+    assert h.level == 1 and h.values["pressure_source"] == "fallback" and "fallback" in h.message
+
+
+def test_stale_pressure_warns_and_falls_back():
+    drv = driver()
+    outs = run(drv, 300, dp=lambda k: 4000.0 if k < 50 else None, every=10)
+    assert not outs[120].warnings                       # last reading at 40 ms: 80 ms old, valid
+    assert "no pressure differential reading for" in outs[-1].warnings[PRESSURE_INPUT]
+    assert outs[-1].enable and drv.pressure_kpa == 0.0  # the fallback (default 0 kPa)
+
+
+@pytest.mark.parametrize("bad, words", [
+    (math.nan, "not a finite number"),
+    (math.inf, "not a finite number"),
+    (-1000.0, "outside"),
+    (7000.0, "outside"),
+    ("6206", "not a finite number"),
+])
+def test_implausible_reading_warns_and_falls_back(bad, words):
+    drv = driver(**{"pressure.fallback_kpa": 500.0})
+    run(drv, 20, dp=3000.0)
+    assert drv.pressure_kpa == 3000.0
+    drv.pressure_differential(0.02, bad)
+    out = drv.step(0.02)
+    assert words in out.warnings[PRESSURE_INPUT]
+    assert out.enable and not out.faults
+    assert drv.pressure_kpa == 500.0
+
+
+def test_physically_impossible_rate_is_implausible():
+    drv = driver()
+    run(drv, 11, dp=1000.0)                             # readings at 0 and 10 ms
+    drv.pressure_differential(0.012, 6000.0)           # +5000 kPa in 2 ms: 2.5e6 kPa/s
+    assert "changed +5000 kPa in 2.0 ms" in drv.step(0.012).warnings[PRESSURE_INPUT]
+    assert drv.pressure_kpa == 0.0
+    # a fast but physical change (1000 kPa in 10 ms = 1e5 kPa/s) is accepted
+    ok = driver()
+    run(ok, 20, dp=lambda k: 1000.0 if k < 10 else 2000.0)
+    assert ok.pressure_kpa == 2000.0 and not ok.warnings
+
+
+def test_schedule_recovers_when_valid_and_the_warning_clears_on_reset():
+    drv = driver()
+    run(drv, 20, dp=3000.0)
+    drv.pressure_differential(0.02, math.nan)
+    drv.step(0.02)
+    outs = run(drv, 30, dp=3000.0, t0=0.021)
+    assert drv.pressure_kpa == 3000.0                     # valid again: measured value used
+    assert PRESSURE_INPUT in outs[-1].warnings            # ... but the warning stays latched
+    ok, message = drv.reset()
+    assert ok and PRESSURE_INPUT in message
+    assert not run(drv, 5, dp=3000.0, t0=0.06)[-1].warnings
+
+
+def test_warning_latches_again_after_reset_while_the_input_is_still_missing():
+    drv = driver()
+    run(drv, 150)
+    assert drv.reset()[0]
+    assert PRESSURE_INPUT in run(drv, 2, t0=0.15)[-1].warnings
+
+
+def test_fallback_value_changes_at_run_time():
+    drv = driver()
+    run(drv, 5)
+    assert drv.pressure_kpa == 0.0
+    drv.set_params({"pressure.fallback_kpa": 2000.0})
+    run(drv, 1, t0=0.005)
+    assert drv.pressure_kpa == 2000.0
