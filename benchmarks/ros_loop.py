@@ -47,8 +47,11 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--demand-rate", type=float, default=200.0, help="demand publish rate, Hz")
     parser.add_argument("--mode", default=None, help="controller mode (default: controller.yaml)")
+    parser.add_argument("--domain", type=int, default=None,
+                        help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else a random one in 100-200)")
     args = parser.parse_args()
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(100, 200)), PYTHONWARNINGS="ignore")
+    domain = args.domain if args.domain is not None else int(os.environ.get("ROS_DOMAIN_ID") or random.randint(100, 200))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONWARNINGS="ignore")
     ns = ["-r", "__ns:=/fuel_valve_bench"]
     cfg = ROOT / "config"
     ctrl = [executable("controller"), "--ros-args", "--params-file", str(cfg / "controller.yaml"), *ns]
