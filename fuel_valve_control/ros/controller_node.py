@@ -26,6 +26,7 @@ from rcl_interfaces.msg import SetParametersResult
 
 from ..common import contract
 from . import interface as ri
+from .node_runner import run_node
 from ..common.paramspec import ConfigError
 
 from ..core.params import CONTROLLER_SPEC, load_controller_params
@@ -35,8 +36,8 @@ LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
 
 
 def locked(method):
-    """Run a callback under the node's lock: the resolver arrives on the loop thread, the
-    rest on the executor's thread, and both use the driver."""
+    """Run a callback under the node's lock (the driver is not thread-safe; callbacks and the
+    executor's timers must never interleave inside it)."""
     @functools.wraps(method)
     def wrapper(self, *args):
         with self._lock:
@@ -52,8 +53,6 @@ class ControllerNode(Node):
             "lockstep": (False, "wait for a fresh demand each period (deterministic lockstep runs)"),
             "diagnostics_rate_hz": (2.0, "rate of /diagnostics [Hz]"),
             "telemetry_decimation": (10, "publish position and estimate every N-th period (1 = every period)"),
-            "loop_thread": (True, "real time: take resolver samples and demands on a lean helper node in its own "
-                                  "thread (lower latency than the main executor with its services and timers)"),
             "initial_current_a": (0.0, "q-current the loop starts from when it first arms [A]: bumpless take-over "
                                        "of a valve already held by a drive (the plant's start_held)"),
             "monitor_drive_telemetry": (False, "subscribe to the plant's drive telemetry for the measured-current "
@@ -87,20 +86,13 @@ class ControllerNode(Node):
         self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION)
         self.pub_estimate = ri.quiet_publisher(self, JointState, contract.ESTIMATE)
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
-        # one lock serialises the driver between the loop thread and the executor's callbacks
+        # one lock serialises the driver between callbacks: the node runner spins one thread
+        # today, and a multi-threaded executor must not change the driver's behaviour
         self._lock = threading.Lock()
-        self.loop_io = None
-        # lockstep runs keep everything on one thread: simpler and measured deterministic
-        if self.get_parameter("loop_thread").value and not self.lockstep:
-            # the demand too: a supervisor at 100-200 Hz would otherwise wake the main
-            # executor (a few hundred µs of Python each time) and hold up the next sample
-            self.loop_io = ri.LoopIO(self)
-            subscribe = self.loop_io.subscribe
-        else:
-            subscribe = functools.partial(ri.quiet_subscription, self)
-        subscribe(Float64, contract.DEMAND, self.on_demand)
-        subscribe(Float64, contract.DEMAND_MA, self.on_demand_ma)
-        subscribe(JointState, contract.RESOLVER, self.on_resolver)
+        # every input on this node and the one executor (node_runner): no helper node
+        ri.quiet_subscription(self, Float64, contract.DEMAND, self.on_demand)
+        ri.quiet_subscription(self, Float64, contract.DEMAND_MA, self.on_demand_ma)
+        ri.quiet_subscription(self, JointState, contract.RESOLVER, self.on_resolver)
         if self.get_parameter("monitor_drive_telemetry").value:
             ri.quiet_subscription(self, Float64MultiArray, contract.DRIVE, self.on_drive)
         self._decimation = max(int(self.get_parameter("telemetry_decimation").value), 1)
@@ -111,11 +103,8 @@ class ControllerNode(Node):
         self.add_on_set_parameters_callback(self.on_set_parameters)
         period = self.driver.period
         # the watchdog runs the fault logic when no samples arrive (silence must trip)
-        if self.loop_io is None:
-            self.create_timer(max(5.0 * period, 0.01), self.watchdog)
+        self.create_timer(max(5.0 * period, 0.01), self.watchdog)
         self.create_timer(1.0 / float(self.get_parameter("diagnostics_rate_hz").value), self.publish_diagnostics)
-        if self.loop_io is not None:
-            self.loop_io.start(idle=self.watchdog, idle_period_s=max(5.0 * period, 0.01))
         self.get_logger().info(f"controller up: mode {ps['mode']}, loop {ps['loop_rate_hz']:g} Hz, demand from "
                                f"{ps['demand_source']}{', lockstep' if self.lockstep else ''}")
 
@@ -215,11 +204,6 @@ class ControllerNode(Node):
                                             + (f", faults: {'; '.join(out.faults.values())}" if out.faults else ""))
             self._last_enable = out.enable
 
-    def destroy_node(self):
-        if self.loop_io is not None:
-            self.loop_io.stop()
-        super().destroy_node()
-
     # ------------------------------------------------------------------ services
     @locked
     def on_trip(self, request, response):
@@ -299,7 +283,7 @@ def _fmt(x) -> str:
 
 
 def main(args=None) -> int:
-    return ri.run_node(ControllerNode, args)
+    return run_node(ControllerNode, args)
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 
 from ..common import contract
 from . import interface as ri
+from .node_runner import run_node
 
 from ..tools.profiles import ProfileError, make_profile
 
@@ -150,7 +151,7 @@ class DemandNode(Node):
 
 
 def main(args=None) -> int:
-    return ri.run_node(DemandNode, args)
+    return run_node(DemandNode, args)
 
 
 if __name__ == "__main__":

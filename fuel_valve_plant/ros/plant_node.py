@@ -31,6 +31,7 @@ from rcl_interfaces.msg import SetParametersResult
 
 from fuel_valve_control.common import contract
 from fuel_valve_control.ros import interface as ri
+from fuel_valve_control.ros.node_runner import run_node
 from fuel_valve_control.common.paramspec import ConfigError
 from ..physics.plant import Plant
 from ..physics.params import PLANT_SPEC, check_consistency
@@ -104,18 +105,10 @@ class PlantNode(Node):
         self.pub_truth = ri.quiet_publisher(self, JointState, contract.JOINT_STATES)
         self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, contract.DRIVE)
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
-        # the loop's inputs are taken by their own lean thread (see LoopIO); drive_enable first:
-        # in lockstep a command steps the plant at once, with the enable state it applies to
-        # (lockstep runs keep everything on the executor's thread: measured deterministic)
-        self.loop_io = None
-        if self.lockstep:
-            ri.quiet_subscription(self, Bool, contract.DRIVE_ENABLE, self.on_enable)
-            ri.quiet_subscription(self, Float64, contract.CURRENT_COMMAND, self.on_command)
-        else:
-            self.loop_io = ri.LoopIO(self)
-            self.loop_io.subscribe(Bool, contract.DRIVE_ENABLE, self.on_enable)
-            self.loop_io.subscribe(Float64, contract.CURRENT_COMMAND, self.on_command)
-            self.loop_io.start()
+        # the loop's inputs, taken by the node runner's executor; drive_enable first: in
+        # lockstep a command steps the plant at once, with the enable state it applies to
+        ri.quiet_subscription(self, Bool, contract.DRIVE_ENABLE, self.on_enable)
+        ri.quiet_subscription(self, Float64, contract.CURRENT_COMMAND, self.on_command)
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(1.0, self.publish_diagnostics)
         if self.lockstep:
@@ -197,8 +190,6 @@ class PlantNode(Node):
         if not self.lockstep:
             self._running = False
             self._thread.join(timeout=1.0)
-        if self.loop_io is not None:
-            self.loop_io.stop()
 
     def try_start(self) -> None:
         """Lockstep: start once the controller (and the other participants) are connected."""
@@ -294,7 +285,7 @@ def main(args=None) -> int:
     def report(node):
         node.stop()
         print(f"[plant] loop statistics: {node.stats.summary()}", flush=True)
-    return ri.run_node(PlantNode, args, on_exit=report)
+    return run_node(PlantNode, args, on_exit=report)
 
 
 if __name__ == "__main__":

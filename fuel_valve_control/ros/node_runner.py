@@ -1,0 +1,107 @@
+"""Process entry point of the suite's nodes: one node, one executor, public rclpy API only.
+
+Every node of the suite (plant, controller, demand, recorder) runs its ROS work on rclpy's
+``EventsExecutor`` (``rclpy.experimental``, C++ event queue): in a 1 kHz plant/controller
+ping-pong it cost a third of the CPU per cycle of the ``SingleThreadedExecutor`` and a fifth
+of its p99 round trip (benchmarks/ros_loop.py; README).  The loop's subscriptions live on the
+node itself, so the graph holds exactly the design's nodes and ``ros2 node info`` shows them.
+
+Two properties of the events executor of rclpy 7.1.x that this module works around (pinned by
+``test/test_node_runner.py``):
+
+* ``spin()`` without a timeout never runs timers, busy-waits and ignores SIGINT/SIGTERM: the
+  nodes spin with :func:`spin`, a ``spin_once(timeout_sec=...)`` loop that checks the context;
+* a callback that asks for the message info (two arguments) fails in the executor
+  (``SystemError``): subscriptions here take the message only.
+
+Signals: rclpy's handlers (SIGINT, SIGTERM) shut the context down and wake the executor, then
+chain to the Python-level handler that was installed before ``rclpy.init``.  That handler is a
+no-op here, so no ``KeyboardInterrupt`` is ever raised: under ``ros2 launch`` the terminal's
+SIGINT and the one launch forwards both arrive, and the second would otherwise land in the
+clean-up and end the process with -2 instead of 0.
+"""
+from __future__ import annotations
+
+import signal
+import sys
+
+#: longest time one ``spin_once`` blocks, s: how late a shutdown without a wake-up is seen
+SPIN_TIMEOUT_S = 0.1
+#: GIL switch interval, s: a sample arriving while another thread of the process (the plant's
+#: tick thread) runs Python waits at most this long (CPython's default is 5 ms, five periods)
+SWITCH_INTERVAL_S = 0.0002
+
+
+def make_executor(context=None):
+    """The executor every node of the suite spins on (see the module docstring)."""
+    from rclpy.experimental import EventsExecutor
+    return EventsExecutor(context=context)
+
+
+def spin(executor, context=None, until=None, timeout_s: float = SPIN_TIMEOUT_S) -> None:
+    """Spin ``executor`` until ``context`` (default: rclpy's) shuts down or ``until()`` is true.
+
+    ``spin_once`` with a timeout, never ``spin()``: the events executor's untimed spin ignores
+    shutdown (see the module docstring)."""
+    import rclpy
+    while rclpy.ok(context=context) and not (until is not None and until()):
+        executor.spin_once(timeout_sec=timeout_s)
+
+
+def quiet_signals(handler=None) -> None:
+    """Python-level SIGINT/SIGTERM handlers that never raise (``handler(signum)`` if given).
+
+    Call before ``rclpy.init``: rclpy's own handlers chain to these after shutting down the
+    context, so a signal stops the spin loop without an exception, however many arrive."""
+    def on_signal(signum, frame):
+        if handler is not None:
+            handler(signum)
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+
+
+def run_node(factory, args=None, on_exit=None) -> int:
+    """Run the node ``factory()`` builds until SIGINT / SIGTERM, then clean up; the exit code.
+
+    ``factory()`` raising ``SystemExit`` or a parameter exception is a configuration error:
+    message printed, exit code 2.  ``on_exit(node)`` runs before the node is destroyed (the
+    context may already be shut down: print or log, do not publish).  0 otherwise, also when
+    several signals arrive (see the module docstring).
+    """
+    import rclpy
+    from rclpy.exceptions import InvalidParameterValueException, ParameterException
+    from rclpy.executors import ExternalShutdownException
+
+    quiet_signals()
+    sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+    rclpy.init(args=args)
+    node = executor = None
+    code = 0
+    try:
+        node = factory()
+        executor = make_executor()
+        executor.add_node(node)
+        spin(executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except SystemExit as exc:
+        print(exc, flush=True)
+        code = 2
+    except (ParameterException, InvalidParameterValueException) as exc:
+        # a parameter file or -p value outside a declared range: a configuration error
+        print(f"invalid parameter: {exc}", flush=True)
+        code = 2
+    except Exception:                       # noqa: BLE001 - a shutdown race inside spin_once()
+        if rclpy.ok():
+            raise
+    finally:
+        if node is not None:
+            if on_exit is not None:
+                on_exit(node)
+            if executor is not None:
+                executor.remove_node(node)
+            node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
+        rclpy.try_shutdown()
+    return code
