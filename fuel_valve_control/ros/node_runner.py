@@ -60,6 +60,16 @@ def quiet_signals(handler=None) -> None:
     signal.signal(signal.SIGTERM, on_signal)
 
 
+def ignore_signals() -> None:
+    """Ignore SIGINT/SIGTERM from here on: for the end of a process whose clean-up is done.
+
+    The interpreter's own shutdown puts Python-level handlers back to the default action, so
+    a late signal (the second or third of a launch shutdown) would kill the process with -2 in
+    its last milliseconds; an ignored signal stays ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+
 def run_node(factory, args=None, on_exit=None) -> int:
     """Run the node ``factory()`` builds until SIGINT / SIGTERM, then clean up; the exit code.
 
@@ -104,4 +114,5 @@ def run_node(factory, args=None, on_exit=None) -> int:
         if executor is not None:
             executor.shutdown()
         rclpy.try_shutdown()
+        ignore_signals()
     return code

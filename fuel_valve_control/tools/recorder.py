@@ -453,6 +453,7 @@ def main(args=None) -> int:
         if executor is not None:
             executor.shutdown()
         rclpy.try_shutdown()
+        node_runner.ignore_signals()
     return code
 
 
