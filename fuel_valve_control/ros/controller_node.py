@@ -16,6 +16,7 @@ lockstep loop (the ``demand`` node with ``lockstep:=true`` publishes once per ``
 """
 from __future__ import annotations
 
+import collections
 import functools
 import math
 import threading
@@ -97,6 +98,8 @@ class ControllerNode(Node):
             ri.quiet_subscription(self, Float64MultiArray, contract.DRIVE, self.on_drive)
         self._decimation = max(int(self.get_parameter("telemetry_decimation").value), 1)
         self._periods = 0
+        #: messages published per loop topic (reported at exit: benchmarks compare bag counts)
+        self.published = collections.Counter()
         self._compute = ComputeTime()
         self.create_service(Trigger, "~/trip", self.on_trip)
         self.create_service(Trigger, "~/reset", self.on_reset)
@@ -183,10 +186,12 @@ class ControllerNode(Node):
         if out.enable != self._last_enable:       # latched topic: publish changes only, before
             self.pub_enable.publish(self._bool(data=bool(out.enable)))   # the command it applies to
         self.pub_current.publish(self._float(data=float(out.current_a)))
+        self.published[contract.CURRENT_COMMAND] += 1
         self._periods += 1
         if self._periods % self._decimation == 0:
             if out.position_pct is not None:
                 self.pub_position.publish(self._float(data=float(out.position_pct)))
+                self.published[contract.POSITION] += 1
             est = self.driver.controller.estimate()
             sec = int(t)
             stamp = self._time(sec=sec, nanosec=int((t - sec) * 1e9)) if self.lockstep \
@@ -194,6 +199,7 @@ class ControllerNode(Node):
             self.pub_estimate.publish(ri.joint_state(
                 stamp, (est.motor_angle, est.valve_angle), (est.motor_velocity, est.valve_velocity),
                 (est.motor_friction_nm, est.valve_friction_nm)))
+            self.published[contract.ESTIMATE] += 1
         if out.enable != self._last_enable:
             if self._last_enable is not None:
                 # one call site per severity: rclpy refuses a site that changes severity

@@ -14,6 +14,7 @@ new profile starts from the current time.
 """
 from __future__ import annotations
 
+import collections
 import time
 
 from rclpy.node import Node
@@ -76,6 +77,8 @@ class DemandNode(Node):
         self.t0 = None
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self._pending_tick = None
+        #: messages published per topic (reported at exit: benchmarks compare bag counts)
+        self.published = collections.Counter()
         if self.get_parameter("lockstep").value:
             from rosgraph_msgs.msg import Clock
             ri.quiet_subscription(self, Clock, contract.CLOCK, self.on_clock, ri.TELEMETRY_QOS)
@@ -132,8 +135,10 @@ class DemandNode(Node):
         pct = self.profile.value(now - self.t0)
         if self.output == "percent":
             self.pub_pct.publish(self._msg_type(data=float(pct)))
+            self.published[contract.DEMAND] += 1
         else:
             self.pub_ma.publish(self._msg_type(data=contract.percent_to_ma(min(max(pct, 0.0), 100.0))))
+            self.published[contract.DEMAND_MA] += 1
 
     def on_set_parameters(self, params) -> SetParametersResult:
         changes = {p.name: p.value for p in params}

@@ -22,6 +22,7 @@ clean-up and end the process with -2 instead of 0.
 """
 from __future__ import annotations
 
+import json
 import signal
 import sys
 
@@ -108,6 +109,9 @@ def run_node(factory, args=None, on_exit=None) -> int:
         if node is not None:
             if on_exit is not None:
                 on_exit(node)
+            if getattr(node, "published", None) is not None:
+                # one line a benchmark or test can parse: messages this node published per topic
+                print(f"[{node.get_name()}] published: {json.dumps(dict(node.published))}", flush=True)
             if executor is not None:
                 executor.remove_node(node)
             node.destroy_node()

@@ -23,6 +23,7 @@ current with the drive disabled, like a drive that rejects a corrupt set-point.
 """
 from __future__ import annotations
 
+import collections
 import threading
 import time
 
@@ -95,6 +96,8 @@ class PlantNode(Node):
         self._command_rejected = False
         self._bad_commands = 0
         self.stats = LoopStats()
+        #: messages published per loop topic (reported at exit: benchmarks compare bag counts)
+        self.published = collections.Counter()
         self._got_command = False
         self._last_publish_mono = None
 
@@ -240,11 +243,14 @@ class PlantNode(Node):
         self._last_publish_mono = time.monotonic()
         if sample is not None:
             self.pub_resolver.publish(ri.joint_state(stamp, (sample.motor_rad, sample.valve_rad)))
+            self.published[contract.RESOLVER] += 1
         truth = self.plant.truth()
         self.pub_truth.publish(ri.joint_state(
             stamp, (truth.motor_angle, truth.valve_angle), (truth.motor_velocity, truth.valve_velocity),
             (truth.electromagnetic_torque, truth.coupling_torque)))
         self.pub_drive.publish(ri.labelled_array(contract.TELEMETRY_LABELS, self.plant.telemetry()))
+        self.published[contract.JOINT_STATES] += 1
+        self.published[contract.DRIVE] += 1
 
     # ------------------------------------------------------------------ parameters
     def on_set_parameters(self, params) -> SetParametersResult:
