@@ -14,11 +14,13 @@ Two properties of the events executor of rclpy 7.1.x that this module works arou
 * a callback that asks for the message info (two arguments) fails in the executor
   (``SystemError``): subscriptions here take the message only.
 
-Signals: rclpy's handlers (SIGINT, SIGTERM) shut the context down and wake the executor, then
-chain to the Python-level handler that was installed before ``rclpy.init``.  That handler is a
-no-op here, so no ``KeyboardInterrupt`` is ever raised: under ``ros2 launch`` the terminal's
-SIGINT and the one launch forwards both arrive, and the second would otherwise land in the
-clean-up and end the process with -2 instead of 0.
+Signals: SIGINT and SIGTERM only set a flag (Python-level handlers; rclpy's own are not
+installed); the spin loop sees it within one ``spin_once`` and returns, then the node is
+taken off the executor and destroyed, and only then is the context shut down.  So no callback
+ever runs on a shut-down context (rclpy's handlers shut it down at once, from the signal, and
+a callback running at that moment failed to publish), and no ``KeyboardInterrupt`` is raised
+anywhere: under ``ros2 launch`` the terminal's SIGINT and the one launch forwards both
+arrive, and the second would otherwise land in the clean-up and end the process with -2.
 """
 from __future__ import annotations
 
@@ -50,10 +52,10 @@ def spin(executor, context=None, until=None, timeout_s: float = SPIN_TIMEOUT_S) 
 
 
 def quiet_signals(handler=None) -> None:
-    """Python-level SIGINT/SIGTERM handlers that never raise (``handler(signum)`` if given).
+    """Python-level SIGINT/SIGTERM handlers that never raise; ``handler(signum)`` if given.
 
-    Call before ``rclpy.init``: rclpy's own handlers chain to these after shutting down the
-    context, so a signal stops the spin loop without an exception, however many arrive."""
+    Use with ``rclpy.init(signal_handler_options=SignalHandlerOptions.NO)``: a signal then
+    only does what ``handler`` does (e.g. set the flag :func:`spin` watches)."""
     def on_signal(signum, frame):
         if handler is not None:
             handler(signum)
@@ -82,17 +84,19 @@ def run_node(factory, args=None, on_exit=None) -> int:
     import rclpy
     from rclpy.exceptions import InvalidParameterValueException, ParameterException
     from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
 
-    quiet_signals()
+    stop: list[int] = []
+    quiet_signals(stop.append)
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
-    rclpy.init(args=args)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = executor = None
     code = 0
     try:
         node = factory()
         executor = make_executor()
         executor.add_node(node)
-        spin(executor)
+        spin(executor, until=lambda: bool(stop))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except SystemExit as exc:

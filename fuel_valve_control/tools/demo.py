@@ -293,6 +293,7 @@ class Monitor:
         self.level = None
         self.message = ""
         self.worst_level = 0
+        self.armed = False
         self.fault_messages: list[str] = []
         self.errors: list[float] = []              # |demand - position| %, per position sample
         n = self.node
@@ -339,7 +340,10 @@ class Monitor:
             self.level = st.level[0] if isinstance(st.level, bytes) else int(st.level)
             self.message = st.message
             self.health = {kv.key: kv.value for kv in st.values}
-            if self.level > self.worst_level:
+            # the worst status counts from the first OK on: "waiting for a valid demand" before
+            # the demand node starts is the start-up, not a degradation (faults always count)
+            self.armed = self.armed or self.level == 0
+            if (self.armed or self.level == 2) and self.level > self.worst_level:
                 self.worst_level = self.level
             if self.level == 2 and st.message not in self.fault_messages:
                 self.fault_messages.append(st.message)
@@ -498,9 +502,10 @@ def print_summary(summary: dict, out=sys.stdout) -> None:
                                              else ""), file=out)
     loop = summary.get("loop")
     if loop and "rtt_median_ms" in loop and not summary["lockstep"]:
-        print(f"loop: {loop['commands']} commands for {loop['ticks']} plant ticks, missed periods "
-              f"{100 * loop['missed_fraction']:.2f} %, round trip median {loop['rtt_median_ms']:.3f} ms, "
-              f"p99 {loop['rtt_p99_ms']:.3f} ms", file=out)
+        print(f"loop: the plant ticked {loop['ticks']} times at 1 kHz; in {100 * loop['missed_fraction']:.2f} % of "
+              f"the ticks the controller's answer to the previous sample had not arrived yet (missed periods: the "
+              f"plant held the old current); sample -> command round trip median {loop['rtt_median_ms']:.3f} ms, "
+              f"99 % within {loop['rtt_p99_ms']:.3f} ms (a period is 1 ms)", file=out)
     if loop and summary["lockstep"]:
         print(f"loop: {loop.get('commands')} control periods in lockstep", file=out)
     print(f"node logs: {summary.get('run_dir')}", file=out, flush=True)

@@ -413,8 +413,8 @@ def main(args=None) -> int:
     from rclpy.signals import SignalHandlerOptions
 
     stop: list[int] = []
-    # only a flag: the spin loop sees it within one spin timeout; rclpy's handlers are not
-    # installed (they would shut the context down before the queued messages are taken)
+    # only a flag (as for every node, see node_runner): the spin loop sees it within one spin
+    # timeout, then the queued messages are taken before anything is shut down
     node_runner.quiet_signals(stop.append)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = executor = None

@@ -43,7 +43,8 @@ LOCKSTEP_SETTLE_S = 0.5
 
 
 class LoopStats:
-    """Round-trip times and missed periods of the control loop, seen from the plant."""
+    """Round-trip times and missed periods of the control loop, seen from the plant; ticks and
+    missed periods count from the first command received (before it the loop is open)."""
 
     def __init__(self, keep: int = 200000):
         self.keep = keep
@@ -179,9 +180,10 @@ class PlantNode(Node):
             elapsed = min(now - last, 10.0 * self.period)
             last = now
             with self._lock:
-                self.stats.ticks += 1
-                if self._last_publish_mono is not None and not self._got_command:
-                    self.stats.missed += 1
+                if self.stats.commands:         # the loop is closed (a controller answers): count
+                    self.stats.ticks += 1       # its periods; before, every tick would be "missed"
+                    if not self._got_command:
+                        self.stats.missed += 1
                 try:
                     self.step_and_publish(elapsed)
                 except Exception:                       # noqa: BLE001 - context shut down under us
