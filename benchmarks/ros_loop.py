@@ -3,17 +3,23 @@
 
 Starts ``plant``, ``controller`` and ``demand`` (a slow sine, so the loop works) as real
 processes through their installed executables (the run-plan and launcher of
-``fuel_valve_demo``; node logs in a temporary run directory), lets them run, then stops them and reads
-the plant's loop statistics from ``/diagnostics``:
+``fuel_valve_demo``), lets them run, then stops them and reads the plant's loop statistics
+from ``/diagnostics``:
 
 * round trip plant -> controller -> plant: time from publishing a resolver sample to
   receiving the current command computed from it (median / p99 / max),
 * missed control periods: plant ticks that found no new command since the previous sample,
 * CPU: user + system seconds of each process per second of run time.
 
-The last line printed is a JSON object with ``rtt_p99_ms`` and ``missed_fraction``.
+With ``--record`` the ``recorder`` runs too (started first, stopped last, every suite topic,
+MCAP, as in the main job): per topic, the messages the nodes published (each node prints
+its counts at exit) against the messages in the bag's metadata, and the recorder's own
+queue drops.
 
-    python benchmarks/ros_loop.py [--seconds 60] [--mode observer_ff]
+The last line printed is a JSON object with ``rtt_p99_ms``, ``missed_fraction`` and, with
+``--record``, ``recorder_lost``.
+
+    python benchmarks/ros_loop.py [--seconds 60] [--record] [--domain 107] [--mode observer_ff]
 """
 from __future__ import annotations
 
@@ -21,7 +27,10 @@ import argparse
 import json
 import os
 import random
+import re
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -40,22 +49,50 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def published_counts(log_text: str) -> dict[str, int]:
+    """``{topic: n}`` from a node's exit line ``[name] published: {...}`` (relative names)."""
+    found = re.findall(r"\] published: (\{.*\})", log_text)
+    return json.loads(found[-1]) if found else {}
+
+
+def recorder_report(bag: Path, launcher: Launcher, ns: str) -> dict:
+    """Per loop topic: published (the nodes' exit counts) vs in the bag (metadata.yaml)."""
+    import yaml
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    in_bag = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
+    published: dict[str, int] = {}
+    for name in ("plant", "controller", "demand"):
+        for topic, n in published_counts(launcher.log(name)).items():
+            published[f"{ns}/{topic}"] = published.get(f"{ns}/{topic}", 0) + n
+    topics = {t: {"published": n, "in_bag": in_bag.get(t, 0)} for t, n in sorted(published.items())}
+    dropped = re.findall(r"closed: \d+ messages, (\d+) dropped", launcher.log("recorder"))
+    return {"topics": topics, "lost": sum(max(0, v["published"] - v["in_bag"]) for v in topics.values()),
+            "queue_dropped": int(dropped[-1]) if dropped else None, "bag_messages": meta["message_count"]}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--demand-rate", type=float, default=200.0, help="demand publish rate, Hz")
     parser.add_argument("--mode", default=None, help="controller mode (default: controller.yaml)")
+    parser.add_argument("--record", action="store_true", help="run the recorder too (every suite topic, MCAP)")
+    parser.add_argument("--domain", type=int, default=None,
+                        help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else a random one in 100-200)")
     args = parser.parse_args()
-    # the DDS domain: ROS_DOMAIN_ID when set, else a random one (not the default 0 of other runs)
-    env = dict(ROS_DOMAIN_ID=os.environ.get("ROS_DOMAIN_ID") or str(random.randint(100, 200)),
-               PYTHONWARNINGS="ignore")
+    domain = args.domain if args.domain is not None else int(os.environ.get("ROS_DOMAIN_ID") or random.randint(100, 200))
+    env = dict(ROS_DOMAIN_ID=str(domain), PYTHONWARNINGS="ignore")
+    ns_name = "/fuel_valve_bench"
+    tmp = Path(tempfile.mkdtemp(prefix="ros_loop_"))
     try:
         scenario = parse_scenario({"name": "ros_loop_benchmark", "duration_s": 3600.0, "demand": DEMAND})
         plan = plan_run(scenario, REAL_TIME, mode=args.mode, demand_overrides={"publish_rate_hz": args.demand_rate})
     except ConfigError as exc:
         print(f"ros_loop: {exc}", file=sys.stderr)
         return 2
-    launcher = Launcher(plan, "/fuel_valve_bench", env=env)
+    launcher = Launcher(plan, ns_name, run_dir=tmp, bag=tmp / "bag" if args.record else None, env=env)
+    if args.record:       # first, so it is subscribed before the loop's first messages
+        launcher.start_recorder()
+        launcher.wait_for_log("recorder", "recording")
     launcher.start()
     procs = launcher.procs
     stats = {}
@@ -70,7 +107,7 @@ def main() -> int:
 
         def on_diag(msg):
             for st in msg.status:
-                if not st.name.startswith("/fuel_valve_bench/"):
+                if not st.name.startswith(f"{ns_name}/"):
                     continue
                 values = {kv.key: kv.value for kv in st.values}
                 if st.name.endswith("plant: loop"):
@@ -100,11 +137,12 @@ def main() -> int:
         node.destroy_node()
         rclpy.shutdown()
     finally:
-        launcher.stop()
+        launcher.stop()            # the publishers first, the recorder last (it drains, then closes the bag)
     ticks = int(stats["ticks"]) - int(start_stats["ticks"])
     missed = int(stats["missed"]) - int(start_stats["missed"])
     result = {
         "seconds": round(wall, 1),
+        "record": args.record,
         "ticks": ticks,
         "rate_hz": round(ticks / wall, 1),
         "missed_fraction": round(missed / ticks, 5) if ticks else None,
@@ -115,11 +153,22 @@ def main() -> int:
         "cpu_fraction": {k: round(v, 3) for k, v in cpu.items()},
         "controller_compute_mean_ms": round(sum(c[0] * c[2] for c in compute) / max(sum(c[2] for c in compute), 1), 4),
         "controller_compute_max_ms": round(max((c[1] for c in compute), default=0.0), 3),
+        "exit_codes": {n: p.returncode for n, p in procs.items()},
     }
-    print(f"1 kHz loop over DDS for {result['seconds']} s: {ticks} ticks ({result['rate_hz']} Hz), missed "
-          f"{100 * (result['missed_fraction'] or 0):.3f} %, round trip median {result['rtt_median_ms']} ms, "
-          f"p99 {result['rtt_p99_ms']} ms, max {result['rtt_max_ms']} ms; CPU {result['cpu_fraction']}; controller "
-          f"compute per period mean {result['controller_compute_mean_ms']} ms, max {result['controller_compute_max_ms']} ms")
+    print(f"1 kHz loop over DDS for {result['seconds']} s{' with the recorder' if args.record else ''}: {ticks} "
+          f"ticks ({result['rate_hz']} Hz), missed {100 * (result['missed_fraction'] or 0):.3f} %, round trip median "
+          f"{result['rtt_median_ms']} ms, p99 {result['rtt_p99_ms']} ms, max {result['rtt_max_ms']} ms; CPU "
+          f"{result['cpu_fraction']}; controller compute per period mean {result['controller_compute_mean_ms']} ms, "
+          f"max {result['controller_compute_max_ms']} ms; exit codes {result['exit_codes']}")
+    if args.record:
+        rec = recorder_report(launcher.bag, launcher, ns_name)
+        result.update(recorder_lost=rec["lost"], recorder_queue_dropped=rec["queue_dropped"],
+                      recorder_topics=rec["topics"], bag_messages=rec["bag_messages"])
+        for topic, v in rec["topics"].items():
+            print(f"  {topic:<36} published {v['published']:>7}  in bag {v['in_bag']:>7}")
+        print(f"recorder: {rec['bag_messages']} messages in the bag, lost {rec['lost']} (published - in bag, "
+              f"summed over the topics above), queue drops {rec['queue_dropped']}")
+    shutil.rmtree(tmp, ignore_errors=True)
     print(json.dumps(result))
     return 0
 

@@ -225,8 +225,6 @@ CONTROLLER_NODE_PARAMS = (
     Param("diagnostics_rate_hz", 2.0, "Hz", "rate of /diagnostics", 0.1, 100.0),
     Param("telemetry_decimation", 10, "", "publish position and estimate every N-th period (1 = every period)",
           1, 10000),
-    Param("loop_thread", True, "", "real time: take resolver samples and demands on a lean helper node in its "
-          "own thread (lower latency than the main executor with its services and timers)"),
     Param("initial_current_a", 0.0, "A", "q-current the loop starts from when it first arms: bumpless "
           "take-over of a valve already held by a drive (the plant's start_held)", -40.0, 40.0),
     Param("monitor_drive_telemetry", False, "", "subscribe to the plant's drive telemetry for the "

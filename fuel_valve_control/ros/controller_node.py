@@ -16,6 +16,7 @@ lockstep loop (the ``demand`` node with ``lockstep:=true`` publishes once per ``
 """
 from __future__ import annotations
 
+import collections
 import functools
 import math
 import threading
@@ -25,6 +26,7 @@ from rclpy.node import Node
 
 from ..common import contract
 from . import interface as ri
+from .node_runner import run_node
 from ..common.paramspec import ConfigError
 
 from ..core.params import CONTROLLER_NODE_SPEC, CONTROLLER_SPEC, load_controller_params
@@ -34,8 +36,8 @@ LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
 
 
 def locked(method):
-    """Run a callback under the node's lock: the resolver arrives on the loop thread, the
-    rest on the executor's thread, and both use the driver."""
+    """Run a callback under the node's lock (the driver is not thread-safe; callbacks and the
+    executor's timers must never interleave inside it)."""
     @functools.wraps(method)
     def wrapper(self, *args):
         with self._lock:
@@ -76,37 +78,31 @@ class ControllerNode(Node):
         self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION)
         self.pub_estimate = ri.quiet_publisher(self, JointState, contract.ESTIMATE)
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
-        # one lock serialises the driver between the loop thread and the executor's callbacks
+        # one lock serialises the driver between callbacks: the node runner spins one thread
+        # today, and a multi-threaded executor must not change the driver's behaviour
         self._lock = threading.Lock()
-        self.loop_io = None
-        # lockstep runs keep everything on one thread: simpler and measured deterministic
-        if node_ps["loop_thread"] and not self.lockstep:
-            # the demand too: a supervisor at 100-200 Hz would otherwise wake the main
-            # executor (a few hundred µs of Python each time) and hold up the next sample
-            self.loop_io = ri.LoopIO(self)
-            subscribe = self.loop_io.subscribe
-        else:
-            subscribe = functools.partial(ri.quiet_subscription, self)
+        # every input on this node and the one executor (node_runner): no helper node.
         # Δp first: in lockstep it was published before the resolver sample of the same period
-        subscribe(Float64, contract.PRESSURE_DIFFERENTIAL, self.on_pressure)
-        subscribe(Float64, contract.DEMAND, self.on_demand)
-        subscribe(Float64, contract.DEMAND_MA, self.on_demand_ma)
-        subscribe(JointState, contract.RESOLVER, self.on_resolver)
+        ri.quiet_subscription(self, Float64, contract.PRESSURE_DIFFERENTIAL, self.on_pressure)
+        ri.quiet_subscription(self, Float64, contract.DEMAND, self.on_demand)
+        ri.quiet_subscription(self, Float64, contract.DEMAND_MA, self.on_demand_ma)
+        ri.quiet_subscription(self, JointState, contract.RESOLVER, self.on_resolver)
         if node_ps["monitor_drive_telemetry"]:
             ri.quiet_subscription(self, Float64MultiArray, contract.DRIVE, self.on_drive)
         self._decimation = node_ps["telemetry_decimation"]
         self._periods = 0
+        #: messages published per loop topic (reported at exit: benchmarks compare bag counts)
+        self.published = collections.Counter()
         self._compute = ComputeTime()
         self.create_service(Trigger, "~/trip", self.on_trip)
         self.create_service(Trigger, "~/reset", self.on_reset)
         ri.handle_parameter_changes(self, CONTROLLER_SPEC, self.check_parameters, self.apply_parameters)
         period = self.driver.period
         # the watchdog runs the fault logic when no samples arrive (silence must trip)
-        if self.loop_io is None:
-            self.create_timer(max(5.0 * period, 0.01), self.watchdog)
+        self._watchdog_period = max(5.0 * period, 0.01)
+        self._watchdog_last = time.monotonic()
+        self.create_timer(self._watchdog_period, self.watchdog)
         self.create_timer(1.0 / node_ps["diagnostics_rate_hz"], self.publish_diagnostics)
-        if self.loop_io is not None:
-            self.loop_io.start(idle=self.watchdog, idle_period_s=max(5.0 * period, 0.01))
         self.get_logger().info(f"controller up: mode {ps['mode']}, loop {ps['loop_rate_hz']:g} Hz, demand from "
                                f"{ps['demand_source']}{', lockstep' if self.lockstep else ''}")
 
@@ -179,6 +175,13 @@ class ControllerNode(Node):
         timeout = self.driver.ps["faults.resolver_timeout_s"]
         if self.lockstep:
             return                       # sim time stands still while nobody steps the plant
+        now = time.monotonic()
+        late = now - self._watchdog_last > 2.0 * self._watchdog_period
+        self._watchdog_last = now
+        if late:
+            # this process itself was not scheduled: a sample that arrived meanwhile may still
+            # wait in the executor's queue behind this timer; judge silence on the next run
+            return
         last = self.driver.last_resolver_time
         if last is not None and self.now_s() - last > timeout:
             self.publish_step(self.now_s())
@@ -189,10 +192,12 @@ class ControllerNode(Node):
         if out.enable != self._last_enable:       # latched topic: publish changes only, before
             self.pub_enable.publish(self._bool(data=bool(out.enable)))   # the command it applies to
         self.pub_current.publish(self._float(data=float(out.current_a)))
+        self.published[contract.CURRENT_COMMAND] += 1
         self._periods += 1
         if self._periods % self._decimation == 0:
             if out.position_pct is not None:
                 self.pub_position.publish(self._float(data=float(out.position_pct)))
+                self.published[contract.POSITION] += 1
             est = self.driver.controller.estimate()
             sec = int(t)
             stamp = self._time(sec=sec, nanosec=int((t - sec) * 1e9)) if self.lockstep \
@@ -200,6 +205,7 @@ class ControllerNode(Node):
             self.pub_estimate.publish(ri.joint_state(
                 stamp, (est.motor_angle, est.valve_angle), (est.motor_velocity, est.valve_velocity),
                 (est.motor_friction_nm, est.valve_friction_nm)))
+            self.published[contract.ESTIMATE] += 1
         if out.enable != self._last_enable:
             if self._last_enable is not None:
                 # one call site per severity: rclpy refuses a site that changes severity
@@ -209,11 +215,6 @@ class ControllerNode(Node):
                     self.get_logger().error(f"drive DISABLED: state {out.state}"
                                             + (f", faults: {'; '.join(out.faults.values())}" if out.faults else ""))
             self._last_enable = out.enable
-
-    def destroy_node(self):
-        if self.loop_io is not None:
-            self.loop_io.stop()
-        super().destroy_node()
 
     # ------------------------------------------------------------------ services
     @locked
@@ -292,7 +293,7 @@ def _fmt(x) -> str:
 
 
 def main(args=None) -> int:
-    return ri.run_node(ControllerNode, args)
+    return run_node(ControllerNode, args)
 
 
 if __name__ == "__main__":

@@ -11,12 +11,14 @@ tick, so a lockstep run sees one demand per control period).  Profile parameters
 """
 from __future__ import annotations
 
+import collections
 import time
 
 from rclpy.node import Node
 
 from ..common import contract
 from . import interface as ri
+from .node_runner import run_node
 
 from ..common.paramspec import ConfigError
 from ..tools.profiles import DEMAND_NODE_SPEC, ProfileError, profile_from_params
@@ -44,6 +46,8 @@ class DemandNode(Node):
         self.t0 = None
         ri.handle_parameter_changes(self, DEMAND_NODE_SPEC, self.check_parameters, self.apply_parameters)
         self._pending_tick = None
+        #: messages published per topic (reported at exit: benchmarks compare bag counts)
+        self.published = collections.Counter()
         if self.lockstep:
             from rosgraph_msgs.msg import Clock
             ri.quiet_subscription(self, Clock, contract.CLOCK, self.on_clock, ri.TELEMETRY_QOS)
@@ -94,12 +98,14 @@ class DemandNode(Node):
         pct = self.profile.value(now - self.t0)
         if self.output == "percent":
             self.pub_pct.publish(self._msg_type(data=float(pct)))
+            self.published[contract.DEMAND] += 1
         else:
             self.pub_ma.publish(self._msg_type(data=contract.percent_to_ma(min(max(pct, 0.0), 100.0))))
+            self.published[contract.DEMAND_MA] += 1
 
 
 def main(args=None) -> int:
-    return ri.run_node(DemandNode, args)
+    return run_node(DemandNode, args)
 
 
 if __name__ == "__main__":

@@ -145,9 +145,10 @@ def print_summary(summary: dict, out=sys.stdout) -> None:
                                              else ""), file=out)
     loop = summary.get("loop")
     if loop and "rtt_median_ms" in loop and not summary["lockstep"]:
-        print(f"loop: {loop['commands']} commands for {loop['ticks']} plant ticks, missed periods "
-              f"{100 * loop['missed_fraction']:.2f} %, round trip median {loop['rtt_median_ms']:.3f} ms, "
-              f"p99 {loop['rtt_p99_ms']:.3f} ms", file=out)
+        print(f"loop: the plant ticked {loop['ticks']} times at 1 kHz; in {100 * loop['missed_fraction']:.2f} % of "
+              f"the ticks the controller's answer to the previous sample had not arrived yet (missed periods: the "
+              f"plant held the old current); sample -> command round trip median {loop['rtt_median_ms']:.3f} ms, "
+              f"99 % within {loop['rtt_p99_ms']:.3f} ms (a period is 1 ms)", file=out)
     if loop and summary["lockstep"]:
         print(f"loop: {loop.get('commands')} control periods in lockstep", file=out)
     print(f"node logs: {summary.get('run_dir')}", file=out, flush=True)

@@ -14,7 +14,7 @@ writes the same lockstep wiring and ``test/test_launch_file.py`` checks it again
   on simulated time;
 * environment: the caller's plus ``env`` (e.g. ``ROS_DOMAIN_ID``), unbuffered output;
 * logs: ``<run_dir>/<node>.log`` (stdout and stderr);
-* stop: SIGINT (the recorder first, so it finalises the bag with everything), then SIGTERM,
+* stop: SIGINT (publishers first, the recorder last, so the bag holds all they sent), then SIGTERM,
   then SIGKILL for what hangs; the exit codes are returned.
 
 No rclpy and no simulator imports here (only subprocesses and parameter files).
@@ -44,8 +44,9 @@ MODULES = {"plant": "fuel_valve_plant.ros.plant_node", "controller": "fuel_valve
            "demand": "fuel_valve_control.ros.demand_node", "recorder": "fuel_valve_control.tools.recorder"}
 #: nodes that subscribe to /clock in lockstep (besides observers); the plant publishes it
 CLOCK_NODES = ("controller", "demand")
-#: stop order: the recorder first (it finalises the bag with everything), the plant last
-STOP_ORDER = ("recorder", "demand", "controller", "plant")
+#: stop order: the publishers first (demand, then the loop), the recorder last, so it drains and
+#: records everything they published before it closes the bag
+STOP_ORDER = ("demand", "controller", "plant", "recorder")
 #: exit codes of a node stopped on request (rclpy's SIGINT handling: 0, or killed by SIGINT)
 CLEAN_EXIT_CODES = (0, -signal.SIGINT)
 #: a lockstep participant that does nothing but subscribe to /clock (a test's start gate)
@@ -213,7 +214,7 @@ class Launcher:
         raise AssertionError(f"{name}: no {text!r} within {timeout_s} s:\n{self.log(name)}")
 
     def stop(self, names=None, grace_s: float = 10.0) -> dict:
-        """Stop ``names`` (default: all, recorder first, plant last): SIGINT, after ``grace_s``
+        """Stop ``names`` (default: all in :data:`STOP_ORDER`): SIGINT, after ``grace_s``
         SIGTERM, after 2 s more SIGKILL.  Returns ``{node: exit code}``."""
         if names is None:
             names = list(STOP_ORDER) + [n for n in self.procs if n not in STOP_ORDER]

@@ -40,6 +40,7 @@ class Monitor:
         self.level = None
         self.message = ""
         self.worst_level = 0
+        self.armed = False                         # a first OK status was seen
         self.fault_messages: list[str] = []
         self.errors: list[float] = []              # |demand - position| %, per position sample
         n = self.node
@@ -86,7 +87,10 @@ class Monitor:
             self.level = st.level[0] if isinstance(st.level, bytes) else int(st.level)
             self.message = st.message
             self.health = {kv.key: kv.value for kv in st.values}
-            if self.level > self.worst_level:
+            # the worst status counts from the first OK on: "waiting for a valid demand" before
+            # the demand node starts is the start-up, not a degradation (faults always count)
+            self.armed = self.armed or self.level == 0
+            if (self.armed or self.level == 2) and self.level > self.worst_level:
                 self.worst_level = self.level
             if self.level == 2 and st.message not in self.fault_messages:
                 self.fault_messages.append(st.message)

@@ -8,50 +8,58 @@ The bag is a rosbag2 directory (format version 9, MCAP storage by default) writt
 ``rosbags`` library; every connection carries the Jazzy message definition and RIHS01 type
 hash, so Jazzy's ``ros2 bag info`` / ``ros2 bag play`` and :mod:`.bag_io` read it.
 
-Subscriptions are raw (the CDR bytes are written untouched: cheap and exact), RELIABLE,
-KEEP_LAST ``DEPTH``; ``drive_enable`` is TRANSIENT_LOCAL like its publisher so a recorder
-started late still gets the latched state.  Timestamps follow ``ros2 bag record`` (Jazzy):
+Hot path (measured in benchmarks/ros_loop.py --record): subscriptions are raw, so the CDR
+bytes are never deserialised, only stamped and queued; a writer thread hands them to rosbags'
+public ``Writer.write`` (what rosbag2's own recorder does).  The queue is bounded
+(:class:`BagWriterThread`): a message that does not fit is dropped *and counted*; the summary
+logged at the end lists per topic the messages written and any dropped.  The executor is the
+suite's (:mod:`fuel_valve_control.ros.node_runner`, rclpy's events executor).
 
-* receive time (MCAP ``log_time``, the bag's timestamp) = the node's clock when the message
-  is taken, ns: sim time with ``use_sim_time`` (0 until the first ``/clock``), else system
-  time.  With sim time it never runs behind the newest ``/clock`` message already recorded
-  (the node's time source and the recording subscription of ``/clock`` are two
-  subscriptions of one topic, taken in either order);
-* publish time (MCAP ``publish_time``) = the DDS source timestamp (publisher's system
-  clock); MCAP ``sequence`` counts per topic from 1.  The sqlite3 storage has no publish
-  time (rosbag2 neither).
+Subscriptions are RELIABLE, KEEP_LAST ``DEPTH``; ``drive_enable`` is TRANSIENT_LOCAL like its
+publisher so a recorder started late still gets the latched state.  metadata.yaml carries,
+per topic, the message count written and the QoS profiles its publishers offered (as
+``ros2 bag record`` stores them, so ``ros2 bag play`` offers the same), and ``ros_distro:
+jazzy``.  Timestamps follow ``ros2 bag record`` (Jazzy): the receive time (MCAP
+``log_time``, the bag's timestamp) is the node's clock when the message is taken, ns: sim
+time with ``use_sim_time`` (0 until the first ``/clock``; never behind the newest ``/clock``
+message already recorded, as the node's time source and the recording subscription are two
+subscriptions of one topic, taken in either order), else system time.
 
-MCAP channels also carry ``topic_type_hash`` metadata, as rosbag2's MCAP plugin writes it.
+Not written, because rosbags' public writer API has no argument for them: the MCAP publish
+time (the DDS source timestamp; rosbags writes the receive time) and the per-channel
+sequence number (rosbags writes 0).  The events executor cannot hand the message info to a
+callback either.  Readers that need the send time use the header stamps.
 
 SIGINT and SIGTERM only set a flag, so a message being written is never interrupted; the
 node then drains what is already queued, closes the writer (which writes metadata.yaml with
 the message counts) and logs a summary.  A SIGKILL loses the bag's index and metadata.
-
-The single-threaded executor is used: the events executor of this rclpy is faster per
-message but cannot deliver the message info (source timestamp) to a callback.
 """
 from __future__ import annotations
 
 import importlib
 import shutil
-import signal
 import sys
 import time
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..common import contract
 from ..common.paramspec import Param, ParamSpec
 from ..ros import interface as ri
+from ..ros import node_runner
 
 #: per-topic queue of the subscriptions: a deep reliable queue absorbs bursts while a chunk
 #: is being flushed to disk
 DEPTH = 1000
 BAG_VERSION = 9
+#: the distribution whose message definitions and type hashes the bag carries (the rosbags
+#: typestore used below is Jazzy's; rosbag2 writes its distro into metadata.yaml)
+ROS_DISTRO = "jazzy"
 CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
 STORAGES = ("mcap", "sqlite3")
 #: the recorder node's parameters (all start-up only)
@@ -174,84 +182,97 @@ def prepare_output(path: Path, overwrite: bool) -> None:
 
 
 def bag_writer(path: Path, storage: str):
-    """A rosbags ``Writer`` for ``path`` (rosbag2 version 9) whose MCAP storage also writes the
-    publish time, a per-topic sequence number and the channel's ``topic_type_hash``.
-
-    rosbags' own MCAP writer sets publish_time = log_time and sequence = 0; the subclass below
-    changes only those fields of the message record (layout of the MCAP specification) and
-    adds one channel metadata entry.  Should rosbags' internals ever change, the plain writer
-    is used instead (publish time = receive time, still a valid bag).
-    """
+    """A rosbags ``Writer`` (public API) for a rosbag2 version-9 bag at ``path``."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    if storage == "mcap":
-        try:
-            return _PublishTimeWriter(path, version=BAG_VERSION, storage_plugin=plugin)
-        except NameError:
-            pass
     return Writer(path, version=BAG_VERSION, storage_plugin=plugin)
 
 
-try:
-    from io import BytesIO
+def set_ros_distro(metadata: Path, distro: str = ROS_DISTRO) -> None:
+    """Write the real distribution into a closed bag's ``metadata.yaml`` (rosbags writes
+    ``ros_distro: rosbags`` and has no setting for it; the copy of the metadata inside an MCAP
+    file keeps rosbags' value: rosbag2 reads metadata.yaml)."""
+    text = metadata.read_text()
+    fixed = text.replace("ros_distro: rosbags\n", f"ros_distro: {distro}\n")
+    if fixed != text:
+        tmp = metadata.with_suffix(".yaml.tmp")
+        tmp.write_text(fixed)
+        tmp.replace(metadata)
 
-    from rosbags.rosbag2 import StoragePlugin as _StoragePlugin
-    from rosbags.rosbag2 import Writer as _Writer
-    from rosbags.rosbag2.storage_mcap import Channel as _Channel
-    from rosbags.rosbag2.storage_mcap import McapWriter as _McapWriter
-    from rosbags.rosbag2.storage_mcap import write_channel as _write_channel
-    from rosbags.rosbag2.storage_mcap import write_record as _write_record
-    from rosbags.rosbag2.storage_mcap import write_string as _write_string
-    from rosbags.rosbag2.storage_mcap import write_uint16 as _write_uint16
-    from rosbags.rosbag2.storage_mcap import write_uint32 as _write_uint32
-    from rosbags.rosbag2.storage_mcap import write_uint64 as _write_uint64
 
-    class _McapStorage(_McapWriter):
-        """rosbags' MCAP storage with publish time, sequence and topic_type_hash."""
+class BagWriterThread:
+    """Writes ``(topic, receive time, CDR bytes)`` items to the bag on its own thread.
 
-        #: (publish_time, sequence) of the message being written, set by the Writer
-        pending: tuple[int, int] | None = None
+    The executor's callbacks only append to a bounded queue (a deque: append and popleft are
+    atomic, no lock), so taking messages from DDS never waits for the disk; the thread wakes
+    every ``POLL_S`` and writes everything queued.  A full queue drops the new message and
+    counts it (``dropped``): memory stays bounded and a loss is reported, never silent.
+    The rosbags writer lives entirely on this thread (opened, written and closed there: its
+    sqlite3 storage refuses use from another thread).
+    """
 
-        def add_connection(self, connection, offered_qos_profiles: str) -> None:
-            metadata = BytesIO()
-            _write_string(metadata, "offered_qos_profiles")
-            _write_string(metadata, offered_qos_profiles)
-            _write_string(metadata, "topic_type_hash")
-            _write_string(metadata, connection.digest)
-            self.channels.append(_Channel(connection.id, connection.msgtype, connection.topic,
-                                         connection.ext.serialization_format, metadata.getvalue()))
-            self.channel_stats[connection.id] = 0
-            _write_channel(self.chunk.bio, self.channels[-1], self.schemas)
+    #: queue bound, messages (about 20 s of the suite's traffic at 1 kHz)
+    MAX_QUEUE = 100_000
+    #: the thread's wake-up period, s
+    POLL_S = 0.005
 
-        def write(self, connection, timestamp: int, data) -> None:
-            publish, sequence = self.pending if self.pending is not None else (timestamp, 0)
-            self.pending = None
-            self.message_start_time = min(timestamp, self.message_start_time)
-            self.message_end_time = max(timestamp, self.message_end_time)
-            self.channel_stats[connection.id] += 1
-            chunk = self.chunk
-            chunk.message_start_time = min(timestamp, chunk.message_start_time)
-            chunk.message_end_time = max(timestamp, chunk.message_end_time)
-            chunk.msgs[connection.id].append((timestamp, chunk.bio.tell()))
-            rec = BytesIO()
-            _write_uint16(rec, connection.id)
-            _write_uint32(rec, sequence & 0xFFFFFFFF)
-            _write_uint64(rec, timestamp)           # log_time
-            _write_uint64(rec, publish)             # publish_time
-            rec.write(data)
-            _write_record(chunk.bio, 0x05, rec)
-            if chunk.bio.tell() > 2**20:
-                self.close_chunk()
+    def __init__(self, open_writer, connect, topics):
+        """``open_writer()`` -> an open rosbags Writer; ``connect(writer, topic)`` -> its
+        connection; ``topics``: every recorded topic (a connection each, even if empty)."""
+        import collections
+        import threading
+        self._open, self._connect, self._topics = open_writer, connect, topics
+        self._queue = collections.deque()
+        self.dropped: dict[str, int] = {}
+        self.error: BaseException | None = None
+        self._ready, self._stop = threading.Event(), threading.Event()
+        self._thread = threading.Thread(target=self._run, name="bag-writer", daemon=True)
+        self._thread.start()
+        self._ready.wait()
+        if self.error is not None:
+            raise self.error
 
-    class _PublishTimeWriter(_Writer):
-        STORAGE_PLUGINS = {**_Writer.STORAGE_PLUGINS, _StoragePlugin.MCAP: _McapStorage}
+    def put(self, topic, stamp: int, data: bytes) -> None:
+        """Queue one message (executor thread)."""
+        if len(self._queue) >= self.MAX_QUEUE:
+            self.dropped[topic.name] = self.dropped.get(topic.name, 0) + 1
+            return
+        self._queue.append((topic, stamp, data))
 
-        def write_message(self, connection, log_time: int, data, publish_time: int, sequence: int) -> None:
-            if isinstance(self.storage, _McapStorage):
-                self.storage.pending = (publish_time, sequence)
-            self.write(connection, log_time, data)
-except ImportError:                                     # pragma: no cover - other rosbags versions
-    pass
+    def _run(self) -> None:
+        try:
+            writer = self._open()
+        except BaseException as exc:          # noqa: BLE001 - handed to the constructor's caller
+            self.error = exc
+            self._ready.set()
+            return
+        self._ready.set()
+        try:
+            while not self._stop.wait(self.POLL_S):
+                self._write_queued(writer)
+            self._write_queued(writer)
+            for topic in self._topics:
+                if topic.connection is None:   # subscribed but nothing arrived: still listed, count 0
+                    topic.connection = self._connect(writer, topic)
+            writer.close()
+        except BaseException as exc:          # noqa: BLE001 - reported by close()
+            self.error = exc
+
+    def _write_queued(self, writer) -> None:
+        queue, write = self._queue, writer.write
+        while queue:
+            topic, stamp, data = queue.popleft()
+            if topic.connection is None:
+                topic.connection = self._connect(writer, topic)
+            write(topic.connection, stamp, data)
+            topic.count += 1
+
+    def close(self) -> None:
+        """Write what is queued and close the bag (metadata.yaml); raises what the thread hit."""
+        self._stop.set()
+        self._thread.join()
+        if self.error is not None:
+            raise self.error
 
 
 class Recorder(Node):
@@ -295,21 +316,25 @@ class Recorder(Node):
         self.path = Path(self.get_parameter("output").value or default_output()).expanduser()
         prepare_output(self.path, bool(self.get_parameter("overwrite").value))
         self._typestore = typestore
-        self._writer = bag_writer(self.path, storage)
+        def open_writer():
+            writer = bag_writer(self.path, storage)
+            writer.open()
+            return writer
         try:
-            self._writer.open()
+            self._bag = BagWriterThread(open_writer, self._connect, list(self._topics.values()))
         except (WriterError, OSError) as exc:
             raise RecorderError(f"cannot create bag {str(self.path)!r}: {exc}") from None
-        self._write_message = getattr(self._writer, "write_message", None)
         self._clock = self.get_clock()
         self._floor_ns = 0            # newest /clock value recorded (sim time only)
         self._use_sim_time = use_sim_time
         self.storage = storage
+        self.received = 0             # messages taken from DDS (written + dropped + queued)
+        self.dropped: dict[str, int] = {}
 
-        # /clock first: within one executor wait, entities are taken in creation order
-        for topic in sorted(self._topics.values(), key=lambda tp: tp.name != contract.CLOCK):
+        for topic in self._topics.values():
             sub = self.create_subscription(message_class(topic.msgtype), topic.name, partial(self._on_message, topic),
-                                           subscription_qos(topic.name), raw=True)
+                                           subscription_qos(topic.name), raw=True,
+                                           event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
             self._check_hash(topic, sub)
         self.get_logger().info(f"recording {len(self._topics)} topics to {self.path} ({storage}): "
                                + ", ".join(sorted(self._topics)))
@@ -319,35 +344,33 @@ class Recorder(Node):
         """Messages written so far."""
         return sum(t.count for t in self._topics.values())
 
-    def _on_message(self, topic: _Topic, data: bytes, info) -> None:
-        if self._writer is None:
+    def _on_message(self, topic: _Topic, data: bytes) -> None:
+        """Executor thread: stamp the CDR bytes with the receive time and queue them."""
+        bag = self._bag
+        if bag is None:                                    # closed: a late callback
+            return
+        self.received += 1
+        if not self._use_sim_time:
+            bag.put(topic, time.time_ns(), data)           # the node's clock = system time
             return
         stamp = self._clock.now().nanoseconds
-        if self._use_sim_time:
-            if topic.name == contract.CLOCK and len(data) >= 12:
-                # CDR: 4-byte encapsulation header, then int32 sec, uint32 nanosec
-                sec = int.from_bytes(data[4:8], "little" if data[1] == 1 else "big", signed=True)
-                nsec = int.from_bytes(data[8:12], "little" if data[1] == 1 else "big")
-                self._floor_ns = max(self._floor_ns, sec * 1_000_000_000 + nsec)
-            stamp = max(stamp, self._floor_ns)
-        if topic.connection is None:
-            topic.connection = self._connect(topic)
-        topic.count += 1
-        if self._write_message is not None:
-            sent = info.get("source_timestamp") if isinstance(info, dict) else None
-            self._write_message(topic.connection, stamp, data, int(sent) if sent else stamp, topic.count)
-        else:
-            self._writer.write(topic.connection, stamp, data)
+        if topic.name == contract.CLOCK and len(data) >= 12:
+            # CDR: 4-byte encapsulation header, then int32 sec, uint32 nanosec
+            order = "little" if data[1] == 1 else "big"
+            sec = int.from_bytes(data[4:8], order, signed=True)
+            self._floor_ns = max(self._floor_ns, sec * 1_000_000_000 + int.from_bytes(data[8:12], order))
+        bag.put(topic, max(stamp, self._floor_ns), data)
 
-    def _connect(self, topic: _Topic):
-        """Add the bag connection; done at the first message so the publishers' offered QoS
-        (which ``ros2 bag play`` reuses, e.g. for the latched ``drive_enable``) is known."""
+    def _connect(self, writer, topic: _Topic):
+        """Add the bag connection with the offered QoS of the topic's publishers (which ``ros2
+        bag play`` reuses, e.g. TRANSIENT_LOCAL for ``drive_enable``): done at the first
+        message, when the publishers are known."""
         try:
             qos = [to_bag_qos(info.qos_profile) for info in self.get_publishers_info_by_topic(topic.name)]
         except Exception:  # the graph query is best effort; a connection without QoS is still valid
             qos = []
-        return self._writer.add_connection(topic.name, topic.msgtype, typestore=self._typestore,
-                                           offered_qos_profiles=qos)
+        return writer.add_connection(topic.name, topic.msgtype, typestore=self._typestore,
+                                               offered_qos_profiles=qos)
 
     def _check_hash(self, topic: _Topic, sub) -> None:
         """Warn when the middleware's type hash differs from the typestore's: the stored
@@ -362,38 +385,36 @@ class Recorder(Node):
             pass
 
     def finish(self) -> dict[str, int]:
-        """Close the bag (metadata.yaml with message counts) and log the summary; idempotent.
-        Returns ``{topic: messages}``."""
-        counts = {t.name: t.count for t in self._topics.values()}
-        if self._writer is None:
-            return counts
-        writer, self._writer = self._writer, None
-        for topic in self._topics.values():
-            if topic.connection is None:   # subscribed but nothing arrived: still listed, count 0
-                topic.connection = writer.add_connection(topic.name, topic.msgtype, typestore=self._typestore)
-        writer.close()
-        width = max(len(n) for n in counts)
-        lines = "\n".join(f"  {n:<{width}} {c}" for n, c in sorted(counts.items()))
-        self.get_logger().info(f"bag {self.path} closed: {sum(counts.values())} messages\n{lines}")
-        return counts
+        """Write what is queued, close the bag (metadata.yaml with the message counts and
+        ``ros_distro``) and log the summary, dropped messages included; idempotent.
+        Returns ``{topic: messages written}``."""
+        if self._bag is not None:
+            bag, self._bag = self._bag, None
+            self.dropped = bag.dropped
+            bag.close()
+            set_ros_distro(self.path / "metadata.yaml")
+            counts = {t.name: t.count for t in self._topics.values()}
+            width = max(len(n) for n in counts)
+            lines = "\n".join(f"  {n:<{width}} {c}" + (f" ({self.dropped[n]} DROPPED)" if n in self.dropped else "")
+                              for n, c in sorted(counts.items()))
+            self.get_logger().info(f"bag {self.path} closed: {sum(counts.values())} messages, "
+                                   f"{sum(self.dropped.values())} dropped\n{lines}")
+        return {t.name: t.count for t in self._topics.values()}
 
 
 def main(args=None) -> int:
     """Record until SIGINT / SIGTERM.  Exit codes: 0 ok, 1 bag could not be finalised,
     2 configuration error (printed on stderr)."""
     import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
 
     stop: list[int] = []
-
-    def request_stop(signum, frame):
-        # only a flag: raising here could interrupt a write and corrupt the chunk being built
-        stop.append(signum)
-    signal.signal(signal.SIGINT, request_stop)
-    signal.signal(signal.SIGTERM, request_stop)
+    # only a flag (as for every node, see node_runner): the spin loop sees it within one spin
+    # timeout, then the queued messages are taken before anything is shut down
+    node_runner.quiet_signals(stop.append)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
+    node = executor = None
     code = 0
     try:
         try:
@@ -401,21 +422,19 @@ def main(args=None) -> int:
         except (RecorderError, OSError) as exc:
             print(f"recorder: {exc}", file=sys.stderr, flush=True)
             return 2
-        executor = SingleThreadedExecutor()
+        executor = node_runner.make_executor()
         executor.add_node(node)
         try:
-            # spin_once with a timeout, not spin(): the flag is checked even when no data flows
-            while not stop and rclpy.ok():
-                executor.spin_once(timeout_sec=0.1)
+            node_runner.spin(executor, until=lambda: bool(stop), timeout_s=0.05)
             # take what is already queued in the subscriptions before closing
             # (until none arrived for DRAIN_IDLE_S; at most DRAIN_LIMIT_S if publishers go on)
             now = time.monotonic()
-            deadline, idle_since, last = now + DRAIN_LIMIT_S, now, node.total
+            deadline, idle_since, last = now + DRAIN_LIMIT_S, now, node.received
             while rclpy.ok() and now < deadline and now - idle_since < DRAIN_IDLE_S:
                 executor.spin_once(timeout_sec=DRAIN_IDLE_S / 5)
                 now = time.monotonic()
-                if node.total != last:
-                    idle_since, last = now, node.total
+                if node.received != last:
+                    idle_since, last = now, node.received
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         try:
@@ -425,8 +444,13 @@ def main(args=None) -> int:
             code = 1
     finally:
         if node is not None:
+            if executor is not None:
+                executor.remove_node(node)
             node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
         rclpy.try_shutdown()
+        node_runner.ignore_signals()
     return code
 
 

@@ -25,6 +25,7 @@ current with the drive disabled, like a drive that rejects a corrupt set-point.
 """
 from __future__ import annotations
 
+import collections
 import threading
 import time
 
@@ -32,6 +33,7 @@ from rclpy.node import Node
 
 from fuel_valve_control.common import contract
 from fuel_valve_control.ros import interface as ri
+from fuel_valve_control.ros.node_runner import run_node
 from fuel_valve_control.common.paramspec import ConfigError
 from ..physics.plant import Plant
 from ..physics.params import PLANT_NODE_SPEC, PLANT_SPEC, check_consistency
@@ -42,7 +44,8 @@ LOCKSTEP_SETTLE_S = 0.5
 
 
 class LoopStats:
-    """Round-trip times and missed periods of the control loop, seen from the plant."""
+    """Round-trip times and missed periods of the control loop, seen from the plant; ticks and
+    missed periods count from the first command received (before it the loop is open)."""
 
     def __init__(self, keep: int = 200000):
         self.keep = keep
@@ -86,6 +89,8 @@ class PlantNode(Node):
         self._command_rejected = False
         self._bad_commands = 0
         self.stats = LoopStats()
+        #: messages published per loop topic (reported at exit: benchmarks compare bag counts)
+        self.published = collections.Counter()
         self._got_command = False
         self._last_publish_mono = None
 
@@ -98,18 +103,10 @@ class PlantNode(Node):
         self.pub_pressure = ri.quiet_publisher(self, Float64, contract.PRESSURE_DIFFERENTIAL)
         self._float = Float64
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
-        # the loop's inputs are taken by their own lean thread (see LoopIO); drive_enable first:
-        # in lockstep a command steps the plant at once, with the enable state it applies to
-        # (lockstep runs keep everything on the executor's thread: measured deterministic)
-        self.loop_io = None
-        if self.lockstep:
-            ri.quiet_subscription(self, Bool, contract.DRIVE_ENABLE, self.on_enable)
-            ri.quiet_subscription(self, Float64, contract.CURRENT_COMMAND, self.on_command)
-        else:
-            self.loop_io = ri.LoopIO(self)
-            self.loop_io.subscribe(Bool, contract.DRIVE_ENABLE, self.on_enable)
-            self.loop_io.subscribe(Float64, contract.CURRENT_COMMAND, self.on_command)
-            self.loop_io.start()
+        # the loop's inputs, taken by the node runner's executor; drive_enable first: in
+        # lockstep a command steps the plant at once, with the enable state it applies to
+        ri.quiet_subscription(self, Bool, contract.DRIVE_ENABLE, self.on_enable)
+        ri.quiet_subscription(self, Float64, contract.CURRENT_COMMAND, self.on_command)
         ri.handle_parameter_changes(self, PLANT_SPEC, self.plant.check_params, self.apply_parameters)
         self.create_timer(1.0, self.publish_diagnostics)
         if self.lockstep:
@@ -177,9 +174,10 @@ class PlantNode(Node):
             elapsed = min(now - last, 10.0 * self.period)
             last = now
             with self._lock:
-                self.stats.ticks += 1
-                if self._last_publish_mono is not None and not self._got_command:
-                    self.stats.missed += 1
+                if self.stats.commands:         # the loop is closed (a controller answers): count
+                    self.stats.ticks += 1       # its periods; before, every tick would be "missed"
+                    if not self._got_command:
+                        self.stats.missed += 1
                 try:
                     self.step_and_publish(elapsed)
                 except Exception:                       # noqa: BLE001 - context shut down under us
@@ -191,8 +189,6 @@ class PlantNode(Node):
         if not self.lockstep:
             self._running = False
             self._thread.join(timeout=1.0)
-        if self.loop_io is not None:
-            self.loop_io.stop()
 
     def try_start(self) -> None:
         """Lockstep: start once the controller (and the other participants) are connected."""
@@ -241,16 +237,20 @@ class PlantNode(Node):
         dp = self.plant.pressure_sample()
         if dp is not None:        # first: in lockstep the controller uses it this very period
             self.pub_pressure.publish(self._float(data=dp))
+            self.published[contract.PRESSURE_DIFFERENTIAL] += 1
         sample = self.plant.resolver()
         self._got_command = False
         self._last_publish_mono = time.monotonic()
         if sample is not None:
             self.pub_resolver.publish(ri.joint_state(stamp, (sample.motor_rad, sample.valve_rad)))
+            self.published[contract.RESOLVER] += 1
         truth = self.plant.truth()
         self.pub_truth.publish(ri.joint_state(
             stamp, (truth.motor_angle, truth.valve_angle), (truth.motor_velocity, truth.valve_velocity),
             (truth.electromagnetic_torque, truth.coupling_torque)))
         self.pub_drive.publish(ri.labelled_array(contract.TELEMETRY_LABELS, self.plant.telemetry()))
+        self.published[contract.JOINT_STATES] += 1
+        self.published[contract.DRIVE] += 1
 
     # ------------------------------------------------------------------ parameters
     def apply_parameters(self, changes: dict) -> None:
@@ -284,7 +284,7 @@ def main(args=None) -> int:
     def report(node):
         node.stop()
         print(f"[plant] loop statistics: {node.stats.summary()}", flush=True)
-    return ri.run_node(PlantNode, args, on_exit=report)
+    return run_node(PlantNode, args, on_exit=report)
 
 
 if __name__ == "__main__":

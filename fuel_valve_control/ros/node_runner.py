@@ -1,0 +1,126 @@
+"""Process entry point of the suite's nodes: one node, one executor, public rclpy API only.
+
+Every node of the suite (plant, controller, demand, recorder) runs its ROS work on rclpy's
+``EventsExecutor`` (``rclpy.experimental``, C++ event queue): in a 1 kHz plant/controller
+ping-pong it cost a third of the CPU per cycle of the ``SingleThreadedExecutor`` and a fifth
+of its p99 round trip (benchmarks/ros_loop.py; README).  The loop's subscriptions live on the
+node itself, so the graph holds exactly the design's nodes and ``ros2 node info`` shows them.
+
+Two properties of the events executor of rclpy 7.1.x that this module works around (pinned by
+``test/test_node_runner.py``):
+
+* ``spin()`` without a timeout never runs timers, busy-waits and ignores SIGINT/SIGTERM: the
+  nodes spin with :func:`spin`, a ``spin_once(timeout_sec=...)`` loop that checks the context;
+* a callback that asks for the message info (two arguments) fails in the executor
+  (``SystemError``): subscriptions here take the message only.
+
+Signals: SIGINT and SIGTERM only set a flag (Python-level handlers; rclpy's own are not
+installed); the spin loop sees it within one ``spin_once`` and returns, then the node is
+taken off the executor and destroyed, and only then is the context shut down.  So no callback
+ever runs on a shut-down context (rclpy's handlers shut it down at once, from the signal, and
+a callback running at that moment failed to publish), and no ``KeyboardInterrupt`` is raised
+anywhere: under ``ros2 launch`` the terminal's SIGINT and the one launch forwards both
+arrive, and the second would otherwise land in the clean-up and end the process with -2.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import sys
+
+#: longest time one ``spin_once`` blocks, s: how late a shutdown without a wake-up is seen
+SPIN_TIMEOUT_S = 0.1
+#: GIL switch interval, s: a sample arriving while another thread of the process (the plant's
+#: tick thread) runs Python waits at most this long (CPython's default is 5 ms, five periods)
+SWITCH_INTERVAL_S = 0.0002
+
+
+def make_executor(context=None):
+    """The executor every node of the suite spins on (see the module docstring)."""
+    from rclpy.experimental import EventsExecutor
+    return EventsExecutor(context=context)
+
+
+def spin(executor, context=None, until=None, timeout_s: float = SPIN_TIMEOUT_S) -> None:
+    """Spin ``executor`` until ``context`` (default: rclpy's) shuts down or ``until()`` is true.
+
+    ``spin_once`` with a timeout, never ``spin()``: the events executor's untimed spin ignores
+    shutdown (see the module docstring)."""
+    import rclpy
+    while rclpy.ok(context=context) and not (until is not None and until()):
+        executor.spin_once(timeout_sec=timeout_s)
+
+
+def quiet_signals(handler=None) -> None:
+    """Python-level SIGINT/SIGTERM handlers that never raise; ``handler(signum)`` if given.
+
+    Use with ``rclpy.init(signal_handler_options=SignalHandlerOptions.NO)``: a signal then
+    only does what ``handler`` does (e.g. set the flag :func:`spin` watches)."""
+    def on_signal(signum, frame):
+        if handler is not None:
+            handler(signum)
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+
+
+def ignore_signals() -> None:
+    """Ignore SIGINT/SIGTERM from here on: for the end of a process whose clean-up is done.
+
+    The interpreter's own shutdown puts Python-level handlers back to the default action, so
+    a late signal (the second or third of a launch shutdown) would kill the process with -2 in
+    its last milliseconds; an ignored signal stays ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+
+def run_node(factory, args=None, on_exit=None) -> int:
+    """Run the node ``factory()`` builds until SIGINT / SIGTERM, then clean up; the exit code.
+
+    ``factory()`` raising ``SystemExit`` or a parameter exception is a configuration error:
+    message printed, exit code 2.  ``on_exit(node)`` runs before the node is destroyed (the
+    context may already be shut down: print or log, do not publish).  0 otherwise, also when
+    several signals arrive (see the module docstring).
+    """
+    import rclpy
+    from rclpy.exceptions import InvalidParameterValueException, ParameterException
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
+
+    stop: list[int] = []
+    quiet_signals(stop.append)
+    sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node = executor = None
+    code = 0
+    try:
+        node = factory()
+        executor = make_executor()
+        executor.add_node(node)
+        spin(executor, until=lambda: bool(stop))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except SystemExit as exc:
+        print(exc, flush=True)
+        code = 2
+    except (ParameterException, InvalidParameterValueException) as exc:
+        # a parameter file or -p value outside a declared range: a configuration error
+        print(f"invalid parameter: {exc}", flush=True)
+        code = 2
+    except Exception:                       # noqa: BLE001 - a shutdown race inside spin_once()
+        if rclpy.ok():
+            raise
+    finally:
+        if node is not None:
+            if on_exit is not None:
+                on_exit(node)
+            if getattr(node, "published", None) is not None:
+                # one line a benchmark or test can parse: messages this node published per topic
+                print(f"[{node.get_name()}] published: {json.dumps(dict(node.published))}", flush=True)
+            if executor is not None:
+                executor.remove_node(node)
+            node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
+        rclpy.try_shutdown()
+        ignore_signals()
+    return code

@@ -1,0 +1,113 @@
+"""Process life cycle of the nodes on the node runner (rclpy's events executor, public API).
+
+* SIGINT, SIGTERM, and two SIGINTs (as under ``ros2 launch``: the terminal's and the one
+  launch forwards; the second can land in the clean-up) each end plant, controller and demand
+  with exit code 0, without a traceback, well before launch would escalate (5 s);
+* the graph holds exactly the design's nodes (no helper nodes), and the loop's
+  subscriptions are on the real nodes (what ``ros2 node info`` shows).
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("rclpy")
+
+pytestmark = [pytest.mark.ros]
+
+NS = "/fv_life"
+NODES = ("plant", "controller", "demand")
+#: launch's SIGINT -> SIGTERM escalation delay, s: a node must be gone well before it
+EXIT_WITHIN_S = 5.0
+
+
+def exe(name: str) -> list[str]:
+    here = Path(sys.executable).parent / name
+    return [str(here)] if here.exists() else [sys.executable, "-m", {
+        "plant": "fuel_valve_plant.ros.plant_node", "controller": "fuel_valve_control.ros.controller_node",
+        "demand": "fuel_valve_control.ros.demand_node"}[name]]
+
+
+def start(tmp_path: Path, tag: str) -> dict[str, tuple[subprocess.Popen, Path]]:
+    procs = {}
+    for name in NODES:
+        log = tmp_path / f"{tag}_{name}.log"
+        procs[name] = (subprocess.Popen(exe(name) + ["--ros-args", "-r", f"__ns:={NS}"],
+                                        env=dict(os.environ, PYTHONUNBUFFERED="1"), stdin=subprocess.DEVNULL,
+                                        stdout=open(log, "w"), stderr=subprocess.STDOUT), log)
+    end = time.monotonic() + 40.0
+    for name, (proc, log) in procs.items():
+        while f"{name} up" not in log.read_text():
+            assert proc.poll() is None, log.read_text()
+            assert time.monotonic() < end, log.read_text()
+            time.sleep(0.05)
+    return procs
+
+
+def stop(procs, signals) -> dict[str, tuple[int, float, str]]:
+    """Send ``signals`` (with the given delays, s) to every process; (code, s to exit, log)."""
+    t0 = time.monotonic()
+    for sig, delay in signals:
+        time.sleep(delay)
+        for proc, _ in procs.values():
+            if proc.poll() is None:
+                proc.send_signal(sig)
+    out = {}
+    for name, (proc, log) in procs.items():
+        try:
+            proc.wait(timeout=EXIT_WITHIN_S + 10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        out[name] = (proc.returncode, time.monotonic() - t0, log.read_text())
+    return out
+
+
+def graph(context_ns: str):
+    """(node names in the namespace, {node: subscribed topics}) seen by a probe node."""
+    import rclpy
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        probe = rclpy.create_node("life_probe", context=context)
+        end = time.monotonic() + 10.0
+        names = set()
+        while time.monotonic() < end:
+            names = {n for n, ns in probe.get_node_names_and_namespaces() if ns == context_ns}
+            if set(NODES) <= names:
+                break
+            time.sleep(0.1)
+        time.sleep(0.5)                       # let the rest of the graph arrive, then read it
+        names = [n for n, ns in probe.get_node_names_and_namespaces() if ns == context_ns]
+        subs = {n: {t for t, _ in probe.get_subscriber_names_and_types_by_node(n, context_ns)} for n in set(names)}
+        probe.destroy_node()
+        return names, subs
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+@pytest.mark.parametrize("signals", [
+    [(signal.SIGINT, 0.0)],
+    [(signal.SIGTERM, 0.0)],
+    [(signal.SIGINT, 0.0), (signal.SIGINT, 0.05), (signal.SIGINT, 0.15)],
+], ids=["sigint", "sigterm", "sigint_x3"])
+def test_signals_end_every_node_with_exit_0(tmp_path, signals):
+    procs = start(tmp_path, "run")
+    try:
+        if signals[0][0] == signal.SIGINT and len(signals) == 1:
+            names, subs = graph(NS)
+            assert sorted(names) == sorted(NODES)          # no <name>_loop helpers, no duplicates
+            assert {f"{NS}/resolver", f"{NS}/demand", f"{NS}/demand_ma"} <= subs["controller"]
+            assert {f"{NS}/current_command", f"{NS}/drive_enable"} <= subs["plant"]
+    finally:
+        results = stop(procs, signals)
+    for name, (code, seconds, log) in results.items():
+        assert code == 0, (name, code, log)
+        assert seconds < EXIT_WITHIN_S, (name, seconds)
+        assert "Traceback" not in log and "KeyboardInterrupt" not in log, (name, log)

@@ -1,0 +1,115 @@
+"""The recorder's hot path and bag metadata, in one process (no lockstep run needed).
+
+* raw pass-through: the bag holds exactly the CDR bytes the publisher sent, one message per
+  publish, counts in metadata.yaml = messages written = messages published, none dropped;
+* offered QoS: metadata.yaml lists, per topic, the QoS its publisher offered (RELIABLE /
+  TRANSIENT_LOCAL for the latched ``drive_enable``, VOLATILE for the rest), and
+  ``ros_distro: jazzy``;
+* the writer thread's queue is bounded and a message that does not fit is counted as dropped.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+import yaml
+
+pytest.importorskip("rclpy")
+pytest.importorskip("rosbags")
+
+pytestmark = [pytest.mark.ros]
+
+NS = "/fv_raw"
+
+
+def test_raw_bytes_counts_qos_and_distro(tmp_path):
+    import rclpy
+    from rclpy.serialization import serialize_message
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import Bool, Float64
+    from rosbags.highlevel import AnyReader
+
+    from fuel_valve_control.common import contract
+    from fuel_valve_control.ros import interface as ri
+    from fuel_valve_control.ros import node_runner
+    from fuel_valve_control.tools.recorder import Recorder
+
+    bag = tmp_path / "bag"
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        recorder = Recorder(context=context, namespace=NS, parameter_overrides=[
+            Parameter("output", value=str(bag)),
+            Parameter("topics", value=[contract.DEMAND, contract.DRIVE_ENABLE])])
+        assert all(sub.raw for sub in recorder.subscriptions)
+        source = rclpy.create_node("source", namespace=NS, context=context)
+        pub_demand = ri.quiet_publisher(source, Float64, contract.DEMAND)
+        pub_enable = ri.quiet_publisher(source, Bool, contract.DRIVE_ENABLE)
+        executor = node_runner.make_executor(context=context)
+        executor.add_node(recorder)
+        end = time.monotonic() + 10.0
+        while pub_demand.get_subscription_count() < 1 or pub_enable.get_subscription_count() < 1:
+            assert time.monotonic() < end, "recorder never matched"
+            executor.spin_once(timeout_sec=0.05)
+        sent = [Float64(data=0.1 * i + 1e-9) for i in range(300)]
+        pub_enable.publish(Bool(data=True))
+        for msg in sent:
+            pub_demand.publish(msg)
+            executor.spin_once(timeout_sec=0.0)
+        end = time.monotonic() + 5.0
+        while recorder.received < len(sent) + 1 and time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+        counts = recorder.finish()
+        executor.shutdown()
+        source.destroy_node()
+        recorder.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+
+    assert counts == {f"{NS}/demand": len(sent), f"{NS}/drive_enable": 1}
+    assert recorder.dropped == {}
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["ros_distro"] == "jazzy"
+    topics = {t["topic_metadata"]["name"]: t for t in meta["topics_with_message_count"]}
+    assert {n: t["message_count"] for n, t in topics.items()} == counts
+    qos = {n: t["topic_metadata"]["offered_qos_profiles"] for n, t in topics.items()}
+    assert [(q["reliability"], q["durability"]) for q in qos[f"{NS}/drive_enable"]] == [("reliable", "transient_local")]
+    assert [(q["reliability"], q["durability"]) for q in qos[f"{NS}/demand"]] == [("reliable", "volatile")]
+    with AnyReader([bag]) as reader:
+        raw = [data for conn, _, data in reader.messages() if conn.topic == f"{NS}/demand"]
+    assert raw == [serialize_message(m) for m in sent]
+
+
+class _SlowWriter:
+    """A rosbags-Writer stand-in whose first write blocks until released."""
+
+    def __init__(self):
+        self.entered, self.release = threading.Event(), threading.Event()
+        self.written = []
+        self.closed = False
+
+    def write(self, connection, stamp, data):
+        self.entered.set()
+        self.release.wait(10.0)
+        self.written.append(data)
+
+    def close(self):
+        self.closed = True
+
+
+def test_writer_queue_is_bounded_and_counts_drops(monkeypatch):
+    from fuel_valve_control.tools.recorder import BagWriterThread, _Topic
+    monkeypatch.setattr(BagWriterThread, "MAX_QUEUE", 5)
+    writer = _SlowWriter()
+    topic = _Topic("/t", "std_msgs/msg/Float64")
+    bag = BagWriterThread(lambda: writer, lambda w, t: "conn", [topic])
+    bag.put(topic, 1, b"first")
+    assert writer.entered.wait(5.0)                  # the thread holds "first", queue empty
+    for i in range(7):
+        bag.put(topic, 2 + i, b"%d" % i)
+    assert bag.dropped == {"/t": 2}                  # 5 queued, 2 did not fit
+    writer.release.set()
+    bag.close()
+    assert writer.closed and writer.written == [b"first", b"0", b"1", b"2", b"3", b"4"]
+    assert topic.count == 6
