@@ -95,11 +95,13 @@ class PositionController:
             amp = ps["pi.dither_pct"] / 100.0 * m.stroke_rad if mode == "pi_dither" else 0.0
             return PIDLaw(d.pid, m, period, amp, ps["pi.dither_hz"])
         # a followed demand (sines, ramps): the v2 modes feed velocity and acceleration forward
-        # from the demand, extrapolated by the demand conditioning's median delay (one sample);
+        # from the demand, extrapolated by the delays of the medians in front of them;
         # the dissertation's modes and fc_gain keep the velocity-only reference they were
         # designed and measured with (kalman_fc's sweep falls to 2.4 Hz with the quicker filter)
         legacy = mode not in V2_MODES
-        follow_lead = period if ps["demand.conditioning"] and not legacy else 0.0
+        # the slope median delays the followed velocity one sample, the demand conditioning's
+        # median one more
+        follow_lead = 0.0 if legacy else period * (2.0 if ps["demand.conditioning"] else 1.0)
         shaper = TrajectoryShaper(period, ps["trajectory.max_velocity_rad_s"],
                                   ps["trajectory.max_acceleration_rad_s2"], ps["trajectory.step_threshold_rad"],
                                   ps["trajectory.velocity_filter_s" if legacy else "trajectory.follow_filter_s"],

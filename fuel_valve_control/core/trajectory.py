@@ -12,7 +12,9 @@ While a move runs, further demand changes are remembered and planned when it end
 continuous demand changes (ramps, sines, dither) pass straight through, so the shaper costs
 no bandwidth; their velocity (for feed-forward) is the demand's derivative through a
 first-order filter of ``velocity_filter`` seconds; with ``follow_acceleration`` the
-acceleration too (the same filter on the velocity's difference), and with ``follow_lead`` the
+acceleration too (the same filter on the velocity's difference; the velocity then comes from
+the median of the last three per-sample slopes, so a one-sample step is not a velocity
+impulse), and with ``follow_lead`` the
 followed reference is extrapolated that far ahead (``p + lead v``, ``v + lead a``: it makes up
 for the demand conditioning's one-sample median delay).  The acceleration of a move is sampled
 ``lead`` seconds ahead: the torque it feeds forward acts through the zero-order hold and the
@@ -105,6 +107,7 @@ class TrajectoryShaper:
         self._p: float | None = None
         self._v = 0.0
         self._a = 0.0
+        self._slopes: list[float] = []
         self._move: Move | None = None
         self._tau = 0.0
 
@@ -113,6 +116,7 @@ class TrajectoryShaper:
         self._p = position
         self._v = 0.0
         self._a = 0.0
+        self._slopes: list[float] = []
         self._move = None
 
     @property
@@ -135,6 +139,12 @@ class TrajectoryShaper:
             self._tau = 0.0
         if self._move is None:
             raw = (demand - self._p) / self.period
+            if self.follow_acceleration:
+                # median of the last three per-sample slopes: a sine or ramp keeps its slope, a
+                # one-sample step (a small plateau change below the move threshold) gives none,
+                # so it is not kicked by a velocity and acceleration impulse
+                self._slopes = (self._slopes + [raw])[-3:]
+                raw = sorted(self._slopes)[len(self._slopes) // 2] if len(self._slopes) == 3 else 0.0
             v_old = self._v
             self._v += self._alpha * (min(max(raw, -self.v_max), self.v_max) - self._v)
             # acceleration of a followed demand: the derivative of the filtered velocity through
@@ -152,4 +162,5 @@ class TrajectoryShaper:
         if self._tau >= self._move.duration:
             self._move = None                       # arrived exactly; a changed demand is planned next
         self._p, self._v, self._a = p, v, 0.0
+        self._slopes = []
         return Reference(p, v, a, self._move is not None)
