@@ -13,6 +13,7 @@ import pytest
 from fuel_valve_control import __main__ as config_tool
 from fuel_valve_control.common.paramspec import ConfigError, Param, read_ros_param_file
 from fuel_valve_control.common.config_dir import default_config_dir
+from fuel_valve_control.core import driver as D
 from fuel_valve_control.core.driver import ValveDriver
 from fuel_valve_control.core.params import CONTROLLER_SPEC, MODES, load_controller_params
 from fuel_valve_control.core.position_controller import PositionController
@@ -102,7 +103,10 @@ def test_every_runtime_parameter_has_a_consumer():
     drv.reset()
     drv.health()
     law_keys = set().union(*LAW_KEYS.values())
-    orphans = set(RUNTIME) - {"mode"} - law_keys - LIMIT_KEYS - drv.ps.read   # mode: picks the law
+    filter_reads = Reads(CONTROLLER_SPEC.defaults())
+    D.demand_filter_config(filter_reads)           # the demand conditioning, rebuilt by set_params
+    orphans = (set(RUNTIME) - {"mode"} - law_keys - LIMIT_KEYS - drv.ps.read     # mode: picks the law
+               - filter_reads.read)
     assert not orphans, f"run-time parameters nothing reads: {sorted(orphans)}"
 
 
@@ -155,8 +159,7 @@ def test_feedforward_and_dither_changes_change_the_behaviour(mode, name, value):
 #: observers, the reference feed-forward's stuck/moving state, the dither phase): the command
 #: continues in the period of the change, but the fresh estimators then move it faster than
 #: the running law does (measured: up to 10.7 A per period for fp.*, 74 A for kalman_fc)
-RESTARTS_ESTIMATORS = {("mode", "observer_fc"), ("mode", "kalman_fc"), ("ff.static_start", None),
-                       ("ff.velocity_smoothing_rad_s", None), ("fp.compensation_fraction", None),
+RESTARTS_ESTIMATORS = {("mode", "observer_fc"), ("mode", "kalman_fc"), ("fp.compensation_fraction", None),
                        ("pi.dither_pct", None)} | {(f"fp.{shaft}.{k}", None) for shaft in ("motor", "valve")
                                                     for k in ("alpha", "beta", "freeze_velocity_rad_s", "gain_cap")}
 _XFAIL = pytest.mark.xfail(strict=True, reason="a rebuilt law restarts its estimators (friction observers, "

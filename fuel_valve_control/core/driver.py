@@ -33,9 +33,10 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from ..common.contract import (NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_HIGH_MA, NE43_USABLE_LOW_MA,
-                                PERCENT_FAIL_MARGIN, PRESSURE_MAX_KPA, ma_to_percent)
+                                PERCENT_FAIL_MARGIN, PRESSURE_MAX_KPA, RESOLVER_COUNT_RAD, ma_to_percent)
 from ..common.paramspec import ParamSet
 
+from .demand_filter import DemandFilter, DemandFilterConfig
 from .params import CONTROLLER_SPEC, check_consistency
 from .position_controller import PositionController
 from .signals import Measurement
@@ -75,6 +76,10 @@ class ValveDriver:
         self._demand_pct: float | None = None      # last good demand (selected source)
         self._demand_t: float | None = None
         self._demand_bad: str | None = None        # why the latest demand message was rejected
+        #: conditioning of the (analog) demand; runs on every accepted sample so a mode switch
+        #: finds it settled; the pi baselines take the raw demand
+        self.demand_filter = DemandFilter(demand_filter_config(self.ps))
+        self._demand_cond_rad: float | None = None
         self._meas: Measurement | None = None
         self._meas_t: float | None = None
         self._meas_bad: str | None = None
@@ -113,7 +118,9 @@ class ValveDriver:
         and the law is rebuilt -- bumplessly, from the last applied torque -- whenever a
         parameter it was built from (or the mode) changes."""
         new, prepared = self._prepare(changes)
+        demand_cfg = demand_filter_config(new)
         self.ps = new
+        self.demand_filter.cfg = demand_cfg
         self.controller.reconfigure(new, self._meas if self._armed else None, self.pressure_kpa, prepared)
 
     # ------------------------------------------------------------------ inputs
@@ -156,6 +163,7 @@ class ValveDriver:
         else:
             self.warnings.pop("demand_range", None)
         self._demand_pct, self._demand_t = pct, t
+        self._demand_cond_rad = self.demand_filter.update(t, pct / 100.0 * self.stroke)
 
     def resolver(self, t: float, motor_rad: float, valve_rad: float) -> None:
         """A resolver sample taken at ``t``; implausible samples latch a fault and are dropped."""
@@ -288,7 +296,7 @@ class ValveDriver:
             self.last = DriverOutput(0.0, False, state, self._demand_pct, position_pct,
                                      dict(self.faults), dict(self.warnings))
             return self.last
-        demand_rad = self._demand_pct / 100.0 * self.stroke
+        demand_rad = self.demand_rad()
         if not self._armed:
             self.controller.reset(self._meas, pressure, self._arm_torque)
             self._arm_torque = 0.0        # re-arming after a fault starts from zero torque
@@ -316,6 +324,16 @@ class ValveDriver:
         self.last = DriverOutput(current, True, "holding" if holding else "running", self._demand_pct,
                                  position_pct, {}, dict(self.warnings))
         return self.last
+
+    def demand_rad(self) -> float | None:
+        """The demand the loop follows (rad): conditioned (:mod:`.demand_filter`) unless the
+        mode is a ``pi`` baseline or ``demand.conditioning`` is off."""
+        if self._demand_pct is None:
+            return None
+        if self.ps["demand.conditioning"] and self.ps["mode"] not in RAW_DEMAND_MODES and \
+                self._demand_cond_rad is not None:
+            return self._demand_cond_rad
+        return self._demand_pct / 100.0 * self.stroke
 
     # ------------------------------------------------------------------ diagnostics
     @property
@@ -360,10 +378,22 @@ class ValveDriver:
             "i2t_budget_used": self.controller.i2t_budget_fraction,
             "faults": ",".join(out.faults) or "none", "warnings": ",".join(out.warnings) or "none",
         }
+        values.update(self.demand_filter.state())
         # what the law learned about this valve (fine positioning: twists per direction/Δp band)
         for key, value in (law.learned_state() or {}).items():
             values[key] = json.dumps(value) if isinstance(value, (dict, list)) else value
         return Health(level, message, values)
+
+
+#: the baselines stay honest: the existing analog driver has no demand conditioning
+RAW_DEMAND_MODES = ("pi", "pi_dither")
+
+
+def demand_filter_config(ps: ParamSet) -> DemandFilterConfig:
+    """The demand conditioning of parameter set ``ps`` (bands in rad at the valve)."""
+    return DemandFilterConfig(ps["demand.band_sigmas"], ps["demand.min_band_counts"] * RESOLVER_COUNT_RAD,
+                              RESOLVER_COUNT_RAD, ps["demand.confirm_samples"], ps["demand.quiet_time_s"],
+                              ps["demand.noise_time_s"], ps["demand.hold_window_s"])
 
 
 @dataclass

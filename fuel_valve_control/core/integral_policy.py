@@ -19,7 +19,18 @@ class IntegralPolicy:
     stuck_ramp_time_s`` until it breaks away: quasi-static, so the jump stays the physical
     minimum, but much quicker than the integrator alone (whose rate shrinks with the error).
     Inside it, once the valve is at rest, the drive relaxes toward the middle of the static
-    band (valve torque = known load) with time constant ``relax_time_s``.
+    band (valve torque = known load + the learned steady load) with time constant
+    ``relax_time_s``.
+
+    A steady load the model does not know (issue 14: up to the actuator's continuous torque)
+    makes the middle of the band move: relaxing toward the known load alone lets a load larger
+    than the static friction slip the valve, the integrator pulls it back, and the two make a
+    limit cycle.  :meth:`learn_load` reads the load from such a slip: the valve gives way when
+    ``|net − L| = Ts``, i.e. ``L = net_slip − s Ts`` with ``s`` the slip direction; taking
+    ``load_static_fraction`` (0.5: the lowest friction of the robustness box) of the nominal
+    ``Ts`` keeps the estimate between the slip point and the true load, i.e. inside the band,
+    for any friction from ×0.5 up.  Bounded by ``load_limit_nm``; the relax and the uncocking
+    at a move start keep this load on the drive: it is held by integral action.
     """
 
     jump_fraction: float
@@ -27,12 +38,27 @@ class IntegralPolicy:
     stuck_speed: float = 0.03          # rad/s: at or below, the valve counts as stuck
     stuck_ramp_time_s: float = math.inf  # time to ramp through Ts while stuck outside the deadband
     relax_time_s: float = 0.0          # time constant of relaxing a settled drive (0 = off)
+    load_limit_nm: float = 0.0         # bound of the learned steady load (valve side, N*m)
+    load_static_fraction: float = 0.5  # a slip while relaxing puts the load this fraction of Ts beyond it
+
+    @property
+    def settle_time_s(self) -> float:
+        """A valve relaxed this long (a tenth of the relax time constant: 10 % of the drive's
+        excess given back) counts as settled; slips before that are the move's own stick-slip."""
+        return 0.1 * self.relax_time_s
 
     def deadband(self, model: NominalModel, pressure_kpa: float, jump_ratio: float = 1.0) -> float:
         """``max(min_rad, jump_fraction * jump)``, the jump being the nominal one times the
         measured/nominal ratio learned by :class:`JumpLearner`."""
         jump = model.friction(pressure_kpa).stick_slip_jump_rad(model.coupling_stiffness_nm_per_rad)
         return max(self.min_rad, self.jump_fraction * jump * jump_ratio)
+
+
+    def learn_load(self, net_at_slip: float, direction: float, static_nm: float) -> float:
+        """Steady unknown valve load (N*m, positive = the drive must push toward open) from a
+        slip of a relaxing, settled valve in ``direction`` (sign of its speed)."""
+        load = net_at_slip - math.copysign(self.load_static_fraction * static_nm, direction)
+        return min(max(load, -self.load_limit_nm), self.load_limit_nm)
 
 
 class JumpLearner:

@@ -62,6 +62,23 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("pressure.max_rate_kpa_s", 5.0e5, "kPa/s", "a change between two readings faster than this is "
           "implausible (full scale in ~12 ms: faster than any fuel-system hydraulic transient)",
           1.0, 1e8, low_open=True, runtime=True),
+    # --- demand conditioning (core/demand_filter.py; every mode but the pi baselines) ------
+    Param("demand.conditioning", True, "", "condition the demand (glitch median, noise-sized hold band) "
+          "before the loop; the pi/pi_dither baselines always take it raw", runtime=True),
+    Param("demand.band_sigmas", 3.0, "", "hold band half-width in estimated demand-noise rms (3: a noise "
+          "sample leaves it 0.27 % of the time, and it must do so confirm_samples times in a row)", 0.0, 20.0,
+          runtime=True),
+    Param("demand.min_band_counts", 1.0, "counts", "smallest hold band half-width, valve resolver counts "
+          "(a clean demand passes any change larger than what the valve resolver resolves)", 0.0, 100.0,
+          runtime=True),
+    Param("demand.confirm_samples", 2, "", "consecutive samples beyond the band (same side) that start "
+          "following the demand (a step arrives 1 + this many samples late)", 1, 50, runtime=True),
+    Param("demand.quiet_time_s", 0.02, "s", "demand within one band of an anchor this long: hold again",
+          0.001, 1.0, runtime=True),
+    Param("demand.noise_time_s", 0.2, "s", "time constant of the demand-noise estimate", 0.001, 60.0,
+          runtime=True),
+    Param("demand.hold_window_s", 0.5, "s", "longest window averaged while holding (slow drifts inside the "
+          "band are followed with this memory)", 0.001, 60.0, runtime=True),
     # --- actuator ratings -----------------------------------------------------------------
     Param("limits.peak_current_a", 37.0, "A", "peak current (data sheet: 37 A for <= 20 ms)", 0.0, 40.0,
           low_open=True, runtime=True),
@@ -125,8 +142,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "acceleration for short moves)", 0.0, 2.0),
     Param("trajectory.feedforward_lead_s", 0.002, "s", "how far ahead the acceleration feed-forward "
           "of a move is taken (hold and current-loop delay)", 0.0, 0.05),
-    Param("trajectory.velocity_filter_s", 0.005, "s", "time constant of the demand-velocity estimate used "
-          "as feed-forward when the demand is followed directly", 0.0, 1.0),
+    Param("trajectory.velocity_filter_s", 0.005, "s", "observer, observer_fc, kalman_fc, fc_gain: time constant of the "
+          "demand-velocity estimate used as feed-forward when the demand is followed directly", 0.0, 1.0),
+    Param("trajectory.follow_filter_s", 0.001, "s", "observer_ff, observer_fp: time constant of the "
+          "velocity and acceleration estimates of a directly followed demand (one loop period: the "
+          "demand conditioning keeps noise out, and 5 ms cost 30 deg at 20 Hz)", 0.0, 1.0),
     # --- seating on the stops ---------------------------------------------------------------------
     Param("seat.margin_pct", 0.5, "%", "demands within this of a stop seat the valve on it", 0.0, 10.0),
     Param("seat.overtravel_rad", 0.1, "rad", "how far beyond the stop a seating move is aimed", 0.0, 0.5),

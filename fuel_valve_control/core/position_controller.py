@@ -40,6 +40,10 @@ from .signals import Estimate, Measurement
 from .trajectory import TrajectoryShaper
 
 
+#: modes of issue 14 (controller v2) that follow a demand with acceleration feed-forward
+V2_MODES = ("observer_ff", "observer_fp")
+
+
 @dataclass(frozen=True)
 class Designs:
     """Everything the design step computed (kept for diagnostics and tests)."""
@@ -136,13 +140,25 @@ class PositionController:
         if mode in ("pi", "pi_dither"):
             amp = ps["pi.dither_pct"] / 100.0 * m.stroke_rad if mode == "pi_dither" else 0.0
             return PIDLaw(d.pid, m, period, amp, ps["pi.dither_hz"])
+        # a followed demand (sines, ramps): the v2 modes feed velocity and acceleration forward
+        # from the demand, extrapolated by the delays of the medians in front of them;
+        # the dissertation's modes and fc_gain keep the velocity-only reference they were
+        # designed and measured with (kalman_fc's sweep falls to 2.4 Hz with the quicker filter)
+        legacy = mode not in V2_MODES
+        # the slope median delays the followed velocity one sample, the demand conditioning's
+        # median one more
+        follow_lead = 0.0 if legacy else period * (2.0 if ps["demand.conditioning"] else 1.0)
         shaper = TrajectoryShaper(period, ps["trajectory.max_velocity_rad_s"],
                                   ps["trajectory.max_acceleration_rad_s2"], ps["trajectory.step_threshold_rad"],
-                                  ps["trajectory.velocity_filter_s"], ps["trajectory.min_move_time_s"],
-                                  ps["trajectory.feedforward_lead_s"])
+                                  ps["trajectory.velocity_filter_s" if legacy else "trajectory.follow_filter_s"],
+                                  ps["trajectory.min_move_time_s"], ps["trajectory.feedforward_lead_s"],
+                                  follow_acceleration=not legacy, follow_lead=follow_lead)
         integral = IntegralPolicy(ps["integral.deadband_jump_fraction"], ps["integral.deadband_min_rad"],
                                   ps["ff.stuck_speed_rad_s"], ps["integral.stuck_ramp_time_s"],
-                                  ps["integral.relax_time_s"])
+                                  ps["integral.relax_time_s"],
+                                  # the learned steady load never exceeds what the drive can hold
+                                  load_limit_nm=ps["limits.continuous_current_a"] * m.torque_constant_nm_per_a
+                                  * m.gear_ratio)
         feedback, gain = d.placement, d.observer_gain
         if mode == "kalman_fc":
             feedback, gain = d.lqr, d.kalman_gain

@@ -11,7 +11,12 @@ continuously (at max Δp it only slides smoothly above ~1 rad/s; slower it stick
 While a move runs, further demand changes are remembered and planned when it ends.  Small or
 continuous demand changes (ramps, sines, dither) pass straight through, so the shaper costs
 no bandwidth; their velocity (for feed-forward) is the demand's derivative through a
-first-order filter of ``velocity_filter`` seconds.  The acceleration of a move is sampled
+first-order filter of ``velocity_filter`` seconds; with ``follow_acceleration`` the
+acceleration too (the same filter on the velocity's difference; the velocity then comes from
+the median of the last three per-sample slopes, so a one-sample step is not a velocity
+impulse), and with ``follow_lead`` the
+followed reference is extrapolated that far ahead (``p + lead v``, ``v + lead a``: it makes up
+for the demand conditioning's one-sample median delay).  The acceleration of a move is sampled
 ``lead`` seconds ahead: the torque it feeds forward acts through the zero-order hold and the
 current loop, i.e. late.  Units: rad, rad/s, rad/s², s.
 """
@@ -88,9 +93,12 @@ class Move:
 
 class TrajectoryShaper:
     def __init__(self, period_s: float, max_velocity: float, max_acceleration: float, step_threshold: float,
-                 velocity_filter: float = 0.0, min_move_time: float = 0.0, lead: float = 0.0):
+                 velocity_filter: float = 0.0, min_move_time: float = 0.0, lead: float = 0.0,
+                 follow_acceleration: bool = False, follow_lead: float = 0.0):
         self.period = period_s
         self.lead = lead
+        self.follow_acceleration = follow_acceleration
+        self.follow_lead = follow_lead
         self.v_max = max_velocity
         self.a_max = max_acceleration
         self.threshold = step_threshold
@@ -98,6 +106,8 @@ class TrajectoryShaper:
         self._alpha = period_s / (period_s + velocity_filter)
         self._p: float | None = None
         self._v = 0.0
+        self._a = 0.0
+        self._slopes: list[float] = []
         self._move: Move | None = None
         self._tau = 0.0
 
@@ -105,6 +115,8 @@ class TrajectoryShaper:
         """Start at rest at ``position`` (e.g. the measured valve angle)."""
         self._p = position
         self._v = 0.0
+        self._a = 0.0
+        self._slopes: list[float] = []
         self._move = None
 
     @property
@@ -127,13 +139,28 @@ class TrajectoryShaper:
             self._tau = 0.0
         if self._move is None:
             raw = (demand - self._p) / self.period
+            if self.follow_acceleration:
+                # median of the last three per-sample slopes: a sine or ramp keeps its slope, a
+                # one-sample step (a small plateau change below the move threshold) gives none,
+                # so it is not kicked by a velocity and acceleration impulse
+                self._slopes = (self._slopes + [raw])[-3:]
+                raw = sorted(self._slopes)[len(self._slopes) // 2] if len(self._slopes) == 3 else 0.0
+            v_old = self._v
             self._v += self._alpha * (min(max(raw, -self.v_max), self.v_max) - self._v)
+            # acceleration of a followed demand: the derivative of the filtered velocity through
+            # the same filter (inertia feed-forward; the motor inertia reflected through N^2
+            # dominates the torque a sine needs)
+            if self.follow_acceleration:
+                acc = min(max((self._v - v_old) / self.period, -self.a_max), self.a_max)
+                self._a += self._alpha * (acc - self._a)
             self._p = demand
-            return Reference(demand, self._v, 0.0, False)
+            lead = self.follow_lead
+            return Reference(demand + lead * self._v, self._v + lead * self._a, self._a, False)
         self._tau += self.period
         p, v, _ = self._move.sample(self._tau)
         a = self._move.sample(self._tau + self.lead)[2]   # inertia feed-forward leads the hold delay
         if self._tau >= self._move.duration:
             self._move = None                       # arrived exactly; a changed demand is planned next
-        self._p, self._v = p, v
+        self._p, self._v, self._a = p, v, 0.0
+        self._slopes = []
         return Reference(p, v, a, self._move is not None)

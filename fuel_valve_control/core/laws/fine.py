@@ -70,4 +70,4 @@ class FinePositioningLaw(ControlLaw):
         return self.main.friction_trend()
 
     def learned_state(self) -> dict | None:
-        return self.fine.health()
+        return {**(self.main.learned_state() or {}), **self.fine.health()}

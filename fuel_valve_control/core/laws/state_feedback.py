@@ -60,6 +60,12 @@ class StateFeedbackLaw(ControlLaw):
         self._fm = 0.0
         self._fl = 0.0
         self.deadband = 0.0        # rad, the integrator's deadband this period
+        #: steady valve load beyond the known one (N*m, + = drive pushes toward open) learned from
+        #: slips of a relaxing drive (:meth:`IntegralPolicy.learn_load`); kept across moves
+        self.held_load = 0.0
+        #: (valve torque beyond the known load, valve angle) of the latest settled relaxing period
+        self._slip: tuple[float, float] | None = None
+        self._relax_periods = 0                 # periods relaxed in a row
         self.reference: Reference | None = None
         self._pressure: float | None = None   # kPa, Δp of the latest update
 
@@ -74,6 +80,9 @@ class StateFeedbackLaw(ControlLaw):
         # bumpless: the integral state makes the first output equal the present torque
         self.zeta = (torque_nm - u_ff + float(self.fb.k @ (self.xo[:4] - x_ref))) / self.fb.ki
         self._applied = self._u_net = torque_nm
+        self.held_load = 0.0
+        self._slip = None
+        self._relax_periods = 0
         self._d = m.load_torque(meas.valve_rad, pressure_kpa) - m.spring_rate_nm_per_rad * meas.valve_rad
 
     def update(self, t, demand_rad, meas, pressure_kpa):
@@ -102,7 +111,7 @@ class StateFeedbackLaw(ControlLaw):
         if ref.moving and not was_moving:
             # a move starts: uncock the drive first (valve torque back to the known load) so the
             # move's feed-forward starts from neutral, not from a drive wound up to breakaway
-            net = n * self._applied - m.load_torque(thl, pressure_kpa)
+            net = n * self._applied - m.load_torque(thl, pressure_kpa) - self.held_load
             self.zeta -= net / n / self.fb.ki
         self.reference = ref
         stuck = abs(valve_speed) <= self.integral.stuck_speed
@@ -120,13 +129,33 @@ class StateFeedbackLaw(ControlLaw):
                                         0.0, self._fl)
         u = u_ff + (comp - self._fl / n) - float(self.fb.k @ (self.xo[:4] - x_ref)) + self.fb.ki * self.zeta
         self._pending = 0.0
+        if ref.moving:
+            self._slip = None
+        elif self._slip is not None:
+            # a valve that had settled (relaxing for settle_time) left its place by more than
+            # the resolver's noise, the way the relaxing drive let it go (the relax takes support
+            # away from the side the load pushes): a steady load beyond the known one
+            net0, pos0 = self._slip
+            moved = meas.valve_rad - pos0
+            if abs(moved) > self.integral.min_rad:
+                if moved * (net0 - self.held_load) < 0.0:
+                    self.held_load = self.integral.learn_load(net0, moved, m.friction(pressure_kpa).valve_static_nm)
+                self._slip = None
+        relaxing = False
         if not outside and not ref.moving and stuck and self.integral.relax_time_s > 0.0:
             # settled: relax the drive to the middle of the static-friction band.  The valve
             # torque is the applied motor torque times N less the known load (robust to the
             # coupling stiffness, which may be far from nominal); shrinking it cannot break the
-            # valve loose, and the next move starts from a neutral drive, not a cocked one
+            # valve loose, and the next move starts from a neutral drive, not a cocked one.
+            # The middle of the band includes the steady load learned from earlier slips.
             net = n * self._applied - m.load_torque(thl, pressure_kpa)
-            self._pending = -net / n * self.period / self.integral.relax_time_s / self.fb.ki
+            relaxing = True
+            self._relax_periods += 1
+            if self._relax_periods * self.period >= self.integral.settle_time_s:
+                self._slip = (net, meas.valve_rad)      # where and with what drive it had settled
+            self._pending = -(net - self.held_load) / n * self.period / self.integral.relax_time_s / self.fb.ki
+        if not relaxing:
+            self._relax_periods = 0
         if outside:
             self._pending = self.period * error
             if stuck:
@@ -155,6 +184,9 @@ class StateFeedbackLaw(ControlLaw):
 
     def deadband_rad(self) -> float | None:
         return self.deadband
+
+    def learned_state(self) -> dict | None:
+        return {"held_load_nm": self.held_load, "jump_ratio": self.jumps.ratio}
 
     def friction_trend(self) -> float | None:
         scale = self.compensator.scale(self._pressure) if self._pressure is not None else None

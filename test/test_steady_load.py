@@ -1,0 +1,37 @@
+"""Issue 14, deliverable 3: no limit cycle under a steady external load up to the actuator's
+continuous torque -- a load the valve cannot hold by friction is held by integral action (the
+learned steady load), not relaxed away."""
+import numpy as np
+import pytest
+
+from fuel_valve_control.common.contract import PRESSURE_MAX_KPA, RESOLVER_COUNT_RAD, STROKE_RAD
+from fuel_valve_control.core.params import CONTROLLER_SPEC
+from fuel_valve_control.tools import sim
+from fuel_valve_control.tools.scenarios import parse_scenario
+from fuel_valve_plant.physics.params import PLANT_SPEC
+
+_P, _C = PLANT_SPEC.defaults(), CONTROLLER_SPEC.defaults()
+CONTINUOUS_TORQUE_NM = _C["limits.continuous_current_a"] * _C["model.torque_constant_nm_per_a"] * _C["model.gear_ratio"]
+
+
+def _room(pct: float) -> float:
+    """Steady load (valve side, toward closed) that with spring and flow torque needs the whole
+    continuous torque at ``pct`` % open."""
+    spring = _P["spring.preload_nm"] + _P["spring.rate_nm_per_rad"] * STROKE_RAD * pct / 100.0
+    return CONTINUOUS_TORQUE_NM - spring - _P["flow.torque_max_nm"]
+
+
+@pytest.mark.parametrize("pct,fraction", [(30.0, 0.95), (60.0, 0.95), (60.0, 0.5), (40.0, -0.2)])
+def test_steady_load_is_held_without_a_limit_cycle(pct, fraction):
+    load = fraction * _room(pct)
+    doc = {"name": "steady_load", "duration_s": 5.0, "initial_percent": pct - 2.0,
+           "pressure_differential_kpa": PRESSURE_MAX_KPA,
+           "demand": {"type": "step", "initial": pct - 2.0, "final": pct, "at_s": 0.3}}
+    sc = parse_scenario(doc)
+    p, c = sim.build(sc, {"load_torque_nm": load}, None, 0)
+    res = sim.simulate(sc, p, c)
+    t, pos = res.column("t"), res.column("position_rad")
+    settled = t >= 2.5
+    assert res.column("enable").min() == 1.0                      # no fault, the drive held it
+    assert 0.5 * np.ptp(pos[settled]) <= 2 * RESOLVER_COUNT_RAD   # no hunting beyond two counts
+    assert abs(pos[-1] - pct / 100.0 * STROKE_RAD) <= 3e-3        # within the deadband, not slipped away
