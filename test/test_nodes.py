@@ -91,7 +91,7 @@ def test_demand_step_moves_the_valve_in_real_time():
     # process must not trip this test (measured: a 336 ms gap on the loaded machine; the fault
     # itself is tested below and in test_driver.py)
     plan = plan_run(load_scenario("step_small"), REAL_TIME, duration_s=3.0,
-                    controller_overrides={"faults.resolver_timeout_s": 1.0})
+                    controller_overrides={"faults.resolver_timeout_s": 1.0, "pressure.timeout_s": 1.0})
     out = io.StringIO()
     summary = suite.run(plan, "/realtime", out=out)
     text = out.getvalue()
@@ -122,6 +122,8 @@ def _start_rig(namespace: str, run_dir: Path, lockstep: bool):
                     plant_overrides={"stop_after_s": 0.0} if lockstep else {},
                     controller_overrides={"demand_source": "ma", "faults.tracking_error_time_s": 0.3,
                                           "faults.resolver_timeout_s": 0.1 if lockstep else 1.0,
+                                          # real time: a starved plant delays Δp readings too (measured 341 ms)
+                                          "pressure.timeout_s": 0.1 if lockstep else 1.0,
                                           **({"diagnostics_rate_hz": 20.0} if lockstep else {})})
     s = Launcher(plan, namespace, run_dir)       # /clock participants: controller and the probe
     s.start(("plant", "controller"))
