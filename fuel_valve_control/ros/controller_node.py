@@ -13,6 +13,11 @@ the plant's ``drive`` telemetry (measured current for the over-current check); p
 With ``lockstep:=true`` (and ``use_sim_time:=true``) each period waits for a fresh demand as
 well as the resolver sample, so runs are deterministic: the demand source is part of the
 lockstep loop (the ``demand`` node with ``lockstep:=true`` publishes once per ``/clock``).
+A resolver sample whose stamp has been answered already (the plant re-publishes a tick whose
+command it has not received) is dropped, and the command is never re-sent: the plant steps
+once per command, and an unstamped copy could not be told from the next period's.  So the
+first command waits until ``current_command`` has matched the plant's subscription (a
+command published before that would be lost, and the run would stall).
 """
 from __future__ import annotations
 
@@ -99,6 +104,12 @@ class ControllerNode(Node):
         ri.handle_parameter_changes(self, CONTROLLER_SPEC, self.check_parameters, self.apply_parameters)
         period = self.driver.period
         # the watchdog runs the fault logic when no samples arrive (silence must trip)
+        if self.lockstep:
+            from rclpy.clock import Clock, ClockType
+            self._command_matched = False
+            # wall-clock: simulated time stands still while a period waits for the match
+            self._match_timer = self.create_timer(0.01, self._run_when_matched,
+                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._watchdog_period = max(5.0 * period, 0.01)
         self._watchdog_last = time.monotonic()
         self.create_timer(self._watchdog_period, self.watchdog)
@@ -127,7 +138,22 @@ class ControllerNode(Node):
 
     def _demand_arrived(self) -> None:
         self._fresh_demand = True
-        if self._pending_sample is not None:       # lockstep: the sample was waiting for it
+        if self._pending_sample is not None and self._loop_matched():   # lockstep: the sample was waiting
+            sample, self._pending_sample = self._pending_sample, None
+            self.run_period(sample)
+
+    def _loop_matched(self) -> bool:
+        """Lockstep: the command publisher has matched the plant (checked until it has once)."""
+        if not self._command_matched:
+            self._command_matched = self.pub_current.get_subscription_count() >= 1
+        return self._command_matched
+
+    @locked
+    def _run_when_matched(self) -> None:
+        """Lockstep: run a period that was ready but held back for the command's match."""
+        if self._command_matched and self._periods:
+            self._match_timer.cancel()               # matched for good: the timer's job is done
+        elif self._pending_sample is not None and self._fresh_demand and self._loop_matched():
             sample, self._pending_sample = self._pending_sample, None
             self.run_period(sample)
 
@@ -155,8 +181,8 @@ class ControllerNode(Node):
         if self.lockstep:
             if self._last_sample_stamp is not None and stamp <= self._last_sample_stamp:
                 return                              # a re-sent sample of a period already run
-            if not self._fresh_demand:
-                self._pending_sample = sample       # wait for this period's demand
+            if not self._fresh_demand or not self._loop_matched():
+                self._pending_sample = sample       # wait for this period's demand (or the match)
                 return
         self.run_period(sample)
 

@@ -23,8 +23,9 @@ from .node_runner import run_node
 from ..common.paramspec import ConfigError
 from ..tools.profiles import DEMAND_NODE_SPEC, ProfileError, profile_from_params
 
-#: lockstep: longest wall time a tick waits for the demand's subscribers to match; after it the
-#: demand goes out anyway (a graph entry that never matches, e.g. a vanished node, must not stall)
+#: lockstep: longest wall time a tick waits for the demand's other subscribers to match once the
+#: loop's controller has; after it the demand goes out anyway (a graph entry that never matches,
+#: e.g. a vanished node, must not stall)
 MATCH_WAIT_S = 2.0
 
 
@@ -46,6 +47,8 @@ class DemandNode(Node):
         self.t0 = None
         ri.handle_parameter_changes(self, DEMAND_NODE_SPEC, self.check_parameters, self.apply_parameters)
         self._pending_tick = None
+        self._answered_tick = None
+        self._controller_matched = False
         #: messages published per topic (reported at exit: benchmarks compare bag counts)
         self.published = collections.Counter()
         if self.lockstep:
@@ -73,22 +76,37 @@ class DemandNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_clock(self, msg) -> None:
-        self._pending_tick = msg.clock.sec + 1e-9 * msg.clock.nanosec
+        t = msg.clock.sec + 1e-9 * msg.clock.nanosec
+        if t in (self._pending_tick, self._answered_tick):
+            return                          # a re-published tick (see plant_node): answered once
+        self._pending_tick = t
         self._tick_since = time.monotonic()
         self._answer_tick()
 
     def _answer_tick(self) -> None:
-        """Lockstep: publish the demand for the latest tick, but only once every subscriber
-        discovery has seen is matched: the controller waits for this very message, and one
-        published before its subscription matched would be lost (the run would stall)."""
+        """Lockstep: publish the demand for the latest tick once the loop's controller (the
+        node publishing ``current_command``) subscribes and every subscriber discovery has seen
+        is matched: the controller waits for this very message, and one published before its
+        subscription matched would be lost (the run would stall).  Other subscribers (a
+        monitor, a recorder) may be seen first, so "all seen are matched" alone is not enough."""
         if self._pending_tick is None:
             return
         topic, pub = (contract.DEMAND, self.pub_pct) if self.output == "percent" else (contract.DEMAND_MA, self.pub_ma)
-        seen = self.count_subscribers(topic)
-        waited = time.monotonic() - self._tick_since
-        if (seen == 0 or pub.get_subscription_count() < seen) and waited < MATCH_WAIT_S:
-            return                          # the retry timer asks again shortly
+        if not self._controller_matched:
+            controllers = {(i.node_namespace, i.node_name)
+                           for i in self.get_publishers_info_by_topic(contract.CURRENT_COMMAND)}
+            subscribers = self.get_subscriptions_info_by_topic(topic)
+            seen = len(subscribers)
+            if not any((i.node_namespace, i.node_name) in controllers for i in subscribers):
+                if time.monotonic() - self._tick_since > 5.0:
+                    self.get_logger().info("lockstep: waiting for the controller to subscribe to the demand",
+                                           throttle_duration_sec=5.0)
+                return                      # the retry timer asks again shortly
+            if pub.get_subscription_count() < seen and time.monotonic() - self._tick_since < MATCH_WAIT_S:
+                return
+            self._controller_matched = True         # matched for good: later ticks go out at once
         t, self._pending_tick = self._pending_tick, None
+        self._answered_tick = t
         self.publish(t)
 
     def publish(self, now: float | None = None) -> None:

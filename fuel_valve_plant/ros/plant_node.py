@@ -20,6 +20,18 @@ Two timing modes:
   exactly one period per received ``current_command``.  Runs are deterministic and as fast
   as the loop allows; every node should run with ``use_sim_time:=true``.
 
+  Start-up and lost samples: "connected" means matched endpoints (each publisher's
+  ``get_subscription_count()`` and the command subscription's ``get_publisher_count()``),
+  not merely nodes in the graph: discovery shows a participant before its endpoints match,
+  and a volatile sample published to an unmatched subscription is gone.  As a safety net a
+  tick whose command does not come within :data:`LOCKSTEP_RESEND_S` of wall time is
+  re-published unchanged (``/clock`` and ``resolver``: same stamp, same values).  Every
+  lockstep participant answers a stamp at most once (the controller ignores a resolver
+  sample whose stamp it has answered, the demand node a ``/clock`` tick it has answered), so
+  a re-published tick reaches only whoever lost it and the run stays identical to the
+  offline simulator.  Commands are never re-sent: an unstamped command cannot be told from
+  the next period's, and the plant steps once per command.
+
 Malformed commands (NaN, inf) never reach the physics: the drive treats them as zero
 current with the drive disabled, like a drive that rejects a corrupt set-point.
 """
@@ -41,6 +53,10 @@ from ..physics.params import PLANT_NODE_SPEC, PLANT_SPEC, check_consistency
 
 #: lockstep: wall time between seeing every participant and starting, s
 LOCKSTEP_SETTLE_S = 0.5
+#: lockstep: wall time without a command after which the current tick is re-published, s
+#: (longer than the worst scheduling gap measured on the loaded 2-core machine, 0.62 s: a
+#: re-published tick is harmless, but it costs the loop's participants a duplicate to drop)
+LOCKSTEP_RESEND_S = 1.0
 
 
 class LoopStats:
@@ -106,7 +122,7 @@ class PlantNode(Node):
         # the loop's inputs, taken by the node runner's executor; drive_enable first: in
         # lockstep a command steps the plant at once, with the enable state it applies to
         ri.quiet_subscription(self, Bool, contract.DRIVE_ENABLE, self.on_enable)
-        ri.quiet_subscription(self, Float64, contract.CURRENT_COMMAND, self.on_command)
+        self.sub_command = ri.quiet_subscription(self, Float64, contract.CURRENT_COMMAND, self.on_command)
         ri.handle_parameter_changes(self, PLANT_SPEC, self.plant.check_params, self.apply_parameters)
         self.create_timer(1.0, self.publish_diagnostics)
         if self.lockstep:
@@ -121,6 +137,10 @@ class PlantNode(Node):
             self._finished = False
             self._ready_since = None
             self._start_timer = self.create_timer(0.05, self.try_start)
+            #: the current tick's loop messages, as published (re-published unchanged when lost)
+            self._tick_msgs: tuple = ()
+            self.republished = 0
+            self.create_timer(0.1, self.resend_if_stalled)
         else:
             self._lock = threading.Lock()
             self._running = True
@@ -200,6 +220,10 @@ class PlantNode(Node):
         ready = (self.count_subscribers(contract.RESOLVER) >= 1 and self.count_publishers(contract.CURRENT_COMMAND) >= 1
                  and len(clock_nodes) >= self._participants
                  and self.pub_resolver.get_subscription_count() >= max(1, self.count_subscribers(contract.RESOLVER))
+                 and self.pub_pressure.get_subscription_count() >= self.count_subscribers(contract.PRESSURE_DIFFERENTIAL)
+                 # the command's way back: matched on this side (the controller holds its first
+                 # command until its side has matched too)
+                 and self.sub_command.get_publisher_count() >= 1
                  # every discovered /clock subscription, not one per node: the demand node has two
                  # (its time source and its tick handler) and needs the second for the first tick
                  and self.pub_clock.get_subscription_count() >= max(self._participants,
@@ -221,6 +245,20 @@ class PlantNode(Node):
         self.get_logger().info("lockstep: participants connected, starting")
         self.publish_outputs()
 
+    def resend_if_stalled(self) -> None:
+        """Lockstep safety net: re-publish the current tick (same ``/clock`` stamp, same resolver
+        sample) when its command has not come within :data:`LOCKSTEP_RESEND_S` of wall time.
+        Whoever already answered that stamp drops the copy; whoever lost it answers now."""
+        if (not self._started or self._finished or self._got_command or not self._tick_msgs
+                or time.monotonic() - self._last_publish_mono < LOCKSTEP_RESEND_S):
+            return
+        self._last_publish_mono = time.monotonic()      # next copy after another timeout
+        for pub, msg in self._tick_msgs:
+            pub.publish(msg)
+        self.republished += 1
+        self.get_logger().info(f"lockstep: no command for t = {self.plant.time:.3f} s within "
+                               f"{LOCKSTEP_RESEND_S:g} s: tick re-published", throttle_duration_sec=5.0)
+
     def step_and_publish(self, duration: float) -> None:
         self._apply_command()
         self.plant.advance(duration)
@@ -231,7 +269,9 @@ class PlantNode(Node):
         if self.lockstep:
             sec = int(t)
             stamp = self._time_msg(sec=sec, nanosec=int(round((t - sec) * 1e9)))
-            self.pub_clock.publish(self._clock_msg(clock=stamp))
+            clock = self._clock_msg(clock=stamp)
+            self.pub_clock.publish(clock)
+            self._tick_msgs = ((self.pub_clock, clock),)
         else:
             stamp = self.get_clock().now().to_msg()
         dp = self.plant.pressure_sample()
@@ -242,8 +282,11 @@ class PlantNode(Node):
         self._got_command = False
         self._last_publish_mono = time.monotonic()
         if sample is not None:
-            self.pub_resolver.publish(ri.joint_state(stamp, (sample.motor_rad, sample.valve_rad)))
+            resolver = ri.joint_state(stamp, (sample.motor_rad, sample.valve_rad))
+            self.pub_resolver.publish(resolver)
             self.published[contract.RESOLVER] += 1
+            if self.lockstep:
+                self._tick_msgs += ((self.pub_resolver, resolver),)
         truth = self.plant.truth()
         self.pub_truth.publish(ri.joint_state(
             stamp, (truth.motor_angle, truth.valve_angle), (truth.motor_velocity, truth.valve_velocity),
@@ -273,6 +316,8 @@ class PlantNode(Node):
         values = {"plant_time_s": f"{self.plant.time:.3f}", "valve_angle_rad": f"{self.plant.valve_angle:.5f}",
                   "pressure_differential_kpa": f"{self.plant.params['pressure_differential_kpa']:g}",
                   "fault_injection": self.plant.params["fault_injection"]}
+        if self.lockstep:
+            values["lockstep_ticks_republished"] = str(self.republished)
         values.update({k: f"{v:.6g}" if isinstance(v, float) else str(v) for k, v in s.items()})
         st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[st])
