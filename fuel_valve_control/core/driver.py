@@ -23,7 +23,11 @@ current, so the return spring closes the valve (fail safe).  A stale demand with
 ``demand_timeout_action: hold`` is the one exception: the valve holds the last good demand
 and a latched warning is raised instead.
 
-Malformed input never raises: NaN/inf/out-of-range values become faults or warnings.
+Malformed input never raises: NaN/inf/out-of-range values become faults or warnings.  Nor
+does a defect: an exception anywhere in an input handler or in :meth:`ValveDriver.step` (the
+law, the limits, a numerical overflow) and a non-finite command are caught and latched as the
+:data:`INTERNAL` fault, so the loop keeps running with the drive disabled and says why, instead
+of dying with the last command still applied.
 """
 from __future__ import annotations
 
@@ -47,9 +51,31 @@ RESOLVER_IMPLAUSIBLE = "resolver_implausible"
 TRACKING = "tracking_error"
 OVERCURRENT = "overcurrent_i2t"
 TRIPPED = "commanded_trip"
-FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE, TRACKING, OVERCURRENT, TRIPPED)
+#: an exception in the driver's own code (law, limits, arithmetic) or a non-finite command
+INTERNAL = "internal_error"
+FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE, TRACKING, OVERCURRENT, TRIPPED,
+               INTERNAL)
+#: a gap between two loop periods longer than this many periods is a stalled loop: the drive's
+#: command watchdog (the plant's ``command_timeout_s``, 5 periods by default) has switched the
+#: drive off meanwhile and the law's state is stale, so the loop re-arms from the measurement
+#: with zero torque instead of resuming with a stale observer and integrator
+STALL_REARM_PERIODS = 5
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
+
+
+def _guarded(method):
+    """Input handlers never raise: an exception becomes the latched :data:`INTERNAL` fault."""
+    import functools
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except Exception as exc:           # noqa: BLE001 - any defect must fail safe, not kill the loop
+            self.internal_fault(method.__name__, exc)
+            return None
+    return wrapper
 
 
 @dataclass
@@ -81,6 +107,7 @@ class ValveDriver:
         self._armed = False
         self._arm_torque = 0.0
         self._t: float | None = None               # time of the latest step
+        self.stall_rearms = 0                      # re-arms after a stalled loop (diagnostics)
         self._tracking_since: float | None = None
         self._positions: deque = deque(maxlen=int(2.0 / self.period))
         self._t_first: float | None = None         # time of the first step (for a missing Δp)
@@ -117,10 +144,12 @@ class ValveDriver:
         self.controller.reconfigure(new, self._meas if self._armed else None, self.pressure_kpa, prepared)
 
     # ------------------------------------------------------------------ inputs
+    @_guarded
     def demand_percent(self, t: float, value: float) -> None:
         if self.ps["demand_source"] == "percent":
             self._accept_demand(t, value, *self._check_percent(value))
 
+    @_guarded
     def demand_ma(self, t: float, value: float) -> None:
         if self.ps["demand_source"] == "ma":
             self._accept_demand(t, value, *self._check_ma(value))
@@ -157,6 +186,7 @@ class ValveDriver:
             self.warnings.pop("demand_range", None)
         self._demand_pct, self._demand_t = pct, t
 
+    @_guarded
     def resolver(self, t: float, motor_rad: float, valve_rad: float) -> None:
         """A resolver sample taken at ``t``; implausible samples latch a fault and are dropped."""
         why = self._implausible(t, motor_rad, valve_rad)
@@ -184,6 +214,7 @@ class ValveDriver:
                 return f"valve angle jumped {jump:.4f} rad in {max(t - self._meas_t, 0.0) * 1e3:.1f} ms"
         return None
 
+    @_guarded
     def pressure_differential(self, t: float, kpa: float) -> None:
         """A measured pressure differential across the valve, kPa, read at ``t``.  Implausible
         readings latch the :data:`PRESSURE_INPUT` warning and put the schedule on the fallback
@@ -224,6 +255,7 @@ class ValveDriver:
             self._warn_pressure("no pressure differential reading received")
         return self.ps["pressure.fallback_kpa"] if self._dp is None else self._dp
 
+    @_guarded
     def measured_current(self, t: float, amps: float) -> None:
         """Optional drive telemetry: a current beyond the hardware rating is an over-current."""
         limit = 1.1 * self.ps["limits.peak_current_a"]
@@ -257,15 +289,46 @@ class ValveDriver:
         self.warnings.pop(PRESSURE_INPUT, None)     # latches again next period if still invalid
         self._tracking_since = None
         self.controller.reset_limits()
+        self.controller.reset_learning()        # nothing learned before the fault outlives it
         return True, ("cleared: " + ", ".join(cleared)) if cleared else "nothing to clear"
 
     def _latch(self, code: str, message: str) -> None:
         if code not in self.faults:
             self.faults[code] = message
 
+    def internal_fault(self, where: str, exc: BaseException | str) -> None:
+        """Latch the :data:`INTERNAL` fault for an exception (or a message) raised in ``where``;
+        the next :meth:`step` disables the drive.  Also for the node's own code around the
+        driver (publishing, parameters)."""
+        what = exc if isinstance(exc, str) else f"{type(exc).__name__}: {exc}"
+        self._armed = False
+        self._latch(INTERNAL, f"internal error in {where}: {what}")
+
+    def _fail_safe_output(self, position_pct) -> DriverOutput:
+        self._armed = False
+        self.last = DriverOutput(0.0, False, "fault", self._demand_pct, position_pct,
+                                 dict(self.faults), dict(self.warnings))
+        return self.last
+
     # ------------------------------------------------------------------ loop
     def step(self, t: float) -> DriverOutput:
+        """One loop period at time ``t`` (s): the command and drive enable.  Never raises: an
+        exception inside latches :data:`INTERNAL` and returns the fail-safe output."""
+        try:
+            out = self._step(t)
+            if not math.isfinite(out.current_a):
+                raise ArithmeticError(f"non-finite current command {out.current_a!r} A")
+            return out
+        except Exception as exc:           # noqa: BLE001 - see the module docstring
+            self.internal_fault("step", exc)
+            position = None if self._meas is None else 100.0 * self._meas.valve_rad / self.stroke
+            return self._fail_safe_output(position)
+
+    def _step(self, t: float) -> DriverOutput:
         ps = self.ps
+        if self._armed and self._t is not None and t - self._t > STALL_REARM_PERIODS * self.period:
+            self._armed = False                   # stalled: re-arm below from the measurement
+            self.stall_rearms += 1
         self._t = t
         if self._t_first is None:
             self._t_first = t
@@ -358,6 +421,7 @@ class ValveDriver:
             "pressure_differential_kpa": self.pressure_kpa,
             "pressure_source": "fallback" if self._dp is None else "measured",
             "i2t_budget_used": self.controller.i2t_budget_fraction,
+            "stall_rearms": self.stall_rearms,
             "faults": ",".join(out.faults) or "none", "warnings": ",".join(out.warnings) or "none",
         }
         # what the law learned about this valve (fine positioning: twists per direction/Δp band)

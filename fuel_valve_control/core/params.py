@@ -28,13 +28,19 @@ def _nominal(name: str, value: float, unit: str, description: str, low: float = 
 #: data-sheet motor constants the torque constant is derived from (SPEC §2)
 _POLE_PAIRS, _FLUX_LINKAGE_WB = 2, 0.0115
 
+#: largest Friedland-Park exponent beta accepted (see :func:`_friedland_park_params`)
+FP_BETA_MAX = 4.0
+
+
 def _friedland_park_params(shaft: str, freeze_default: float, freeze_high: float) -> list[Param]:
     """The Friedland-Park observer parameters of one shaft (same meaning on both)."""
     return [
         Param(f"fp.{shaft}.alpha", 2.0, "", f"{shaft}-shaft observer gain alpha", 0.0, 1e6, low_open=True,
               runtime=True),
-        Param(f"fp.{shaft}.beta", 1.5, "", f"{shaft}-shaft observer exponent beta", 0.0, 200.0, low_open=True,
-              runtime=True),
+        # beta <= 4 (Friedland & Park use 1..3): alpha*|v|^beta cannot overflow a double for any
+        # velocity estimate below 1e75 rad/s even at alpha's maximum; beta 200 overflowed at 35 rad/s
+        Param(f"fp.{shaft}.beta", 1.5, "", f"{shaft}-shaft observer exponent beta", 0.0, FP_BETA_MAX,
+              low_open=True, runtime=True),
         Param(f"fp.{shaft}.gain_cap", 200.0, "1/s", f"cap on alpha*beta*|v|^(beta-1), {shaft} shaft", 0.0, 1e4,
               low_open=True, runtime=True),
         Param(f"fp.{shaft}.freeze_velocity_rad_s", freeze_default, "rad/s",

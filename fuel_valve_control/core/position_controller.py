@@ -235,8 +235,10 @@ class PositionController:
         return new_law is not None
 
     def reset_learning(self) -> None:
-        """Forget what the fine-positioning stage learned (back to the nominal model)."""
+        """Forget what the law learned (fine-positioning twists, the jump ratio sizing the
+        integrator deadband): back to the nominal model."""
         self.learner.reset()
+        self.law.forget()
 
     def reset(self, meas: Measurement, pressure_kpa: float, torque_nm: float = 0.0) -> None:
         """(Re)arm from a measurement, starting from ``torque_nm`` (0 after a trip)."""
