@@ -143,3 +143,66 @@ def test_a_fault_reset_forgets_what_the_law_learned():
     assert law.jumps.ratio == 1.0 and rig.d.controller.learner.equilibrium[1][0] == 0.0
     rig.run(0.01)
     assert law.deadband_rad() < deadband_before
+
+
+# ------------------------------------------------------------------ 3. resolver failure detection
+def test_disagreement_limit_is_sized_from_the_coupling_not_the_stroke():
+    d = D.ValveDriver(PS)
+    low, high, peak = d.twist_limits(PS["limits.continuous_current_a"])
+    m = d.controller.model
+    torque = m.gear_ratio * m.torque_constant_nm_per_a * PS["limits.continuous_current_a"]
+    assert low < torque / m.coupling_stiffness_nm_per_rad < high
+    assert high < 0.6 * STROKE_RAD                   # was 1.5 rad, beyond the whole stroke
+    assert peak < 1.5
+
+
+def test_motor_resolver_stuck_at_zero_latches(monkeypatch):
+    rig = Rig(**{"faults.resolver_disagreement_margin_rad": PS["faults.resolver_disagreement_margin_rad"]})
+    rig.demand = 30.0
+    rig.valve = 0.30 * STROKE_RAD
+    rig.healthy()
+    # the motor resolver freezes at 0 while the valve resolver keeps reading 30 %
+    monkeypatch.setattr(rig.d, "resolver", lambda t, motor, valve, f=rig.d.resolver: f(t, 0.0, valve))
+    _assert_failsafe(rig.run(0.3), D.RESOLVER_IMPLAUSIBLE)
+    assert "resolver" in rig.d.health().message
+
+
+def test_tracking_error_that_dips_under_the_limit_still_latches():
+    # issue 13.3: the timer restarted whenever the error dipped; a valve swinging around the
+    # demand (a failed sensor) never tripped.  Beyond the limit 80 % of the time -> latches.
+    limit = PS["faults.tracking_error_rad"]
+    rig = Rig(**{"faults.tracking_error_time_s": 0.3, "faults.resolver_max_step_rad": 1.0})
+    rig.healthy()
+    demand_rad = 0.4 * STROKE_RAD
+    out = None
+    for k in range(200):
+        rig.valve = demand_rad + (2.0 * limit if k % 5 else 0.0)
+        out = rig.run(0.005)
+        if out.faults:
+            break
+    _assert_failsafe(out, D.TRACKING)
+
+
+# ------------------------------------------------------------------ 7. limits only tighten at run time
+@pytest.mark.parametrize("name,wider", [
+    ("limits.continuous_current_a", 40.0), ("limits.peak_current_a", 40.0), ("limits.peak_time_s", 1.0),
+    ("faults.tracking_error_time_s", 60.0), ("faults.resolver_timeout_s", 5.0), ("demand_timeout_s", 60.0),
+    ("demand_timeout_action", "hold"), ("faults.i2t_fault_time_s", 60.0), ("faults.tracking_error_rad", 1.0),
+    ("faults.coupling_stiffness_min_fraction", 0.05), ("faults.resolver_disagreement_time_s", 1.0)])
+def test_widening_a_limit_at_run_time_is_rejected(name, wider):
+    d = D.ValveDriver(PS)
+    with pytest.raises(ConfigError, match="restart with a parameter file to widen"):
+        d.set_params({name: wider})
+    assert d.ps[name] == PS[name]                    # nothing changed
+
+
+def test_tightening_and_back_to_the_start_up_value_is_accepted():
+    d = D.ValveDriver(PS)
+    d.set_params({"limits.continuous_current_a": 10.0, "faults.tracking_error_time_s": 0.5})
+    assert d.controller.current_limits[0] == PS["limits.peak_current_a"]
+    d.set_params({"limits.continuous_current_a": PS["limits.continuous_current_a"]})   # back: allowed
+    with pytest.raises(ConfigError):
+        d.set_params({"limits.continuous_current_a": PS["limits.continuous_current_a"] + 1.0})
+    # a start-up file may set wider values: the start-up set is the reference
+    wide = D.ValveDriver(PS.replace({"faults.tracking_error_time_s": 30.0}))
+    wide.set_params({"faults.tracking_error_time_s": 20.0})

@@ -40,7 +40,7 @@ from ..common.contract import (NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_
                                 PERCENT_FAIL_MARGIN, PRESSURE_MAX_KPA, ma_to_percent)
 from ..common.paramspec import ParamSet
 
-from .params import CONTROLLER_SPEC, check_consistency
+from .params import CONTROLLER_SPEC, check_consistency, check_tighten_only
 from .position_controller import PositionController
 from .signals import Measurement
 
@@ -92,6 +92,8 @@ class DriverOutput:
 class ValveDriver:
     def __init__(self, params: ParamSet | None = None):
         self.ps = params if params is not None else CONTROLLER_SPEC.defaults()
+        #: the start-up set: the widest rating/supervision limits this driver accepts at run time
+        self.startup_ps = self.ps
         self.controller = PositionController(self.ps)
         self.stroke = self.controller.model.stroke_rad
         self.n = self.controller.model.gear_ratio
@@ -108,7 +110,8 @@ class ValveDriver:
         self._arm_torque = 0.0
         self._t: float | None = None               # time of the latest step
         self.stall_rearms = 0                      # re-arms after a stalled loop (diagnostics)
-        self._tracking_since: float | None = None
+        self._tracking_time = 0.0                  # leaky time beyond the tracking limit, s
+        self._twist_time = 0.0                     # leaky time the twist disagreed with the torque, s
         self._positions: deque = deque(maxlen=int(2.0 / self.period))
         self._t_first: float | None = None         # time of the first step (for a missing Δp)
         self._dp: float | None = None              # last valid measured Δp, kPa (None: use the fallback)
@@ -129,6 +132,7 @@ class ValveDriver:
         fixed = [k for k in changes if not CONTROLLER_SPEC.params[k].runtime and new[k] != self.ps[k]]
         if fixed:
             raise ValueError(f"{', '.join(fixed)} cannot change at run time")
+        check_tighten_only(self.startup_ps, changes)
         check_consistency(new)
         return new, self.controller.prepare(new)
 
@@ -204,7 +208,7 @@ class ValveDriver:
         margin = 0.05
         if not -margin <= valve <= self.stroke + margin:
             return f"valve angle {valve:.4f} rad outside the stroke 0..{self.stroke:.4f} rad"
-        if abs(motor / self.n - valve) > self.ps["faults.resolver_max_disagreement_rad"]:
+        if abs(motor / self.n - valve) > self.twist_limits(self.ps["limits.peak_current_a"])[2]:
             return (f"motor resolver ({motor / self.n:.4f} rad at the valve) and valve resolver ({valve:.4f} rad) "
                     f"disagree beyond any coupling twist")
         if self._meas is not None and self._meas_t is not None:
@@ -213,6 +217,22 @@ class ValveDriver:
             if jump > self.ps["faults.resolver_max_step_rad"] * periods:
                 return f"valve angle jumped {jump:.4f} rad in {max(t - self._meas_t, 0.0) * 1e3:.1f} ms"
         return None
+
+    def twist_limits(self, current_a: float) -> tuple[float, float, float]:
+        """(low, high, largest |twist|) of the coupling twist θm/N − θv, rad, that a q-current
+        ``current_a`` (A) applied at the motor can explain at rest: the valve-side torque
+        N·Kt·i over a coupling between ``faults.coupling_stiffness_min_fraction`` times the
+        nominal stiffness and the nominal one, widened by
+        ``faults.resolver_disagreement_margin_rad``.  The third value is the bound for any
+        current up to the peak: an instantaneous implausibility limit."""
+        m, ps = self.controller.model, self.ps
+        k = m.coupling_stiffness_nm_per_rad
+        f = ps["faults.coupling_stiffness_min_fraction"]
+        margin = ps["faults.resolver_disagreement_margin_rad"]
+        torque = self.n * m.torque_constant_nm_per_a * current_a
+        a, b = torque / k, torque / (f * k)
+        peak = self.n * m.torque_constant_nm_per_a * ps["limits.peak_current_a"] / (f * k) + margin
+        return min(a, b) - margin, max(a, b) + margin, peak
 
     @_guarded
     def pressure_differential(self, t: float, kpa: float) -> None:
@@ -287,7 +307,7 @@ class ValveDriver:
         self.faults.clear()
         self.warnings.pop(DEMAND_STALE, None)
         self.warnings.pop(PRESSURE_INPUT, None)     # latches again next period if still invalid
-        self._tracking_since = None
+        self._tracking_time = self._twist_time = 0.0
         self.controller.reset_limits()
         self.controller.reset_learning()        # nothing learned before the fault outlives it
         return True, ("cleared: " + ", ".join(cleared)) if cleared else "nothing to clear"
@@ -356,16 +376,24 @@ class ValveDriver:
             self.controller.reset(self._meas, pressure, self._arm_torque)
             self._arm_torque = 0.0        # re-arming after a fault starts from zero torque
             self._armed = True
+        applied = self.controller.last_current     # what the drive applied since the sample before
         current = self.controller.update(t, demand_rad, self._meas, pressure)
-        # --- faults that the loop itself detects
-        if abs(demand_rad - self._meas.valve_rad) > ps["faults.tracking_error_rad"]:
-            if self._tracking_since is None:
-                self._tracking_since = t
-            elif t - self._tracking_since > ps["faults.tracking_error_time_s"]:
-                self._latch(TRACKING, f"tracking error above {ps['faults.tracking_error_rad']:g} rad "
-                                      f"for {t - self._tracking_since:.2f} s")
-        else:
-            self._tracking_since = None
+        # --- faults that the loop itself detects; leaky counts: a dip below the limit takes time
+        # off, it does not restart the count (a failed sensor swinging the valve dips often)
+        dt = self.period
+        beyond = abs(demand_rad - self._meas.valve_rad) > ps["faults.tracking_error_rad"]
+        self._tracking_time = max(self._tracking_time + (dt if beyond else -dt), 0.0)
+        if self._tracking_time > ps["faults.tracking_error_time_s"]:
+            self._latch(TRACKING, f"tracking error above {ps['faults.tracking_error_rad']:g} rad "
+                                  f"for {self._tracking_time:.2f} s (net)")
+        low, high, _ = self.twist_limits(applied)
+        twist = self._meas.motor_rad / self.n - self._meas.valve_rad
+        off = not low <= twist <= high
+        self._twist_time = max(self._twist_time + (dt if off else -dt), 0.0)
+        if self._twist_time > ps["faults.resolver_disagreement_time_s"]:
+            self._latch(RESOLVER_IMPLAUSIBLE, f"motor/valve resolver disagreement {twist:.4f} rad not explained by "
+                                              f"the applied {applied:.1f} A ({low:.4f}..{high:.4f} rad) for "
+                                              f"{self._twist_time:.2f} s (net): a resolver has failed")
         if self.controller.overload_time > ps["faults.i2t_fault_time_s"]:
             self._latch(OVERCURRENT, f"I2t budget exhausted and more than "
                                      f"{ps['limits.continuous_current_a']:g} A requested for "

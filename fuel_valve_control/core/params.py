@@ -187,14 +187,25 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           1e-6, 1.0, runtime=True),
     # --- fault logic (SPEC §4) -----------------------------------------------------------------
     Param("faults.tracking_error_rad", 0.1, "rad", "tracking error limit", 1e-3, 1.1, runtime=True),
-    Param("faults.tracking_error_time_s", 1.0, "s", "time beyond the limit before the fault latches",
+    Param("faults.tracking_error_time_s", 1.0, "s", "time beyond the limit before the fault latches (a leaky "
+          "count: time beyond the limit adds, time within it subtracts, so dips do not restart it)",
           0.01, 60.0, runtime=True),
     Param("faults.resolver_timeout_s", 0.02, "s", "resolver silence that latches a fault", 0.002, 5.0,
           runtime=True),
     Param("faults.resolver_max_step_rad", 0.05, "rad", "valve reading change per period that is "
           "physically impossible (implausible)", 1e-3, 1.0, runtime=True),
-    Param("faults.resolver_max_disagreement_rad", 1.5, "rad", "motor/N vs valve angle disagreement "
-          "beyond any coupling twist (implausible)", 1e-3, 2.0, runtime=True),
+    # motor/valve resolver disagreement = coupling twist; both limits derive from the model
+    # (driver.ValveDriver.twist_limits): the twist the applied torque can cause on a coupling
+    # between this fraction of the nominal stiffness and the nominal one, plus the margin
+    Param("faults.coupling_stiffness_min_fraction", 0.1, "", "softest coupling the resolver disagreement "
+          "check allows for, fraction of model.coupling_stiffness_nm_per_rad (SPEC robustness box: 0.1)",
+          0.05, 1.0, runtime=True),
+    Param("faults.resolver_disagreement_margin_rad", 0.05, "rad", "twist beyond what the applied torque "
+          "explains that is still plausible (backlash up to 0.05 rad, resolver noise, inertial torques)",
+          1e-3, 0.2, runtime=True),
+    Param("faults.resolver_disagreement_time_s", 0.1, "s", "leaky time the twist may disagree with the "
+          "applied torque before the motor/valve resolver pair is implausible (coupling transients)",
+          0.01, 1.0, runtime=True),
     Param("faults.i2t_fault_time_s", 2.0, "s", "time the loop may ask for more than the I2t limit allows "
           "(jam / overload) before the fault latches", 0.05, 60.0, runtime=True),
     # --- nominal model (defaults = plant nominal values) --------------------------------------
@@ -247,6 +258,39 @@ def load_controller_params(path: str | Path | None = "default", overrides=None) 
     ps = CONTROLLER_SPEC.pick(CONTROLLER_NODE_SPEC.load(path), where=f"controller ({path})").replace(overrides or {})
     check_consistency(ps)
     return ps
+
+
+#: rating and supervision limits that may only be *tightened* at run time (issue 13): the value
+#: in force at start-up is the widest a running node accepts; widening needs a restart with a
+#: parameter file (a reviewed change, not a ``ros2 param set`` from anyone on the domain).
+#: -1: a smaller value is tighter; +1: a larger one; a tuple: choices from loosest to tightest
+TIGHTEN_ONLY = {
+    "limits.peak_current_a": -1, "limits.peak_time_s": -1, "limits.continuous_current_a": -1,
+    "faults.tracking_error_rad": -1, "faults.tracking_error_time_s": -1, "faults.resolver_timeout_s": -1,
+    "faults.resolver_max_step_rad": -1, "faults.coupling_stiffness_min_fraction": +1,
+    "faults.resolver_disagreement_margin_rad": -1, "faults.resolver_disagreement_time_s": -1,
+    "faults.i2t_fault_time_s": -1, "demand_timeout_s": -1, "demand_timeout_action": ("hold", "trip"),
+}
+
+
+def check_tighten_only(start: ParamSet, changes: dict) -> None:
+    """Raise :class:`ConfigError` if ``changes`` widens a :data:`TIGHTEN_ONLY` limit beyond
+    its start-up value ``start``."""
+    wider = []
+    for name, value in changes.items():
+        rule = TIGHTEN_ONLY.get(name)
+        if rule is None:
+            continue
+        was = start[name]
+        if isinstance(rule, tuple):
+            widened = rule.index(value) < rule.index(was)
+        else:
+            widened = (value - was) * rule < 0
+        if widened:
+            wider.append(f"{name} {was!r} -> {value!r}")
+    if wider:
+        raise ConfigError(f"controller: rating/supervision limits can only be tightened at run time "
+                          f"({'; '.join(wider)}); restart with a parameter file to widen")
 
 
 def check_consistency(ps: ParamSet) -> None:
