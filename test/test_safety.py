@@ -206,3 +206,32 @@ def test_tightening_and_back_to_the_start_up_value_is_accepted():
     # a start-up file may set wider values: the start-up set is the reference
     wide = D.ValveDriver(PS.replace({"faults.tracking_error_time_s": 30.0}))
     wide.set_params({"faults.tracking_error_time_s": 20.0})
+
+
+# ------------------------------------------------------------------ 5. sample stamps
+def test_future_stamped_sample_is_implausible_and_does_not_poison_the_reference():
+    rig = Rig()
+    rig.healthy()
+    rig.d.resolver(rig.t + 3600.0, N * rig.valve, rig.valve)        # an hour ahead
+    out = rig.run(0.01)
+    _assert_failsafe(out, D.RESOLVER_IMPLAUSIBLE)
+    assert "ahead" in out.faults[D.RESOLVER_IMPLAUSIBLE]
+    assert rig.d.last_resolver_time <= rig.t                        # the reference is a genuine sample
+    rig.run(D.RESET_QUIET_S)
+    ok, msg = rig.d.reset()                                         # genuine samples go on: reset works
+    assert ok, msg
+    out = rig.run(0.05)
+    assert out.enable and out.state == "running", out.faults
+
+
+# ------------------------------------------------------------------ 8. bad values, intermittent causes
+def test_reset_is_refused_during_an_intermittent_resolver_fault():
+    rig = Rig()
+    rig.healthy()
+    for _ in range(3):                        # a noise burst: every 30th sample is garbage
+        rig.d.resolver(rig.t, N * rig.valve, float("nan"))
+        rig.run(0.03)
+        ok, msg = rig.d.reset()
+        assert not ok and "implausible input" in msg
+    rig.run(D.RESET_QUIET_S + 0.01)           # quiet long enough
+    assert rig.d.reset()[0]

@@ -170,3 +170,51 @@ def test_exception_in_the_controller_loop_latches_a_fault_and_the_node_lives_on(
     monkeypatch.undo()
     assert probe.trigger("controller/reset").success
     _hold(probe, 30.0)
+
+
+# ------------------------------------------------------------------ stamps (issue 13.5)
+def test_future_stamped_resolver_sample_latches_and_reset_recovers(realtime):
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Header
+    _, probe = realtime
+    _hold(probe, 30.0)
+    stamp = probe.node.get_clock().now().to_msg()
+    stamp.sec += 3600                                   # an hour ahead
+    valve = 0.30 * STROKE_RAD
+    msg = JointState(header=Header(stamp=stamp), name=list(contract.JOINT_NAMES), position=[valve * 48.019, valve])
+
+    def sent_and_latched():      # depth-1 loop topic: the plant's next sample may displace it
+        probe.pub_resolver.publish(msg)
+        time.sleep(0.005)
+        return probe.driver_level() == 2
+    probe.wait_for(sent_and_latched, 5.0, "ERROR for the future stamp")
+    assert "ahead" in probe.driver_status().message
+    # genuine samples were never judged against the future one: a reset is accepted at once
+    probe.wait_for(lambda: probe.trigger("controller/reset").success, 5.0, "a successful reset")
+    _hold(probe, 30.0)
+
+
+# ------------------------------------------------------------------ start-up paths (issue 13.8)
+@pytest.mark.parametrize("node,args,words", [
+    ("controller", ["-p", "diagnostics_rate_hz:=0.0"], "diagnostics_rate_hz"),
+    ("controller", ["-p", "diagnostics_rate_hz:=-1.0"], "diagnostics_rate_hz"),
+    ("controller", ["-p", "initial_current_a:=nan"], "initial_current_a"),
+    ("controller", ["--params-file", "{bad_yaml}"], "params file"),
+    ("controller", ["--params-file", "{abc}"], "demand_timeout_s"),
+    ("demand", ["--params-file", "{inf}"], "frequency_hz"),
+])
+def test_bad_start_up_values_exit_2_with_a_message(tmp_path, node, args, words):
+    import subprocess
+    from fuel_valve_control.tools.launcher import executable
+    files = {"bad_yaml": "/**:\n  ros__parameters:\n    demand_timeout_s: [oops\n",
+             "abc": "/**:\n  ros__parameters:\n    demand_timeout_s: abc\n",
+             "inf": "/**:\n  ros__parameters:\n    frequency_hz: .inf\n"}
+    paths = {}
+    for key, text in files.items():
+        paths[key] = tmp_path / f"{key}.yaml"
+        paths[key].write_text(text)
+    cmd = executable(node) + ["--ros-args"] + [a.format(**paths) for a in args]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    out = res.stdout + res.stderr
+    assert res.returncode == 2, out
+    assert words in out and "Traceback" not in out, out

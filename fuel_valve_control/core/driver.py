@@ -60,6 +60,9 @@ FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE
 #: drive off meanwhile and the law's state is stale, so the loop re-arms from the measurement
 #: with zero torque instead of resuming with a stale observer and integrator
 STALL_REARM_PERIODS = 5
+#: a reset is refused until the inputs have been plausible for this long, s: an intermittent
+#: cause (a resolver noise burst, a flickering demand) must not be reset between two bad samples
+RESET_QUIET_S = 0.1
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
 
@@ -106,6 +109,7 @@ class ValveDriver:
         self._meas: Measurement | None = None
         self._meas_t: float | None = None
         self._meas_bad: str | None = None
+        self._bad_input_t: float | None = None     # loop time of the latest implausible input
         self._armed = False
         self._arm_torque = 0.0
         self._t: float | None = None               # time of the latest step
@@ -180,7 +184,7 @@ class ValveDriver:
 
     def _accept_demand(self, t, raw, pct, note):
         if pct is None:
-            self._demand_bad = note
+            self._demand_bad, self._bad_input_t = note, t
             self._latch(DEMAND_SIGNAL, note)
             return
         self._demand_bad = None
@@ -191,11 +195,19 @@ class ValveDriver:
         self._demand_pct, self._demand_t = pct, t
 
     @_guarded
-    def resolver(self, t: float, motor_rad: float, valve_rad: float) -> None:
-        """A resolver sample taken at ``t``; implausible samples latch a fault and are dropped."""
-        why = self._implausible(t, motor_rad, valve_rad)
+    def resolver(self, t: float, motor_rad: float, valve_rad: float, now: float | None = None) -> None:
+        """A resolver sample taken at ``t`` (its stamp, s), received at ``now`` on the loop's
+        clock (default: the latest step time); implausible samples latch a fault and are
+        dropped.  A stamp more than ``faults.stamp_future_tolerance_s`` in the future is
+        implausible: trusted, it would become the reference every genuine sample is judged by."""
+        now = self._t if now is None else now
+        if (isinstance(t, (int, float)) and now is not None
+                and not t - now <= self.ps["faults.stamp_future_tolerance_s"]):
+            why = f"resolver sample stamped {t - now:+.3f} s ahead of the loop's clock"
+        else:
+            why = self._implausible(t, motor_rad, valve_rad)
         if why:
-            self._meas_bad = why
+            self._meas_bad, self._bad_input_t = why, now
             self._latch(RESOLVER_IMPLAUSIBLE, why)
             return
         self._meas_bad = None
@@ -297,6 +309,9 @@ class ValveDriver:
         if self._meas_bad:
             return False, f"cannot reset: {self._meas_bad}"
         ps, t = self.ps, self._t
+        if t is not None and self._bad_input_t is not None and t - self._bad_input_t < RESET_QUIET_S:
+            return False, (f"cannot reset: an implausible input {t - self._bad_input_t:.2f} s ago (inputs must be "
+                           f"plausible for {RESET_QUIET_S:g} s)")
         if t is not None:       # a cause that is still present would latch again at once
             if ps["demand_timeout_action"] == "trip" and (
                     self._demand_t is None or t - self._demand_t > ps["demand_timeout_s"]):

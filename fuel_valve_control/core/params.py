@@ -206,6 +206,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("faults.resolver_disagreement_time_s", 0.1, "s", "leaky time the twist may disagree with the "
           "applied torque before the motor/valve resolver pair is implausible (coupling transients)",
           0.01, 1.0, runtime=True),
+    Param("faults.stamp_future_tolerance_s", 0.05, "s", "a resolver sample stamped further than this ahead "
+          "of the loop's clock is implausible (dropped; it never becomes the reference of the jump check)",
+          0.001, 1.0, runtime=True),
     Param("faults.i2t_fault_time_s", 2.0, "s", "time the loop may ask for more than the I2t limit allows "
           "(jam / overload) before the fault latches", 0.05, 60.0, runtime=True),
     # --- nominal model (defaults = plant nominal values) --------------------------------------
@@ -269,7 +272,7 @@ TIGHTEN_ONLY = {
     "faults.tracking_error_rad": -1, "faults.tracking_error_time_s": -1, "faults.resolver_timeout_s": -1,
     "faults.resolver_max_step_rad": -1, "faults.coupling_stiffness_min_fraction": +1,
     "faults.resolver_disagreement_margin_rad": -1, "faults.resolver_disagreement_time_s": -1,
-    "faults.i2t_fault_time_s": -1, "demand_timeout_s": -1, "demand_timeout_action": ("hold", "trip"),
+    "faults.i2t_fault_time_s": -1, "faults.stamp_future_tolerance_s": -1, "demand_timeout_s": -1, "demand_timeout_action": ("hold", "trip"),
 }
 
 

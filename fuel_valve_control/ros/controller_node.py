@@ -160,6 +160,12 @@ class ControllerNode(Node):
                                    throttle_duration_sec=1.0)
             return
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        clock = self.get_clock().now().nanoseconds * 1e-9       # sim time in lockstep (/clock)
+        if stamp - clock > self.driver.ps["faults.stamp_future_tolerance_s"]:
+            # never the loop's time or the jump reference; the driver latches it as implausible
+            self.driver.resolver(stamp, motor, valve, now=clock)
+            self._bad_messages += 1
+            return
         sample = (stamp, motor, valve)
         if self.lockstep:
             if self._last_sample_stamp is not None and stamp <= self._last_sample_stamp:
