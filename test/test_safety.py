@@ -235,3 +235,17 @@ def test_reset_is_refused_during_an_intermittent_resolver_fault():
         assert not ok and "implausible input" in msg
     rig.run(D.RESET_QUIET_S + 0.01)           # quiet long enough
     assert rig.d.reset()[0]
+
+
+def test_a_stalled_loop_re_arms_from_zero_torque_but_keeps_the_i2t_state():
+    rig = Rig(**{"faults.tracking_error_time_s": 60.0})
+    rig.valve = 0.2 * STROKE_RAD
+    rig.demand = 80.0                             # jammed short of the demand: the I2t budget drains
+    rig.healthy()
+    rig.run(0.3)
+    used = rig.d.health().values["i2t_budget_used"]
+    assert used > 0.5
+    rig.t += 0.05                                 # the loop stalls for 50 ms
+    rig.run(0.001)
+    assert rig.d.stall_rearms == 1
+    assert rig.d.health().values["i2t_budget_used"] >= used - 0.05

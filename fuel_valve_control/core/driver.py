@@ -114,6 +114,7 @@ class ValveDriver:
         self._arm_torque = 0.0
         self._t: float | None = None               # time of the latest step
         self.stall_rearms = 0                      # re-arms after a stalled loop (diagnostics)
+        self._stalled = False
         self._tracking_time = 0.0                  # leaky time beyond the tracking limit, s
         self._twist_time = 0.0                     # leaky time the twist disagreed with the torque, s
         self._positions: deque = deque(maxlen=int(2.0 / self.period))
@@ -363,6 +364,7 @@ class ValveDriver:
         ps = self.ps
         if self._armed and self._t is not None and t - self._t > STALL_REARM_PERIODS * self.period:
             self._armed = False                   # stalled: re-arm below from the measurement
+            self._stalled = True
             self.stall_rearms += 1
         self._t = t
         if self._t_first is None:
@@ -388,7 +390,8 @@ class ValveDriver:
             return self.last
         demand_rad = self._demand_pct / 100.0 * self.stroke
         if not self._armed:
-            self.controller.reset(self._meas, pressure, self._arm_torque)
+            self.controller.reset(self._meas, pressure, self._arm_torque, keep_limits=self._stalled)
+            self._stalled = False
             self._arm_torque = 0.0        # re-arming after a fault starts from zero torque
             self._armed = True
         applied = self.controller.last_current     # what the drive applied since the sample before
