@@ -212,7 +212,7 @@ def test_tightening_and_back_to_the_start_up_value_is_accepted():
 def test_future_stamped_sample_is_implausible_and_does_not_poison_the_reference():
     rig = Rig()
     rig.healthy()
-    rig.d.resolver(rig.t + 3600.0, N * rig.valve, rig.valve)        # an hour ahead
+    rig.d.resolver(rig.t + 3600.0, N * rig.valve, rig.valve, now=rig.t)     # an hour ahead
     out = rig.run(0.01)
     _assert_failsafe(out, D.RESOLVER_IMPLAUSIBLE)
     assert "ahead" in out.faults[D.RESOLVER_IMPLAUSIBLE]
@@ -237,7 +237,7 @@ def test_reset_is_refused_during_an_intermittent_resolver_fault():
     assert rig.d.reset()[0]
 
 
-def test_a_stalled_loop_re_arms_from_zero_torque_but_keeps_the_i2t_state():
+def test_a_stalled_loop_re_arms_from_the_measurement_and_keeps_the_i2t_state():
     rig = Rig(**{"faults.tracking_error_time_s": 60.0})
     rig.valve = 0.2 * STROKE_RAD
     rig.demand = 80.0                             # jammed short of the demand: the I2t budget drains
@@ -245,7 +245,7 @@ def test_a_stalled_loop_re_arms_from_zero_torque_but_keeps_the_i2t_state():
     rig.run(0.3)
     used = rig.d.health().values["i2t_budget_used"]
     assert used > 0.5
-    rig.t += 0.05                                 # the loop stalls for 50 ms
+    rig.t += 0.05                                 # the loop stalls for 50 ms (> STALL_REARM_PERIODS)
     rig.run(0.001)
     assert rig.d.stall_rearms == 1
     assert rig.d.health().values["i2t_budget_used"] >= used - 0.05

@@ -56,10 +56,13 @@ INTERNAL = "internal_error"
 FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE, TRACKING, OVERCURRENT, TRIPPED,
                INTERNAL)
 #: a gap between two loop periods longer than this many periods is a stalled loop: the drive's
-#: command watchdog (the plant's ``command_timeout_s``, 5 periods by default) has switched the
-#: drive off meanwhile and the law's state is stale, so the loop re-arms from the measurement
-#: with zero torque instead of resuming with a stale observer and integrator
-STALL_REARM_PERIODS = 5
+#: command watchdog (the plant's ``command_timeout_s``, 5 ms by default) has switched the drive
+#: off meanwhile and the law's state is stale, so the loop re-arms from the measurement with
+#: zero torque (the drive was off) instead of resuming with a stale observer and integrator.
+#: 20 periods, not 5: a plant publishing slower than the loop or a jittery one (a loaded
+#: machine) must not keep re-arming the law (that hid a jam from the I2t supervision in
+#: test_nodes' seized rig)
+STALL_REARM_PERIODS = 20
 #: a reset is refused until the inputs have been plausible for this long, s: an intermittent
 #: cause (a resolver noise burst, a flickering demand) must not be reset between two bad samples
 RESET_QUIET_S = 0.1
@@ -198,17 +201,17 @@ class ValveDriver:
     @_guarded
     def resolver(self, t: float, motor_rad: float, valve_rad: float, now: float | None = None) -> None:
         """A resolver sample taken at ``t`` (its stamp, s), received at ``now`` on the loop's
-        clock (default: the latest step time); implausible samples latch a fault and are
-        dropped.  A stamp more than ``faults.stamp_future_tolerance_s`` in the future is
-        implausible: trusted, it would become the reference every genuine sample is judged by."""
-        now = self._t if now is None else now
+        clock (None: not checked; the offline simulator's samples are its own); implausible
+        samples latch a fault and are dropped.  A stamp more than
+        ``faults.stamp_future_tolerance_s`` after ``now`` is implausible: trusted, it would
+        become the reference every genuine sample is judged by."""
         if (isinstance(t, (int, float)) and now is not None
                 and not t - now <= self.ps["faults.stamp_future_tolerance_s"]):
             why = f"resolver sample stamped {t - now:+.3f} s ahead of the loop's clock"
         else:
             why = self._implausible(t, motor_rad, valve_rad)
         if why:
-            self._meas_bad, self._bad_input_t = why, now
+            self._meas_bad, self._bad_input_t = why, (self._t if now is None else now)
             self._latch(RESOLVER_IMPLAUSIBLE, why)
             return
         self._meas_bad = None
@@ -390,6 +393,9 @@ class ValveDriver:
             return self.last
         demand_rad = self._demand_pct / 100.0 * self.stroke
         if not self._armed:
+            # after a stall from zero torque, what the drive really applied once its watchdog
+            # tripped (resuming the old request drove the valve on: 49 % for a 40 % step); the
+            # I2t budget spent is kept, so a stall cannot refill it
             self.controller.reset(self._meas, pressure, self._arm_torque, keep_limits=self._stalled)
             self._stalled = False
             self._arm_torque = 0.0        # re-arming after a fault starts from zero torque

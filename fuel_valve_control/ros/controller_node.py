@@ -166,7 +166,7 @@ class ControllerNode(Node):
             self.driver.resolver(stamp, motor, valve, now=clock)
             self._bad_messages += 1
             return
-        sample = (stamp, motor, valve)
+        sample = (stamp, motor, valve, clock)
         if self.lockstep:
             if self._last_sample_stamp is not None and stamp <= self._last_sample_stamp:
                 return                              # a re-sent sample of a period already run
@@ -178,10 +178,10 @@ class ControllerNode(Node):
     # ------------------------------------------------------------------ loop
     def run_period(self, sample) -> None:
         t0 = time.perf_counter()
-        stamp, motor, valve = sample
+        stamp, motor, valve, clock = sample
         self._fresh_demand = False
         self._last_sample_stamp = stamp
-        self.driver.resolver(stamp, motor, valve)
+        self.driver.resolver(stamp, motor, valve, now=clock)
         self.publish_step(stamp if self.lockstep else self.now_s())
         self._compute.add(time.perf_counter() - t0)
 
