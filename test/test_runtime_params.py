@@ -107,7 +107,7 @@ def test_every_runtime_parameter_has_a_consumer():
         drv.demand_percent(t, 90.0 if k > 100 else 20.0)            # a far demand: tracking error
         if k < 150:                                                  # then stale: the fallback
             drv.pressure_differential(t, 3000.0)
-        drv.resolver(t, 0.2 * 48.019, 0.2)
+        drv.resolver(t, 0.2 * 48.019, 0.2, now=t)                    # received on the loop clock
         drv.step(t)
     drv.reset()
     drv.health()
