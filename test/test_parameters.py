@@ -37,7 +37,7 @@ from fuel_valve_control.core.driver import PRESSURE_INPUT  # noqa: E402
 from fuel_valve_control.tools.profiles import DEMAND_NODE_SPEC  # noqa: E402
 from fuel_valve_plant.physics.params import PLANT_SPEC  # noqa: E402
 from fuel_valve_plant.physics.plant import pack_parameters  # noqa: E402
-from test_runtime_params import changed_value  # noqa: E402
+from test_runtime_params import RUNTIME, changed_value  # noqa: E402
 
 NS = "/params"
 
@@ -90,7 +90,7 @@ def _runtime(spec):
     return [p.name for p in spec if p.runtime]
 
 
-@pytest.mark.parametrize("name", _runtime(CONTROLLER_SPEC))
+@pytest.mark.parametrize("name", RUNTIME)
 def test_controller_runtime_parameter_takes_effect(suite, name):
     _, controller, _, probe = suite
     p = CONTROLLER_SPEC.params[name]

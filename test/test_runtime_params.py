@@ -15,25 +15,35 @@ from fuel_valve_control.common.paramspec import ConfigError, Param, read_ros_par
 from fuel_valve_control.common.config_dir import default_config_dir
 from fuel_valve_control.core import driver as D
 from fuel_valve_control.core.driver import ValveDriver
-from fuel_valve_control.core.params import CONTROLLER_SPEC, MODES, load_controller_params
+from fuel_valve_control.core.params import CONTROLLER_SPEC, MODES, TIGHTEN_ONLY, load_controller_params
 from fuel_valve_control.core.position_controller import PositionController
 from fuel_valve_plant.physics.params import load_plant_params
 from fuel_valve_plant.physics.plant import Plant
 
-RUNTIME = [p.name for p in CONTROLLER_SPEC if p.runtime]
+#: run-time parameters that can change from their defaults (demand_timeout_action's default,
+#: trip, is its tightest choice: it only changes at start-up)
+RUNTIME = [p.name for p in CONTROLLER_SPEC if p.runtime and not (
+    isinstance(TIGHTEN_ONLY.get(p.name), tuple) and TIGHTEN_ONLY[p.name][-1] == p.default)]
 LAW_KEYS = {mode: PositionController(CONTROLLER_SPEC.defaults().replace({"mode": mode})).law_params
             for mode in MODES}
 LIMIT_KEYS = {"limits.peak_current_a", "limits.peak_time_s", "limits.continuous_current_a"}
 
 
 def changed_value(p: Param) -> Any:
-    """A valid value different from the default."""
+    """A valid value different from the default; for a rating/supervision limit a tighter one
+    (they only tighten at run time, ``test_safety.py``)."""
+    rule = TIGHTEN_ONLY.get(p.name)
     if p.choices is not None:
+        if isinstance(rule, tuple):
+            return rule[rule.index(p.default) + 1]          # IndexError: none tighter (see RUNTIME)
         return next(c for c in p.choices if c != p.default)
     if p.kind is bool:
         return not p.default
     low, high = p.low or 0.0, p.high or 1.0
-    for candidate in (p.default * 0.8, p.default * 1.2, low + 0.5 * (high - low), low + 0.75 * (high - low)):
+    candidates = (p.default * 0.8, p.default * 1.2, low + 0.5 * (high - low), low + 0.75 * (high - low))
+    if rule is not None:
+        candidates = (p.default * (1.0 + 0.2 * rule),)
+    for candidate in candidates:
         value = p.kind(candidate)
         if value != p.default:
             try:
@@ -98,7 +108,7 @@ def test_every_runtime_parameter_has_a_consumer():
         drv.demand_percent(t, 90.0 if k > 100 else 20.0)            # a far demand: tracking error
         if k < 150:                                                  # then stale: the fallback
             drv.pressure_differential(t, 3000.0)
-        drv.resolver(t, 0.2 * 48.019, 0.2)
+        drv.resolver(t, 0.2 * 48.019, 0.2, now=t)                    # received on the loop clock
         drv.step(t)
     drv.reset()
     drv.health()

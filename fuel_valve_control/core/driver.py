@@ -23,7 +23,11 @@ current, so the return spring closes the valve (fail safe).  A stale demand with
 ``demand_timeout_action: hold`` is the one exception: the valve holds the last good demand
 and a latched warning is raised instead.
 
-Malformed input never raises: NaN/inf/out-of-range values become faults or warnings.
+Malformed input never raises: NaN/inf/out-of-range values become faults or warnings.  Nor
+does a defect: an exception anywhere in an input handler or in :meth:`ValveDriver.step` (the
+law, the limits, a numerical overflow) and a non-finite command are caught and latched as the
+:data:`INTERNAL` fault, so the loop keeps running with the drive disabled and says why, instead
+of dying with the last command still applied.
 """
 from __future__ import annotations
 
@@ -37,7 +41,7 @@ from ..common.contract import (NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_
 from ..common.paramspec import ParamSet
 
 from .demand_filter import DemandFilter, DemandFilterConfig
-from .params import CONTROLLER_SPEC, check_consistency
+from .params import CONTROLLER_SPEC, check_consistency, check_tighten_only
 from .position_controller import PositionController
 from .signals import Measurement
 
@@ -48,9 +52,37 @@ RESOLVER_IMPLAUSIBLE = "resolver_implausible"
 TRACKING = "tracking_error"
 OVERCURRENT = "overcurrent_i2t"
 TRIPPED = "commanded_trip"
-FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE, TRACKING, OVERCURRENT, TRIPPED)
+#: an exception in the driver's own code (law, limits, arithmetic) or a non-finite command
+INTERNAL = "internal_error"
+FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE, TRACKING, OVERCURRENT, TRIPPED,
+               INTERNAL)
+#: a gap between two loop periods longer than this many periods is a stalled loop: the drive's
+#: command watchdog (the plant's ``command_timeout_s``, 5 ms by default) has switched the drive
+#: off meanwhile and the law's state is stale, so the loop re-arms from the measurement with
+#: zero torque (the drive was off) instead of resuming with a stale observer and integrator.
+#: 20 periods, not 5: a plant publishing slower than the loop or a jittery one (a loaded
+#: machine) must not keep re-arming the law (that hid a jam from the I2t supervision in
+#: test_nodes' seized rig)
+STALL_REARM_PERIODS = 20
+#: a reset is refused until the inputs have been plausible for this long, s: an intermittent
+#: cause (a resolver noise burst, a flickering demand) must not be reset between two bad samples
+RESET_QUIET_S = 0.1
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
+
+
+def _guarded(method):
+    """Input handlers never raise: an exception becomes the latched :data:`INTERNAL` fault."""
+    import functools
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except Exception as exc:           # noqa: BLE001 - any defect must fail safe, not kill the loop
+            self.internal_fault(method.__name__, exc)
+            return None
+    return wrapper
 
 
 @dataclass
@@ -67,6 +99,8 @@ class DriverOutput:
 class ValveDriver:
     def __init__(self, params: ParamSet | None = None):
         self.ps = params if params is not None else CONTROLLER_SPEC.defaults()
+        #: the start-up set: the widest rating/supervision limits this driver accepts at run time
+        self.startup_ps = self.ps
         self.controller = PositionController(self.ps)
         self.stroke = self.controller.model.stroke_rad
         self.n = self.controller.model.gear_ratio
@@ -83,10 +117,14 @@ class ValveDriver:
         self._meas: Measurement | None = None
         self._meas_t: float | None = None
         self._meas_bad: str | None = None
+        self._bad_input_t: float | None = None     # loop time of the latest implausible input
         self._armed = False
         self._arm_torque = 0.0
         self._t: float | None = None               # time of the latest step
-        self._tracking_since: float | None = None
+        self.stall_rearms = 0                      # re-arms after a stalled loop (diagnostics)
+        self._stalled = False
+        self._tracking_time = 0.0                  # leaky time beyond the tracking limit, s
+        self._twist_time = 0.0                     # leaky time the twist disagreed with the torque, s
         self._positions: deque = deque(maxlen=int(2.0 / self.period))
         self._t_first: float | None = None         # time of the first step (for a missing Δp)
         self._dp: float | None = None              # last valid measured Δp, kPa (None: use the fallback)
@@ -107,6 +145,7 @@ class ValveDriver:
         fixed = [k for k in changes if not CONTROLLER_SPEC.params[k].runtime and new[k] != self.ps[k]]
         if fixed:
             raise ValueError(f"{', '.join(fixed)} cannot change at run time")
+        check_tighten_only(self.startup_ps, changes)
         check_consistency(new)
         return new, self.controller.prepare(new)
 
@@ -124,10 +163,12 @@ class ValveDriver:
         self.controller.reconfigure(new, self._meas if self._armed else None, self.pressure_kpa, prepared)
 
     # ------------------------------------------------------------------ inputs
+    @_guarded
     def demand_percent(self, t: float, value: float) -> None:
         if self.ps["demand_source"] == "percent":
             self._accept_demand(t, value, *self._check_percent(value))
 
+    @_guarded
     def demand_ma(self, t: float, value: float) -> None:
         if self.ps["demand_source"] == "ma":
             self._accept_demand(t, value, *self._check_ma(value))
@@ -154,7 +195,7 @@ class ValveDriver:
 
     def _accept_demand(self, t, raw, pct, note):
         if pct is None:
-            self._demand_bad = note
+            self._demand_bad, self._bad_input_t = note, t
             self._latch(DEMAND_SIGNAL, note)
             return
         self._demand_bad = None
@@ -165,11 +206,20 @@ class ValveDriver:
         self._demand_pct, self._demand_t = pct, t
         self._demand_cond_rad = self.demand_filter.update(t, pct / 100.0 * self.stroke)
 
-    def resolver(self, t: float, motor_rad: float, valve_rad: float) -> None:
-        """A resolver sample taken at ``t``; implausible samples latch a fault and are dropped."""
-        why = self._implausible(t, motor_rad, valve_rad)
+    @_guarded
+    def resolver(self, t: float, motor_rad: float, valve_rad: float, now: float | None = None) -> None:
+        """A resolver sample taken at ``t`` (its stamp, s), received at ``now`` on the loop's
+        clock (None: not checked; the offline simulator's samples are its own); implausible
+        samples latch a fault and are dropped.  A stamp more than
+        ``faults.stamp_future_tolerance_s`` after ``now`` is implausible: trusted, it would
+        become the reference every genuine sample is judged by."""
+        if (isinstance(t, (int, float)) and now is not None
+                and not t - now <= self.ps["faults.stamp_future_tolerance_s"]):
+            why = f"resolver sample stamped {t - now:+.3f} s ahead of the loop's clock"
+        else:
+            why = self._implausible(t, motor_rad, valve_rad)
         if why:
-            self._meas_bad = why
+            self._meas_bad, self._bad_input_t = why, (self._t if now is None else now)
             self._latch(RESOLVER_IMPLAUSIBLE, why)
             return
         self._meas_bad = None
@@ -182,7 +232,7 @@ class ValveDriver:
         margin = 0.05
         if not -margin <= valve <= self.stroke + margin:
             return f"valve angle {valve:.4f} rad outside the stroke 0..{self.stroke:.4f} rad"
-        if abs(motor / self.n - valve) > self.ps["faults.resolver_max_disagreement_rad"]:
+        if abs(motor / self.n - valve) > self.twist_limits(self.ps["limits.peak_current_a"])[2]:
             return (f"motor resolver ({motor / self.n:.4f} rad at the valve) and valve resolver ({valve:.4f} rad) "
                     f"disagree beyond any coupling twist")
         if self._meas is not None and self._meas_t is not None:
@@ -192,6 +242,23 @@ class ValveDriver:
                 return f"valve angle jumped {jump:.4f} rad in {max(t - self._meas_t, 0.0) * 1e3:.1f} ms"
         return None
 
+    def twist_limits(self, current_a: float) -> tuple[float, float, float]:
+        """(low, high, largest |twist|) of the coupling twist θm/N − θv, rad, that a q-current
+        ``current_a`` (A) applied at the motor can explain at rest: the valve-side torque
+        N·Kt·i over a coupling between ``faults.coupling_stiffness_min_fraction`` times the
+        nominal stiffness and the nominal one, widened by
+        ``faults.resolver_disagreement_margin_rad``.  The third value is the bound for any
+        current up to the peak: an instantaneous implausibility limit."""
+        m, ps = self.controller.model, self.ps
+        k = m.coupling_stiffness_nm_per_rad
+        f = ps["faults.coupling_stiffness_min_fraction"]
+        margin = ps["faults.resolver_disagreement_margin_rad"]
+        torque = self.n * m.torque_constant_nm_per_a * current_a
+        a, b = torque / k, torque / (f * k)
+        peak = self.n * m.torque_constant_nm_per_a * ps["limits.peak_current_a"] / (f * k) + margin
+        return min(a, b) - margin, max(a, b) + margin, peak
+
+    @_guarded
     def pressure_differential(self, t: float, kpa: float) -> None:
         """A measured pressure differential across the valve, kPa, read at ``t``.  Implausible
         readings latch the :data:`PRESSURE_INPUT` warning and put the schedule on the fallback
@@ -232,6 +299,7 @@ class ValveDriver:
             self._warn_pressure("no pressure differential reading received")
         return self.ps["pressure.fallback_kpa"] if self._dp is None else self._dp
 
+    @_guarded
     def measured_current(self, t: float, amps: float) -> None:
         """Optional drive telemetry: a current beyond the hardware rating is an over-current."""
         limit = 1.1 * self.ps["limits.peak_current_a"]
@@ -253,6 +321,9 @@ class ValveDriver:
         if self._meas_bad:
             return False, f"cannot reset: {self._meas_bad}"
         ps, t = self.ps, self._t
+        if t is not None and self._bad_input_t is not None and t - self._bad_input_t < RESET_QUIET_S:
+            return False, (f"cannot reset: an implausible input {t - self._bad_input_t:.2f} s ago (inputs must be "
+                           f"plausible for {RESET_QUIET_S:g} s)")
         if t is not None:       # a cause that is still present would latch again at once
             if ps["demand_timeout_action"] == "trip" and (
                     self._demand_t is None or t - self._demand_t > ps["demand_timeout_s"]):
@@ -263,17 +334,49 @@ class ValveDriver:
         self.faults.clear()
         self.warnings.pop(DEMAND_STALE, None)
         self.warnings.pop(PRESSURE_INPUT, None)     # latches again next period if still invalid
-        self._tracking_since = None
+        self._tracking_time = self._twist_time = 0.0
         self.controller.reset_limits()
+        self.controller.reset_learning()        # nothing learned before the fault outlives it
         return True, ("cleared: " + ", ".join(cleared)) if cleared else "nothing to clear"
 
     def _latch(self, code: str, message: str) -> None:
         if code not in self.faults:
             self.faults[code] = message
 
+    def internal_fault(self, where: str, exc: BaseException | str) -> None:
+        """Latch the :data:`INTERNAL` fault for an exception (or a message) raised in ``where``;
+        the next :meth:`step` disables the drive.  Also for the node's own code around the
+        driver (publishing, parameters)."""
+        what = exc if isinstance(exc, str) else f"{type(exc).__name__}: {exc}"
+        self._armed = False
+        self._latch(INTERNAL, f"internal error in {where}: {what}")
+
+    def _fail_safe_output(self, position_pct) -> DriverOutput:
+        self._armed = False
+        self.last = DriverOutput(0.0, False, "fault", self._demand_pct, position_pct,
+                                 dict(self.faults), dict(self.warnings))
+        return self.last
+
     # ------------------------------------------------------------------ loop
     def step(self, t: float) -> DriverOutput:
+        """One loop period at time ``t`` (s): the command and drive enable.  Never raises: an
+        exception inside latches :data:`INTERNAL` and returns the fail-safe output."""
+        try:
+            out = self._step(t)
+            if not math.isfinite(out.current_a):
+                raise ArithmeticError(f"non-finite current command {out.current_a!r} A")
+            return out
+        except Exception as exc:           # noqa: BLE001 - see the module docstring
+            self.internal_fault("step", exc)
+            position = None if self._meas is None else 100.0 * self._meas.valve_rad / self.stroke
+            return self._fail_safe_output(position)
+
+    def _step(self, t: float) -> DriverOutput:
         ps = self.ps
+        if self._armed and self._t is not None and t - self._t > STALL_REARM_PERIODS * self.period:
+            self._armed = False                   # stalled: re-arm below from the measurement
+            self._stalled = True
+            self.stall_rearms += 1
         self._t = t
         if self._t_first is None:
             self._t_first = t
@@ -298,19 +401,31 @@ class ValveDriver:
             return self.last
         demand_rad = self.demand_rad()
         if not self._armed:
-            self.controller.reset(self._meas, pressure, self._arm_torque)
+            # after a stall from zero torque, what the drive really applied once its watchdog
+            # tripped (resuming the old request drove the valve on: 49 % for a 40 % step); the
+            # I2t budget spent is kept, so a stall cannot refill it
+            self.controller.reset(self._meas, pressure, self._arm_torque, keep_limits=self._stalled)
+            self._stalled = False
             self._arm_torque = 0.0        # re-arming after a fault starts from zero torque
             self._armed = True
+        applied = self.controller.last_current     # what the drive applied since the sample before
         current = self.controller.update(t, demand_rad, self._meas, pressure)
-        # --- faults that the loop itself detects
-        if abs(demand_rad - self._meas.valve_rad) > ps["faults.tracking_error_rad"]:
-            if self._tracking_since is None:
-                self._tracking_since = t
-            elif t - self._tracking_since > ps["faults.tracking_error_time_s"]:
-                self._latch(TRACKING, f"tracking error above {ps['faults.tracking_error_rad']:g} rad "
-                                      f"for {t - self._tracking_since:.2f} s")
-        else:
-            self._tracking_since = None
+        # --- faults that the loop itself detects; leaky counts: a dip below the limit takes time
+        # off, it does not restart the count (a failed sensor swinging the valve dips often)
+        dt = self.period
+        beyond = abs(demand_rad - self._meas.valve_rad) > ps["faults.tracking_error_rad"]
+        self._tracking_time = max(self._tracking_time + (dt if beyond else -dt), 0.0)
+        if self._tracking_time > ps["faults.tracking_error_time_s"]:
+            self._latch(TRACKING, f"tracking error above {ps['faults.tracking_error_rad']:g} rad "
+                                  f"for {self._tracking_time:.2f} s (net)")
+        low, high, _ = self.twist_limits(applied)
+        twist = self._meas.motor_rad / self.n - self._meas.valve_rad
+        off = not low <= twist <= high
+        self._twist_time = max(self._twist_time + (dt if off else -dt), 0.0)
+        if self._twist_time > ps["faults.resolver_disagreement_time_s"]:
+            self._latch(RESOLVER_IMPLAUSIBLE, f"motor/valve resolver disagreement {twist:.4f} rad not explained by "
+                                              f"the applied {applied:.1f} A ({low:.4f}..{high:.4f} rad) for "
+                                              f"{self._twist_time:.2f} s (net): a resolver has failed")
         if self.controller.overload_time > ps["faults.i2t_fault_time_s"]:
             self._latch(OVERCURRENT, f"I2t budget exhausted and more than "
                                      f"{ps['limits.continuous_current_a']:g} A requested for "
@@ -376,6 +491,7 @@ class ValveDriver:
             "pressure_differential_kpa": self.pressure_kpa,
             "pressure_source": "fallback" if self._dp is None else "measured",
             "i2t_budget_used": self.controller.i2t_budget_fraction,
+            "stall_rearms": self.stall_rearms,
             "faults": ",".join(out.faults) or "none", "warnings": ",".join(out.warnings) or "none",
         }
         values.update(self.demand_filter.state())

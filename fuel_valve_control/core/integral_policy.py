@@ -73,12 +73,20 @@ class JumpLearner:
     The upper limit must cover the robustness box of SPEC §6: friction x 3 on a coupling
     x 0.1 jumps 30x the nominal jump at any Δp (a cap of 20 left that corner hunting at
     Δp = 0); 50 gives margin.
+
+    A disturbance (a load kick, a stalled loop) can look like a big jump; :meth:`reset` (a
+    fault reset) returns to the nominal ratio, so what was learned from it cannot outlive a
+    fault (issue 13).
     """
 
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4):
         self.gain = gain
         self.min_jump = min_jump          # rad: smaller "jumps" are resolver noise, not breakaways
         self.limits = limits
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the learned ratio (nominal jumps) and any breakaway in progress."""
         self.ratio = 1.0
         self._stuck_at: float | None = None
         self._start: float | None = None

@@ -28,13 +28,19 @@ def _nominal(name: str, value: float, unit: str, description: str, low: float = 
 #: data-sheet motor constants the torque constant is derived from (SPEC §2)
 _POLE_PAIRS, _FLUX_LINKAGE_WB = 2, 0.0115
 
+#: largest Friedland-Park exponent beta accepted (see :func:`_friedland_park_params`)
+FP_BETA_MAX = 4.0
+
+
 def _friedland_park_params(shaft: str, freeze_default: float, freeze_high: float) -> list[Param]:
     """The Friedland-Park observer parameters of one shaft (same meaning on both)."""
     return [
         Param(f"fp.{shaft}.alpha", 2.0, "", f"{shaft}-shaft observer gain alpha", 0.0, 1e6, low_open=True,
               runtime=True),
-        Param(f"fp.{shaft}.beta", 1.5, "", f"{shaft}-shaft observer exponent beta", 0.0, 200.0, low_open=True,
-              runtime=True),
+        # beta <= 4 (Friedland & Park use 1..3): alpha*|v|^beta cannot overflow a double for any
+        # velocity estimate below 1e75 rad/s even at alpha's maximum; beta 200 overflowed at 35 rad/s
+        Param(f"fp.{shaft}.beta", 1.5, "", f"{shaft}-shaft observer exponent beta", 0.0, FP_BETA_MAX,
+              low_open=True, runtime=True),
         Param(f"fp.{shaft}.gain_cap", 200.0, "1/s", f"cap on alpha*beta*|v|^(beta-1), {shaft} shaft", 0.0, 1e4,
               low_open=True, runtime=True),
         Param(f"fp.{shaft}.freeze_velocity_rad_s", freeze_default, "rad/s",
@@ -201,14 +207,28 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           1e-6, 1.0, runtime=True),
     # --- fault logic (SPEC §4) -----------------------------------------------------------------
     Param("faults.tracking_error_rad", 0.1, "rad", "tracking error limit", 1e-3, 1.1, runtime=True),
-    Param("faults.tracking_error_time_s", 1.0, "s", "time beyond the limit before the fault latches",
+    Param("faults.tracking_error_time_s", 1.0, "s", "time beyond the limit before the fault latches (a leaky "
+          "count: time beyond the limit adds, time within it subtracts, so dips do not restart it)",
           0.01, 60.0, runtime=True),
     Param("faults.resolver_timeout_s", 0.02, "s", "resolver silence that latches a fault", 0.002, 5.0,
           runtime=True),
     Param("faults.resolver_max_step_rad", 0.05, "rad", "valve reading change per period that is "
           "physically impossible (implausible)", 1e-3, 1.0, runtime=True),
-    Param("faults.resolver_max_disagreement_rad", 1.5, "rad", "motor/N vs valve angle disagreement "
-          "beyond any coupling twist (implausible)", 1e-3, 2.0, runtime=True),
+    # motor/valve resolver disagreement = coupling twist; both limits derive from the model
+    # (driver.ValveDriver.twist_limits): the twist the applied torque can cause on a coupling
+    # between this fraction of the nominal stiffness and the nominal one, plus the margin
+    Param("faults.coupling_stiffness_min_fraction", 0.1, "", "softest coupling the resolver disagreement "
+          "check allows for, fraction of model.coupling_stiffness_nm_per_rad (SPEC robustness box: 0.1)",
+          0.05, 1.0, runtime=True),
+    Param("faults.resolver_disagreement_margin_rad", 0.05, "rad", "twist beyond what the applied torque "
+          "explains that is still plausible (backlash up to 0.05 rad, resolver noise, inertial torques)",
+          1e-3, 0.2, runtime=True),
+    Param("faults.resolver_disagreement_time_s", 0.1, "s", "leaky time the twist may disagree with the "
+          "applied torque before the motor/valve resolver pair is implausible (coupling transients)",
+          0.01, 1.0, runtime=True),
+    Param("faults.stamp_future_tolerance_s", 0.05, "s", "a resolver sample stamped further than this ahead "
+          "of the loop's clock is implausible (dropped; it never becomes the reference of the jump check)",
+          0.001, 1.0, runtime=True),
     Param("faults.i2t_fault_time_s", 2.0, "s", "time the loop may ask for more than the I2t limit allows "
           "(jam / overload) before the fault latches", 0.05, 60.0, runtime=True),
     # --- nominal model (defaults = plant nominal values) --------------------------------------
@@ -261,6 +281,39 @@ def load_controller_params(path: str | Path | None = "default", overrides=None) 
     ps = CONTROLLER_SPEC.pick(CONTROLLER_NODE_SPEC.load(path), where=f"controller ({path})").replace(overrides or {})
     check_consistency(ps)
     return ps
+
+
+#: rating and supervision limits that may only be *tightened* at run time (issue 13): the value
+#: in force at start-up is the widest a running node accepts; widening needs a restart with a
+#: parameter file (a reviewed change, not a ``ros2 param set`` from anyone on the domain).
+#: -1: a smaller value is tighter; +1: a larger one; a tuple: choices from loosest to tightest
+TIGHTEN_ONLY = {
+    "limits.peak_current_a": -1, "limits.peak_time_s": -1, "limits.continuous_current_a": -1,
+    "faults.tracking_error_rad": -1, "faults.tracking_error_time_s": -1, "faults.resolver_timeout_s": -1,
+    "faults.resolver_max_step_rad": -1, "faults.coupling_stiffness_min_fraction": +1,
+    "faults.resolver_disagreement_margin_rad": -1, "faults.resolver_disagreement_time_s": -1,
+    "faults.i2t_fault_time_s": -1, "faults.stamp_future_tolerance_s": -1, "demand_timeout_s": -1, "demand_timeout_action": ("hold", "trip"),
+}
+
+
+def check_tighten_only(start: ParamSet, changes: dict) -> None:
+    """Raise :class:`ConfigError` if ``changes`` widens a :data:`TIGHTEN_ONLY` limit beyond
+    its start-up value ``start``."""
+    wider = []
+    for name, value in changes.items():
+        rule = TIGHTEN_ONLY.get(name)
+        if rule is None:
+            continue
+        was = start[name]
+        if isinstance(rule, tuple):
+            widened = rule.index(value) < rule.index(was)
+        else:
+            widened = (value - was) * rule < 0
+        if widened:
+            wider.append(f"{name} {was!r} -> {value!r}")
+    if wider:
+        raise ConfigError(f"controller: rating/supervision limits can only be tightened at run time "
+                          f"({'; '.join(wider)}); restart with a parameter file to widen")
 
 
 def check_consistency(ps: ParamSet) -> None:

@@ -251,12 +251,18 @@ class PositionController:
         return new_law is not None
 
     def reset_learning(self) -> None:
-        """Forget what the fine-positioning stage learned (back to the nominal model)."""
+        """Forget what the law learned (fine-positioning twists, the jump ratio sizing the
+        integrator deadband): back to the nominal model."""
         self.learner.reset()
+        self.law.forget()
 
-    def reset(self, meas: Measurement, pressure_kpa: float, torque_nm: float = 0.0) -> None:
-        """(Re)arm from a measurement, starting from ``torque_nm`` (0 after a trip)."""
-        self._limiter.reset()
+    def reset(self, meas: Measurement, pressure_kpa: float, torque_nm: float = 0.0,
+              keep_limits: bool = False) -> None:
+        """(Re)arm from a measurement, starting from ``torque_nm`` (0 after a trip).
+        ``keep_limits``: keep the I²t budget spent and the overload timer (a re-arm after a
+        stalled loop must not refill them, or stalls would hide a jam)."""
+        if not keep_limits:
+            self._limiter.reset()
         self.law.reset(meas, torque_nm, pressure_kpa)
         self._outgoing, self._transfer = None, 0.0
         self.last_torque = torque_nm

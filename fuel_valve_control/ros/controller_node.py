@@ -35,18 +35,27 @@ from .node_runner import run_node
 from ..common.paramspec import ConfigError
 
 from ..core.params import CONTROLLER_NODE_SPEC, CONTROLLER_SPEC, load_controller_params
-from ..core.driver import ValveDriver
+from ..core.driver import Health, ValveDriver
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
 
 
 def locked(method):
     """Run a callback under the node's lock (the driver is not thread-safe; callbacks and the
-    executor's timers must never interleave inside it)."""
+    executor's timers must never interleave inside it).  A callback never raises into the
+    executor: an exception latches the driver's internal-error fault and the drive is switched
+    off at once (:meth:`ControllerNode.fail_safe`); the node keeps running and reports it."""
     @functools.wraps(method)
     def wrapper(self, *args):
         with self._lock:
-            return method(self, *args)
+            try:
+                return method(self, *args)
+            except Exception as exc:       # noqa: BLE001 - a defect must fail safe, not end the loop
+                self.fail_safe(method.__name__, exc)
+                if len(args) == 2 and hasattr(args[1], "success"):     # a service: answer it
+                    args[1].success, args[1].message = False, f"internal error: {exc}"
+                    return args[1]
+                return None
     return wrapper
 
 
@@ -177,7 +186,13 @@ class ControllerNode(Node):
                                    throttle_duration_sec=1.0)
             return
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-        sample = (stamp, motor, valve)
+        clock = self.get_clock().now().nanoseconds * 1e-9       # sim time in lockstep (/clock)
+        if stamp - clock > self.driver.ps["faults.stamp_future_tolerance_s"]:
+            # never the loop's time or the jump reference; the driver latches it as implausible
+            self.driver.resolver(stamp, motor, valve, now=clock)
+            self._bad_messages += 1
+            return
+        sample = (stamp, motor, valve, clock)
         if self.lockstep:
             if self._last_sample_stamp is not None and stamp <= self._last_sample_stamp:
                 return                              # a re-sent sample of a period already run
@@ -189,10 +204,10 @@ class ControllerNode(Node):
     # ------------------------------------------------------------------ loop
     def run_period(self, sample) -> None:
         t0 = time.perf_counter()
-        stamp, motor, valve = sample
+        stamp, motor, valve, clock = sample
         self._fresh_demand = False
         self._last_sample_stamp = stamp
-        self.driver.resolver(stamp, motor, valve)
+        self.driver.resolver(stamp, motor, valve, now=clock)
         self.publish_step(stamp if self.lockstep else self.now_s())
         self._compute.add(time.perf_counter() - t0)
 
@@ -211,6 +226,19 @@ class ControllerNode(Node):
         last = self.driver.last_resolver_time
         if last is not None and self.now_s() - last > timeout:
             self.publish_step(self.now_s())
+
+    def fail_safe(self, where: str, exc: BaseException) -> None:
+        """An exception in the node's own code: latch the driver's internal-error fault and
+        command the drive off (enable false, 0 A) now, not at the next period."""
+        self.driver.internal_fault(where, exc)
+        self.get_logger().error(f"internal error in {where}: {type(exc).__name__}: {exc}; drive disabled "
+                                "(fault latched, ~/reset to re-arm)", throttle_duration_sec=1.0)
+        try:
+            self.pub_enable.publish(self._bool(data=False))
+            self.pub_current.publish(self._float(data=0.0))
+            self._last_enable = False
+        except Exception:                   # noqa: BLE001 - context gone: the plant's watchdog acts
+            pass
 
     def publish_step(self, t: float) -> None:
         """One driver period: the command first (the plant is waiting for it), then the rest."""
@@ -263,10 +291,11 @@ class ControllerNode(Node):
         return response
 
     # ------------------------------------------------------------------ parameters
-    @locked
     def check_parameters(self, changes: dict) -> None:
-        """Validation only (on-set): raises ``ValueError`` for a change the driver would refuse."""
-        self.driver.check_params(changes)
+        """Validation only (on-set): raises ``ValueError`` for a change the driver would refuse
+        (a rejection, not a fault: not :func:`locked`'s fail-safe)."""
+        with self._lock:
+            self.driver.check_params(changes)
 
     @locked
     def apply_parameters(self, changes: dict) -> None:
@@ -277,7 +306,11 @@ class ControllerNode(Node):
     @locked
     def publish_diagnostics(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-        h = self.driver.health()
+        try:
+            h = self.driver.health()
+        except Exception as exc:            # noqa: BLE001 - still say something on /diagnostics
+            self.fail_safe("health", exc)
+            h = Health(2, f"FAULT: internal error while reporting health: {exc}", {"faults": "internal_error"})
         values = dict(h.values, malformed_messages=self._bad_messages, periods=self._periods,
                       **self._compute.take())
         st = DiagnosticStatus(level=bytes([h.level]), name=f"{self.get_fully_qualified_name()}: valve driver",

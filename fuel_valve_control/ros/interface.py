@@ -141,6 +141,8 @@ def handle_parameter_changes(node, spec, check, apply) -> None:
                 check(changes)
         except ValueError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
+        except Exception as exc:        # noqa: BLE001 - a value the design code cannot use: refuse it
+            return SetParametersResult(successful=False, reason=f"rejected: {type(exc).__name__}: {exc}")
         return SetParametersResult(successful=True)
 
     def post_set(params) -> None:

@@ -73,6 +73,20 @@ def ignore_signals() -> None:
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
+def init_or_explain(args=None) -> bool:
+    """``rclpy.init`` with SIGINT/SIGTERM left to :func:`quiet_signals`; False (after printing
+    why) when the command line is unusable, e.g. a ``--params-file`` that is not valid YAML
+    (rcl refuses it inside ``init``: a configuration error, exit 2, not a traceback)."""
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:                # noqa: BLE001 - rclpy's RCLError is not public API
+        print(f"invalid arguments: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", flush=True)
+        return False
+    return True
+
+
 def run_node(factory, args=None, on_exit=None) -> int:
     """Run the node ``factory()`` builds until SIGINT / SIGTERM, then clean up; the exit code.
 
@@ -84,12 +98,12 @@ def run_node(factory, args=None, on_exit=None) -> int:
     import rclpy
     from rclpy.exceptions import InvalidParameterValueException, ParameterException
     from rclpy.executors import ExternalShutdownException
-    from rclpy.signals import SignalHandlerOptions
 
     stop: list[int] = []
     quiet_signals(stop.append)
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not init_or_explain(args):
+        return 2
     node = executor = None
     code = 0
     try:

@@ -407,13 +407,13 @@ def main(args=None) -> int:
     2 configuration error (printed on stderr)."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
-    from rclpy.signals import SignalHandlerOptions
 
     stop: list[int] = []
     # only a flag (as for every node, see node_runner): the spin loop sees it within one spin
     # timeout, then the queued messages are taken before anything is shut down
     node_runner.quiet_signals(stop.append)
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not node_runner.init_or_explain(args):
+        return 2
     node = executor = None
     code = 0
     try:

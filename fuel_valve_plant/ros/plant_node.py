@@ -34,10 +34,22 @@ Two timing modes:
 
 Malformed commands (NaN, inf) never reach the physics: the drive treats them as zero
 current with the drive disabled, like a drive that rejects a corrupt set-point.
+
+Drive faults (the drive's own protection, independent of the controller; reported as ERROR on
+``/diagnostics`` while active, counted in its values):
+
+* command watchdog (real time): a resolver sample left unanswered for ``command_timeout_s``
+  (default 5 ms, five periods) disables the drive, so a dead or stalled controller cannot leave
+  the last current applied; the spring closes the valve.  It clears when commands resume with
+  ``drive_enable`` true.  In lockstep time stands still without commands: not used.
+* internal error: an exception in a callback or in the physics disables the drive and is
+  latched until the controller re-enables the drive (``drive_enable`` false, then true); the
+  node keeps running.
 """
 from __future__ import annotations
 
 import collections
+import functools
 import threading
 import time
 
@@ -57,6 +69,19 @@ LOCKSTEP_SETTLE_S = 0.5
 #: (longer than the worst scheduling gap measured on the loaded 2-core machine, 0.62 s: a
 #: re-published tick is harmless, but it costs the loop's participants a duplicate to drop)
 LOCKSTEP_RESEND_S = 1.0
+
+
+def guarded(method):
+    """A callback never raises into the executor: an exception disables the drive and is
+    reported (:meth:`PlantNode.drive_fault`); the node keeps running."""
+    @functools.wraps(method)
+    def wrapper(self, *args):
+        try:
+            return method(self, *args)
+        except Exception as exc:            # noqa: BLE001 - fail safe, keep the node alive
+            self.drive_fault(method.__name__, exc)
+            return None
+    return wrapper
 
 
 class LoopStats:
@@ -109,6 +134,12 @@ class PlantNode(Node):
         self.published = collections.Counter()
         self._got_command = False
         self._last_publish_mono = None
+        # drive protection (module docstring): watchdog and internal-error latch
+        self._command_timeout = node_ps["command_timeout_s"]
+        self._awaiting_since: float | None = None   # first sample published since the last command
+        self._watchdog_off = False
+        self._watchdog_trips = 0
+        self._fault: str | None = None
 
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Bool, Float64, Float64MultiArray
@@ -150,8 +181,36 @@ class PlantNode(Node):
             f"plant up: {'lockstep' if self.lockstep else 'real time'}, publish {1 / self.period:g} Hz, physics "
             f"{self.ps['physics_rate_hz']:g} Hz, dp {self.ps['pressure_differential_kpa']:g} kPa")
 
+    # ------------------------------------------------------------------ drive protection
+    def drive_fault(self, where: str, exc: BaseException) -> None:
+        """Latch an internal drive fault: drive off at once, ERROR on /diagnostics."""
+        self._fault = f"internal error in {where}: {type(exc).__name__}: {exc}"
+        self.get_logger().error(f"{self._fault}; drive disabled until re-enabled", throttle_duration_sec=1.0)
+        try:
+            self.plant.set_command(0.0, False)
+        except Exception:                   # noqa: BLE001 - the physics itself failed: nothing to set
+            pass
+
+    def _check_watchdog(self, now: float) -> None:
+        """Real time, each tick: disable the drive when a sample stays unanswered too long."""
+        if (not self._watchdog_off and self._awaiting_since is not None
+                and now - self._awaiting_since > self._command_timeout):
+            self._watchdog_off = True
+            self._watchdog_trips += 1
+            self.get_logger().error(f"drive watchdog: no current command for {(now - self._awaiting_since) * 1e3:.1f} "
+                                    f"ms (limit {self._command_timeout * 1e3:g} ms): drive disabled",
+                                    throttle_duration_sec=1.0)
+
+    def _command_arrived(self) -> None:
+        self._awaiting_since = None
+        if self._watchdog_off and self._enable:
+            self._watchdog_off = False
+            self.get_logger().info("drive watchdog: commands resumed, drive enabled")
+
     # ------------------------------------------------------------------ inputs
+    @guarded
     def on_command(self, msg) -> None:
+        self._command_arrived()
         value = msg.data
         if not ri.finite(value):
             self._bad_commands += 1
@@ -171,11 +230,17 @@ class PlantNode(Node):
                 return
             self.step_and_publish(self.period)
 
+    @guarded
     def on_enable(self, msg) -> None:
-        self._enable = bool(msg.data)
+        enable = bool(msg.data)
+        if enable and not self._enable and self._fault is not None:
+            self.get_logger().info(f"drive re-enabled by the controller: cleared {self._fault}")
+            self._fault = None
+        self._enable = enable
 
     def _apply_command(self) -> None:
-        enabled = self._enable and not self._command_rejected
+        enabled = (self._enable and not self._command_rejected and not self._watchdog_off
+                   and self._fault is None)
         self.plant.set_command(self._iq if enabled else 0.0, enabled)
 
     # ------------------------------------------------------------------ timing
@@ -198,12 +263,15 @@ class PlantNode(Node):
                     self.stats.ticks += 1       # its periods; before, every tick would be "missed"
                     if not self._got_command:
                         self.stats.missed += 1
+                    self._check_watchdog(now)
                 try:
                     self.step_and_publish(elapsed)
-                except Exception:                       # noqa: BLE001 - context shut down under us
-                    if self.context.ok():
-                        raise
-                    return
+                    if self._awaiting_since is None:
+                        self._awaiting_since = time.monotonic()
+                except Exception as exc:                # noqa: BLE001
+                    if not self.context.ok():           # context shut down under us: the end
+                        return
+                    self.drive_fault("real-time tick", exc)
 
     def stop(self) -> None:
         if not self.lockstep:
@@ -296,6 +364,7 @@ class PlantNode(Node):
         self.published[contract.DRIVE] += 1
 
     # ------------------------------------------------------------------ parameters
+    @guarded
     def apply_parameters(self, changes: dict) -> None:
         """Post-set: the plant swaps in the accepted values (between two loop ticks)."""
         if self.lockstep:
@@ -304,6 +373,7 @@ class PlantNode(Node):
             with self._lock:
                 self.plant.set_params(changes)
 
+    @guarded
     def publish_diagnostics(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
         s = self.stats.summary()
@@ -313,9 +383,18 @@ class PlantNode(Node):
         if self._bad_commands:
             st.level = DiagnosticStatus.WARN
             st.message = f"{self._bad_commands} non-finite current commands rejected"
+        if self._watchdog_off:
+            st.level = DiagnosticStatus.ERROR
+            st.message = (f"drive fault: command watchdog ({self._command_timeout * 1e3:g} ms without a current "
+                          "command): drive disabled, spring closing the valve")
+        if self._fault is not None:
+            st.level = DiagnosticStatus.ERROR
+            st.message = f"drive fault: {self._fault}: drive disabled"
         values = {"plant_time_s": f"{self.plant.time:.3f}", "valve_angle_rad": f"{self.plant.valve_angle:.5f}",
                   "pressure_differential_kpa": f"{self.plant.params['pressure_differential_kpa']:g}",
-                  "fault_injection": self.plant.params["fault_injection"]}
+                  "fault_injection": self.plant.params["fault_injection"],
+                  "drive_enabled": str(bool(self._enable and not self._watchdog_off and self._fault is None)),
+                  "watchdog_trips": str(self._watchdog_trips)}
         if self.lockstep:
             values["lockstep_ticks_republished"] = str(self.republished)
         values.update({k: f"{v:.6g}" if isinstance(v, float) else str(v) for k, v in s.items()})

@@ -26,6 +26,10 @@ class ControlLaw(ABC):
     def update(self, t: float, demand_rad: float, meas: Measurement, pressure_kpa: float) -> float:
         """Torque request for this period, N*m at the motor."""
 
+    def forget(self) -> None:
+        """Forget what the law learned about the valve (back to the nominal model): a fault
+        reset calls it, so a value learned from a disturbance cannot outlive the fault."""
+
     def applied(self, torque_nm: float, saturated: bool) -> None:
         """The torque actually applied after limits (for observers and anti-windup)."""
 

@@ -52,6 +52,9 @@ class FinePositioningLaw(ControlLaw):
         self._holding = (not seat and ref is not None and not ref.moving and abs(ref.position - target) < 1e-12)
         return torque
 
+    def forget(self) -> None:
+        self.main.forget()
+
     def applied(self, torque_nm, saturated):
         self._applied = torque_nm
         if self._main_updated:

@@ -69,6 +69,9 @@ class StateFeedbackLaw(ControlLaw):
         self.reference: Reference | None = None
         self._pressure: float | None = None   # kPa, Δp of the latest update
 
+    def forget(self) -> None:
+        self.jumps.reset()
+
     def reset(self, meas, torque_nm, pressure_kpa):
         m = self.model
         self.xo = np.array([meas.motor_rad / m.gear_ratio, 0.0, meas.valve_rad, 0.0, 0.0, 0.0])

@@ -1,0 +1,251 @@
+"""Fail-safe rules of the driver core and the parameter schemas (issue 13), without ROS.
+
+Each test names the defect of issue 13 it pins.  The valve driver is driven with synthetic
+inputs (the ``Rig`` of ``test_driver.py``) or closed around the simulated plant
+(``fuel_valve_sim``'s offline loop) where the physics is the subject.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from fuel_valve_control.common.contract import STROKE_RAD
+from fuel_valve_control.common.paramspec import ConfigError
+from fuel_valve_control.core import driver as D
+from fuel_valve_control.core.params import CONTROLLER_SPEC, FP_BETA_MAX
+from fuel_valve_control.tools import sim
+
+from test_driver import N, Rig, _assert_failsafe
+
+PS = CONTROLLER_SPEC.defaults()
+
+
+# ------------------------------------------------------------------ 1. no silent loop death
+@pytest.mark.parametrize("shaft", ["motor", "valve"])
+def test_fp_beta_that_overflowed_is_out_of_range(shaft):
+    # issue 13.1: fp.motor.beta 200 was in range and overflowed speed ** beta at ~35 rad/s
+    with pytest.raises(ConfigError, match="out of range"):
+        PS.replace({f"fp.{shaft}.beta": 200.0})
+
+
+def test_fp_extremes_in_range_keep_the_loop_finite_and_fault_free():
+    # every fp.* parameter at the end of its range that makes |v|^beta largest
+    extreme = {f"fp.{s}.{k}": v for s in ("motor", "valve")
+               for k, v in (("beta", FP_BETA_MAX), ("alpha", CONTROLLER_SPEC.params["fp.motor.alpha"].high))}
+    for mode in ("observer_fc", "observer_ff"):
+        r = sim.run("large_step", mode=mode, controller_overrides=extreme)
+        assert not r.fault.any(), mode
+        assert np.all(np.isfinite(r.column("current_cmd_a"))), mode
+
+
+class Boom(RuntimeError):
+    pass
+
+
+def _raise(*_args, **_kwargs):
+    raise Boom("injected")
+
+
+def test_exception_in_the_law_latches_an_internal_fault_and_the_loop_goes_on(monkeypatch):
+    rig = Rig()
+    rig.healthy()
+    monkeypatch.setattr(rig.d.controller.law, "update", _raise)
+    out = rig.run(0.01)                          # no exception escapes step()
+    _assert_failsafe(out, D.INTERNAL)
+    assert "Boom: injected" in out.faults[D.INTERNAL]
+    assert rig.d.health().level == 2 and "internal error" in rig.d.health().message
+    # the loop keeps running (and stays off) while the defect persists
+    _assert_failsafe(rig.run(0.1), D.INTERNAL)
+    monkeypatch.undo()
+    ok, msg = rig.d.reset()
+    assert ok and D.INTERNAL in msg
+    out = rig.run(0.05)
+    assert out.enable and out.state == "running"
+
+
+@pytest.mark.parametrize("handler", ["resolver", "demand_percent", "pressure_differential", "measured_current"])
+def test_exception_in_an_input_handler_latches_an_internal_fault(monkeypatch, handler):
+    rig = Rig()
+    rig.healthy()
+    # break what each handler calls inside the driver
+    target = {"resolver": "_implausible", "demand_percent": "_check_percent",
+              "pressure_differential": "_warn_pressure", "measured_current": "_latch"}[handler]
+    if handler == "measured_current":
+        monkeypatch.setattr(D.math, "isfinite", _raise)
+        rig.d.measured_current(rig.t, 1.0)
+        monkeypatch.undo()
+    else:
+        monkeypatch.setattr(rig.d, target, _raise)
+        if handler == "pressure_differential":
+            rig.d.pressure_differential(rig.t, float("nan"))
+        elif handler == "resolver":
+            rig.d.resolver(rig.t, N * rig.valve, rig.valve)
+        else:
+            rig.d.demand_percent(rig.t, 40.0)
+        monkeypatch.undo()
+    _assert_failsafe(rig.run(0.002), D.INTERNAL)
+
+
+def test_non_finite_command_latches_an_internal_fault(monkeypatch):
+    rig = Rig()
+    rig.healthy()
+    monkeypatch.setattr(rig.d.controller._limiter, "apply", lambda request: float("nan"))
+    out = rig.run(0.002)
+    _assert_failsafe(out, D.INTERNAL)
+    assert "non-finite" in out.faults[D.INTERNAL]
+
+
+# ------------------------------------------------------------------ 4. learned quantities
+KICKS = """name: kicks
+description: hold 30 % at max dp; two 60 ms load kicks of +-25 N*m
+duration_s: 6.0
+pressure_differential_kpa: 6206
+initial_percent: 30
+demand: {type: constant, percent: 30}
+events:
+  - {at_s: 1.0, action: set_plant, params: {load_torque_nm: 25.0}}
+  - {at_s: 1.06, action: set_plant, params: {load_torque_nm: 0.0}}
+  - {at_s: 2.5, action: set_plant, params: {load_torque_nm: -25.0}}
+  - {at_s: 2.56, action: set_plant, params: {load_torque_nm: 0.0}}
+"""
+
+
+def _kick_run(tmp_path):
+    from fuel_valve_control.tools.run_plan import OFFLINE, plan_run
+    from fuel_valve_control.tools.scenarios import load_scenario
+    path = tmp_path / "kicks.yaml"
+    path.write_text(KICKS)
+    return sim.simulate_plan(plan_run(load_scenario(str(path)), OFFLINE))
+
+
+@pytest.mark.xfail(strict=True, reason="issue 13.4 open: a load kick's displacement and return are learned as "
+                   "stick-slip jumps (ratio x16), the integrator deadband grows to ~4e-2 rad and the valve rests "
+                   "there; a growth cap per breakaway fixed it but changed flexible_worst (steady error 0.011 -> "
+                   "0.022 rad), so the discriminating check belongs to the control issue's replacement")
+def test_two_load_kicks_do_not_leave_the_valve_off_its_demand(tmp_path):
+    r = _kick_run(tmp_path)
+    final_error = abs(r.column("position_rad")[-1] - 0.30 * STROKE_RAD)
+    assert final_error < 3e-3, final_error
+
+
+def test_a_fault_reset_forgets_what_the_law_learned():
+    rig = Rig()
+    rig.healthy()
+    law = rig.d.controller.law
+    law.jumps.ratio = 30.0                          # as after a disturbance
+    rig.d.controller.learner.equilibrium[1][0] = 0.1
+    rig.run(0.002)
+    deadband_before = law.deadband_rad()
+    assert deadband_before > 10 * PS["integral.deadband_min_rad"]
+    rig.d.trip("test")
+    ok, _ = rig.d.reset()
+    assert ok
+    assert law.jumps.ratio == 1.0 and rig.d.controller.learner.equilibrium[1][0] == 0.0
+    rig.run(0.01)
+    assert law.deadband_rad() < deadband_before
+
+
+# ------------------------------------------------------------------ 3. resolver failure detection
+def test_disagreement_limit_is_sized_from_the_coupling_not_the_stroke():
+    d = D.ValveDriver(PS)
+    low, high, peak = d.twist_limits(PS["limits.continuous_current_a"])
+    m = d.controller.model
+    torque = m.gear_ratio * m.torque_constant_nm_per_a * PS["limits.continuous_current_a"]
+    assert low < torque / m.coupling_stiffness_nm_per_rad < high
+    assert high < 0.6 * STROKE_RAD                   # was 1.5 rad, beyond the whole stroke
+    assert peak < 1.5
+
+
+def test_motor_resolver_stuck_at_zero_latches(monkeypatch):
+    rig = Rig(**{"faults.resolver_disagreement_margin_rad": PS["faults.resolver_disagreement_margin_rad"]})
+    rig.demand = 30.0
+    rig.valve = 0.30 * STROKE_RAD
+    rig.healthy()
+    # the motor resolver freezes at 0 while the valve resolver keeps reading 30 %
+    monkeypatch.setattr(rig.d, "resolver", lambda t, motor, valve, f=rig.d.resolver: f(t, 0.0, valve))
+    _assert_failsafe(rig.run(0.3), D.RESOLVER_IMPLAUSIBLE)
+    assert "resolver" in rig.d.health().message
+
+
+def test_tracking_error_that_dips_under_the_limit_still_latches():
+    # issue 13.3: the timer restarted whenever the error dipped; a valve swinging around the
+    # demand (a failed sensor) never tripped.  Beyond the limit 80 % of the time -> latches.
+    limit = PS["faults.tracking_error_rad"]
+    rig = Rig(**{"faults.tracking_error_time_s": 0.3, "faults.resolver_max_step_rad": 1.0})
+    rig.healthy()
+    demand_rad = 0.4 * STROKE_RAD
+    out = None
+    for k in range(200):
+        rig.valve = demand_rad + (2.0 * limit if k % 5 else 0.0)
+        out = rig.run(0.005)
+        if out.faults:
+            break
+    _assert_failsafe(out, D.TRACKING)
+
+
+# ------------------------------------------------------------------ 7. limits only tighten at run time
+@pytest.mark.parametrize("name,wider", [
+    ("limits.continuous_current_a", 40.0), ("limits.peak_current_a", 40.0), ("limits.peak_time_s", 1.0),
+    ("faults.tracking_error_time_s", 60.0), ("faults.resolver_timeout_s", 5.0), ("demand_timeout_s", 60.0),
+    ("demand_timeout_action", "hold"), ("faults.i2t_fault_time_s", 60.0), ("faults.tracking_error_rad", 1.0),
+    ("faults.coupling_stiffness_min_fraction", 0.05), ("faults.resolver_disagreement_time_s", 1.0)])
+def test_widening_a_limit_at_run_time_is_rejected(name, wider):
+    d = D.ValveDriver(PS)
+    with pytest.raises(ConfigError, match="restart with a parameter file to widen"):
+        d.set_params({name: wider})
+    assert d.ps[name] == PS[name]                    # nothing changed
+
+
+def test_tightening_and_back_to_the_start_up_value_is_accepted():
+    d = D.ValveDriver(PS)
+    d.set_params({"limits.continuous_current_a": 10.0, "faults.tracking_error_time_s": 0.5})
+    assert d.controller.current_limits[0] == PS["limits.peak_current_a"]
+    d.set_params({"limits.continuous_current_a": PS["limits.continuous_current_a"]})   # back: allowed
+    with pytest.raises(ConfigError):
+        d.set_params({"limits.continuous_current_a": PS["limits.continuous_current_a"] + 1.0})
+    # a start-up file may set wider values: the start-up set is the reference
+    wide = D.ValveDriver(PS.replace({"faults.tracking_error_time_s": 30.0}))
+    wide.set_params({"faults.tracking_error_time_s": 20.0})
+
+
+# ------------------------------------------------------------------ 5. sample stamps
+def test_future_stamped_sample_is_implausible_and_does_not_poison_the_reference():
+    rig = Rig()
+    rig.healthy()
+    rig.d.resolver(rig.t + 3600.0, N * rig.valve, rig.valve, now=rig.t)     # an hour ahead
+    out = rig.run(0.01)
+    _assert_failsafe(out, D.RESOLVER_IMPLAUSIBLE)
+    assert "ahead" in out.faults[D.RESOLVER_IMPLAUSIBLE]
+    assert rig.d.last_resolver_time <= rig.t                        # the reference is a genuine sample
+    rig.run(D.RESET_QUIET_S)
+    ok, msg = rig.d.reset()                                         # genuine samples go on: reset works
+    assert ok, msg
+    out = rig.run(0.05)
+    assert out.enable and out.state == "running", out.faults
+
+
+# ------------------------------------------------------------------ 8. bad values, intermittent causes
+def test_reset_is_refused_during_an_intermittent_resolver_fault():
+    rig = Rig()
+    rig.healthy()
+    for _ in range(3):                        # a noise burst: every 30th sample is garbage
+        rig.d.resolver(rig.t, N * rig.valve, float("nan"))
+        rig.run(0.03)
+        ok, msg = rig.d.reset()
+        assert not ok and "implausible input" in msg
+    rig.run(D.RESET_QUIET_S + 0.01)           # quiet long enough
+    assert rig.d.reset()[0]
+
+
+def test_a_stalled_loop_re_arms_from_the_measurement_and_keeps_the_i2t_state():
+    rig = Rig(**{"faults.tracking_error_time_s": 60.0})
+    rig.valve = 0.2 * STROKE_RAD
+    rig.demand = 80.0                             # jammed short of the demand: the I2t budget drains
+    rig.healthy()
+    rig.run(0.3)
+    used = rig.d.health().values["i2t_budget_used"]
+    assert used > 0.5
+    rig.t += 0.05                                 # the loop stalls for 50 ms (> STALL_REARM_PERIODS)
+    rig.run(0.001)
+    assert rig.d.stall_rearms == 1
+    assert rig.d.health().values["i2t_budget_used"] >= used - 0.05

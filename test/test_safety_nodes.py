@@ -1,0 +1,220 @@
+"""Fail-safe behaviour of the nodes over DDS (issue 13): what only a node can do.
+
+* an exception in the controller node's loop latches a fault, switches the drive off and is
+  reported on ``/diagnostics`` while the node keeps running (the controller runs in this test
+  process so its law can be broken on purpose; plant as a process);
+* the plant's drive watchdog: a killed (SIGKILL) or stalled (SIGSTOP) controller cannot leave
+  the last current applied.
+
+Real time: the watchdog is a real-time mechanism (lockstep time stands still without
+commands).  Margins are generous for a loaded 2-core machine; the figures are printed.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+
+import pytest
+
+from ros_probe import Probe
+
+from fuel_valve_control.common import contract
+from fuel_valve_control.common.contract import STROKE_RAD
+from fuel_valve_control.tools.launcher import Launcher
+from fuel_valve_control.tools.run_plan import REAL_TIME, plan_run
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+#: data sheet close time of the full stroke (SPEC §6), s
+CLOSE_TIME_S = 0.120
+
+
+def _plant_status(probe):
+    with probe.lock:
+        for name, st in probe.diagnostics.items():
+            if name.startswith(probe.node.get_namespace() + "/") and name.endswith("plant: loop"):
+                return st
+    return None
+
+
+def _level(st):
+    return None if st is None else (st.level[0] if isinstance(st.level, bytes) else int(st.level))
+
+
+def _hold(probe, pct, timeout=30.0):
+    probe.set_demand(pct)
+
+    def ready():
+        if probe.driver_level() == 2:
+            probe.trigger("controller/reset")
+            time.sleep(0.2)
+        a = probe.valve_angle()
+        return probe.driver_level() in (0, 1) and a is not None and abs(a - pct / 100 * STROKE_RAD) < 0.01 * STROKE_RAD
+    probe.wait_for(ready, timeout, f"holding {pct} %")
+
+
+@pytest.fixture
+def realtime(tmp_path):
+    """Plant and controller processes in real time (resolver timeout 1 s: a starved process
+    must not trip the controller here), the probe as the demand supervisor."""
+    plan = plan_run(None, REAL_TIME, controller_overrides={"faults.resolver_timeout_s": 1.0,
+                                                           "diagnostics_rate_hz": 10.0})
+    s = Launcher(plan, "/wd", tmp_path)
+    s.start(("plant", "controller"))
+    probe = Probe("/wd", keep_all=(contract.JOINT_STATES,))
+    try:
+        yield s, probe
+    finally:
+        probe.close()
+        for name in ("controller",):
+            proc = s.procs.get(name)
+            if proc is not None and proc.poll() is None:
+                os.kill(proc.pid, signal.SIGCONT)
+        s.stop()
+
+
+def _truth_since(probe, t0_mono):
+    """(stamp s, valve rad) of the plant's ground truth received since ``t0_mono``."""
+    return [(m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec, m.position[1])
+            for m in probe.since(contract.JOINT_STATES, t0_mono)]
+
+
+def test_killed_controller_the_plant_watchdog_lets_the_spring_close_the_valve(realtime):
+    s, probe = realtime
+    _hold(probe, 50.0)
+    t_kill, mono = time.time(), time.monotonic()
+    os.kill(s.procs["controller"].pid, signal.SIGKILL)
+    probe.wait_for(lambda: probe.valve_angle() < 0.02 * STROKE_RAD, 3.0, "the valve closed by the spring")
+    closed = [t for t, v in _truth_since(probe, mono) if v < 0.02 * STROKE_RAD]
+    took = closed[0] - t_kill
+    print(f"valve at 50 % closed {took * 1e3:.0f} ms after SIGKILL of the controller")
+    assert took < CLOSE_TIME_S + 0.005 + 0.1, took      # close time + watchdog + scheduling margin
+    probe.wait_for(lambda: _level(_plant_status(probe)) == 2, 3.0, "plant drive fault on /diagnostics")
+    assert "watchdog" in _plant_status(probe).message
+
+
+def test_stalled_controller_does_not_run_the_valve_away(realtime):
+    s, probe = realtime
+    _hold(probe, 30.0)
+    pid = s.procs["controller"].pid
+    mono = time.monotonic()
+    probe.set_demand(40.0)
+    # stall the controller while it accelerates the valve (a large command): without a drive
+    # watchdog that current stays applied for the whole stall (measured on main: up to 89 %)
+    probe.wait_for(lambda: (probe.get(contract.CURRENT_COMMAND) is not None
+                            and probe.get(contract.CURRENT_COMMAND).data > 10.0), 5.0, "a large command")
+    os.kill(pid, signal.SIGSTOP)
+    time.sleep(0.05)
+    os.kill(pid, signal.SIGCONT)
+    time.sleep(1.0)
+    valve = [v for _, v in _truth_since(probe, mono)]
+    peak_pct = 100.0 * max(valve) / STROKE_RAD
+    print(f"peak {peak_pct:.2f} % for a 30 -> 40 % step with a 50 ms controller stall")
+    # the drive coasts after the watchdog (reflected motor inertia: ~6 % of stroke at full
+    # slew), it is not driven on: far from the 89 % of a drive that kept the stalled command
+    assert peak_pct < 47.0, peak_pct
+    # the loop recovers on its own: commands resumed, the plant re-enabled the drive
+    _hold(probe, 40.0, timeout=20.0)
+
+
+# ------------------------------------------------------------------ a defect in the loop
+@pytest.fixture
+def inprocess(tmp_path):
+    """Plant as a process, the controller node in this process (so its law can be broken)."""
+    import rclpy
+    from rclpy.parameter import Parameter
+    from fuel_valve_control.ros.controller_node import ControllerNode
+    from fuel_valve_control.ros.node_runner import make_executor, spin
+
+    plan = plan_run(None, REAL_TIME)
+    s = Launcher(plan, "/inproc", tmp_path)
+    s.start(("plant",))
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    node = ControllerNode(context=ctx, namespace="/inproc", parameter_overrides=[
+        Parameter("faults.resolver_timeout_s", value=1.0), Parameter("diagnostics_rate_hz", value=10.0)])
+    executor = make_executor(context=ctx)
+    executor.add_node(node)
+    stop = threading.Event()
+    thread = threading.Thread(target=spin, args=(executor, ctx, stop.is_set), daemon=True)
+    thread.start()
+    probe = Probe("/inproc")
+    try:
+        yield node, probe, thread
+    finally:
+        probe.close()
+        stop.set()
+        thread.join(timeout=5.0)
+        executor.remove_node(node)
+        node.destroy_node()
+        executor.shutdown()
+        rclpy.try_shutdown(context=ctx)
+        s.stop()
+
+
+def test_exception_in_the_controller_loop_latches_a_fault_and_the_node_lives_on(inprocess, monkeypatch):
+    node, probe, thread = inprocess
+    _hold(probe, 30.0)
+
+    def broken(*_args):
+        raise ZeroDivisionError("injected defect")
+    monkeypatch.setattr(node.driver.controller.law, "update", broken)
+    probe.wait_for(lambda: probe.driver_level() == 2, 5.0, "ERROR on /diagnostics")
+    assert "internal error" in probe.driver_status().message and "injected defect" in probe.driver_status().message
+    probe.wait_for(lambda: probe.get(contract.DRIVE_ENABLE) is not None and not probe.get(contract.DRIVE_ENABLE).data,
+                   3.0, "drive_enable false")
+    probe.wait_for(lambda: probe.valve_angle() < 0.02 * STROKE_RAD, 3.0, "valve closed by the spring")
+    assert thread.is_alive()
+    monkeypatch.undo()
+    assert probe.trigger("controller/reset").success
+    _hold(probe, 30.0)
+
+
+# ------------------------------------------------------------------ stamps (issue 13.5)
+def test_future_stamped_resolver_sample_latches_and_reset_recovers(realtime):
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Header
+    _, probe = realtime
+    _hold(probe, 30.0)
+    stamp = probe.node.get_clock().now().to_msg()
+    stamp.sec += 3600                                   # an hour ahead
+    valve = 0.30 * STROKE_RAD
+    msg = JointState(header=Header(stamp=stamp), name=list(contract.JOINT_NAMES), position=[valve * 48.019, valve])
+
+    def sent_and_latched():      # depth-1 loop topic: the plant's next sample may displace it
+        probe.pub_resolver.publish(msg)
+        time.sleep(0.005)
+        return probe.driver_level() == 2
+    probe.wait_for(sent_and_latched, 5.0, "ERROR for the future stamp")
+    assert "ahead" in probe.driver_status().message
+    # genuine samples were never judged against the future one: a reset is accepted at once
+    probe.wait_for(lambda: probe.trigger("controller/reset").success, 5.0, "a successful reset")
+    _hold(probe, 30.0)
+
+
+# ------------------------------------------------------------------ start-up paths (issue 13.8)
+@pytest.mark.parametrize("node,args,words", [
+    ("controller", ["-p", "diagnostics_rate_hz:=0.0"], "diagnostics_rate_hz"),
+    ("controller", ["-p", "diagnostics_rate_hz:=-1.0"], "diagnostics_rate_hz"),
+    ("controller", ["-p", "initial_current_a:=nan"], "initial_current_a"),
+    ("controller", ["--params-file", "{bad_yaml}"], "params file"),
+    ("controller", ["--params-file", "{abc}"], "demand_timeout_s"),
+    ("demand", ["--params-file", "{inf}"], "frequency_hz"),
+])
+def test_bad_start_up_values_exit_2_with_a_message(tmp_path, node, args, words):
+    import subprocess
+    from fuel_valve_control.tools.launcher import executable
+    files = {"bad_yaml": "/**:\n  ros__parameters:\n    demand_timeout_s: [oops\n",
+             "abc": "/**:\n  ros__parameters:\n    demand_timeout_s: abc\n",
+             "inf": "/**:\n  ros__parameters:\n    frequency_hz: .inf\n"}
+    paths = {}
+    for key, text in files.items():
+        paths[key] = tmp_path / f"{key}.yaml"
+        paths[key].write_text(text)
+    cmd = executable(node) + ["--ros-args"] + [a.format(**paths) for a in args]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    out = res.stdout + res.stderr
+    assert res.returncode == 2, out
+    assert words in out and "Traceback" not in out, out
