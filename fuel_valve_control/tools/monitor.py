@@ -2,7 +2,8 @@
 supervisor for scenario events.
 
 It subscribes to the suite's demand, position feedback, friction estimate and
-``/diagnostics`` (and ``/clock`` in lockstep, so it is one of the lockstep participants),
+``/diagnostics`` (and, in lockstep, ``/clock`` once those have matched their publishers, so
+it is one of the lockstep participants and the run starts only when it can watch),
 keeps what the status line and the summary need, and sends scenario events through the
 controller's ``trip`` / ``reset`` services and the nodes' parameter services.  Service and
 parameter calls are asynchronous: in lockstep an event lands within a few control periods of
@@ -44,18 +45,20 @@ class Monitor:
         self.fault_messages: list[str] = []
         self.errors: list[float] = []              # |demand - position| %, per position sample
         n = self.node
-        ri.quiet_subscription(n, Float64, contract.DEMAND, self._on_demand, ri.TELEMETRY_QOS)
-        ri.quiet_subscription(n, Float64, contract.POSITION, self._on_position)
-        ri.quiet_subscription(n, JointState, contract.ESTIMATE, self._on_estimate)
-        ri.quiet_subscription(n, DiagnosticArray, contract.DIAGNOSTICS, self._on_diagnostics)
-        if lockstep:
-            ri.quiet_subscription(n, Clock, contract.CLOCK, self._on_clock, ri.TELEMETRY_QOS)
+        #: (subscription, publishers it must have matched) before a lockstep run may start
+        self._watch = [(ri.quiet_subscription(n, Float64, contract.DEMAND, self._on_demand, ri.TELEMETRY_QOS), 1),
+                       (ri.quiet_subscription(n, Float64, contract.POSITION, self._on_position), 1),
+                       (ri.quiet_subscription(n, JointState, contract.ESTIMATE, self._on_estimate), 1),
+                       # plant and controller
+                       (ri.quiet_subscription(n, DiagnosticArray, contract.DIAGNOSTICS, self._on_diagnostics), 2)]
+        self._clock_type = Clock
+        self._clock_sub = None
         #: (stamp s, true valve angle rad, true valve velocity rad/s) per plant sample
         self.truth: list[tuple[float, float, float]] = []
         if record_truth:
             from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
             deep = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-            ri.quiet_subscription(n, JointState, contract.JOINT_STATES, self._on_truth, deep)
+            self._watch.append((ri.quiet_subscription(n, JointState, contract.JOINT_STATES, self._on_truth, deep), 1))
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
         self.executor.add_node(n)
 
@@ -98,7 +101,20 @@ class Monitor:
     def spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
+            self._join_lockstep()
             self.executor.spin_once(timeout_sec=max(0.0, min(0.05, end - time.monotonic())))
+
+    def _join_lockstep(self) -> None:
+        """Lockstep: subscribe to ``/clock`` -- which makes this node one of the participants
+        the plant waits for -- only once the topics it watches have matched their publishers:
+        a short run is over in a second or two, before a late match would show anything."""
+        if not self.lockstep or self._clock_sub is not None:
+            return
+        if all(sub.get_publisher_count() >= n for sub, n in self._watch):
+            from ..common import contract
+            from ..ros import interface as ri
+            self._clock_sub = ri.quiet_subscription(self.node, self._clock_type, contract.CLOCK, self._on_clock,
+                                                    ri.TELEMETRY_QOS)
 
     def controller_ready(self) -> bool:
         return self.level is not None
