@@ -147,6 +147,13 @@ class ParamSpec:
     def defaults(self) -> "ParamSet":
         return ParamSet(self, {name: p.default for name, p in self.params.items()})
 
+    def load_from_node_file(self, node_spec: "ParamSpec", path: str | Path | None,
+                            overrides: Mapping[str, Any] | None = None) -> "ParamSet":
+        """This (core) spec's values from a *node's* parameter file: every key of the file is
+        validated against ``node_spec`` (this spec extended by node-level keys), this spec keeps
+        its own, then ``overrides`` apply."""
+        return self.pick(node_spec.load(path), where=f"{self.section} ({path})").replace(overrides or {})
+
     def validate(self, values: Mapping[str, Any], where: str | None = None) -> dict[str, Any]:
         """Check and coerce a flat ``{dotted.name: value}`` mapping (unknown keys are errors)."""
         where = where or self.section

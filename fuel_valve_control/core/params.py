@@ -277,8 +277,7 @@ def load_controller_params(path: str | Path | None = "default", overrides=None) 
     """Controller parameters from ``config/controller.yaml`` (``"default"``), a file, or none."""
     if path == "default":
         path = default_config_dir() / "controller.yaml"
-    # the file is the node's (CONTROLLER_NODE_SPEC): every key is validated, the core keeps its own
-    ps = CONTROLLER_SPEC.pick(CONTROLLER_NODE_SPEC.load(path), where=f"controller ({path})").replace(overrides or {})
+    ps = CONTROLLER_SPEC.load_from_node_file(CONTROLLER_NODE_SPEC, path, overrides)
     check_consistency(ps)
     return ps
 

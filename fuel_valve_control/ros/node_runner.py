@@ -130,11 +130,20 @@ def run_node(factory, args=None, on_exit=None) -> int:
             if getattr(node, "published", None) is not None:
                 # one line a benchmark or test can parse: messages this node published per topic
                 print(f"[{node.get_name()}] published: {json.dumps(dict(node.published))}", flush=True)
-            if executor is not None:
-                executor.remove_node(node)
-            node.destroy_node()
-        if executor is not None:
-            executor.shutdown()
-        rclpy.try_shutdown()
-        ignore_signals()
+        tear_down(node, executor)
     return code
+
+
+def tear_down(node, executor) -> None:
+    """The end of a node process, in the order that cannot race: the node leaves the executor
+    and is destroyed, the executor shuts down, then the context; signals arriving after that
+    are ignored (a late one must not turn a clean exit into -2)."""
+    import rclpy
+    if node is not None:
+        if executor is not None:
+            executor.remove_node(node)
+        node.destroy_node()
+    if executor is not None:
+        executor.shutdown()
+    rclpy.try_shutdown()
+    ignore_signals()

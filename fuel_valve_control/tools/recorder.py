@@ -443,14 +443,7 @@ def main(args=None) -> int:
             print(f"recorder: could not finalise bag {node.path}: {exc}", file=sys.stderr, flush=True)
             code = 1
     finally:
-        if node is not None:
-            if executor is not None:
-                executor.remove_node(node)
-            node.destroy_node()
-        if executor is not None:
-            executor.shutdown()
-        rclpy.try_shutdown()
-        node_runner.ignore_signals()
+        node_runner.tear_down(node, executor)
     return code
 
 

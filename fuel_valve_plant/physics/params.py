@@ -143,8 +143,7 @@ def load_plant_params(path: str | Path | None = "default", overrides=None) -> Pa
     """Plant parameters from ``config/plant.yaml`` (``"default"``), another file, or none."""
     if path == "default":
         path = default_config_dir() / "plant.yaml"
-    # the file is the node's (PLANT_NODE_SPEC): every key is validated, the physics keeps its own
-    ps = PLANT_SPEC.pick(PLANT_NODE_SPEC.load(path), where=f"plant ({path})").replace(overrides or {})
+    ps = PLANT_SPEC.load_from_node_file(PLANT_NODE_SPEC, path, overrides)
     check_consistency(ps)
     return ps
 
