@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from fuel_valve_control.tools import sim  # noqa: E402
+from fuel_valve_control.tools import metrics, sim  # noqa: E402
 from fuel_valve_control.core.params import DEFAULT_MODE, MODES  # noqa: E402
 from fuel_valve_control.tools.metrics import RESOLVER_COUNT_RAD  # noqa: E402
 from fuel_valve_control.tools.scenarios import builtin_names, load_scenario  # noqa: E402
@@ -242,7 +242,7 @@ def main(argv=None) -> int:
         Path(args.markdown).write_text(md + "\n")
     doc = {"command": command.strip(), "wall_time_s": round(wall, 2), "jobs": args.jobs, "quick": args.quick,
            "scenarios": scen, "robustness": rob}
-    doc = sim._jsonable(doc)
+    doc = metrics.jsonable(doc)
     if args.json:
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
     print(json.dumps(doc))

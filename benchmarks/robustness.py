@@ -310,8 +310,8 @@ def main(argv=None) -> int:
     doc = {"command": command.strip(), "mode": args.mode, "box": args.box, "controller_sets": sets, "seed": args.seed,
            "wall_time_s": round(wall, 2), "jobs": args.jobs, "summary": summary}
     if args.json:
-        Path(args.json).write_text(json.dumps(sim._jsonable({**doc, "results": results}), indent=1) + "\n")
-    print(json.dumps(sim._jsonable(doc)))
+        Path(args.json).write_text(json.dumps(M.jsonable({**doc, "results": results}), indent=1) + "\n")
+    print(json.dumps(M.jsonable(doc)))
     return 0
 
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from fuel_valve_control.common.contract import RESOLVER_COUNT_RAD, STROKE_RAD
+from fuel_valve_control.common.contract import STROKE_RAD
 from fuel_valve_control.core.demand_filter import DemandFilter
 from fuel_valve_control.core.driver import ValveDriver, demand_filter_config
 from fuel_valve_control.core.params import CONTROLLER_SPEC

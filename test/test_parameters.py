@@ -18,7 +18,6 @@ ROS-free detail (which law reads what, behaviour changes, bumpless transfer): te
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 import pytest

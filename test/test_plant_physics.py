@@ -190,7 +190,6 @@ def test_energy_balance_without_losses():
 def test_resolver_quantisation_is_one_count():
     ps = PS.replace({**QUIET, "resolver.delay_s": 0.0, "friction_scale": 1e-6})
     plant = Plant(ps)
-    assert plant._valve_resolver.lsb_rad == 2 * math.pi / 65536
     hold_a = plant.hold_at(0.2)
     plant.set_command(hold_a + 0.05, True)           # gentle acceleration: < 1 count per step
     seen = []

@@ -4,7 +4,6 @@ Each test names the defect of issue 13 it pins.  The valve driver is driven with
 inputs (the ``Rig`` of ``test_driver.py``) or closed around the simulated plant
 (``fuel_valve_sim``'s offline loop) where the physics is the subject.
 """
-import math
 
 import numpy as np
 import pytest

@@ -317,3 +317,17 @@ def plateau_results(tr: Trace, settle_s: float = HUNT_SETTLE_S) -> list[dict]:
                  duration_s=float(tr.t[seg.i1 - 1] - tr.t[seg.i0]))
         out.append(m)
     return out
+
+
+def jsonable(obj):
+    """``obj`` with non-finite floats as None and numpy scalars as Python numbers, recursively
+    (the JSON the tools print: strict JSON has no NaN or Infinity)."""
+    if isinstance(obj, (np.floating, np.integer)):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    return obj

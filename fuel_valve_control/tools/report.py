@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -197,16 +196,6 @@ def controller_mode(bag: Bag) -> str:
     return "unknown"
 
 
-def _jsonable(obj):
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, (np.floating, np.integer)):
-        return _jsonable(obj.item())
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    return obj
 
 
 def analyse(bag: Bag) -> tuple[dict, dict]:
@@ -219,7 +208,7 @@ def analyse(bag: Bag) -> tuple[dict, dict]:
            "sim_time_s": float(trace.t[-1] - trace.t[0]), "segments": segments,
            "bag": {"path": str(bag.path), "storage": bag.storage, "messages": bag.message_count,
                    "topics": dict(sorted(bag.counts.items())), "sources": sources}}
-    return _jsonable(doc), series
+    return M.jsonable(doc), series
 
 
 def analyse_bag(path: str | Path, plot: str | Path | None = None, trace: str | Path | None = None) -> dict:

@@ -143,14 +143,6 @@ def run(scenario_name: str, mode: str | None = None, plant_overrides=None, contr
                                   plant_overrides=plant_overrides, controller_overrides=controller_overrides))
 
 
-def _jsonable(obj):
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    return obj
 
 
 def main(argv=None) -> int:
@@ -174,7 +166,7 @@ def main(argv=None) -> int:
         print(f"fuel_valve_sim: error: {exc}", file=sys.stderr)
         return 2
     result = simulate_plan(plan)
-    doc = _jsonable(result.summary())
+    doc = M.jsonable(result.summary())
     text = json.dumps(doc)
     print(text)
     if args.json:

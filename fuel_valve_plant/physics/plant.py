@@ -21,7 +21,6 @@ import numpy as np
 from . import kernel as K
 from .friction import flow_torque_peak_nm, friction_levels
 from .motor import MotorConstants, current_pi_gains, dq_to_abc, voltage_limit
-from fuel_valve_control.common.contract import TELEMETRY_LABELS
 from fuel_valve_control.common.paramspec import ParamSet
 from .params import check_consistency, load_plant_params
 from .resolver import Resolver, ResolverSample, ValveResolverFaults
