@@ -13,9 +13,12 @@ Launch arguments:
 * ``namespace`` -- namespace of every node (default ``fuel_valve``).
 * ``mode`` -- controller ``mode`` (empty: the one in ``config/controller.yaml``).
 * ``lockstep`` -- ``true``: deterministic simulated time.  The plant gets ``lockstep: true``
-  and publishes ``/clock`` (its own ``use_sim_time`` stays false); the controller, the demand
+  and publishes the clock (its own ``use_sim_time`` stays false); the controller, the demand
   node (both ``lockstep: true``) and the recorder run with ``use_sim_time: true``; the plant
-  waits for ``lockstep_participants`` = 2 ``/clock`` subscribers (3 with ``record:=true``).
+  waits for ``lockstep_participants`` = 2 clock subscribers (3 with ``record:=true``).  Each
+  valve has a clock of its own: every node of the launch gets the remapping
+  ``/clock:=/<namespace>/clock``, so several valves launched side by side (one launch per
+  ``namespace``) each run their own deterministic lockstep.
 * ``record`` -- ``true``: also start the ``recorder`` node, writing the bag ``bag``.
 * ``bag`` -- recorder ``output`` directory (default ``fuel_valve_bag``).
 * ``demand_profile`` -- overrides the demand node's ``profile`` (empty: the one in
@@ -81,10 +84,14 @@ def _nodes(context, *args, **kwargs):
     if profile:
         demand['profile'] = profile
 
+    # the valve's own simulated clock (what fuel_valve_control.tools.launcher.clock_remap gives)
+    ns = namespace.strip('/')
+    remappings = [('/clock', f'/{ns}/clock' if ns else '/clock')] if lockstep else []
+
     def node(executable, params_file, overrides):
         parameters = [os.path.join(config, params_file)] if params_file else []
         return Node(package=PACKAGE, executable=executable, name=executable, namespace=namespace,
-                    parameters=parameters + [overrides], output='screen')
+                    parameters=parameters + [overrides], remappings=remappings, output='screen')
 
     nodes = [node('plant', 'plant.yaml', plant),
              node('controller', 'controller.yaml', controller),

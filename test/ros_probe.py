@@ -33,7 +33,10 @@ class Probe:
 
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context)
-        self.node = rclpy.create_node("test_probe", namespace=namespace, context=self.context)
+        from fuel_valve_control.tools.launcher import clock_remap
+        # in lockstep the valve's own clock, as the launcher gives it to the valve's nodes
+        cli = ["--ros-args", *clock_remap(namespace, True)] if lockstep else None
+        self.node = rclpy.create_node("test_probe", namespace=namespace, context=self.context, cli_args=cli)
         self.lock = threading.Lock()
         self.latest: dict[str, tuple[float, object]] = {}
         self.history: dict[str, list[tuple[float, object]]] = {t: [] for t in keep_all}

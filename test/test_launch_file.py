@@ -215,6 +215,18 @@ def test_lockstep_settings(description, record):
         assert "recorder" not in nodes
 
 
+@pytest.mark.parametrize("namespace", ["fuel_valve", "/valve2", "plant_a/valve_1"])
+def test_each_valve_has_its_own_clock(description, namespace):
+    # the remapping the launcher gives every node of a lockstep run (the same ROS argument)
+    from fuel_valve_control.tools.launcher import clock_remap
+    for exe, node in _evaluate(description, lockstep="true", record="true", namespace=namespace).items():
+        remaps = [f"{a}:={b}" for a, b in node.kwargs.get("remappings") or []]
+        assert ["-r", *remaps] == clock_remap(namespace, True), exe
+    assert clock_remap("/valve2", True)[1] == "/clock:=/valve2/clock"
+    for node in _evaluate(description, namespace=namespace).values():     # real time: no clock at all
+        assert not node.kwargs.get("remappings") and clock_remap(namespace, False) == []
+
+
 def test_record_starts_recorder_with_bag_output(description):
     nodes = _evaluate(description, record="True", bag="/tmp/run7")
     assert set(nodes) == {"plant", "controller", "demand", "recorder"}

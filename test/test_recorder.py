@@ -148,11 +148,12 @@ def test_recorded_bag_reads_back(lockstep_bag):
     # metadata counts are the messages in the file
     assert {k: len(v) for k, v in msgs.items()} == {k: v for k, v in counts.items() if v}
     assert meta["message_count"] == sum(counts.values())
-    expected = {"/clock", "/diagnostics"} | {f"{NS}/{t}" for t in (
-        "demand", "demand_ma", "position", "current_command", "drive_enable", "resolver", "joint_states",
+    # /clock is the valve's own clock in lockstep (launcher.clock_remap)
+    expected = {"/diagnostics"} | {f"{NS}/{t}" for t in (
+        "clock", "demand", "demand_ma", "position", "current_command", "drive_enable", "resolver", "joint_states",
         "drive", "estimate", "pressure_differential")}
     assert set(counts) == expected
-    for topic in ("/clock", "resolver", "joint_states", "drive", "current_command", "demand"):
+    for topic in ("clock", "resolver", "joint_states", "drive", "current_command", "demand"):
         name = topic if topic.startswith("/") else f"{NS}/{topic}"
         assert counts[name] == PERIODS, (name, counts[name])
     assert counts[f"{NS}/position"] == PERIODS // 10 and counts[f"{NS}/demand_ma"] == 0
@@ -163,9 +164,9 @@ def test_recorded_bag_reads_back(lockstep_bag):
         log = np.array([t for t, _ in items])
         assert np.all(np.diff(log) >= 0), topic
     # sim-time receive stamps: the clock's receive time is the time it carries (or later)
-    clock = np.array([m.clock.sec * 10**9 + m.clock.nanosec for _, m in msgs["/clock"]])
+    clock = np.array([m.clock.sec * 10**9 + m.clock.nanosec for _, m in msgs[f"{NS}/clock"]])
     assert np.all(np.diff(clock) == 1_000_000) and clock[0] == 0
-    assert np.all(np.array([t for t, _ in msgs["/clock"]]) >= clock)
+    assert np.all(np.array([t for t, _ in msgs[f"{NS}/clock"]]) >= clock)
     js = msgs[f"{NS}/joint_states"]
     stamps = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in js])
     np.testing.assert_array_equal(stamps, clock)

@@ -112,8 +112,12 @@ def declare_spec(node, spec, values=None, names: Iterable[str] | None = None) ->
                                    read_only=not p.runtime)
         desc.additional_constraints = p.range_text()
         if p.kind is float and (p.low is not None or p.high is not None):
+            # an exclusive lower bound (low_open: value > low) as the smallest double above it,
+            # so the descriptor (``ros2 param describe``) and rclpy's own check say what the node
+            # enforces; with ``low`` itself rclpy would call the edge valid and show it as allowed
+            low = p.low if not (p.low is not None and p.low_open) else math.nextafter(p.low, math.inf)
             desc.floating_point_range = [FloatingPointRange(
-                from_value=float(p.low if p.low is not None else -1e300),
+                from_value=float(low if low is not None else -1e300),
                 to_value=float(p.high if p.high is not None else 1e300), step=0.0)]
         elif p.kind is int and (p.low is not None or p.high is not None):
             desc.integer_range = [IntegerRange(from_value=int(p.low if p.low is not None else -2**62),

@@ -8,10 +8,13 @@ writes the same lockstep wiring and ``test/test_launch_file.py`` checks it again
 
 * command: the installed executable (:func:`executable`), ``--ros-args``, the namespace, the
   node's ``config/*.yaml`` and a parameter file with the plan's node parameters on top;
-* lockstep wiring: the plant owns ``/clock`` (``use_sim_time`` false) and waits for
-  ``lockstep_participants`` distinct ``/clock`` subscribers -- controller, demand, recorder
+* lockstep wiring: the plant owns the clock (``use_sim_time`` false) and waits for
+  ``lockstep_participants`` distinct clock subscribers -- controller, demand, recorder
   and the run's observers (the demo's monitor, a test's gate node) --, every other node runs
-  on simulated time;
+  on simulated time.  Each valve has a clock of its own: ``/clock`` is remapped to
+  ``/<namespace>/clock`` (:func:`clock_topic`, :func:`clock_remap`) for every node of the run,
+  so two valves side by side in lockstep neither tick on each other's clock nor count each
+  other's participants;
 * environment: the caller's plus ``env`` (e.g. ``ROS_DOMAIN_ID``), unbuffered output;
 * logs: ``<run_dir>/<node>.log`` (stdout and stderr);
 * stop: SIGINT (publishers first, the recorder last, so the bag holds all they sent), then SIGTERM,
@@ -34,6 +37,7 @@ from typing import TYPE_CHECKING
 
 import yaml
 
+from ..common import contract
 from ..common.config_dir import default_config_dir
 
 if TYPE_CHECKING:                       # no simulator import for a process starter
@@ -51,10 +55,11 @@ STOP_ORDER = ("demand", "controller", "plant", "recorder")
 CLEAN_EXIT_CODES = (0, -signal.SIGINT)
 #: a lockstep participant that does nothing but subscribe to /clock (a test's start gate)
 GATE_SCRIPT = """
+import sys
 import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-rclpy.init()
+rclpy.init(args=sys.argv)
 node = Node("lockstep_gate", parameter_overrides=[Parameter("use_sim_time", value=True)])
 try:
     rclpy.spin(node)
@@ -67,6 +72,20 @@ def clock_participants(record: bool, observers: int = 0) -> int:
     """Distinct nodes subscribed to /clock in a lockstep run (what the plant waits for):
     controller and demand, the recorder when recording, plus ``observers``."""
     return len(CLOCK_NODES) + (1 if record else 0) + observers
+
+
+def clock_topic(namespace: str) -> str:
+    """The simulated clock of the valve in ``namespace`` (lockstep): ``/<namespace>/clock``
+    (``/clock`` in the root namespace)."""
+    ns = namespace.strip("/")
+    return f"/{ns}/clock" if ns else contract.CLOCK
+
+
+def clock_remap(namespace: str, lockstep: bool) -> list[str]:
+    """ROS arguments that give a node of the valve in ``namespace`` that valve's clock: the
+    remapping of ``/clock`` (which rclpy's time source and the suite's nodes use) to
+    :func:`clock_topic`; none in real time (no simulated clock)."""
+    return ["-r", f"{contract.CLOCK}:={clock_topic(namespace)}"] if lockstep else []
 
 
 def lockstep_parameters(node: str, lockstep: bool, participants: int) -> dict:
@@ -170,12 +189,14 @@ class Launcher:
         """A do-nothing /clock subscriber (one of the ``observers``): started last, after the
         nodes had time to match, it lets a lockstep plant begin (its participant count is
         judged from the ROS graph, which can run ahead of publisher/subscriber matching)."""
-        self._popen("gate", [sys.executable, "-c", GATE_SCRIPT])
+        self._popen("gate", [sys.executable, "-c", GATE_SCRIPT, "--ros-args", "-r", f"__ns:={self.namespace}"]
+                    + clock_remap(self.namespace, self.lockstep))
 
     def _spawn(self, name: str, params: dict, base_file: Path | None) -> None:
         pfile = self.run_dir / f"{name}.params.yaml"
         write_params_file(pfile, params)
-        cmd = executable(name) + ["--ros-args", "-r", f"__ns:={self.namespace}"]
+        cmd = executable(name) + ["--ros-args", "-r", f"__ns:={self.namespace}"] + clock_remap(self.namespace,
+                                                                                                self.lockstep)
         if base_file is not None:
             cmd += ["--params-file", str(base_file)]
         cmd += ["--params-file", str(pfile)]

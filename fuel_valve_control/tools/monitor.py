@@ -31,7 +31,10 @@ class Monitor:
         self.rclpy = rclpy
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context)
-        self.node = rclpy.create_node("suite_monitor", namespace=namespace, context=self.context)
+        from .launcher import clock_remap
+        # the valve's own clock in lockstep, as its nodes have it (launcher.clock_remap)
+        cli = ["--ros-args", *clock_remap(namespace, True)] if lockstep else None
+        self.node = rclpy.create_node("suite_monitor", namespace=namespace, context=self.context, cli_args=cli)
         self.lockstep = lockstep
         self.sim_time = None
         self.demand = None

@@ -354,7 +354,7 @@ class Recorder(Node):
             bag.put(topic, time.time_ns(), data)           # the node's clock = system time
             return
         stamp = self._clock.now().nanoseconds
-        if topic.name == contract.CLOCK and len(data) >= 12:
+        if topic.msgtype == CLOCK_TYPE and len(data) >= 12:    # /clock, or a valve's remapped clock
             # CDR: 4-byte encapsulation header, then int32 sec, uint32 nanosec
             order = "little" if data[1] == 1 else "big"
             sec = int.from_bytes(data[4:8], order, signed=True)

@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import collections
 import functools
+import json
 import threading
 import time
 
@@ -282,7 +283,8 @@ class PlantNode(Node):
         """Lockstep: start once the controller (and the other participants) are connected."""
         if self._started:                # a call already queued when the timer was cancelled
             return
-        clock_nodes = {(i.node_namespace, i.node_name) for i in self.get_subscriptions_info_by_topic(contract.CLOCK)}
+        clock = self.pub_clock.topic_name           # /clock as remapped: the valve's own clock
+        clock_nodes = {(i.node_namespace, i.node_name) for i in self.get_subscriptions_info_by_topic(clock)}
         # the graph (what discovery has seen) and the publishers' matched subscriptions (what a
         # message published now would actually reach) must both be complete
         ready = (self.count_subscribers(contract.RESOLVER) >= 1 and self.count_publishers(contract.CURRENT_COMMAND) >= 1
@@ -295,7 +297,7 @@ class PlantNode(Node):
                  # every discovered /clock subscription, not one per node: the demand node has two
                  # (its time source and its tick handler) and needs the second for the first tick
                  and self.pub_clock.get_subscription_count() >= max(self._participants,
-                                                                    self.count_subscribers(contract.CLOCK)))
+                                                                    self.count_subscribers(clock)))
         if not ready:
             self._ready_since = None
             if time.monotonic() - self._waiting_since > 5.0:
@@ -407,7 +409,8 @@ class PlantNode(Node):
 def main(args=None) -> int:
     def report(node):
         node.stop()
-        print(f"[plant] loop statistics: {node.stats.summary()}", flush=True)
+        # one JSON line (launcher.loop_statistics and the benchmarks parse it)
+        node.get_logger().info(f"loop statistics: {json.dumps(node.stats.summary())}")
     return run_node(PlantNode, args, on_exit=report)
 
 
