@@ -89,8 +89,14 @@ def test_killed_controller_the_plant_watchdog_lets_the_spring_close_the_valve(re
     probe.wait_for(lambda: probe.valve_angle() < 0.02 * STROKE_RAD, 3.0, "the valve closed by the spring")
     closed = [t for t, v in _truth_since(probe, mono) if v < 0.02 * STROKE_RAD]
     took = closed[0] - t_kill
-    print(f"valve at 50 % closed {took * 1e3:.0f} ms after SIGKILL of the controller")
-    assert took < CLOSE_TIME_S + 0.005 + 0.1, took      # close time + watchdog + scheduling margin
+    print(f"valve at 50 % closed {took * 1e3:.0f} ms after SIGKILL of the controller "
+          f"(data sheet close time {CLOSE_TIME_S * 1e3:.0f} ms + 5 ms watchdog on a quiet machine)")
+    # Without the watchdog the valve stays at 50 % for good (v1: 10 s+).  The bound is wall time
+    # on a possibly loaded machine: a CI run whose plant process was starved took 1.06 s (the
+    # plant steps at most 10 periods per tick, so a starved plant's physics runs slower than the
+    # wall clock).  The spring close time itself is asserted offline (test_plant_physics.py,
+    # test_closed_loop.py).
+    assert took < 2.5, took
     probe.wait_for(lambda: _level(_plant_status(probe)) == 2, 3.0, "plant drive fault on /diagnostics")
     assert "watchdog" in _plant_status(probe).message
 
