@@ -183,7 +183,9 @@ def test_controller_warns_and_falls_back_when_the_plant_stops_publishing_pressur
         probe.wait_for(lambda: PRESSURE_INPUT in controller.driver.warnings, 20.0, "Δp warning")
         assert controller.driver.pressure_kpa == controller.driver.ps["pressure.fallback_kpa"]
         assert controller.driver.last.enable           # a warning, not a trip
-        probe.wait_for(lambda: probe.driver_level() == 1, 10.0, "WARN on /diagnostics")
+        # generous: /diagnostics comes from a timer of this process's executor, which a loaded
+        # machine can starve for seconds
+        probe.wait_for(lambda: probe.driver_level() == 1, 30.0, "WARN on /diagnostics")
     finally:
         plant.pub_pressure.publish = publish
     probe.wait_for(lambda: controller.driver.pressure_kpa == 6206.0, 10.0, "measured again")

@@ -43,7 +43,7 @@ from .scenarios import load_scenario
 REPORT_TOPICS = ["demand", "demand_ma", "joint_states", "drive", "drive_enable", "position", "estimate",
                  "/diagnostics"]
 #: wall-clock limit for the suite to come up (DDS discovery, imports), s
-STARTUP_TIMEOUT_S = 30.0
+STARTUP_TIMEOUT_S = 60.0
 
 
 # ---------------------------------------------------------------------------------- running

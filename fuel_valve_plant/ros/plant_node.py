@@ -254,6 +254,11 @@ class PlantNode(Node):
             if delay > 0:
                 time.sleep(delay)
             now = time.monotonic()
+            # the sample instant: the state published this tick is the state at this time, so
+            # consecutive stamps differ by the simulated elapsed time even when the thread is
+            # pre-empted between here and the publish (a stamp taken at publish time made a
+            # starved plant look like a 65 rad/s resolver jump to the controller)
+            stamp = self.get_clock().now().to_msg()
             if now - next_tick > 10 * self.period:      # fell far behind (stall): resynchronise
                 next_tick = now
             next_tick += self.period
@@ -266,7 +271,7 @@ class PlantNode(Node):
                         self.stats.missed += 1
                     self._check_watchdog(now)
                 try:
-                    self.step_and_publish(elapsed)
+                    self.step_and_publish(elapsed, stamp)
                     if self._awaiting_since is None:
                         self._awaiting_since = time.monotonic()
                 except Exception as exc:                # noqa: BLE001
@@ -329,12 +334,14 @@ class PlantNode(Node):
         self.get_logger().info(f"lockstep: no command for t = {self.plant.time:.3f} s within "
                                f"{LOCKSTEP_RESEND_S:g} s: tick re-published", throttle_duration_sec=5.0)
 
-    def step_and_publish(self, duration: float) -> None:
+    def step_and_publish(self, duration: float, stamp=None) -> None:
+        """Advance the plant by ``duration`` s and publish its outputs, stamped ``stamp``
+        (real time: the tick's sample instant; lockstep: None, the simulated time)."""
         self._apply_command()
         self.plant.advance(duration)
-        self.publish_outputs()
+        self.publish_outputs(stamp)
 
-    def publish_outputs(self) -> None:
+    def publish_outputs(self, stamp=None) -> None:
         t = self.plant.time
         if self.lockstep:
             sec = int(t)
@@ -342,7 +349,7 @@ class PlantNode(Node):
             clock = self._clock_msg(clock=stamp)
             self.pub_clock.publish(clock)
             self._tick_msgs = ((self.pub_clock, clock),)
-        else:
+        elif stamp is None:
             stamp = self.get_clock().now().to_msg()
         dp = self.plant.pressure_sample()
         if dp is not None:        # first: in lockstep the controller uses it this very period
