@@ -72,9 +72,45 @@ def locked(method):
     return wrapper
 
 
+def transition(method):
+    """A lifecycle transition callback under the node's lock; an exception is logged (rclpy
+    swallows it) and returns ERROR, so :meth:`ControllerNode.on_error` disables the drive."""
+    @functools.wraps(method)
+    def wrapper(self, state):
+        with self._lock:
+            try:
+                return method(self, state)
+            except Exception as exc:       # noqa: BLE001 - reported, then ROS's error processing
+                self.get_logger().error(f"{method.__name__} raised {type(exc).__name__}: {exc}")
+                return TransitionCallbackReturn.ERROR
+    return wrapper
+
+
+def guard_change_state(node) -> None:
+    """Make ``~/change_state`` answer ``success: false`` to a transition the present state does
+    not have.  rclpy 7.1.x raises ``RCLError`` inside the service callback instead, and the
+    exception ends the spin loop and with it the process: one wrong ``ros2 service call`` from a
+    supervisor (activate while unconfigured) would kill the valve driver (found by
+    test_lifecycle_nodes).  Wraps the service's public ``callback``; the state is unchanged."""
+    for srv in node.services:
+        if srv.service_name.endswith("/change_state"):
+            inner, log = srv.callback, node.get_logger()
+
+            def refuse_invalid(request, response, inner=inner, log=log):
+                try:
+                    return inner(request, response)
+                except Exception as exc:     # noqa: BLE001 - rclpy's RCLError is not public API
+                    log.warn(f"lifecycle transition id {request.transition.id} "
+                             f"{request.transition.label!r} refused: {str(exc).split(', at ')[0]}")
+                    response.success = False
+                    return response
+            srv.callback = refuse_invalid
+
+
 class ControllerNode(LifecycleNode):
     def __init__(self, **kwargs):
         super().__init__("controller", **kwargs)
+        guard_change_state(self)
         ri.declare_spec(self, CONTROLLER_NODE_SPEC)
         try:
             node_ps = CONTROLLER_NODE_SPEC.defaults().replace(ri.read_spec(self, CONTROLLER_NODE_SPEC))
@@ -145,76 +181,80 @@ class ControllerNode(LifecycleNode):
         self._command_matched = False
 
     # ------------------------------------------------------------------ lifecycle
+    @transition
     def on_configure(self, state: State) -> TransitionCallbackReturn:
         """Read and validate the parameters, design the law (build the driver, inhibited),
         load the learned state; start the watchdog (and the lockstep match timer)."""
-        with self._lock:
-            try:
-                node_ps = CONTROLLER_NODE_SPEC.defaults().replace(ri.read_spec(self, CONTROLLER_NODE_SPEC))
-                ps = load_controller_params(None, CONTROLLER_SPEC.pick(node_ps))
-                driver = ValveDriver(ps)
-            except Exception as exc:        # noqa: BLE001 - a set the design code cannot use: refuse it
-                self._configure_error = f"{exc}" if isinstance(exc, ConfigError) else f"{type(exc).__name__}: {exc}"
-                self.get_logger().error(f"configure failed: invalid parameters: {self._configure_error}")
-                return TransitionCallbackReturn.FAILURE
-            driver.set_inhibited(True)
-            initial_a = node_ps["initial_current_a"]
-            if initial_a:
-                driver.start_from_torque(initial_a * driver.controller.model.torque_constant_nm_per_a)
-            if self._state_file:
-                loaded, message = load_state(self._state_file, driver.valve_health, driver.controller.learner)
-                (self.get_logger().info if loaded else self.get_logger().warn)(message)
-            self.driver, self.stroke = driver, driver.stroke
-            self._reset_loop_state()
-            period = driver.period
-            if self.lockstep:
-                from rclpy.clock import Clock, ClockType
-                # wall-clock: simulated time stands still while a period waits for the match
-                self._match_timer = self.create_timer(0.01, self._run_when_matched,
-                                                      clock=Clock(clock_type=ClockType.STEADY_TIME))
-                self._timers.append(self._match_timer)
-            # the watchdog runs the fault logic when no samples arrive (silence must trip)
-            self._watchdog_period = max(5.0 * period, 0.01)
-            self._watchdog_last = time.monotonic()
-            self._timers.append(self.create_timer(self._watchdog_period, self.watchdog))
-            self._set_lifecycle("inactive")
-            self._publish_disabled()
-            self.get_logger().info(f"controller up: mode {ps['mode']}, loop {ps['loop_rate_hz']:g} Hz, demand from "
-                                   f"{ps['demand_source']}{', lockstep' if self.lockstep else ''}")
-            return TransitionCallbackReturn.SUCCESS
+        try:
+            node_ps = CONTROLLER_NODE_SPEC.defaults().replace(ri.read_spec(self, CONTROLLER_NODE_SPEC))
+            ps = load_controller_params(None, CONTROLLER_SPEC.pick(node_ps))
+            driver = ValveDriver(ps)
+        except Exception as exc:        # noqa: BLE001 - a set the design code cannot use: refuse it
+            self._configure_error = f"{exc}" if isinstance(exc, ConfigError) else f"{type(exc).__name__}: {exc}"
+            self.get_logger().error(f"configure failed: invalid parameters: {self._configure_error}")
+            return TransitionCallbackReturn.FAILURE
+        driver.set_inhibited(True)
+        initial_a = node_ps["initial_current_a"]
+        if initial_a:
+            driver.start_from_torque(initial_a * driver.controller.model.torque_constant_nm_per_a)
+        if self._state_file:
+            loaded, message = load_state(self._state_file, driver.valve_health, driver.controller.learner)
+            # one call site per severity: rclpy refuses a site that changes severity
+            if loaded:
+                self.get_logger().info(message)
+            else:
+                self.get_logger().warn(message)
+        self.driver, self.stroke = driver, driver.stroke
+        self._reset_loop_state()
+        period = driver.period
+        if self.lockstep:
+            from rclpy.clock import Clock, ClockType
+            # wall-clock: simulated time stands still while a period waits for the match
+            self._match_timer = self.create_timer(0.01, self._run_when_matched,
+                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self._timers.append(self._match_timer)
+        # the watchdog runs the fault logic when no samples arrive (silence must trip)
+        self._watchdog_period = max(5.0 * period, 0.01)
+        self._watchdog_last = time.monotonic()
+        self._timers.append(self.create_timer(self._watchdog_period, self.watchdog))
+        self._set_lifecycle("inactive")
+        self._publish_disabled()
+        self.get_logger().info(f"controller up: mode {ps['mode']}, loop {ps['loop_rate_hz']:g} Hz, demand from "
+                               f"{ps['demand_source']}{', lockstep' if self.lockstep else ''}")
+        return TransitionCallbackReturn.SUCCESS
 
+    @transition
     def on_activate(self, state: State) -> TransitionCallbackReturn:
         """Arm the drive: the next period arms the law from the measurement (zero torque, or
         ``initial_current_a`` the first time), unless a fault is latched."""
-        with self._lock:
-            self.driver.set_inhibited(False)
-            self._set_lifecycle("active")
-            self.get_logger().info("controller active: drive armed")
-            return TransitionCallbackReturn.SUCCESS
+        self.driver.set_inhibited(False)
+        self._set_lifecycle("active")
+        self.get_logger().info("controller active: drive armed")
+        return TransitionCallbackReturn.SUCCESS
 
+    @transition
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
-        with self._lock:
-            self._disable("deactivated")
-            self._set_lifecycle("inactive")
-            self._save_state()
-            return TransitionCallbackReturn.SUCCESS
+        self._disable("deactivated")
+        self._set_lifecycle("inactive")
+        self._save_state()
+        return TransitionCallbackReturn.SUCCESS
 
+    @transition
     def on_cleanup(self, state: State) -> TransitionCallbackReturn:
-        with self._lock:
-            self._save_state()
-            self._drop_driver()
-            self._set_lifecycle("unconfigured")
-            self.get_logger().info("controller cleaned up: unconfigured")
-            return TransitionCallbackReturn.SUCCESS
+        self._save_state()
+        self._drop_driver()
+        self._set_lifecycle("unconfigured")
+        self.get_logger().info("controller cleaned up: unconfigured")
+        return TransitionCallbackReturn.SUCCESS
 
+    @transition
     def on_shutdown(self, state: State) -> TransitionCallbackReturn:
-        with self._lock:
-            if self.driver is not None:
-                self._disable("shut down")
-                self._save_state()
-            self._drop_driver()
-            self._set_lifecycle("finalized")
-            return TransitionCallbackReturn.SUCCESS
+        if self.driver is not None:
+            self._disable("shut down")
+            self._save_state()
+        self._drop_driver()
+        self._set_lifecycle("finalized")
+        return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state: State) -> TransitionCallbackReturn:
         """A transition raised: drive off, driver dropped, back to unconfigured."""
