@@ -27,7 +27,7 @@ def _still(h, seconds, valve=0.5, demand=0.5, dp=0.0, t0=0.0, driving=True, tren
     """``seconds`` of periods with the valve at ``valve`` and the demand at ``demand`` (rad)."""
     n = int(round(seconds / T))
     for k in range(1, n + 1):
-        h.update(t0 + k * T, T, valve, demand, dp, driving, trend)
+        h.update(t0 + k * T, T, valve, demand, dp, driving, None if trend is None else (lambda: trend))
     return t0 + n * T
 
 

@@ -386,7 +386,7 @@ class ValveDriver:
                 dt = min(max(t - t_prev, 0.0), STALL_REARM_PERIODS * self.period) if t_prev is not None else 0.0
                 self.valve_health.update(t, dt, self._meas.valve_rad, self.demand_rad(),
                                          None if self._dp is None else self.pressure_kpa, out.enable,
-                                         self.controller.law.friction_trend() if out.enable else None)
+                                         self.controller.law.friction_trend)
             return out
         except Exception as exc:           # noqa: BLE001 - see the module docstring
             self.internal_fault("step", exc)

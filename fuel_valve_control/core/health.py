@@ -69,6 +69,10 @@ NE107_DIAGNOSTIC_LEVEL = {FAILURE: 2, FUNCTION_CHECK: 1, OUT_OF_SPEC: 1, MAINTEN
 #: fault code of the manual trip (driver.TRIPPED): a function check, not a failure
 MANUAL_TRIP = "commanded_trip"
 
+#: the friction trend is read at most this often, s: it costs more than the rest of the
+#: update together, and it is smoothed over ``health.trend_time_constant_s`` (seconds) anyway
+TREND_INTERVAL_S = 0.01
+
 STATE_FORMAT = "fuel_valve.learned_state"
 STATE_VERSION = 1
 
@@ -170,6 +174,7 @@ class ValveHealth:
         self.breakaway_nm: float | None = None
         self.friction_smoothed: float | None = None
         self._running_s = 0.0               # time driven with a friction trend available, s
+        self._trend_t: float | None = None  # loop time the trend was last read
         self._tracking_time = 0.0
         self._demand: float | None = None
         self._demand_t: float | None = None     # loop time of the latest demand change
@@ -209,10 +214,11 @@ class ValveHealth:
 
     # ---- per period --------------------------------------------------------------------
     def update(self, t: float, dt: float, valve_rad: float, demand_rad: float | None, dp_kpa: float | None,
-               driving: bool, friction_trend: float | None) -> None:
-        """One loop period: counters, tracking, hunting window, friction trend.  ``driving``:
-        the drive is enabled this period; ``friction_trend``: learned/nominal valve friction
-        (None: the law does not learn it)."""
+               driving: bool, friction_trend=None) -> None:
+        """One loop period at ``t`` (s) lasting ``dt`` (s): counters, tracking, hunting window,
+        friction trend.  ``driving``: the drive is enabled this period; ``friction_trend``: a
+        callable giving learned/nominal valve friction (None: the law does not learn it), read
+        at most every :data:`TREND_INTERVAL_S` while driving."""
         ps = self.ps
         self.counters.update(t, valve_rad, dp_kpa, dt)
         if demand_rad is not None and (self._demand is None
@@ -224,15 +230,26 @@ class ValveHealth:
             self._tracking_time = min(max(self._tracking_time + (dt if beyond else -dt), 0.0), 2.0 * limit)
         else:
             self._tracking_time = 0.0
-        if driving and friction_trend is not None and math.isfinite(friction_trend):
-            tau = ps["health.trend_time_constant_s"]
-            if self.friction_smoothed is None:
-                self.friction_smoothed = friction_trend
-            else:
-                self.friction_smoothed += min(dt / tau, 1.0) * (friction_trend - self.friction_smoothed)
-            self._running_s += dt
-            if self.friction_baseline is None and self._running_s >= ps["health.baseline_after_s"]:
-                self.friction_baseline = self.friction_smoothed
+        if not driving or friction_trend is None:
+            self._trend_t = None
+            return
+        if self._trend_t is None:
+            self._trend_t = t - dt
+        span = t - self._trend_t
+        if span < TREND_INTERVAL_S - 1e-9:
+            return
+        self._trend_t = t
+        trend = friction_trend()
+        if trend is None or not math.isfinite(trend):
+            return
+        tau = ps["health.trend_time_constant_s"]
+        if self.friction_smoothed is None:
+            self.friction_smoothed = trend
+        else:
+            self.friction_smoothed += min(span / tau, 1.0) * (trend - self.friction_smoothed)
+        self._running_s += span
+        if self.friction_baseline is None and self._running_s >= ps["health.baseline_after_s"] - 1e-9:
+            self.friction_baseline = self.friction_smoothed
 
     def hunting(self, t: float) -> int:
         """Reversals within the hunting window since the demand last changed (0 if none)."""
@@ -245,6 +262,12 @@ class ValveHealth:
     def assess(self, t: float | None, faults: dict, warnings: dict) -> Ne107Status:
         """The NE107 status now: ``faults``/``warnings`` are the driver's latched ones."""
         ps = self.ps
+        # every limit read up front (cheap, at the diagnostics rate): a run-time parameter that
+        # nothing reads is caught by test_runtime_params
+        track_time, track_rad = ps["health.tracking_error_time_s"], ps["health.tracking_error_rad"]
+        hunt_n, hunt_window = ps["health.hunting_reversals"], ps["health.hunting_window_s"]
+        band, rise = ps["health.friction_band"], ps["health.breakaway_rise_nm"]
+        travel_limit, reversal_limit = ps["health.travel_limit_rad"], ps["health.reversal_limit"]
         causes = {cat: {} for cat in NE107_PRIORITY[:-1]}
         for code, text in faults.items():
             causes[FUNCTION_CHECK if code == MANUAL_TRIP else FAILURE][f"fault:{code}"] = text
@@ -254,27 +277,24 @@ class ValveHealth:
             causes[FUNCTION_CHECK]["test"] = f"{self.test_running} running"
         for code, text in warnings.items():
             causes[OUT_OF_SPEC][f"warning:{code}"] = text
-        if self._tracking_time >= ps["health.tracking_error_time_s"]:
-            causes[OUT_OF_SPEC]["tracking"] = (f"tracking error above {ps['health.tracking_error_rad']:g} rad for "
-                                               f"{ps['health.tracking_error_time_s']:g} s (net)")
+        if self._tracking_time >= track_time:
+            causes[OUT_OF_SPEC]["tracking"] = f"tracking error above {track_rad:g} rad for {track_time:g} s (net)"
         n = self.hunting(t) if t is not None else 0
-        if n >= ps["health.hunting_reversals"]:
-            causes[OUT_OF_SPEC]["hunting"] = (f"{n} reversals within {ps['health.hunting_window_s']:g} s at a "
-                                              f"steady demand")
+        if n >= hunt_n:
+            causes[OUT_OF_SPEC]["hunting"] = f"{n} reversals within {hunt_window:g} s at a steady demand"
         m = causes[MAINTENANCE]
         base, now = self.friction_baseline, self.friction_smoothed
-        if base is not None and now is not None and base > 0 and abs(now / base - 1.0) > ps["health.friction_band"]:
-            m["friction"] = (f"friction trend {now:.3g} x nominal, baseline {base:.3g} "
-                             f"(band ±{100 * ps['health.friction_band']:g} %)")
+        if base is not None and now is not None and base > 0 and abs(now / base - 1.0) > band:
+            m["friction"] = f"friction trend {now:.3g} x nominal, baseline {base:.3g} (band ±{100 * band:g} %)"
         if self.breakaway_nm is not None and self.breakaway_baseline_nm is not None and \
-                self.breakaway_nm - self.breakaway_baseline_nm > ps["health.breakaway_rise_nm"]:
+                self.breakaway_nm - self.breakaway_baseline_nm > rise:
             m["breakaway"] = (f"breakaway torque {self.breakaway_nm:.3g} N*m, baseline "
-                              f"{self.breakaway_baseline_nm:.3g} N*m (rise limit {ps['health.breakaway_rise_nm']:g})")
+                              f"{self.breakaway_baseline_nm:.3g} N*m (rise limit {rise:g})")
         c = self.counters
-        if c.travel_rad > ps["health.travel_limit_rad"]:
-            m["travel"] = f"total travel {c.travel_rad:.0f} rad beyond {ps['health.travel_limit_rad']:g} rad"
-        if c.reversals > ps["health.reversal_limit"]:
-            m["reversals"] = f"{c.reversals} reversals beyond {ps['health.reversal_limit']}"
+        if c.travel_rad > travel_limit:
+            m["travel"] = f"total travel {c.travel_rad:.0f} rad beyond {travel_limit:g} rad"
+        if c.reversals > reversal_limit:
+            m["reversals"] = f"{c.reversals} reversals beyond {reversal_limit}"
         m.update(self.maintenance)
         causes = {cat: v for cat, v in causes.items() if v}
         return Ne107Status(ne107_category(causes), causes)
