@@ -1,7 +1,8 @@
 """The managed (lifecycle) controller over DDS (issue 12): transitions through the standard
 lifecycle services, the enable rule (drive enable false and 0 A in every state but
-``active``, also after a ``~/reset``), the learned state surviving cleanup/configure, and
-``autostart`` (default true: the node is active without a supervisor).
+``active``, also after a ``~/reset``), configure validating parameters set while
+unconfigured, an invalid transition refused with the node alive, the learned state surviving
+cleanup/configure, and ``autostart`` (default true: the node is active without a supervisor).
 
 Real time, plant and controller as processes (tools/launcher), the probe as the supervisor.
 Every wait is a condition with a generous timeout (a loaded 2-core machine); "stays disabled"
@@ -18,6 +19,7 @@ from ros_probe import Probe
 
 from fuel_valve_control.common import contract
 from fuel_valve_control.common.contract import STROKE_RAD
+from fuel_valve_control.core.params import CONTROLLER_SPEC
 from fuel_valve_control.tools.launcher import Launcher
 from fuel_valve_control.tools.run_plan import REAL_TIME, plan_run
 
@@ -105,6 +107,19 @@ def test_lifecycle_transitions_and_the_enable_rule(managed):
     assert not probe.change_state("controller", ACTIVATE)          # not a transition of unconfigured
     assert not probe.trigger("controller/reset").success            # nothing to reset yet
 
+    # unconfigured, parameters are only range-checked; configure validates the whole set: an
+    # inconsistent one fails the transition (still unconfigured, drive off), a corrected one works
+    results = probe.set_params("controller", {"limits.continuous_current_a": 30.0, "limits.peak_current_a": 20.0})
+    assert all(r.successful for r in results), [r.reason for r in results]
+    assert not probe.change_state("controller", CONFIGURE, timeout=60.0)
+    assert probe.lifecycle_state("controller") == "unconfigured"
+    log = s.log("controller")
+    assert "configure failed" in log and "continuous_current_a must not exceed" in log, log[-2000:]
+    _assert_disabled_during_hold(probe, "after a failed configure")
+    defaults = CONTROLLER_SPEC.defaults()
+    limits = ("limits.continuous_current_a", "limits.peak_current_a")
+    assert all(r.successful for r in probe.set_params("controller", {k: defaults[k] for k in limits}))
+
     assert probe.change_state("controller", CONFIGURE)
     assert probe.lifecycle_state("controller") == "inactive"
     _wait_state(probe, "inactive")
@@ -152,28 +167,6 @@ def test_lifecycle_transitions_and_the_enable_rule(managed):
     assert probe.lifecycle_state("controller") == "finalized"
     _assert_disabled_during_hold(probe, "finalized")
     assert s.procs["controller"].poll() is None                    # the process lives on, drive off
-
-
-def test_configure_validates_parameters_set_while_unconfigured(tmp_path):
-    """Unconfigured, parameters are only range-checked; configure validates the whole set:
-    an inconsistent one fails the transition (the node stays unconfigured, drive off) and a
-    corrected one configures."""
-    s, probe = _launch(tmp_path, "/lcbad", autostart=False)
-    try:
-        assert probe.lifecycle_state("controller", timeout=START_S) == "unconfigured"
-        results = probe.set_params("controller", {"limits.continuous_current_a": 30.0, "limits.peak_current_a": 20.0})
-        assert all(r.successful for r in results), [r.reason for r in results]
-        assert not probe.change_state("controller", CONFIGURE, timeout=60.0)
-        assert probe.lifecycle_state("controller") == "unconfigured"
-        log = s.log("controller")
-        assert "configure failed" in log and "continuous_current_a must not exceed" in log, log[-2000:]
-        _assert_disabled_during_hold(probe, "after a failed configure")
-        assert probe.set_params("controller", {"limits.continuous_current_a": 10.0})[0].successful
-        assert probe.change_state("controller", CONFIGURE, timeout=60.0)
-        assert probe.lifecycle_state("controller") == "inactive"
-    finally:
-        probe.close()
-        s.stop()
 
 
 def test_autostart_default_gives_an_active_controller(tmp_path):

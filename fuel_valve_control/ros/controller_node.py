@@ -119,6 +119,7 @@ class ControllerNode(LifecycleNode):
         #: the driver exists from ``configure`` to ``cleanup``/``shutdown`` (None: unconfigured)
         self.driver: ValveDriver | None = None
         self.lifecycle_state = "unconfigured"
+        self._configure_error = "configure raised (see the log)"
         self.lockstep = node_ps["lockstep"]
         self._state_file = node_ps["learned_state_file"]
         self._save_interval = node_ps["learned_state_save_s"]
@@ -127,7 +128,7 @@ class ControllerNode(LifecycleNode):
         self._bad_messages = 0
         self._last_enable = None
         self._level = 0
-        self._timers = []
+        self._loop_timers = []
 
         from diagnostic_msgs.msg import DiagnosticArray
         from sensor_msgs.msg import JointState
@@ -212,11 +213,11 @@ class ControllerNode(LifecycleNode):
             # wall-clock: simulated time stands still while a period waits for the match
             self._match_timer = self.create_timer(0.01, self._run_when_matched,
                                                   clock=Clock(clock_type=ClockType.STEADY_TIME))
-            self._timers.append(self._match_timer)
+            self._loop_timers.append(self._match_timer)
         # the watchdog runs the fault logic when no samples arrive (silence must trip)
         self._watchdog_period = max(5.0 * period, 0.01)
         self._watchdog_last = time.monotonic()
-        self._timers.append(self.create_timer(self._watchdog_period, self.watchdog))
+        self._loop_timers.append(self.create_timer(self._watchdog_period, self.watchdog))
         self._set_lifecycle("inactive")
         self._publish_disabled()
         self.get_logger().info(f"controller up: mode {ps['mode']}, loop {ps['loop_rate_hz']:g} Hz, demand from "
@@ -277,9 +278,9 @@ class ControllerNode(LifecycleNode):
         self.get_logger().warn(f"controller {why}: drive disabled, the return spring closes the valve")
 
     def _drop_driver(self) -> None:
-        for timer in self._timers:
+        for timer in self._loop_timers:
             self.destroy_timer(timer)
-        self._timers = []
+        self._loop_timers = []
         self.driver = None
         self._reset_loop_state()
 
