@@ -21,6 +21,9 @@ Launch arguments:
   ``namespace``) each run their own deterministic lockstep.
 * ``record`` -- ``true``: also start the ``recorder`` node, writing the bag ``bag``.
 * ``bag`` -- recorder ``output`` directory (default ``fuel_valve_bag``).
+* ``autostart`` -- ``true`` (default): the controller (a managed lifecycle node) configures
+  and activates itself; ``false``: it starts unconfigured with the drive disabled and a
+  supervisor drives it through ``<namespace>/controller/change_state`` (lifecycle_msgs).
 * ``demand_profile`` -- overrides the demand node's ``profile`` (empty: the one in
   ``config/demand.yaml``).
 
@@ -43,6 +46,8 @@ ARGUMENTS = (
     ('lockstep', 'false', 'true: deterministic simulated time, the plant publishes /clock and '
                           'advances one control period per command'),
     ('record', 'false', 'true: also start the recorder (rosbag2 of the suite topics)'),
+    ('autostart', 'true', 'true: the controller configures and activates itself; false: it waits '
+                          'unconfigured (drive disabled) for ~/change_state'),
     ('bag', 'fuel_valve_bag', 'bag directory written by the recorder (record:=true)'),
     ('demand_profile', '', 'demand profile: constant, step, ramp, sine, chirp, points, startup, '
                            'csv (empty: config/demand.yaml)'),
@@ -71,7 +76,7 @@ def _nodes(context, *args, **kwargs):
 
     # later entries of `parameters` override earlier ones (the YAML file)
     plant = {'lockstep': lockstep}
-    controller = {'lockstep': lockstep}
+    controller = {'lockstep': lockstep, 'autostart': _flag(context, 'autostart')}
     demand = {'lockstep': lockstep}
     recorder = {'output': bag}
     if lockstep:

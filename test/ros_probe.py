@@ -202,6 +202,23 @@ class Probe:
                                  f"{node}/get_parameters")
         return [parameter_value_to_python(v) for v in resp.values]
 
+    def change_state(self, node: str, transition_id: int, timeout: float = 15.0) -> bool:
+        """lifecycle_msgs ChangeState on ``node`` (relative to the namespace): its success."""
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState
+        client = self.node.create_client(ChangeState, f"{node}/change_state")
+        assert client.wait_for_service(timeout_sec=timeout), f"{node}/change_state not available"
+        req = ChangeState.Request(transition=Transition(id=transition_id))
+        return self._wait_future(client.call_async(req), timeout, f"{node}/change_state").success
+
+    def lifecycle_state(self, node: str, timeout: float = 15.0) -> str:
+        """The label of ``node``'s lifecycle state (lifecycle_msgs GetState)."""
+        from lifecycle_msgs.srv import GetState
+        client = self.node.create_client(GetState, f"{node}/get_state")
+        assert client.wait_for_service(timeout_sec=timeout), f"{node}/get_state not available"
+        return self._wait_future(client.call_async(GetState.Request()), timeout,
+                                 f"{node}/get_state").current_state.label
+
     @staticmethod
     def _wait_future(future, timeout, what):
         end = time.monotonic() + timeout

@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = ROOT / "launch" / "fuel_valve.launch.py"
 CONFIG_FILES = {"plant": "plant.yaml", "controller": "controller.yaml", "demand": "demand.yaml"}
 ARGUMENTS = {"namespace": "fuel_valve", "mode": "", "lockstep": "false", "record": "false",
-             "bag": "fuel_valve_bag", "demand_profile": ""}
+             "autostart": "true", "bag": "fuel_valve_bag", "demand_profile": ""}
 # rclpy declares use_sim_time on every node
 ROS_PARAMS = {"use_sim_time"}
 # keyword arguments of the real launch_ros Node / launch ExecuteProcess that the file may use
@@ -248,7 +248,8 @@ def test_mode_profile_and_namespace_overrides(description):
 
 
 def test_every_override_is_a_parameter_the_node_declares(description):
-    for args in ({}, {"lockstep": "true", "record": "true", "mode": "pi", "demand_profile": "sine"}):
+    for args in ({}, {"lockstep": "true", "record": "true", "mode": "pi", "demand_profile": "sine",
+                      "autostart": "false"}):
         for exe, node in _evaluate(description, **args).items():
             unknown = set(_overrides(node)) - _declared_params(exe)
             assert not unknown, f"{exe}: launch sets undeclared parameters {unknown}"
@@ -257,3 +258,12 @@ def test_every_override_is_a_parameter_the_node_declares(description):
 def test_bad_boolean_is_rejected(description):
     with pytest.raises(ValueError, match="lockstep"):
         _evaluate(description, lockstep="maybe")
+
+
+@pytest.mark.parametrize("text, value", [("true", True), ("false", False), ("0", False)])
+def test_autostart_argument_reaches_the_controller_only(description, text, value):
+    nodes = _evaluate(description, autostart=text)
+    assert _overrides(nodes["controller"])["autostart"] is value
+    assert all("autostart" not in _overrides(nodes[exe]) for exe in ("plant", "demand"))
+    with pytest.raises(ValueError, match="autostart"):
+        _evaluate(description, autostart="later")

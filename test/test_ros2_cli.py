@@ -266,6 +266,39 @@ def test_trip_and_reset_through_ros2_service_call(env, default_launch):
     default_launch.wait_for(r"\[cli\.controller\]: reset: ", 20.0)
 
 
+def test_lifecycle_through_ros2_service_call(env, tmp_path, launches):
+    """``autostart:=false``: the controller waits unconfigured; the README's ``ros2 service
+    call .../change_state`` commands configure and activate it; an invalid transition is
+    refused with the node alive; Ctrl-C still ends every process with 0."""
+    la = Launch(env, tmp_path, "namespace:=cli_lc", "autostart:=false")
+    launches.append(la)
+    la.wait_for(r"\[cli_lc\.controller\]: controller unconfigured \(autostart false\)")
+    srv = "/cli_lc/controller"
+
+    def state():
+        return ros2(env, "service", "call", f"{srv}/get_state", "lifecycle_msgs/srv/GetState")
+
+    def change(transition_id):
+        return ros2(env, "service", "call", f"{srv}/change_state", "lifecycle_msgs/srv/ChangeState",
+                    f"{{transition: {{id: {transition_id}}}}}")
+
+    assert "label='unconfigured'" in state()
+    out = change(3)                                         # activate: not a transition of unconfigured
+    assert "success=False" in out, out
+    la.wait_for(r"\[cli_lc\.controller\]: lifecycle transition id 3 .* refused")
+    assert "success=True" in (out := change(1)), out          # configure
+    assert "label='inactive'" in state()
+    assert "success=True" in (out := change(3)), out          # activate
+    assert "label='active'" in state()
+    # armed (drive enabled unless a fault latched meanwhile: a late sample on a loaded machine
+    # trips the 20 ms resolver timeout in inactive too, and faults latch until ~/reset)
+    la.wait_for(r"\[cli_lc\.controller\]: controller active: drive armed")
+    assert "success=True" in (out := change(4)), out          # deactivate
+    assert "label='inactive'" in state()
+    la.wait_for(r"\[cli_lc\.controller\]: controller deactivated: drive disabled")
+    la.assert_clean_exit(la.ctrl_c())
+
+
 def test_ctrl_c_stops_every_process_with_exit_code_0(env, tmp_path, launches):
     la = Launch(env, tmp_path, "namespace:=cli_stop", "record:=true", f"bag:={tmp_path / 'bag'}")
     launches.append(la)

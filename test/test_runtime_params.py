@@ -103,6 +103,7 @@ def test_every_runtime_parameter_has_a_consumer():
     nothing reads fails here."""
     drv = ValveDriver(CONTROLLER_SPEC.defaults())
     drv.ps = Reads(drv.ps)
+    drv.valve_health.configure(drv.ps)       # the NE107/counter core reads its own (set_params does this)
     for k in range(300):
         t = k * 1e-3
         drv.demand_percent(t, 90.0 if k > 100 else 20.0)            # a far demand: tracking error

@@ -41,6 +41,7 @@ from ..common.contract import (NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_
 from ..common.paramspec import ParamSet
 
 from .demand_filter import DemandFilter, DemandFilterConfig
+from .health import ValveHealth
 from .params import CONTROLLER_SPEC, check_consistency, check_tighten_only
 from .position_controller import PositionController
 from .signals import Measurement
@@ -89,7 +90,7 @@ def _guarded(method):
 class DriverOutput:
     current_a: float
     enable: bool
-    state: str                           # waiting | running | holding | fault
+    state: str                           # waiting | running | holding | inactive | fault
     demand_pct: float | None
     position_pct: float | None
     faults: dict = field(default_factory=dict)      # code -> message (latched)
@@ -132,6 +133,11 @@ class ValveDriver:
         self._dp_prev: tuple[float, float] | None = None   # (t, kPa) of the last finite reading
         self.pressure_kpa = self.ps["pressure.fallback_kpa"]   # Δp the law is scheduled for now
         self.last = DriverOutput(0.0, False, "waiting", None, None)
+        #: drive inhibited (the managed node outside ``active``): enable false, 0 A; a reset
+        #: does not lift it, only :meth:`set_inhibited` does (the node's ``activate``)
+        self.inhibited = False
+        #: NE107 status and duty counters (:mod:`.health`), updated every period
+        self.valve_health = ValveHealth(self.ps)
 
     # ------------------------------------------------------------------ parameters
     def check_params(self, changes: dict) -> ParamSet:
@@ -160,6 +166,7 @@ class ValveDriver:
         demand_cfg = demand_filter_config(new)
         self.ps = new
         self.demand_filter.cfg = demand_cfg
+        self.valve_health.configure(new)
         self.controller.reconfigure(new, self._meas if self._armed else None, self.pressure_kpa, prepared)
 
     # ------------------------------------------------------------------ inputs
@@ -311,6 +318,14 @@ class ValveDriver:
         simulation that starts with the valve already held by the drive."""
         self._arm_torque = torque_nm
 
+    def set_inhibited(self, inhibited: bool) -> None:
+        """Inhibit the drive (True: every period commands enable false and 0 A, so the return
+        spring closes the valve) or allow it again (it re-arms from the measurement with zero
+        torque at the next period without a fault).  The managed node's (de)activate."""
+        if inhibited:
+            self._armed = False
+        self.inhibited = bool(inhibited)
+
     def trip(self, reason: str = "trip requested") -> None:
         self._latch(TRIPPED, reason)
 
@@ -362,9 +377,16 @@ class ValveDriver:
         """One loop period at time ``t`` (s): the command and drive enable.  Never raises: an
         exception inside latches :data:`INTERNAL` and returns the fail-safe output."""
         try:
+            t_prev = self._t
             out = self._step(t)
             if not math.isfinite(out.current_a):
                 raise ArithmeticError(f"non-finite current command {out.current_a!r} A")
+            if self._meas is not None:
+                # counters and NE107 inputs; dt bounded so a stalled loop does not count as time
+                dt = min(max(t - t_prev, 0.0), STALL_REARM_PERIODS * self.period) if t_prev is not None else 0.0
+                self.valve_health.update(t, dt, self._meas.valve_rad, self.demand_rad(),
+                                         None if self._dp is None else self.pressure_kpa, out.enable,
+                                         self.controller.law.friction_trend)
             return out
         except Exception as exc:           # noqa: BLE001 - see the module docstring
             self.internal_fault("step", exc)
@@ -393,9 +415,9 @@ class ValveDriver:
                 self.warnings.setdefault(DEMAND_STALE, msg + " (holding the last demand)")
                 holding = True
         position_pct = None if self._meas is None else 100.0 * self._meas.valve_rad / self.stroke
-        if self.faults or self._meas is None or self._demand_pct is None:
+        if self.faults or self._meas is None or self._demand_pct is None or self.inhibited:
             self._armed = False
-            state = "fault" if self.faults else "waiting"
+            state = "fault" if self.faults else "inactive" if self.inhibited else "waiting"
             self.last = DriverOutput(0.0, False, state, self._demand_pct, position_pct,
                                      dict(self.faults), dict(self.warnings))
             return self.last
@@ -451,6 +473,10 @@ class ValveDriver:
         return self._demand_pct / 100.0 * self.stroke
 
     # ------------------------------------------------------------------ diagnostics
+    def ne107(self):
+        """The NAMUR NE107 status now (:class:`~.health.Ne107Status`)."""
+        return self.valve_health.assess(self._t, self.faults, self.warnings)
+
     @property
     def last_resolver_time(self) -> float | None:
         """Time stamp (s) of the latest plausible resolver sample; None before the first."""
@@ -468,6 +494,8 @@ class ValveDriver:
         if out.faults:
             level, message = 2, "FAULT (latched; drive disabled, spring closing the valve): " + "; ".join(
                 out.faults.values())
+        elif out.state == "inactive":
+            level, message = 1, "inactive (managed node not active): drive disabled, spring closing the valve"
         elif out.state == "waiting":
             missing = [what for what, absent in (("a valid demand", out.demand_pct is None),
                                                  ("resolver samples", out.position_pct is None)) if absent]
@@ -495,6 +523,7 @@ class ValveDriver:
             "faults": ",".join(out.faults) or "none", "warnings": ",".join(out.warnings) or "none",
         }
         values.update(self.demand_filter.state())
+        values.update(self.valve_health.values(self.ne107()))
         # what the law learned about this valve (fine positioning: twists per direction/Δp band)
         for key, value in (law.learned_state() or {}).items():
             values[key] = json.dumps(value) if isinstance(value, (dict, list)) else value

@@ -231,6 +231,31 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           0.001, 1.0, runtime=True),
     Param("faults.i2t_fault_time_s", 2.0, "s", "time the loop may ask for more than the I2t limit allows "
           "(jam / overload) before the fault latches", 0.05, 60.0, runtime=True),
+    # --- valve health: NAMUR NE107 status and duty counters (core/health.py, issue 12) ---------
+    Param("health.tracking_error_rad", 0.05, "rad", "tracking error beyond which the valve is out of "
+          "specification (NE107 S), below the fault limit faults.tracking_error_rad", 1e-4, 1.1, runtime=True),
+    Param("health.tracking_error_time_s", 0.5, "s", "leaky time beyond health.tracking_error_rad before "
+          "out of specification", 0.01, 60.0, runtime=True),
+    Param("health.hunting_reversals", 6, "", "reversals within health.hunting_window_s at a steady demand "
+          "that are hunting (NE107 S)", 2, 10000, runtime=True),
+    Param("health.hunting_window_s", 2.0, "s", "window of the hunting count", 0.1, 60.0, runtime=True),
+    Param("health.reversal_hysteresis_rad", 1e-3, "rad", "a move back by more than this from the latest "
+          "extreme is a reversal (counts travel and reversals without counting resolver noise)",
+          1e-5, 0.1, runtime=True),
+    Param("health.high_dp_kpa", 5000.0, "kPa", "Δp at or above which time at high Δp is counted",
+          0.0, PRESSURE_MAX_KPA, runtime=True),
+    Param("health.friction_band", 0.3, "", "friction trend beyond this fraction off the valve's learned "
+          "baseline: maintenance required (NE107 M)", 0.01, 10.0, runtime=True),
+    Param("health.trend_time_constant_s", 10.0, "s", "smoothing of the friction trend compared with the "
+          "baseline", 0.01, 3600.0, runtime=True),
+    Param("health.baseline_after_s", 30.0, "s", "driven time after which the smoothed friction trend becomes "
+          "the valve's baseline (when none was loaded)", 0.0, 86400.0, runtime=True),
+    Param("health.breakaway_rise_nm", 1.0, "N*m", "breakaway torque (valve side) above its baseline that "
+          "needs maintenance (NE107 M)", 0.0, 100.0, runtime=True),
+    Param("health.travel_limit_rad", 1e6, "rad", "total valve travel that needs maintenance (NE107 M)",
+          0.0, 1e12, runtime=True),
+    Param("health.reversal_limit", 10000000, "", "reversals that need maintenance (NE107 M)", 0, 2**62,
+          runtime=True),
     # --- nominal model (defaults = plant nominal values) --------------------------------------
     _nominal("motor_inertia_kgm2", 6.93e-6, "kg*m^2", "rotor inertia Jm", 0.0, 1.0, low_open=True),
     _nominal("motor_viscous_nms", 2.6e-5, "N*m*s/rad", "rotor viscous friction Bm", 0.0, 1.0),
@@ -269,6 +294,12 @@ CONTROLLER_NODE_PARAMS = (
           "take-over of a valve already held by a drive (the plant's start_held)", -40.0, 40.0),
     Param("monitor_drive_telemetry", False, "", "subscribe to the plant's drive telemetry for the "
           "measured-current check (one more 1 kHz subscription)"),
+    Param("autostart", True, "", "configure and activate the managed (lifecycle) node at start; false: a "
+          "supervisor drives the transitions through ~/change_state"),
+    Param("learned_state_file", "", "", "file of the learned state (duty counters, friction baselines, learned "
+          "twists), loaded at configure and saved at deactivate/cleanup/shutdown/exit and every "
+          "learned_state_save_s ('': not persisted)"),
+    Param("learned_state_save_s", 60.0, "s", "interval of the periodic save of learned_state_file", 1.0, 86400.0),
 )
 CONTROLLER_NODE_SPEC = CONTROLLER_SPEC.extended(CONTROLLER_NODE_PARAMS)
 

@@ -18,6 +18,18 @@ command it has not received) is dropped, and the command is never re-sent: the p
 once per command, and an unstamped copy could not be told from the next period's.  So the
 first command waits until ``current_command`` has matched the plant's subscription (a
 command published before that would be lost, and the run would stall).
+
+A managed (lifecycle) node (``rclpy.lifecycle``, issue 12): ``configure`` reads and validates
+the parameters, designs the law (builds the :class:`ValveDriver`) and loads the learned state
+file; ``activate`` arms the drive; ``deactivate`` disables it (enable false, 0 A: the return
+spring closes the valve); ``cleanup`` drops the driver (back to unconfigured); ``shutdown``
+disables and finalizes.  The drive is never enabled outside ``active``: the driver is inhibited
+(:meth:`ValveDriver.set_inhibited`) and a ``~/reset`` does not lift that.  Outside ``active``
+every resolver sample is still answered, with 0 A (inactive: the driver's inhibited period,
+so faults and counters keep running; unconfigured: a plain 0 A), and ``drive_enable`` false is
+published on entering the state.  With ``autostart`` (default) the node configures and
+activates itself at start (a configuration error then ends the process, exit 2, as before);
+with ``autostart:=false`` a supervisor uses ``~/change_state`` / ``~/get_state``.
 """
 from __future__ import annotations
 
@@ -27,7 +39,7 @@ import math
 import threading
 import time
 
-from rclpy.node import Node
+from rclpy.lifecycle import Node as LifecycleNode, State, TransitionCallbackReturn
 
 from ..common import contract
 from . import interface as ri
@@ -36,6 +48,7 @@ from ..common.paramspec import ConfigError
 
 from ..core.params import CONTROLLER_NODE_SPEC, CONTROLLER_SPEC, load_controller_params
 from ..core.driver import Health, ValveDriver
+from ..core.health import NE107_DIAGNOSTIC_LEVEL, FUNCTION_CHECK, load_state, save_state
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
 
@@ -59,27 +72,63 @@ def locked(method):
     return wrapper
 
 
-class ControllerNode(Node):
+def transition(method):
+    """A lifecycle transition callback under the node's lock; an exception is logged (rclpy
+    swallows it) and returns ERROR, so :meth:`ControllerNode.on_error` disables the drive."""
+    @functools.wraps(method)
+    def wrapper(self, state):
+        with self._lock:
+            try:
+                return method(self, state)
+            except Exception as exc:       # noqa: BLE001 - reported, then ROS's error processing
+                self.get_logger().error(f"{method.__name__} raised {type(exc).__name__}: {exc}")
+                return TransitionCallbackReturn.ERROR
+    return wrapper
+
+
+def guard_change_state(node) -> None:
+    """Make ``~/change_state`` answer ``success: false`` to a transition the present state does
+    not have.  rclpy 7.1.x raises ``RCLError`` inside the service callback instead, and the
+    exception ends the spin loop and with it the process: one wrong ``ros2 service call`` from a
+    supervisor (activate while unconfigured) would kill the valve driver (found by
+    test_lifecycle_nodes).  Wraps the service's public ``callback``; the state is unchanged."""
+    for srv in node.services:
+        if srv.service_name.endswith("/change_state"):
+            inner, log = srv.callback, node.get_logger()
+
+            def refuse_invalid(request, response, inner=inner, log=log):
+                try:
+                    return inner(request, response)
+                except Exception as exc:     # noqa: BLE001 - rclpy's RCLError is not public API
+                    log.warn(f"lifecycle transition id {request.transition.id} "
+                             f"{request.transition.label!r} refused: {str(exc).split(', at ')[0]}")
+                    response.success = False
+                    return response
+            srv.callback = refuse_invalid
+
+
+class ControllerNode(LifecycleNode):
     def __init__(self, **kwargs):
         super().__init__("controller", **kwargs)
+        guard_change_state(self)
         ri.declare_spec(self, CONTROLLER_NODE_SPEC)
         try:
             node_ps = CONTROLLER_NODE_SPEC.defaults().replace(ri.read_spec(self, CONTROLLER_NODE_SPEC))
-            ps = load_controller_params(None, CONTROLLER_SPEC.pick(node_ps))
         except ConfigError as exc:
             raise SystemExit(f"controller: invalid parameters: {exc}") from None
-        self.driver = ValveDriver(ps)
-        initial_a = node_ps["initial_current_a"]
-        if initial_a:
-            self.driver.start_from_torque(initial_a * self.driver.controller.model.torque_constant_nm_per_a)
+        #: the driver exists from ``configure`` to ``cleanup``/``shutdown`` (None: unconfigured)
+        self.driver: ValveDriver | None = None
+        self.lifecycle_state = "unconfigured"
+        self._configure_error = "configure raised (see the log)"
         self.lockstep = node_ps["lockstep"]
-        self.stroke = self.driver.stroke
-        self._fresh_demand = False
-        self._pending_sample = None
-        self._last_sample_stamp = None
+        self._state_file = node_ps["learned_state_file"]
+        self._save_interval = node_ps["learned_state_save_s"]
+        self._last_save = time.monotonic()
+        self._reset_loop_state()
         self._bad_messages = 0
         self._last_enable = None
         self._level = 0
+        self._loop_timers = []
 
         from diagnostic_msgs.msg import DiagnosticArray
         from sensor_msgs.msg import JointState
@@ -87,6 +136,8 @@ class ControllerNode(Node):
         from std_srvs.srv import Trigger
         from builtin_interfaces.msg import Time
         self._float, self._bool, self._time = Float64, Bool, Time
+        # plain publishers, not lifecycle ones: outside ``active`` the node must still say
+        # "drive disabled, 0 A" (a lifecycle publisher would be silent)
         self.pub_current = ri.quiet_publisher(self, Float64, contract.CURRENT_COMMAND)
         self.pub_enable = ri.quiet_publisher(self, Bool, contract.DRIVE_ENABLE)
         self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION)
@@ -111,20 +162,150 @@ class ControllerNode(Node):
         self.create_service(Trigger, "~/trip", self.on_trip)
         self.create_service(Trigger, "~/reset", self.on_reset)
         ri.handle_parameter_changes(self, CONTROLLER_SPEC, self.check_parameters, self.apply_parameters)
-        period = self.driver.period
-        # the watchdog runs the fault logic when no samples arrive (silence must trip)
+        self.create_timer(1.0 / node_ps["diagnostics_rate_hz"], self.publish_diagnostics)
+        if node_ps["autostart"]:
+            # one command as before: configure + activate now; a configuration error ends the
+            # process (exit 2) instead of leaving an unconfigured node nobody will configure
+            if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+                raise SystemExit(f"controller: invalid parameters: {self._configure_error}")
+            if self.trigger_activate() != TransitionCallbackReturn.SUCCESS:
+                raise SystemExit("controller: activation failed")
+        else:
+            self._publish_disabled()
+            self.get_logger().info("controller unconfigured (autostart false): configure and activate through "
+                                   "~/change_state")
+
+    def _reset_loop_state(self) -> None:
+        self._fresh_demand = False
+        self._pending_sample = None
+        self._last_sample_stamp = None
+        self._command_matched = False
+
+    # ------------------------------------------------------------------ lifecycle
+    @transition
+    def on_configure(self, state: State) -> TransitionCallbackReturn:
+        """Read and validate the parameters, design the law (build the driver, inhibited),
+        load the learned state; start the watchdog (and the lockstep match timer)."""
+        try:
+            node_ps = CONTROLLER_NODE_SPEC.defaults().replace(ri.read_spec(self, CONTROLLER_NODE_SPEC))
+            ps = load_controller_params(None, CONTROLLER_SPEC.pick(node_ps))
+            driver = ValveDriver(ps)
+        except Exception as exc:        # noqa: BLE001 - a set the design code cannot use: refuse it
+            self._configure_error = f"{exc}" if isinstance(exc, ConfigError) else f"{type(exc).__name__}: {exc}"
+            self.get_logger().error(f"configure failed: invalid parameters: {self._configure_error}")
+            return TransitionCallbackReturn.FAILURE
+        driver.set_inhibited(True)
+        initial_a = node_ps["initial_current_a"]
+        if initial_a:
+            driver.start_from_torque(initial_a * driver.controller.model.torque_constant_nm_per_a)
+        if self._state_file:
+            loaded, message = load_state(self._state_file, driver.valve_health, driver.controller.learner)
+            # one call site per severity: rclpy refuses a site that changes severity
+            if loaded:
+                self.get_logger().info(message)
+            else:
+                self.get_logger().warn(message)
+        self.driver, self.stroke = driver, driver.stroke
+        self._reset_loop_state()
+        period = driver.period
         if self.lockstep:
             from rclpy.clock import Clock, ClockType
-            self._command_matched = False
             # wall-clock: simulated time stands still while a period waits for the match
             self._match_timer = self.create_timer(0.01, self._run_when_matched,
                                                   clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self._loop_timers.append(self._match_timer)
+        # the watchdog runs the fault logic when no samples arrive (silence must trip)
         self._watchdog_period = max(5.0 * period, 0.01)
         self._watchdog_last = time.monotonic()
-        self.create_timer(self._watchdog_period, self.watchdog)
-        self.create_timer(1.0 / node_ps["diagnostics_rate_hz"], self.publish_diagnostics)
+        self._loop_timers.append(self.create_timer(self._watchdog_period, self.watchdog))
+        self._set_lifecycle("inactive")
+        self._publish_disabled()
         self.get_logger().info(f"controller up: mode {ps['mode']}, loop {ps['loop_rate_hz']:g} Hz, demand from "
                                f"{ps['demand_source']}{', lockstep' if self.lockstep else ''}")
+        return TransitionCallbackReturn.SUCCESS
+
+    @transition
+    def on_activate(self, state: State) -> TransitionCallbackReturn:
+        """Arm the drive: the next period arms the law from the measurement (zero torque, or
+        ``initial_current_a`` the first time), unless a fault is latched."""
+        self.driver.set_inhibited(False)
+        self._set_lifecycle("active")
+        self.get_logger().info("controller active: drive armed")
+        return TransitionCallbackReturn.SUCCESS
+
+    @transition
+    def on_deactivate(self, state: State) -> TransitionCallbackReturn:
+        self._disable("deactivated")
+        self._set_lifecycle("inactive")
+        self._save_state()
+        return TransitionCallbackReturn.SUCCESS
+
+    @transition
+    def on_cleanup(self, state: State) -> TransitionCallbackReturn:
+        self._save_state()
+        self._drop_driver()
+        self._set_lifecycle("unconfigured")
+        self.get_logger().info("controller cleaned up: unconfigured")
+        return TransitionCallbackReturn.SUCCESS
+
+    @transition
+    def on_shutdown(self, state: State) -> TransitionCallbackReturn:
+        if self.driver is not None:
+            self._disable("shut down")
+            self._save_state()
+        self._drop_driver()
+        self._set_lifecycle("finalized")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: State) -> TransitionCallbackReturn:
+        """A transition raised: drive off, driver dropped, back to unconfigured."""
+        with self._lock:
+            self.get_logger().error(f"lifecycle transition from {state.label} failed: drive disabled, unconfigured")
+            self._publish_disabled(force=True)
+            self._drop_driver()
+            self._set_lifecycle("unconfigured")
+            return TransitionCallbackReturn.SUCCESS
+
+    def _set_lifecycle(self, label: str) -> None:
+        self.lifecycle_state = label
+        if self.driver is not None:
+            self.driver.valve_health.set_lifecycle_state(label)
+
+    def _disable(self, why: str) -> None:
+        """Inhibit the driver and command the drive off now (not at the next period)."""
+        self.driver.set_inhibited(True)
+        self.publish_step(self.now_s())
+        self.get_logger().warn(f"controller {why}: drive disabled, the return spring closes the valve")
+
+    def _drop_driver(self) -> None:
+        for timer in self._loop_timers:
+            self.destroy_timer(timer)
+        self._loop_timers = []
+        self.driver = None
+        self._reset_loop_state()
+
+    def _publish_disabled(self, force: bool = False) -> None:
+        """drive_enable false (when not already said) and 0 A, outside ``active``."""
+        if force or self._last_enable is not False:
+            self.pub_enable.publish(self._bool(data=False))
+            self._last_enable = False
+        self.pub_current.publish(self._float(data=0.0))
+
+    def _save_state(self) -> None:
+        """Persist the learned state (``learned_state_file``); a failure is logged, never raised."""
+        if not self._state_file or self.driver is None:
+            return
+        self._last_save = time.monotonic()
+        try:
+            save_state(self._state_file, self.driver.valve_health, self.driver.controller.learner)
+        except OSError as exc:
+            self.get_logger().error(f"cannot save the learned state to {self._state_file}: {exc}",
+                                    throttle_duration_sec=10.0)
+
+    def save_on_exit(self) -> None:
+        """At process exit (:func:`run_node`'s ``on_exit``): persist the learned state."""
+        with self._lock:
+            self._save_state()
 
     # ------------------------------------------------------------------ time
     def now_s(self) -> float:
@@ -137,11 +318,15 @@ class ControllerNode(Node):
     # ------------------------------------------------------------------ inputs
     @locked
     def on_demand(self, msg) -> None:
+        if self.driver is None:
+            return
         self.driver.demand_percent(self.now_s(), msg.data)
         self._demand_arrived()
 
     @locked
     def on_demand_ma(self, msg) -> None:
+        if self.driver is None:
+            return
         self.driver.demand_ma(self.now_s(), msg.data)
         self._demand_arrived()
 
@@ -160,6 +345,8 @@ class ControllerNode(Node):
     @locked
     def _run_when_matched(self) -> None:
         """Lockstep: run a period that was ready but held back for the command's match."""
+        if self.driver is None:
+            return
         if self._command_matched and self._periods:
             self._match_timer.cancel()               # matched for good: the timer's job is done
         elif self._pending_sample is not None and self._fresh_demand and self._loop_matched():
@@ -168,16 +355,21 @@ class ControllerNode(Node):
 
     @locked
     def on_pressure(self, msg) -> None:
+        if self.driver is None:
+            return
         self.driver.pressure_differential(self.now_s(), msg.data)
 
     @locked
     def on_drive(self, msg) -> None:
         values = ri.array_values(msg)
-        if "i_d" in values and "i_q" in values:
+        if self.driver is not None and "i_d" in values and "i_q" in values:
             self.driver.measured_current(self.now_s(), math.hypot(values["i_d"], values["i_q"]))
 
     @locked
     def on_resolver(self, msg) -> None:
+        if self.driver is None:             # unconfigured / finalized: the drive stays off
+            self._publish_disabled()
+            return
         values = ri.joint_values(msg)
         motor, valve = values.get(contract.MOTOR_JOINT), values.get(contract.VALVE_JOINT)
         if motor is None or valve is None:
@@ -213,6 +405,8 @@ class ControllerNode(Node):
 
     @locked
     def watchdog(self) -> None:
+        if self.driver is None:
+            return
         timeout = self.driver.ps["faults.resolver_timeout_s"]
         if self.lockstep:
             return                       # sim time stands still while nobody steps the plant
@@ -230,7 +424,8 @@ class ControllerNode(Node):
     def fail_safe(self, where: str, exc: BaseException) -> None:
         """An exception in the node's own code: latch the driver's internal-error fault and
         command the drive off (enable false, 0 A) now, not at the next period."""
-        self.driver.internal_fault(where, exc)
+        if self.driver is not None:
+            self.driver.internal_fault(where, exc)
         self.get_logger().error(f"internal error in {where}: {type(exc).__name__}: {exc}; drive disabled "
                                 "(fault latched, ~/reset to re-arm)", throttle_duration_sec=1.0)
         try:
@@ -273,6 +468,9 @@ class ControllerNode(Node):
     # ------------------------------------------------------------------ services
     @locked
     def on_trip(self, request, response):
+        if self.driver is None:
+            response.success, response.message = False, f"{self.lifecycle_state}: no drive to trip (disabled)"
+            return response
         self.driver.trip("trip requested through ~/trip")
         self.publish_step(self.now_s())
         response.success = True
@@ -282,7 +480,12 @@ class ControllerNode(Node):
 
     @locked
     def on_reset(self, request, response):
+        if self.driver is None:
+            response.success, response.message = False, f"{self.lifecycle_state}: configure the node first"
+            return response
         ok, message = self.driver.reset()
+        if ok and self.driver.inhibited:
+            message += f" (lifecycle {self.lifecycle_state}: the drive stays disabled until activated)"
         response.success, response.message = ok, message
         if ok:
             self.get_logger().info(f"reset: {message}")
@@ -295,19 +498,28 @@ class ControllerNode(Node):
         """Validation only (on-set): raises ``ValueError`` for a change the driver would refuse
         (a rejection, not a fault: not :func:`locked`'s fail-safe)."""
         with self._lock:
-            self.driver.check_params(changes)
+            if self.driver is not None:     # unconfigured: configure reads and validates them
+                self.driver.check_params(changes)
 
     @locked
     def apply_parameters(self, changes: dict) -> None:
         """After acceptance (post-set): the driver swaps in the new set (and law) atomically."""
-        self.driver.set_params(changes)
+        if self.driver is not None:
+            self.driver.set_params(changes)
 
     # ------------------------------------------------------------------ diagnostics
     @locked
     def publish_diagnostics(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+        if self.driver is None:
+            h = Health(1, f"{self.lifecycle_state} (managed node not configured): drive disabled",
+                       {"state": self.lifecycle_state, "lifecycle_state": self.lifecycle_state, "ne107": FUNCTION_CHECK,
+                        "ne107_level": NE107_DIAGNOSTIC_LEVEL[FUNCTION_CHECK], "faults": "none", "warnings": "none"})
+        elif self._state_file and time.monotonic() - self._last_save > self._save_interval:
+            self._save_state()
         try:
-            h = self.driver.health()
+            if self.driver is not None:
+                h = self.driver.health()
         except Exception as exc:            # noqa: BLE001 - still say something on /diagnostics
             self.fail_safe("health", exc)
             h = Health(2, f"FAULT: internal error while reporting health: {exc}", {"faults": "internal_error"})
@@ -352,7 +564,7 @@ def _fmt(x) -> str:
 
 
 def main(args=None) -> int:
-    return run_node(ControllerNode, args)
+    return run_node(ControllerNode, args, on_exit=ControllerNode.save_on_exit)
 
 
 if __name__ == "__main__":

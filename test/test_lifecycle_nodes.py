@@ -1,0 +1,181 @@
+"""The managed (lifecycle) controller over DDS (issue 12): transitions through the standard
+lifecycle services, the enable rule (drive enable false and 0 A in every state but
+``active``, also after a ``~/reset``), configure validating parameters set while
+unconfigured, an invalid transition refused with the node alive, the learned state surviving
+cleanup/configure, and ``autostart`` (default true: the node is active without a supervisor).
+
+Real time, plant and controller as processes (tools/launcher), the probe as the supervisor.
+Every wait is a condition with a generous timeout (a loaded 2-core machine); "stays disabled"
+is checked over every command the probe received during a hold, not against a clock.
+"""
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+from ros_probe import Probe
+
+from fuel_valve_control.common import contract
+from fuel_valve_control.common.contract import STROKE_RAD
+from fuel_valve_control.core.params import CONTROLLER_SPEC
+from fuel_valve_control.tools.launcher import Launcher
+from fuel_valve_control.tools.run_plan import REAL_TIME, plan_run
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+# lifecycle_msgs/msg/Transition ids (the ROS 2 managed-node standard)
+CONFIGURE, CLEANUP, ACTIVATE, DEACTIVATE = 1, 2, 3, 4
+INACTIVE_SHUTDOWN = 6
+#: how long a "stays disabled" hold watches the commands, s (at 1 kHz: hundreds of commands)
+HOLD_S = 1.0
+#: the first service wait includes the node processes' start (imports: > 15 s at load 30)
+START_S = 120.0
+
+
+def _launch(tmp_path, namespace, **overrides):
+    # timeouts a starved process (load 30 on 2 cores was seen) does not trip
+    plan = plan_run(None, REAL_TIME, controller_overrides={"faults.resolver_timeout_s": 3.0, "demand_timeout_s": 5.0,
+                                                           "diagnostics_rate_hz": 10.0, **overrides})
+    s = Launcher(plan, namespace, tmp_path)
+    s.start(("plant", "controller"))
+    probe = Probe(namespace, keep_all=(contract.CURRENT_COMMAND,))
+    return s, probe
+
+
+@pytest.fixture
+def managed(tmp_path):
+    """autostart false: the controller waits unconfigured; learned state in a file."""
+    state_file = tmp_path / "valve_state.json"
+    s, probe = _launch(tmp_path, "/lc", autostart=False, learned_state_file=str(state_file))
+    try:
+        yield s, probe, state_file
+    finally:
+        probe.close()
+        s.stop()
+
+
+def _values(probe):
+    return probe.driver_values()
+
+
+def _assert_disabled_during_hold(probe, what):
+    """Drive enable false (latched) and every command 0 A for :data:`HOLD_S` of commands."""
+    probe.wait_for(lambda: probe.get(contract.DRIVE_ENABLE) is not None
+                   and probe.get(contract.DRIVE_ENABLE).data is False, 60.0, f"drive_enable false ({what})")
+    t0 = time.monotonic()
+    probe.wait_for(lambda: len(probe.since(contract.CURRENT_COMMAND, t0)) >= 50
+                   and time.monotonic() - t0 >= HOLD_S, 60.0, f"commands while {what}")
+    commands = [m.data for m in probe.since(contract.CURRENT_COMMAND, t0)]
+    assert commands and all(c == 0.0 for c in commands), f"{what}: non-zero commands {set(commands)}"
+    assert probe.get(contract.DRIVE_ENABLE).data is False, what
+
+
+def _wait_state(probe, label):
+    probe.wait_for(lambda: _values(probe).get("lifecycle_state") == label, 60.0, f"/diagnostics lifecycle {label}")
+
+
+def _reset(probe, timeout=60.0):
+    """Reset until no fault is latched (a starved process may latch a timeout again)."""
+    def cleared():
+        if _values(probe).get("faults") == "none":
+            return True
+        probe.trigger("controller/reset")
+        time.sleep(0.3)
+        return False
+    probe.wait_for(cleared, timeout, "faults cleared by ~/reset")
+
+
+def _follows(probe, pct, timeout=90.0):
+    def there():
+        if probe.driver_level() == 2:           # a starved process latched a timeout: re-arm
+            probe.trigger("controller/reset")
+            time.sleep(0.3)
+        a, enable = probe.valve_angle(), probe.get(contract.DRIVE_ENABLE)
+        return enable is not None and enable.data and a is not None and abs(a - pct / 100 * STROKE_RAD) < 0.01 * STROKE_RAD
+    probe.wait_for(there, timeout, f"valve at {pct} % with the drive enabled")
+
+
+def test_lifecycle_transitions_and_the_enable_rule(managed):
+    s, probe, state_file = managed
+    probe.set_demand(30.0)
+    assert probe.lifecycle_state("controller", timeout=START_S) == "unconfigured"
+    _wait_state(probe, "unconfigured")
+    assert _values(probe)["ne107"] == "function_check"
+    _assert_disabled_during_hold(probe, "unconfigured")
+    assert not probe.change_state("controller", ACTIVATE)          # not a transition of unconfigured
+    assert not probe.trigger("controller/reset").success            # nothing to reset yet
+
+    # unconfigured, parameters are only range-checked; configure validates the whole set: an
+    # inconsistent one fails the transition (still unconfigured, drive off), a corrected one works
+    results = probe.set_params("controller", {"limits.continuous_current_a": 30.0, "limits.peak_current_a": 20.0})
+    assert all(r.successful for r in results), [r.reason for r in results]
+    assert not probe.change_state("controller", CONFIGURE, timeout=60.0)
+    assert probe.lifecycle_state("controller") == "unconfigured"
+    log = s.log("controller")
+    assert "configure failed" in log and "continuous_current_a must not exceed" in log, log[-2000:]
+    _assert_disabled_during_hold(probe, "after a failed configure")
+    defaults = CONTROLLER_SPEC.defaults()
+    limits = ("limits.continuous_current_a", "limits.peak_current_a")
+    assert all(r.successful for r in probe.set_params("controller", {k: defaults[k] for k in limits}))
+
+    assert probe.change_state("controller", CONFIGURE)
+    assert probe.lifecycle_state("controller") == "inactive"
+    _wait_state(probe, "inactive")
+    assert _values(probe)["state"] == "inactive" and _values(probe)["ne107"] == "function_check"
+    _assert_disabled_during_hold(probe, "inactive")
+    # a trip and a reset in inactive do not enable the drive
+    assert probe.trigger("controller/trip").success
+    probe.wait_for(lambda: probe.driver_level() == 2, 60.0, "the trip latched")
+    _reset(probe)
+    _assert_disabled_during_hold(probe, "inactive after a reset")
+    assert probe.valve_angle() < 0.02 * STROKE_RAD               # never moved: the spring holds it shut
+
+    assert probe.change_state("controller", ACTIVATE)
+    assert probe.lifecycle_state("controller") == "active"
+    _follows(probe, 30.0)
+    # the lifecycle cause of NE107's function check is gone (whatever else a loaded machine shows)
+    probe.wait_for(lambda: _values(probe).get("lifecycle_state") == "active"
+                   and "lifecycle" not in _values(probe).get("ne107_causes", "lifecycle"), 60.0,
+                   "no lifecycle cause in NE107 while active")
+
+    assert probe.change_state("controller", DEACTIVATE)
+    assert probe.lifecycle_state("controller") == "inactive"
+    _assert_disabled_during_hold(probe, "deactivated")
+    probe.wait_for(lambda: probe.valve_angle() < 0.02 * STROKE_RAD, 60.0, "the spring closed the valve")
+
+    assert probe.change_state("controller", ACTIVATE)              # re-arms from the measurement
+    _follows(probe, 30.0)
+    assert probe.change_state("controller", DEACTIVATE)
+    travel = float(_values(probe)["travel_total_rad"])
+    assert travel > 2 * 0.3 * STROKE_RAD * 0.9                     # two opening moves (and closings)
+
+    assert probe.change_state("controller", CLEANUP)
+    assert probe.lifecycle_state("controller") == "unconfigured"
+    _assert_disabled_during_hold(probe, "cleaned up")
+    saved = json.loads(state_file.read_text())                     # cleanup saved the learned state
+    assert saved["counters"]["travel_rad"] >= travel * (1 - 1e-5) and saved["counters"]["reversals"] >= 1
+
+    assert probe.change_state("controller", CONFIGURE)             # loads it again
+    _wait_state(probe, "inactive")
+    # (/diagnostics prints 6 significant digits)
+    assert float(_values(probe)["travel_total_rad"]) == pytest.approx(saved["counters"]["travel_rad"], rel=1e-5)
+    assert "learned state loaded" in s.log("controller")
+
+    assert probe.change_state("controller", INACTIVE_SHUTDOWN)
+    assert probe.lifecycle_state("controller") == "finalized"
+    _assert_disabled_during_hold(probe, "finalized")
+    assert s.procs["controller"].poll() is None                    # the process lives on, drive off
+
+
+def test_autostart_default_gives_an_active_controller(tmp_path):
+    s, probe = _launch(tmp_path, "/lcauto")
+    try:
+        probe.set_demand(25.0)
+        assert probe.lifecycle_state("controller", timeout=START_S) == "active"
+        _follows(probe, 25.0)
+        assert _values(probe)["lifecycle_state"] == "active"
+    finally:
+        probe.close()
+        s.stop()
