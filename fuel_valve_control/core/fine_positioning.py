@@ -19,6 +19,16 @@ is over in ~6 ms).  What works is acting *before* the valve moves:
    included), a pulse that did not move the valve raises ``φb``, one that did lowers it
    toward the peak that worked.  Both per direction and per Δp band, bounded.
 
+What limits it (measured, nominal plant at max Δp, ``benchmarks/robustness.py --box nominal``):
+a pulse that breaks the valve loose moves it 1.3-2.5e-3 rad when less is wanted, because the
+gear output (J1 = Jm N² = 9x the valve's inertia) cannot retreat within the valve's 6 ms half
+swing at <= 30 A with the current slewing ~57 A/ms at 28 V; the stage therefore ends a plateau
+within ~half that (median 3e-4, p95 1.4e-3 rad).  The pulse torque is capped at
+``fine.peak_current_a`` (30 A; uncapped 36 A) -- a slower pulse, whose reached twist is measured
+and learned from -- and a plateau on which pulses carried the valve across the target
+``fine.max_crossings`` times is left alone: its moves are larger than the error, pulsing on
+would be hunting.
+
 All learned quantities are twists in rad *relative to* the nominal model's prediction
 ``(load(θ) ± T(Δp)) / K_nom``, so they stay meaningful across positions; they are the
 :class:`FineLearner`, which can be saved to and loaded from a JSON file.
