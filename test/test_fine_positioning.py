@@ -66,11 +66,20 @@ def test_fine_positioning_ends_plateaus_closer_than_the_deadband_does(robustness
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="issue 14 targets not reached by observer_fp yet: plateau final error "
-                   "p95 2.6e-3 (target 5e-4) -- a pulse that breaks the valve loose moves it >= ~1e-3 rad "
-                   "(the 3 ms fall of the gear output is slow against the valve's 6 ms half swing) -- and "
-                   "pulses draw ~36 A (target 30 A)")
+def test_fine_positioning_pulses_stay_within_their_current_cap(robustness_bench):
+    """The pulses are what draws the peak; capped at ``fine.peak_current_a`` (30 A, the issue's
+    target) they only get slower, and the campaign sample stays within it (36 A uncapped)."""
+    cap = CONTROLLER_SPEC.defaults()["fine.peak_current_a"]
+    runs = _campaign(robustness_bench, "observer_fp")
+    assert max(r["peak_current_a"] for r in runs) <= cap + 0.5     # + the current loop's ripple
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 14 plateau target not reached by observer_fp: nominal campaign "
+                   "(benchmarks/robustness.py --box nominal --runs 20 --mode observer_fp) final error median "
+                   "3.1e-4, p95 1.4e-3, max 2.5e-3 rad (target p95 5e-4, max 8e-4) -- a pulse that breaks the "
+                   "valve loose moves it >= ~1e-3 rad: the gear output (9x the valve's inertia) cannot retreat "
+                   "within the valve's 6 ms half swing at <= 30 A and the current's 57 A/ms slew at 28 V")
 def test_fine_positioning_meets_the_issue_targets(robustness_bench):
     fp = [pl["final_error_rad"] for r in _campaign(robustness_bench, "observer_fp") for pl in r["plateaus"]]
     assert np.percentile(fp, 95) <= 5e-4 and max(fp) <= 8e-4
-    assert max(r["peak_current_a"] for r in _campaign(robustness_bench, "observer_fp")) <= 30.0

@@ -19,6 +19,16 @@ is over in ~6 ms).  What works is acting *before* the valve moves:
    included), a pulse that did not move the valve raises ``φb``, one that did lowers it
    toward the peak that worked.  Both per direction and per Δp band, bounded.
 
+What limits it (measured, nominal plant at max Δp, ``benchmarks/robustness.py --box nominal``):
+a pulse that breaks the valve loose moves it 1.3-2.5e-3 rad when less is wanted, because the
+gear output (J1 = Jm N² = 9x the valve's inertia) cannot retreat within the valve's 6 ms half
+swing at <= 30 A with the current slewing ~57 A/ms at 28 V; the stage therefore ends a plateau
+within ~half that (median 3e-4, p95 1.4e-3 rad).  The pulse torque is capped at
+``fine.peak_current_a`` (30 A; uncapped 36 A) -- a slower pulse, whose reached twist is measured
+and learned from -- and a plateau on which pulses carried the valve across the target
+``fine.max_crossings`` times is left alone: its moves are larger than the error, pulsing on
+would be hunting.
+
 All learned quantities are twists in rad *relative to* the nominal model's prediction
 ``(load(θ) ± T(Δp)) / K_nom``, so they stay meaningful across positions; they are the
 :class:`FineLearner`, which can be saved to and loaded from a JSON file.
@@ -110,6 +120,11 @@ class FineConfig:
     max_pulses: int               # pulses per plateau before giving up (hold where it is)
     servo_hz: float               # bandwidth of the stiff gear-output hold
     max_move_rad: float           # larger errors are left to the main law
+    peak_current_a: float = math.inf  # the stage never asks for more current than this, A
+    max_crossings: int = 1000     # pulses that took the valve across the target, per plateau,
+                                  # before the stage holds (its moves are then larger than the error)
+    probe_step: float = 0.1       # a pulse that did not move the valve raises the breakaway this
+                                  # fraction of the static band beyond the twist it reached
 
 
 class FinePositioner:
@@ -134,6 +149,7 @@ class FinePositioner:
         self._last_target = None
         self._steady = 0
         self.pulses_this_plateau = 0
+        self.crossings_this_plateau = 0
 
     # ------------------------------------------------------------------ nominal twists
     def _nominal(self, thl: float, pressure_kpa: float, direction: int) -> tuple[float, float]:
@@ -171,9 +187,9 @@ class FinePositioner:
             err = target - thl
             if not holding or self._rest < cfg.engage_periods or self._steady < cfg.engage_periods \
                     or abs(err) <= cfg.tolerance_rad \
-                    or abs(err) > cfg.max_move_rad or self.pulses_this_plateau >= cfg.max_pulses:
+                    or abs(err) > cfg.max_move_rad or self._spent():
                 if not holding:
-                    self.pulses_this_plateau = 0
+                    self.pulses_this_plateau = self.crossings_this_plateau = 0
                 return None
             self._engage(target, th1, thl, torque_now, pressure_kpa)
         return self._run(th1, w1, thl, pressure_kpa)
@@ -223,7 +239,11 @@ class FinePositioner:
         ff = self._ff0 + m.coupling_stiffness_nm_per_rad * ((th1_ref - thl) - self._phi0) / n
         e = th1_ref - th1
         self._integral += e * self.period
-        return ff + (m.j1 * a_ref + self.kp * e + self.kd * (v_ref - w1) + self.ki * self._integral) / n
+        torque = ff + (m.j1 * a_ref + self.kp * e + self.kd * (v_ref - w1) + self.ki * self._integral) / n
+        # the pulse's acceleration is what draws the peak current: capped, the pulse is slower,
+        # not wrong (the twist it reached is measured and learned from)
+        cap = self.cfg.peak_current_a * m.torque_constant_nm_per_a
+        return min(max(torque, -cap), cap)
 
     @staticmethod
     def _blend(x0: float, x1: float, tau: float, length: float) -> tuple[float, float, float]:
@@ -267,6 +287,12 @@ class FinePositioner:
         # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
 
+    def _spent(self) -> bool:
+        """The plateau's pulses are used up, or the valve has crossed the target so often that
+        the moves the stage can make are evidently larger than the error left (pulsing on
+        would be hunting)."""
+        return self.pulses_this_plateau >= self.cfg.max_pulses or self.crossings_this_plateau >= self.cfg.max_crossings
+
     def _after_move(self, th1, thl, pressure_kpa, pulsed: bool):
         cfg, d, b = self.cfg, self._dir, self._band
         move = thl - self._thl0
@@ -287,11 +313,12 @@ class FinePositioner:
             self.learn.set("breakaway", d, b, curb + cfg.learn_gain * ((new_b - b0) - curb))
         elif pulsed:
             # the pulse did not move it: breakaway lies beyond the peak reached
-            new_b = d * max(d * (b0 + curb), d * self._peak_seen) + d * 0.1 * gap0
+            new_b = d * max(d * (b0 + curb), d * self._peak_seen) + d * cfg.probe_step * gap0
             self.learn.set("breakaway", d, b, new_b - b0)
         err = self._target - thl
-        if abs(err) <= cfg.tolerance_rad or self.pulses_this_plateau >= cfg.max_pulses \
-                or abs(err) > cfg.max_move_rad:
+        if d * err < 0.0:
+            self.crossings_this_plateau += 1
+        if abs(err) <= cfg.tolerance_rad or self._spent() or abs(err) > cfg.max_move_rad:
             self.phase = HOLD
             self._hold_ref = th1
             return

@@ -190,12 +190,18 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "half swing so the swing is the one planned", 0.001, 0.05, runtime=True),
     Param("fine.learn_gain", 0.7, "", "fraction of each measured correction taken into the learned twists",
           0.0, 1.0, runtime=True),
-    Param("fine.max_pulses", 6, "", "pulses per plateau before the stage holds where it is", 1, 1000,
+    Param("fine.max_pulses", 12, "", "pulses per plateau before the stage holds where it is", 1, 1000,
           runtime=True),
     Param("fine.servo_hz", 60.0, "Hz", "bandwidth of the stiff gear-output hold on the motor resolver",
           1.0, 200.0),
     Param("fine.max_move_rad", 0.02, "rad", "errors larger than this are left to the main law", 1e-4, 1.0,
           runtime=True),
+    Param("fine.peak_current_a", 30.0, "A", "the fine stage's torque is capped at this current (its pulses "
+          "are what draws the peak)", 1.0, 40.0, runtime=True),
+    Param("fine.max_crossings", 3, "", "pulses that took the valve across the target, per plateau, "
+          "before the stage holds where it is", 1, 1000, runtime=True),
+    Param("fine.probe_step", 0.1, "", "a pulse that did not move the valve raises the learned breakaway this "
+          "fraction of the static band beyond the twist it reached", 0.0, 1.0, runtime=True),
     Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "

@@ -182,7 +182,8 @@ class PositionController:
                           max(int(round(ps["fine.rise_time_s"] / per)), 1),
                           max(int(round(ps["fine.fall_time_s"] / per)), 1),
                           ps["fine.learn_gain"], ps["fine.max_pulses"],
-                          ps["fine.servo_hz"], ps["fine.max_move_rad"])
+                          ps["fine.servo_hz"], ps["fine.max_move_rad"], ps["fine.peak_current_a"],
+                          ps["fine.max_crossings"], ps["fine.probe_step"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
