@@ -68,6 +68,14 @@ STALL_REARM_PERIODS = 20
 #: a reset is refused until the inputs have been plausible for this long, s: an intermittent
 #: cause (a resolver noise burst, a flickering demand) must not be reset between two bad samples
 RESET_QUIET_S = 0.1
+#: a law replaced at run time (mode, a law parameter) mid-move hands a half-finished move to a
+#: law whose reference and estimators start afresh: alternating laws every 0.1 s during a
+#: 20-60 % sweep drove the valve 29-40 % past the demand in the offline simulator.  So a law
+#: replacement waits until the loop holds -- a steady demand and the valve within this of it,
+#: rad (0.5 % of stroke), for ``param_swap_periods`` periods in a row -- but at most
+#: :data:`PARAM_SWAP_MAX_WAIT_S` after it was first requested
+PARAM_SWAP_SETTLED_RAD = 5e-3
+PARAM_SWAP_MAX_WAIT_S = 1.0
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
 
@@ -142,7 +150,13 @@ class ValveDriver:
         #: the bumpless transfer's time constant, so a transfer has mostly settled before the
         #: next starts (mode-switch spam cannot stack transients)
         self.param_swap_periods = max(int(round(PositionController.TRANSFER_TIME_S / self.period)), 1)
+        #: ... and a law replacement waits for the loop to hold (:data:`PARAM_SWAP_SETTLED_RAD`,
+        #: that many periods in a row) but at most this many periods
+        self.param_swap_max_wait = max(int(round(PARAM_SWAP_MAX_WAIT_S / self.period)), 1)
         self._periods = 0                          # loop periods run (step calls)
+        self._pending_since = 0                    # period the waiting change was first requested
+        self._settled_periods = 0                  # periods in a row holding a steady demand
+        self._settled_demand: float | None = None
         self._last_swap = -self.param_swap_periods
         self.law_swaps = 0                         # laws replaced at run time (diagnostics)
 
@@ -192,6 +206,8 @@ class ValveDriver:
                     raise ValueError("parameter change prepared on a stale base; prepare it again")
                 if change.law is change.base.law:          # that law is in force already: keep it
                     change = replace(change, law=None, base=None)
+            if self._pending is None:             # spam cannot postpone the swap: the first request's time
+                self._pending_since = self._periods
             self._pending = change
 
     def set_params(self, changes: dict) -> None:
@@ -222,8 +238,12 @@ class ValveDriver:
             change = self._pending
             if change is None:
                 return False
-            if change.law is not None and not force and self._periods - self._last_swap < self.param_swap_periods:
-                return False
+            if change.law is not None and not force and self._armed:
+                if self._periods - self._last_swap < self.param_swap_periods:
+                    return False
+                settled = self._settled_periods >= self.param_swap_periods
+                if not settled and self._periods - self._pending_since < self.param_swap_max_wait:
+                    return False                  # mid-move: wait for the hold (or the longest wait)
             self._pending, self._last_committed = None, change
             self.ps = change.ps
             self.demand_filter.cfg = change.demand_cfg
@@ -512,6 +532,10 @@ class ValveDriver:
                                      dict(self.faults), dict(self.warnings))
             return self.last
         self._positions.append(self._meas.valve_rad)
+        steady = self._settled_demand is not None and abs(demand_rad - self._settled_demand) <= RESOLVER_COUNT_RAD
+        holding_now = steady and abs(demand_rad - self._meas.valve_rad) <= PARAM_SWAP_SETTLED_RAD
+        self._settled_periods = self._settled_periods + 1 if holding_now else 0
+        self._settled_demand = demand_rad
         self.last = DriverOutput(current, True, "holding" if holding else "running", self._demand_pct,
                                  position_pct, {}, dict(self.warnings))
         return self.last
