@@ -19,7 +19,11 @@ or in lockstep (``--lockstep``), optionally with ``--cpu-hog K`` busy-loop proce
 
 The last line printed is one JSON object.
 
-    python benchmarks/soak.py --minutes 10 [--lockstep] [--cpu-hog 1] [--domain 120]
+With ``--reset-faults`` an operator (:class:`Operator`) resets latched faults, so a fault at
+start-up (a loaded machine latches the 20 ms resolver timeout while the processes warm up)
+does not leave the rest of the soak with the drive off.
+
+    python benchmarks/soak.py --minutes 10 [--lockstep] [--cpu-hog 1] [--reset-faults] [--domain 120]
 """
 from __future__ import annotations
 
@@ -110,6 +114,53 @@ def valve_excess(bag_dir: Path) -> dict:
             "excess_over_2pct_samples": int((excess > 2.0).sum())}
 
 
+class Operator:
+    """``--reset-faults``: watches the controller's ``/diagnostics`` and, when it reports a
+    latched fault, calls ``~/reset`` (at most once a second), as an operator would after a
+    start-up transient; the faults and resets are counted, so the soak goes on measuring a
+    running loop instead of a closed valve."""
+
+    def __init__(self, ns: str, domain: int):
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from std_srvs.srv import Trigger
+        os.environ["ROS_DOMAIN_ID"] = str(domain)
+        self._rclpy, self._trigger = rclpy, Trigger
+        rclpy.init()
+        self.node = rclpy.create_node("soak_operator")
+        self.client = self.node.create_client(Trigger, f"{ns}/controller/reset")
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
+        self.ns, self.faulted, self.resets, self.refused = ns, False, 0, 0
+        self.faults: list[str] = []
+        self._last_try = 0.0
+        self._future = None
+
+    def _on_diag(self, msg) -> None:
+        for st in msg.status:
+            if st.name.startswith(f"{self.ns}/controller") and st.name.endswith("valve driver"):
+                was, self.faulted = self.faulted, st.level == bytes([2])
+                if self.faulted and not was:
+                    self.faults.append(st.message[:200])
+
+    def spin(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self._rclpy.spin_once(self.node, timeout_sec=0.05)
+            if self._future is not None and self._future.done():
+                res = self._future.result()
+                self.resets += bool(res and res.success)
+                self.refused += not (res and res.success)
+                self._future = None
+            if self.faulted and self._future is None and time.monotonic() - self._last_try > 1.0 \
+                    and self.client.service_is_ready():
+                self._last_try = time.monotonic()
+                self._future = self.client.call_async(self._trigger.Request())
+
+    def close(self) -> None:
+        self.node.destroy_node()
+        self._rclpy.shutdown()
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=10.0)
@@ -120,6 +171,8 @@ def main() -> int:
     parser.add_argument("--mode", default=None, help="controller mode (default: controller.yaml)")
     parser.add_argument("--domain", type=int, default=None,
                         help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else a random one in 100-200)")
+    parser.add_argument("--reset-faults", action="store_true",
+                        help="call the controller's ~/reset when it reports a latched fault (counted)")
     parser.add_argument("--keep", action="store_true", help="keep the run directory (logs, bag)")
     args = parser.parse_args()
     domain = args.domain if args.domain is not None else int(os.environ.get("ROS_DOMAIN_ID") or random.randint(100, 200))
@@ -131,6 +184,7 @@ def main() -> int:
     plan = plan_run(scenario, LOCKSTEP if args.lockstep else REAL_TIME, mode=args.mode)
     launcher = Launcher(plan, ns, run_dir=tmp, bag=tmp / "bag", bag_storage=args.storage, env=env,
                         observers=1 if args.lockstep else 0)
+    operator = None
     hogs = [subprocess.Popen([sys.executable, "-c", HOG]) for _ in range(args.cpu_hog)]
     rss: dict[str, list] = {n: [] for n in NODES}
     times: list[float] = []
@@ -145,9 +199,12 @@ def main() -> int:
             launcher.start_gate()
         else:
             launcher.start()
+        operator = Operator(ns, domain) if args.reset_faults else None
         t0 = time.monotonic()
         next_sample = t0
         while True:
+            if operator is not None:
+                operator.spin(0.2)
             now = time.monotonic()
             if now >= next_sample:
                 times.append(now - t0)
@@ -164,6 +221,8 @@ def main() -> int:
                 break
             time.sleep(min(1.0, args.sample_s))
         wall = time.monotonic() - t0
+        if operator is not None:
+            operator.close()
         died = [n for n in launcher.failed() if n != "plant" or not args.lockstep]
     finally:
         codes = launcher.stop(grace_s=20.0)
@@ -196,6 +255,8 @@ def main() -> int:
                                                                  for n, s in rss.items()}},
         "drive_disablements": len(disabled), "fault_messages": sorted(set(f for f in disabled if f))[:10],
         "plant_watchdog_trips": plant_diag.get("watchdog_trips"),
+        "operator_resets": None if operator is None else operator.resets,
+        "operator_faults_seen": None if operator is None else operator.faults[:10],
         "valve_excess_max_pct": excess["excess_max_pct"], "valve_excess": excess,
         "bag_lost": rec["lost"], "bag_queue_dropped": rec["queue_dropped"], "bag_messages": rec["bag_messages"],
         "bag_topics": rec["topics"],

@@ -160,6 +160,16 @@ class ValveDriver:
         self._last_swap = -self.param_swap_periods
         self.law_swaps = 0                         # laws replaced at run time (diagnostics)
 
+    def __getstate__(self):
+        """Copyable (``copy.deepcopy``, pickle): the parameter lock is not state."""
+        state = self.__dict__.copy()
+        del state["_param_lock"]
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._param_lock = threading.Lock()
+
     # ------------------------------------------------------------------ parameters
     def check_params(self, changes: dict) -> ParamSet:
         """The parameter set ``changes`` would give, with the law it would need built as a trial;
