@@ -85,6 +85,13 @@ def _set(probe, node, name, value):
     assert results[0].successful, results[0].reason
 
 
+def _set_controller(probe, controller, name, value):
+    """Set and wait for the loop to swap the change in (the controller queues an accepted
+    change for a period boundary; a law replacement waits for a hold, at most 1 s: issue 13)."""
+    _set(probe, "controller", name, value)
+    probe.wait_for(lambda: not controller.driver.params_pending, 30.0, f"the swap of {name}")
+
+
 def _runtime(spec):
     return [p.name for p in spec if p.runtime]
 
@@ -98,7 +105,7 @@ def test_controller_runtime_parameter_takes_effect(suite, name):
         law, old = controller.driver.controller.law, controller.driver.ps[name]
         law_reads = name == "mode" or name in controller.driver.controller.law_params
     try:
-        _set(probe, "controller", name, value)
+        _set_controller(probe, controller, name, value)
         with controller._lock:
             ctl = controller.driver.controller
             assert controller.driver.ps[name] == value and ctl.ps[name] == value
@@ -109,7 +116,7 @@ def test_controller_runtime_parameter_takes_effect(suite, name):
             if name.startswith("limits."):
                 assert ctl.current_limits[0] == ctl.ps["limits.peak_current_a"]
     finally:
-        _set(probe, "controller", name, old)
+        _set_controller(probe, controller, name, old)
 
 
 @pytest.mark.parametrize("name", _runtime(PLANT_SPEC))

@@ -33,8 +33,9 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from ..common.contract import (NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_HIGH_MA, NE43_USABLE_LOW_MA,
                                 PERCENT_FAIL_MARGIN, PRESSURE_MAX_KPA, RESOLVER_COUNT_RAD, ma_to_percent)
@@ -68,6 +69,14 @@ STALL_REARM_PERIODS = 20
 #: a reset is refused until the inputs have been plausible for this long, s: an intermittent
 #: cause (a resolver noise burst, a flickering demand) must not be reset between two bad samples
 RESET_QUIET_S = 0.1
+#: a law replaced at run time (mode, a law parameter) mid-move hands a half-finished move to a
+#: law whose reference and estimators start afresh: alternating laws every 0.1 s during a
+#: 20-60 % sweep drove the valve 29-40 % past the demand in the offline simulator.  So a law
+#: replacement waits until the loop holds -- a steady demand and the valve within this of it,
+#: rad (0.5 % of stroke), for ``param_swap_periods`` periods in a row -- but at most
+#: :data:`PARAM_SWAP_MAX_WAIT_S` after it was first requested
+PARAM_SWAP_SETTLED_RAD = 5e-3
+PARAM_SWAP_MAX_WAIT_S = 1.0
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
 
@@ -138,36 +147,131 @@ class ValveDriver:
         self.inhibited = False
         #: NE107 status and duty counters (:mod:`.health`), updated every period
         self.valve_health = ValveHealth(self.ps)
+        #: run-time parameter changes (:meth:`prepare_params`/:meth:`request_params`): the one
+        #: waiting for its swap, and a lock held only while a change is prepared or swapped
+        self._pending: ParamChange | None = None
+        self._last_committed: ParamChange | None = None
+        self._param_lock = threading.Lock()
+        #: at least this many periods between two law replacements requested at run time:
+        #: the bumpless transfer's time constant, so a transfer has mostly settled before the
+        #: next starts (mode-switch spam cannot stack transients)
+        self.param_swap_periods = max(int(round(PositionController.TRANSFER_TIME_S / self.period)), 1)
+        #: ... and a law replacement waits for the loop to hold (:data:`PARAM_SWAP_SETTLED_RAD`,
+        #: that many periods in a row) but at most this many periods
+        self.param_swap_max_wait = max(int(round(PARAM_SWAP_MAX_WAIT_S / self.period)), 1)
+        self._periods = 0                          # loop periods run (step calls)
+        self._pending_since = 0                    # period the waiting change was first requested
+        self._settled_periods = 0                  # periods in a row holding a steady demand
+        self._settled_demand: float | None = None
+        self._last_swap = -self.param_swap_periods
+        self.law_swaps = 0                         # laws replaced at run time (diagnostics)
+
+    def __getstate__(self):
+        """Copyable (``copy.deepcopy``, pickle): the parameter lock is not state."""
+        state = self.__dict__.copy()
+        del state["_param_lock"]
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._param_lock = threading.Lock()
 
     # ------------------------------------------------------------------ parameters
     def check_params(self, changes: dict) -> ParamSet:
         """The parameter set ``changes`` would give, with the law it would need built as a trial;
         raises (``ConfigError``/``ValueError``) if a value is invalid or not changeable at run
         time.  Changes nothing (the controller node's validation step)."""
-        return self._prepare(changes)[0]
+        return self.prepare_params(changes).ps
 
-    def _prepare(self, changes: dict):
-        new = self.ps.replace(changes)
-        fixed = [k for k in changes if not CONTROLLER_SPEC.params[k].runtime and new[k] != self.ps[k]]
-        if fixed:
-            raise ValueError(f"{', '.join(fixed)} cannot change at run time")
-        check_tighten_only(self.startup_ps, changes)
-        check_consistency(new)
-        return new, self.controller.prepare(new)
+    def prepare_params(self, changes: dict) -> ParamChange:
+        """Validate ``changes`` and build everything they need (the new law, if the mode or a
+        parameter the law in force was built from changes) without touching the running loop:
+        for the parameter callback (or any thread but the loop's).  Raises
+        (``ConfigError``/``ValueError``, or whatever the design code raises for a value it
+        cannot use) if the set is invalid; then nothing changes.
+
+        Changes are relative to the latest *requested* set (:meth:`request_params`) when one is
+        still waiting for its swap, so requests compose and the last one wins."""
+        with self._param_lock:
+            base = self._pending
+            base_ps = base.ps if base is not None else self.ps
+            new = base_ps.replace(changes)
+            fixed = [k for k in changes if not CONTROLLER_SPEC.params[k].runtime and new[k] != base_ps[k]]
+            if fixed:
+                raise ValueError(f"{', '.join(fixed)} cannot change at run time")
+            check_tighten_only(self.startup_ps, changes)
+            check_consistency(new)
+            names = base.law_names if base is not None else self.controller.law_params
+            if new["mode"] == base_ps["mode"] and all(new[k] == base_ps[k] for k in names):
+                law = base.law if base is not None else None      # the law in force (or waiting) stays
+            else:
+                law = self.controller.build_law(new)
+                names = law[1]
+            return ParamChange(new, demand_filter_config(new), law, names, base)
+
+    def request_params(self, change: ParamChange) -> None:
+        """Queue a prepared change for the loop: :meth:`step` swaps it in at the start of a
+        period (cheap: no law is built there), at most one law replacement per
+        :attr:`param_swap_periods` periods; a later request replaces a waiting one (it was
+        prepared on top of it, so it includes its changes: the last request wins).  A change
+        prepared on another base than the one waiting now is refused (``ValueError``), unless
+        that base has been swapped in meanwhile (then the change applies on top of it)."""
+        with self._param_lock:
+            if change.base is not self._pending:
+                if change.base is None or change.base is not self._last_committed or self._pending is not None:
+                    raise ValueError("parameter change prepared on a stale base; prepare it again")
+                if change.law is change.base.law:          # that law is in force already: keep it
+                    change = replace(change, law=None, base=None)
+            if self._pending is None:             # spam cannot postpone the swap: the first request's time
+                self._pending_since = self._periods
+            self._pending = change
 
     def set_params(self, changes: dict) -> None:
-        """Apply run-time parameter changes atomically: everything is validated and the new law
-        (if one is needed) built first; only then is anything swapped.  On error nothing
-        changes.  Every run-time parameter takes effect: the driver reads its own (demand,
-        fault, pressure) from the new set every period, the current limits are reconfigured,
-        and the law is rebuilt -- bumplessly, from the last applied torque -- whenever a
-        parameter it was built from (or the mode) changes."""
-        new, prepared = self._prepare(changes)
-        demand_cfg = demand_filter_config(new)
-        self.ps = new
-        self.demand_filter.cfg = demand_cfg
-        self.valve_health.configure(new)
-        self.controller.reconfigure(new, self._meas if self._armed else None, self.pressure_kpa, prepared)
+        """Apply run-time parameter changes at once, atomically: everything is validated and
+        the new law (if one is needed) built first (:meth:`prepare_params`); only then is
+        anything swapped.  On error nothing changes.  Every run-time parameter takes effect:
+        the driver reads its own (demand, fault, pressure) from the new set every period, the
+        current limits are reconfigured, and the law is rebuilt -- bumplessly, from the last
+        applied torque -- whenever a parameter it was built from (or the mode) changes.  (The
+        offline simulator's events; the node queues changes for the loop with
+        :meth:`prepare_params` + :meth:`request_params` instead.)"""
+        self.request_params(self.prepare_params(changes))
+        self._commit_params(force=True)
+
+    @property
+    def params_pending(self) -> bool:
+        """A requested change is waiting for its swap."""
+        return self._pending is not None
+
+    def _commit_params(self, force: bool = False) -> bool:
+        """Swap a waiting change in (loop thread, start of a period): a few assignments and the
+        new law's bumpless reset; a law replacement waits until :attr:`param_swap_periods`
+        periods have passed since the last one (``force``: the synchronous :meth:`set_params`).
+        Never blocks: while another thread is preparing a change the swap waits a period."""
+        if self._pending is None or not self._param_lock.acquire(blocking=False):
+            return False
+        try:
+            change = self._pending
+            if change is None:
+                return False
+            if change.law is not None and not force and self._armed:
+                if self._periods - self._last_swap < self.param_swap_periods:
+                    return False
+                settled = self._settled_periods >= self.param_swap_periods
+                if not settled and self._periods - self._pending_since < self.param_swap_max_wait:
+                    return False                  # mid-move: wait for the hold (or the longest wait)
+            self._pending, self._last_committed = None, change
+            self.ps = change.ps
+            self.demand_filter.cfg = change.demand_cfg
+            self.valve_health.configure(change.ps)
+            self.controller.reconfigure(change.ps, self._meas if self._armed else None, self.pressure_kpa,
+                                        change.law)
+            if change.law is not None:
+                self._last_swap = self._periods
+                self.law_swaps += 1
+            return True
+        finally:
+            self._param_lock.release()
 
     # ------------------------------------------------------------------ inputs
     @_guarded
@@ -394,6 +498,8 @@ class ValveDriver:
             return self._fail_safe_output(position)
 
     def _step(self, t: float) -> DriverOutput:
+        self._periods += 1
+        self._commit_params()                     # a waiting parameter change: swap at the boundary
         ps = self.ps
         if self._armed and self._t is not None and t - self._t > STALL_REARM_PERIODS * self.period:
             self._armed = False                   # stalled: re-arm below from the measurement
@@ -458,6 +564,10 @@ class ValveDriver:
                                      dict(self.faults), dict(self.warnings))
             return self.last
         self._positions.append(self._meas.valve_rad)
+        steady = self._settled_demand is not None and abs(demand_rad - self._settled_demand) <= RESOLVER_COUNT_RAD
+        holding_now = steady and abs(demand_rad - self._meas.valve_rad) <= PARAM_SWAP_SETTLED_RAD
+        self._settled_periods = self._settled_periods + 1 if holding_now else 0
+        self._settled_demand = demand_rad
         self.last = DriverOutput(current, True, "holding" if holding else "running", self._demand_pct,
                                  position_pct, {}, dict(self.warnings))
         return self.last
@@ -520,6 +630,7 @@ class ValveDriver:
             "pressure_source": "fallback" if self._dp is None else "measured",
             "i2t_budget_used": self.controller.i2t_budget_fraction,
             "stall_rearms": self.stall_rearms,
+            "law_swaps": self.law_swaps, "params_pending": self.params_pending,
             "faults": ",".join(out.faults) or "none", "warnings": ",".join(out.warnings) or "none",
         }
         values.update(self.demand_filter.state())
@@ -528,6 +639,18 @@ class ValveDriver:
         for key, value in (law.learned_state() or {}).items():
             values[key] = json.dumps(value) if isinstance(value, (dict, list)) else value
         return Health(level, message, values)
+
+
+@dataclass(frozen=True)
+class ParamChange:
+    """A validated run-time parameter change, built off the loop and waiting for its swap
+    (:meth:`ValveDriver.prepare_params`)."""
+
+    ps: ParamSet                       # the whole parameter set after the change
+    demand_cfg: DemandFilterConfig     # its demand conditioning
+    law: tuple | None                  # (law, names it read) to install; None: the law stays
+    law_names: frozenset               # parameters the law in force after the swap was built from
+    base: "ParamChange | None" = field(default=None, repr=False)   # the waiting change it builds on
 
 
 #: the baselines stay honest: the existing analog driver has no demand conditioning

@@ -16,6 +16,7 @@ physical parameters in ``config/controller.yaml`` (``model.*``), never typed in 
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -126,7 +127,14 @@ class NominalModel:
         read ~2 rad/s of phantom velocity per N*m of unmodelled friction).
 
         Returns (A, Bu, Bd, C) with ``Bd`` the known valve-load input (as in :meth:`discrete`).
+        Computed once per (model, period) and cached (fresh copies each call): a law rebuilt at
+        run time (mode or parameter change) then costs no matrix exponential; uncached, the two
+        ``expm`` calls took 12-36 ms on a loaded machine, 12-36 loop periods (issue 13, defect 6).
         """
+        return tuple(m.copy() for m in _observer_model(self, float(period_s)))
+
+    def _observer_model(self, period_s: float):
+        """:meth:`observer_model`, uncached."""
         ad, bu, bd, cm = self.discrete(period_s)
         a, _, _, _ = self.continuous()
         dist = np.array([[0.0, 0.0], [-1.0 / self.j1, 0.0], [0.0, 0.0], [0.0, -1.0 / self.valve_inertia_kgm2]])
@@ -158,6 +166,17 @@ class NominalModel:
         """Static state holding the valve at ``valve_angle`` against the known load, and the
         motor torque (N*m) that holds it."""
         return self.reference_state(valve_angle, 0.0, 0.0, pressure_kpa)
+
+
+@functools.lru_cache(maxsize=16)
+def _observer_model(model: NominalModel, period_s: float):
+    """Cache of :meth:`NominalModel.observer_model` (the model is frozen, so hashable)."""
+    return model._observer_model(period_s)
+
+
+def observer_model_builds() -> int:
+    """Uncached discretisations for law builds so far (tests count the loop thread's work)."""
+    return _observer_model.cache_info().misses
 
 
 def zoh(a: np.ndarray, b: np.ndarray, period_s: float) -> tuple[np.ndarray, np.ndarray]:

@@ -229,18 +229,16 @@ class PositionController:
             self._started = False
             self._outgoing, self._transfer = None, 0.0
 
-    def prepare(self, ps: ParamSet) -> tuple[ControlLaw, frozenset[str]] | None:
-        """What :meth:`reconfigure` to ``ps`` would install: a new law (and the names it read)
-        if the mode or a parameter the present law was built from changes, else ``None``.
-        Changes nothing; raises if the law cannot be built."""
-        if ps["mode"] == self.ps["mode"] and all(ps[k] == self.ps[k] for k in self.law_params):
-            return None
+    def build_law(self, ps: Mapping[str, Any]) -> tuple[ControlLaw, frozenset[str]]:
+        """A new law for ``ps["mode"]`` built from ``ps`` and the parameter names it read;
+        changes nothing (any thread: it reads only the model, the designs and the learner).
+        Raises if the law cannot be built."""
         return self._make_law(ps["mode"], ps)
 
     def reconfigure(self, ps: ParamSet, meas: Measurement | None, pressure_kpa: float,
                     prepared: tuple[ControlLaw, frozenset[str]] | None) -> bool:
         """Adopt run-time parameters ``ps``: current limits at once; the law ``prepared`` by
-        :meth:`prepare` for ``ps`` (``None``: the present law stays) is installed, bumplessly
+        :meth:`build_law` for ``ps`` (``None``: the present law stays) is installed, bumplessly
         from the last applied torque when ``meas`` is given.  Building first and swapping here
         keeps a change atomic.  Returns whether the law was replaced."""
         new_law = prepared

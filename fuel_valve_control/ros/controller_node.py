@@ -126,6 +126,7 @@ class ControllerNode(LifecycleNode):
         self._last_save = time.monotonic()
         self._reset_loop_state()
         self._bad_messages = 0
+        self._prepared = None          # (changes, ParamChange) validated in on-set, queued in post-set
         self._last_enable = None
         self._level = 0
         self._loop_timers = []
@@ -495,17 +496,30 @@ class ControllerNode(LifecycleNode):
 
     # ------------------------------------------------------------------ parameters
     def check_parameters(self, changes: dict) -> None:
-        """Validation only (on-set): raises ``ValueError`` for a change the driver would refuse
-        (a rejection, not a fault: not :func:`locked`'s fail-safe)."""
-        with self._lock:
-            if self.driver is not None:     # unconfigured: configure reads and validates them
-                self.driver.check_params(changes)
+        """Validation (on-set): validate and build the new law (:meth:`ValveDriver.prepare_params`)
+        without the loop's lock: nothing the loop uses is touched, so a period is never held up
+        behind a build.  Raises ``ValueError`` for a change the driver would refuse (a
+        rejection, not a fault: not :func:`locked`'s fail-safe).  Unconfigured (no driver):
+        nothing to check here, ``configure`` reads and validates the parameters."""
+        if self.driver is None:
+            self._prepared = None
+            return
+        self._prepared = (changes, self.driver.prepare_params(changes))
 
-    @locked
     def apply_parameters(self, changes: dict) -> None:
-        """After acceptance (post-set): the driver swaps in the new set (and law) atomically."""
-        if self.driver is not None:
-            self.driver.set_params(changes)
+        """After acceptance (post-set): queue the prepared change; the loop swaps it in at the
+        start of a period (atomic, bumpless, at most one law replacement per
+        ``driver.param_swap_periods`` periods, the last request wins)."""
+        prepared, self._prepared = self._prepared, None
+        if self.driver is None:             # unconfigured: configure reads the new values
+            return
+        try:
+            if prepared is None or prepared[0] != changes:        # not the change validated: redo
+                prepared = (changes, self.driver.prepare_params(changes))
+            self.driver.request_params(prepared[1])
+        except Exception as exc:           # noqa: BLE001 - accepted but not applicable: fail safe
+            with self._lock:
+                self.fail_safe("apply_parameters", exc)
 
     # ------------------------------------------------------------------ diagnostics
     @locked

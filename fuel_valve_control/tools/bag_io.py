@@ -98,7 +98,7 @@ def bag_directory(path: str | Path) -> Path:
     if not (p / "metadata.yaml").is_file():
         files = [q.name for q in p.iterdir() if q.suffix in (".mcap", ".db3")]
         hint = (f" (it holds {', '.join(files)} but no metadata.yaml: an unfinished recording? "
-                "'ros2 bag reindex' can rebuild it)") if files else ""
+                f"'recorder --reindex {p}' rebuilds it)") if files else ""
         raise BagError(f"{str(path)!r} is not a rosbag2 bag: no metadata.yaml{hint}")
     return p
 

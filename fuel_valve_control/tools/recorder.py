@@ -72,6 +72,10 @@ RECORDER_SPEC = ParamSpec("recorder", [
     Param("overwrite", False, "", "replace an existing bag at output (never a non-bag directory)"),
     Param("storage", "mcap", "", "rosbag2 storage plugin", choices=STORAGES),
 ])
+#: the bag reaches the disk at least this often, s: the sqlite3 transaction is committed and the
+#: MCAP chunk being filled is closed and flushed (:func:`flush_storage`), so a SIGKILL loses at
+#: most this much and ``recorder --reindex`` recovers the rest
+FLUSH_INTERVAL_S = 0.25
 #: longest time spent, after a stop request, taking messages that are already queued, s
 DRAIN_LIMIT_S = 0.5
 #: the drain ends once no message arrived for this long, s
@@ -200,6 +204,29 @@ def set_ros_distro(metadata: Path, distro: str = ROS_DISTRO) -> None:
         tmp.replace(metadata)
 
 
+def flush_storage(writer) -> bool:
+    """Put what ``writer`` (an open rosbags ``Writer``) has written so far on the disk: commit
+    the sqlite3 transaction, or close the MCAP chunk being filled and flush the file.
+
+    rosbags' public API has no flush or commit (its sqlite3 storage commits once, at close; its
+    MCAP storage closes a chunk per MiB): this reaches into the writer's storage object
+    (``Writer.storage``: the sqlite3 ``conn`` / the MCAP ``chunk``, ``close_chunk()`` and ``bio``
+    of rosbags 0.10-0.11).  Returns False, changing nothing, when those are not there (another
+    rosbags version): the bag is then only complete after a clean close, as before."""
+    storage = getattr(writer, "storage", None)
+    conn = getattr(storage, "conn", None)
+    if conn is not None and hasattr(conn, "commit"):
+        conn.commit()
+        return True
+    chunk, bio = getattr(storage, "chunk", None), getattr(storage, "bio", None)
+    if chunk is not None and bio is not None and hasattr(storage, "close_chunk"):
+        if chunk.bio.tell():
+            storage.close_chunk()
+        bio.flush()
+        return True
+    return False
+
+
 class BagWriterThread:
     """Writes ``(topic, receive time, CDR bytes)`` items to the bag on its own thread.
 
@@ -248,8 +275,13 @@ class BagWriterThread:
             return
         self._ready.set()
         try:
+            flushed = time.monotonic()
             while not self._stop.wait(self.POLL_S):
                 self._write_queued(writer)
+                if time.monotonic() - flushed >= FLUSH_INTERVAL_S:
+                    flushed = time.monotonic()
+                    if not flush_storage(writer):
+                        flushed = float("inf")       # not supported by this rosbags: stop trying
             self._write_queued(writer)
             for topic in self._topics:
                 if topic.connection is None:   # subscribed but nothing arrived: still listed, count 0
@@ -402,9 +434,36 @@ class Recorder(Node):
         return {t.name: t.count for t in self._topics.values()}
 
 
+def reindex_main(argv: list[str]) -> int:
+    """``recorder --reindex <bag dir> [--force]``: rebuild a killed recording's metadata.yaml
+    (:mod:`.bag_recovery`).  Exit codes: 0 rebuilt, 2 nothing recoverable (printed)."""
+    import argparse
+    import json
+    from .bag_recovery import RecoveryError, reindex
+    parser = argparse.ArgumentParser(prog="recorder --reindex", description="rebuild metadata.yaml (and an MCAP "
+                                     "footer) of a bag whose recorder was killed")
+    parser.add_argument("bag", help="bag directory holding one .mcap or .db3 file")
+    parser.add_argument("--force", action="store_true", help="rebuild even if metadata.yaml exists")
+    ns = parser.parse_args(argv)
+    try:
+        summary = reindex(ns.bag, force=ns.force)
+    except RecoveryError as exc:
+        print(f"recorder --reindex: {exc}", file=sys.stderr)
+        return 2
+    print(f"reindexed {summary['file']}: {summary['message_count']} messages in {len(summary['topics'])} topics"
+          + (f", {summary['repaired_bytes_cut']} bytes of a torn last record cut" if summary["repaired_bytes_cut"]
+             else ""))
+    print(json.dumps(summary))
+    return 0
+
+
 def main(args=None) -> int:
     """Record until SIGINT / SIGTERM.  Exit codes: 0 ok, 1 bag could not be finalised,
-    2 configuration error (printed on stderr)."""
+    2 configuration error (printed on stderr).  ``recorder --reindex <bag>``: see
+    :func:`reindex_main`."""
+    argv = list(sys.argv[1:] if args is None else args[1:])
+    if argv[:1] == ["--reindex"]:
+        return reindex_main(argv[1:])
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
