@@ -19,7 +19,8 @@ Launch arguments:
   valve has a clock of its own: every node of the launch gets the remapping
   ``/clock:=/<namespace>/clock``, so several valves launched side by side (one launch per
   ``namespace``) each run their own deterministic lockstep.
-* ``record`` -- ``true``: also start the ``recorder`` node, writing the bag ``bag``.
+* ``record`` -- ``true``: also start the ``recorder`` node, writing the bag ``bag``; plant,
+  controller and demand get ``wait_for_recorder: true`` (they publish once it has matched).
 * ``bag`` -- recorder ``output`` directory (default ``fuel_valve_bag``).
 * ``demand_profile`` -- overrides the demand node's ``profile`` (empty: the one in
   ``config/demand.yaml``).
@@ -79,6 +80,9 @@ def _nodes(context, *args, **kwargs):
         plant['lockstep_participants'] = 3 if record else 2
         for params in (controller, demand, recorder):
             params['use_sim_time'] = True
+    if record:     # publish once the recorder matched (tools/launcher.recording_parameters)
+        for params in (plant, controller, demand):
+            params['wait_for_recorder'] = True
     if mode:
         controller['mode'] = mode
     if profile:

@@ -288,3 +288,12 @@ def to_ros_yaml(spec: ParamSpec, values: Mapping[str, Any] | None = None, header
         note = f"{p.description}; {p.range_text()}" + ("; run-time" if p.runtime else "")
         lines.append(f"    {'  ' * (len(parts) - 1)}{parts[-1]}: {text}  # {note}")
     return "\n".join(lines) + "\n"
+
+
+#: the node parameter every publishing node of the suite (plant, controller, demand) shares:
+#: when a recorder is part of the run (the launcher sets it), the node holds its first publish
+#: until the recorder's subscriptions to its topics have matched
+#: (:class:`fuel_valve_control.ros.interface.RecorderGate`), so the bag holds every message
+WAIT_FOR_RECORDER = Param("wait_for_recorder", False, "", "hold publishing until the run's recorder node (same "
+                          "namespace) has matched every topic of this node it records, at most 20 s of wall "
+                          "time, so no message is lost to discovery")

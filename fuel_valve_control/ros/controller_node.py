@@ -21,7 +21,6 @@ command published before that would be lost, and the run would stall).
 """
 from __future__ import annotations
 
-import collections
 import functools
 import math
 import threading
@@ -105,8 +104,8 @@ class ControllerNode(Node):
             ri.quiet_subscription(self, Float64MultiArray, contract.DRIVE, self.on_drive)
         self._decimation = node_ps["telemetry_decimation"]
         self._periods = 0
-        #: messages published per loop topic (reported at exit: benchmarks compare bag counts)
-        self.published = collections.Counter()
+        #: messages published per topic (printed at exit) and the recorder hold (wait_for_recorder)
+        self.recorder_gate = ri.RecorderGate(self, node_ps["wait_for_recorder"])
         self._compute = ComputeTime()
         self.create_service(Trigger, "~/trip", self.on_trip)
         self.create_service(Trigger, "~/reset", self.on_reset)
@@ -152,15 +151,16 @@ class ControllerNode(Node):
             self.run_period(sample)
 
     def _loop_matched(self) -> bool:
-        """Lockstep: the command publisher has matched the plant (checked until it has once)."""
+        """Lockstep: the command publisher has matched the plant (checked until it has once) and
+        the recorder, when the run has one, has matched this node's topics (``recorder_gate``)."""
         if not self._command_matched:
             self._command_matched = self.pub_current.get_subscription_count() >= 1
-        return self._command_matched
+        return self._command_matched and self.recorder_gate.is_open
 
     @locked
     def _run_when_matched(self) -> None:
         """Lockstep: run a period that was ready but held back for the command's match."""
-        if self._command_matched and self._periods:
+        if self._command_matched and self.recorder_gate.is_open and self._periods:
             self._match_timer.cancel()               # matched for good: the timer's job is done
         elif self._pending_sample is not None and self._fresh_demand and self._loop_matched():
             sample, self._pending_sample = self._pending_sample, None
@@ -199,6 +199,8 @@ class ControllerNode(Node):
             if not self._fresh_demand or not self._loop_matched():
                 self._pending_sample = sample       # wait for this period's demand (or the match)
                 return
+        elif not self.recorder_gate.is_open:
+            return                                  # real time: the loop closes once recorded
         self.run_period(sample)
 
     # ------------------------------------------------------------------ loop
@@ -236,6 +238,8 @@ class ControllerNode(Node):
         try:
             self.pub_enable.publish(self._bool(data=False))
             self.pub_current.publish(self._float(data=0.0))
+            self.recorder_gate.count(contract.DRIVE_ENABLE)
+            self.recorder_gate.count(contract.CURRENT_COMMAND)
             self._last_enable = False
         except Exception:                   # noqa: BLE001 - context gone: the plant's watchdog acts
             pass
@@ -245,13 +249,14 @@ class ControllerNode(Node):
         out = self.driver.step(t)
         if out.enable != self._last_enable:       # latched topic: publish changes only, before
             self.pub_enable.publish(self._bool(data=bool(out.enable)))   # the command it applies to
+            self.recorder_gate.count(contract.DRIVE_ENABLE)
         self.pub_current.publish(self._float(data=float(out.current_a)))
-        self.published[contract.CURRENT_COMMAND] += 1
+        self.recorder_gate.count(contract.CURRENT_COMMAND)
         self._periods += 1
         if self._periods % self._decimation == 0:
             if out.position_pct is not None:
                 self.pub_position.publish(self._float(data=float(out.position_pct)))
-                self.published[contract.POSITION] += 1
+                self.recorder_gate.count(contract.POSITION)
             est = self.driver.controller.estimate()
             sec = int(t)
             stamp = self._time(sec=sec, nanosec=int((t - sec) * 1e9)) if self.lockstep \
@@ -259,7 +264,7 @@ class ControllerNode(Node):
             self.pub_estimate.publish(ri.joint_state(
                 stamp, (est.motor_angle, est.valve_angle), (est.motor_velocity, est.valve_velocity),
                 (est.motor_friction_nm, est.valve_friction_nm)))
-            self.published[contract.ESTIMATE] += 1
+            self.recorder_gate.count(contract.ESTIMATE)
         if out.enable != self._last_enable:
             if self._last_enable is not None:
                 # one call site per severity: rclpy refuses a site that changes severity
@@ -305,6 +310,8 @@ class ControllerNode(Node):
     # ------------------------------------------------------------------ diagnostics
     @locked
     def publish_diagnostics(self) -> None:
+        if not self.recorder_gate.is_open:
+            return
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
         try:
             h = self.driver.health()
@@ -319,6 +326,7 @@ class ControllerNode(Node):
         msg = DiagnosticArray(status=[st])
         msg.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(msg)
+        self.recorder_gate.count(contract.DIAGNOSTICS)
         if h.level != self._level:
             self.get_logger().info(f"status {LEVEL_NAMES[h.level]}: {h.message}")
             self._level = h.level

@@ -168,3 +168,100 @@ def read_spec(node, spec, names: Iterable[str] | None = None) -> dict:
         value = node.get_parameter(p.name).value
         out[p.name] = list(value) if p.kind is list else value
     return out
+
+
+# --- recording ----------------------------------------------------------------------------------
+#: name of the recorder node (tools/recorder.py) a :class:`RecorderGate` waits for
+RECORDER_NODE = "recorder"
+
+
+class RecorderGate:
+    """Counts what a node publishes per topic and, with ``wait`` (the node's
+    ``wait_for_recorder`` parameter: a recorder is part of the run), holds the node's
+    publishing until the run's recorder has matched.
+
+    Why: a volatile sample published before the recorder's subscription has matched the
+    publisher never reaches the bag, so a recorded run would lose its first messages to
+    discovery.  The gate :attr:`is_open` once (checked every ``CHECK_S`` on a steady timer,
+    graph queries never on the hot path):
+
+    * the recorder node of this namespace is in the graph with its subscriptions, and for
+      every publisher of this node whose topic it records, the publisher has matched every
+      subscription discovery shows on that topic (``get_subscription_count()``);
+    * that has held for :data:`SETTLE_S` (endpoint discovery of the recorder's participant
+      arrives over a few ms, and the reader side matches a little after the writer side);
+    * or, never stalling a run, after :data:`TIMEOUT_S` of wall time without it (logged).
+
+    Without ``wait`` it is open from the start.  :meth:`count` records every publish in
+    :attr:`published` and, while the gate is still closed, in :attr:`before_recorder`
+    (messages the recorder may legitimately miss: start-up, not loss); the node runner prints
+    both at exit and ``benchmarks/ros_loop.py --record`` compares them with the bag.
+    Relative topic names are counted as such, absolute ones (``/diagnostics``) as they are.
+    """
+
+    CHECK_S = 0.05
+    SETTLE_S = 0.5
+    TIMEOUT_S = 20.0
+
+    def __init__(self, node, wait: bool):
+        import collections
+        import threading
+        import time
+        self._node = node
+        self._time = time.monotonic
+        self.published = collections.Counter()
+        self.before_recorder = collections.Counter()
+        self.opened = threading.Event()       # the plant's loop thread waits on it
+        self._since = self._time()
+        self._ready_since = None
+        self._timer = None
+        if not wait:
+            self.opened.set()
+            return
+        from rclpy.clock import Clock, ClockType
+        # steady time: in lockstep simulated time stands still until the loop starts
+        self._timer = node.create_timer(self.CHECK_S, self._check, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    @property
+    def is_open(self) -> bool:
+        return self.opened.is_set()
+
+    def count(self, topic: str) -> None:
+        """One message published on ``topic``."""
+        self.published[topic] += 1
+        if not self.opened.is_set():
+            self.before_recorder[topic] += 1
+
+    def _recorded_publishers_matched(self) -> bool:
+        node = self._node
+        try:
+            recorded = {name for name, _ in node.get_subscriber_names_and_types_by_node(
+                RECORDER_NODE, node.get_namespace())}
+        except Exception:                   # noqa: BLE001 - rclpy raises when the node is not (yet) known
+            return False
+        if not recorded:
+            return False
+        for pub in node.publishers:
+            topic = pub.topic_name
+            if topic in recorded and pub.get_subscription_count() < node.count_subscribers(topic):
+                return False
+        return True
+
+    def _check(self) -> None:
+        if self.opened.is_set():
+            return
+        now = self._time()
+        if not self._recorded_publishers_matched():
+            self._ready_since = None
+            if now - self._since > self.TIMEOUT_S:
+                self._open(f"no recorder matched within {self.TIMEOUT_S:g} s: publishing anyway")
+            return
+        if self._ready_since is None:
+            self._ready_since = now
+        elif now - self._ready_since >= self.SETTLE_S:
+            self._open(f"recorder matched after {now - self._since:.2f} s: publishing")
+
+    def _open(self, why: str) -> None:
+        self._timer.cancel()
+        self.opened.set()
+        self._node.get_logger().info(why)

@@ -16,6 +16,8 @@ writes the same lockstep wiring and ``test/test_launch_file.py`` checks it again
   so two valves side by side in lockstep neither tick on each other's clock nor count each
   other's participants;
 * environment: the caller's plus ``env`` (e.g. ``ROS_DOMAIN_ID``), unbuffered output;
+* recording wiring: with a bag, the plant, controller and demand hold their first publish until
+  the recorder has matched (:func:`recording_parameters`), so the bag holds everything they send;
 * logs: ``<run_dir>/<node>.log`` (stdout and stderr);
 * stop: SIGINT (publishers first, the recorder last, so the bag holds all they sent), then SIGTERM,
   then SIGKILL for what hangs; the exit codes are returned.
@@ -48,6 +50,8 @@ MODULES = {"plant": "fuel_valve_plant.ros.plant_node", "controller": "fuel_valve
            "demand": "fuel_valve_control.ros.demand_node", "recorder": "fuel_valve_control.tools.recorder"}
 #: nodes that subscribe to /clock in lockstep (besides observers); the plant publishes it
 CLOCK_NODES = ("controller", "demand")
+#: nodes whose publishing waits for the run's recorder to match (:func:`recording_parameters`)
+PUBLISHING_NODES = ("plant", "controller", "demand")
 #: stop order: the publishers first (demand, then the loop), the recorder last, so it drains and
 #: records everything they published before it closes the bag
 STOP_ORDER = ("demand", "controller", "plant", "recorder")
@@ -72,6 +76,13 @@ def clock_participants(record: bool, observers: int = 0) -> int:
     """Distinct nodes subscribed to /clock in a lockstep run (what the plant waits for):
     controller and demand, the recorder when recording, plus ``observers``."""
     return len(CLOCK_NODES) + (1 if record else 0) + observers
+
+
+def recording_parameters(node: str, record: bool) -> dict:
+    """Recording wiring of ``node``: with a recorder in the run, the publishing nodes hold their
+    first publish until it has matched (``wait_for_recorder``, see
+    :class:`fuel_valve_control.ros.interface.RecorderGate`), so the bag loses nothing to discovery."""
+    return {"wait_for_recorder": True} if record and node in PUBLISHING_NODES else {}
 
 
 def clock_topic(namespace: str) -> str:
@@ -167,6 +178,7 @@ class Launcher:
         """What ``name``'s parameter file holds: the plan's node parameters and the clock wiring."""
         params = dict(self._node_params.get(name, {}))
         params.update(lockstep_parameters(name, self.lockstep, self.clock_participants()))
+        params.update(recording_parameters(name, self.bag is not None))
         return params
 
     def start(self, names=None) -> None:

@@ -48,7 +48,6 @@ Drive faults (the drive's own protection, independent of the controller; reporte
 """
 from __future__ import annotations
 
-import collections
 import functools
 import json
 import threading
@@ -131,8 +130,6 @@ class PlantNode(Node):
         self._command_rejected = False
         self._bad_commands = 0
         self.stats = LoopStats()
-        #: messages published per loop topic (reported at exit: benchmarks compare bag counts)
-        self.published = collections.Counter()
         self._got_command = False
         self._last_publish_mono = None
         # drive protection (module docstring): watchdog and internal-error latch
@@ -151,6 +148,8 @@ class PlantNode(Node):
         self.pub_pressure = ri.quiet_publisher(self, Float64, contract.PRESSURE_DIFFERENTIAL)
         self._float = Float64
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
+        #: messages published per topic (printed at exit) and the recorder hold (wait_for_recorder)
+        self.recorder_gate = ri.RecorderGate(self, node_ps["wait_for_recorder"])
         # the loop's inputs, taken by the node runner's executor; drive_enable first: in
         # lockstep a command steps the plant at once, with the enable state it applies to
         ri.quiet_subscription(self, Bool, contract.DRIVE_ENABLE, self.on_enable)
@@ -246,7 +245,10 @@ class PlantNode(Node):
 
     # ------------------------------------------------------------------ timing
     def realtime_loop(self) -> None:
-        """Real-time mode: tick every period on a sleep-until schedule."""
+        """Real-time mode: tick every period on a sleep-until schedule (from the moment the
+        recorder, if the run has one, has matched: :class:`~fuel_valve_control.ros.interface.RecorderGate`)."""
+        while self._running and not self.recorder_gate.opened.wait(0.05):
+            pass
         last = time.monotonic()
         next_tick = last + self.period
         while self._running:
@@ -281,8 +283,8 @@ class PlantNode(Node):
 
     def try_start(self) -> None:
         """Lockstep: start once the controller (and the other participants) are connected."""
-        if self._started:                # a call already queued when the timer was cancelled
-            return
+        if self._started or not self.recorder_gate.is_open:   # a queued call after the cancel;
+            return                                            # the recorder still matching
         clock = self.pub_clock.topic_name           # /clock as remapped: the valve's own clock
         clock_nodes = {(i.node_namespace, i.node_name) for i in self.get_subscriptions_info_by_topic(clock)}
         # the graph (what discovery has seen) and the publishers' matched subscriptions (what a
@@ -347,14 +349,14 @@ class PlantNode(Node):
         dp = self.plant.pressure_sample()
         if dp is not None:        # first: in lockstep the controller uses it this very period
             self.pub_pressure.publish(self._float(data=dp))
-            self.published[contract.PRESSURE_DIFFERENTIAL] += 1
+            self.recorder_gate.count(contract.PRESSURE_DIFFERENTIAL)
         sample = self.plant.resolver()
         self._got_command = False
         self._last_publish_mono = time.monotonic()
         if sample is not None:
             resolver = ri.joint_state(stamp, (sample.motor_rad, sample.valve_rad))
             self.pub_resolver.publish(resolver)
-            self.published[contract.RESOLVER] += 1
+            self.recorder_gate.count(contract.RESOLVER)
             if self.lockstep:
                 self._tick_msgs += ((self.pub_resolver, resolver),)
         truth = self.plant.truth()
@@ -362,8 +364,8 @@ class PlantNode(Node):
             stamp, (truth.motor_angle, truth.valve_angle), (truth.motor_velocity, truth.valve_velocity),
             (truth.electromagnetic_torque, truth.coupling_torque)))
         self.pub_drive.publish(ri.labelled_array(contract.TELEMETRY_LABELS, self.plant.telemetry()))
-        self.published[contract.JOINT_STATES] += 1
-        self.published[contract.DRIVE] += 1
+        self.recorder_gate.count(contract.JOINT_STATES)
+        self.recorder_gate.count(contract.DRIVE)
 
     # ------------------------------------------------------------------ parameters
     @guarded
@@ -377,6 +379,8 @@ class PlantNode(Node):
 
     @guarded
     def publish_diagnostics(self) -> None:
+        if not self.recorder_gate.is_open:
+            return
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
         s = self.stats.summary()
         st = DiagnosticStatus(name=f"{self.get_fully_qualified_name()}: loop", hardware_id="fuel_valve_plant")
@@ -404,6 +408,7 @@ class PlantNode(Node):
         msg = DiagnosticArray(status=[st])
         msg.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(msg)
+        self.recorder_gate.count(contract.DIAGNOSTICS)
 
 
 def main(args=None) -> int:
