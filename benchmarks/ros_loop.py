@@ -60,50 +60,12 @@ from fuel_valve_control.tools.scenarios import load_scenario, parse_scenario
 #: the demand: a slow sine around 40 %, so the valve keeps moving
 DEMAND = {"type": "sine", "offset": 40.0, "amplitude": 5.0, "frequency_hz": 0.5}
 NS = "/fuel_valve_bench"
-PUBLISHERS = ("plant", "controller", "demand")
 
 
 def cpu_seconds(pid: int) -> float:
     """user + system CPU seconds of a live process (from /proc)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def _counts(log_text: str, label: str) -> dict[str, int]:
-    found = re.findall(rf"\] {label}: (\{{.*\}})", log_text)
-    return json.loads(found[-1]) if found else {}
-
-
-def published_counts(log_text: str) -> tuple[dict[str, int], dict[str, int]]:
-    """``({topic: published}, {topic: published before the recorder matched})`` from a node's
-    exit lines (node_runner), relative names as the node counted them."""
-    return _counts(log_text, "published"), _counts(log_text, "published before the recorder matched")
-
-
-def recorder_report(bag: Path, launcher: Launcher, ns: str) -> dict:
-    """Per topic: published (the nodes' exit counts, summed; relative names in ``ns``) vs in
-    the bag (metadata.yaml), split into start-up losses and real losses."""
-    import yaml
-    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    in_bag = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
-    published: dict[str, int] = {}
-    before: dict[str, int] = {}
-    for name in PUBLISHERS:
-        pub, pre = published_counts(launcher.log(name))
-        for counts, into in ((pub, published), (pre, before)):
-            for topic, n in counts.items():
-                full = topic if topic.startswith("/") else f"{ns}/{topic}"
-                into[full] = into.get(full, 0) + n
-    topics = {}
-    for t, n in sorted(published.items()):
-        bag_n, pre = in_bag.get(t, 0), before.get(t, 0)
-        missing = max(0, n - bag_n)
-        topics[t] = {"published": n, "before_match": pre, "in_bag": bag_n,
-                     "startup_lost": min(pre, missing), "lost": max(0, missing - pre)}
-    dropped = re.findall(r"closed: \d+ messages, (\d+) dropped", launcher.log("recorder"))
-    return {"topics": topics, "lost": sum(v["lost"] for v in topics.values()),
-            "startup_lost": sum(v["startup_lost"] for v in topics.values()),
-            "queue_dropped": int(dropped[-1]) if dropped else None, "bag_messages": meta["message_count"]}
 
 
 def profile_report(profile_dir: Path, periods: int, top: int = 8) -> dict:
@@ -207,7 +169,7 @@ def run_real_time(args, record: bool, domain: int, tmp: Path) -> dict:
         "load_average": os.getloadavg()[0],
     }
     if record:
-        rec = recorder_report(launcher.bag, launcher, NS)
+        rec = launcher.recording_losses()
         result.update(recorder_lost=rec["lost"], recorder_startup_lost=rec["startup_lost"],
                       recorder_queue_dropped=rec["queue_dropped"], recorder_topics=rec["topics"],
                       bag_messages=rec["bag_messages"])

@@ -254,7 +254,7 @@ class RecorderGate:
         if not self._recorded_publishers_matched():
             self._ready_since = None
             if now - self._since > self.TIMEOUT_S:
-                self._open(f"no recorder matched within {self.TIMEOUT_S:g} s: publishing anyway")
+                self._open(f"recorder still unmatched after {self.TIMEOUT_S:g} s: publishing anyway")
             return
         if self._ready_since is None:
             self._ready_since = now

@@ -26,6 +26,7 @@ No rclpy and no simulator imports here (only subprocesses and parameter files).
 """
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -276,6 +277,41 @@ class Launcher:
             return yaml.safe_load(m.group(1).replace("'", '"'))
         except yaml.YAMLError:
             return None
+
+    def published_counts(self) -> dict[str, dict[str, int]]:
+        """``{topic: {"published": n, "before_match": m}}`` summed over the publishing nodes'
+        exit lines (node_runner: every message each sent, and how many before the run's
+        recorder had matched), topics fully qualified in this run's namespace."""
+        out: dict[str, dict[str, int]] = {}
+        for name in PUBLISHING_NODES:
+            log = self.log(name)
+            for key, label in (("published", "published"), ("before_match", "published before the recorder matched")):
+                found = re.findall(rf"\] {label}: (\{{.*\}})", log)
+                for topic, n in (json.loads(found[-1]) if found else {}).items():
+                    full = topic if topic.startswith("/") else f"{self.namespace}/{topic}"
+                    entry = out.setdefault(full, {"published": 0, "before_match": 0})
+                    entry[key] += n
+        return out
+
+    def recording_losses(self) -> dict:
+        """Per topic, what the nodes published against what the bag's metadata.yaml holds (call
+        after :meth:`stop`): ``lost`` = published - in bag - published before the recorder
+        matched (never below 0: a real loss), ``startup_lost`` = what the bag misses of the
+        messages published before the match.  Also the totals and the recorder's own queue
+        drops (its closing summary)."""
+        meta = yaml.safe_load((self.bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        in_bag = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
+        topics = {}
+        for topic, c in sorted(self.published_counts().items()):
+            if topic not in in_bag:
+                continue                    # not recorded (a topic list without it)
+            missing = max(0, c["published"] - in_bag[topic])
+            topics[topic] = dict(c, in_bag=in_bag[topic], startup_lost=min(c["before_match"], missing),
+                                 lost=max(0, missing - c["before_match"]))
+        dropped = re.findall(r"closed: \d+ messages, (\d+) dropped", self.log("recorder"))
+        return {"topics": topics, "lost": sum(v["lost"] for v in topics.values()),
+                "startup_lost": sum(v["startup_lost"] for v in topics.values()),
+                "queue_dropped": int(dropped[-1]) if dropped else None, "bag_messages": meta["message_count"]}
 
     def __enter__(self):
         return self
