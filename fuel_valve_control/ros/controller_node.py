@@ -86,11 +86,12 @@ class ControllerNode(Node):
         from std_srvs.srv import Trigger
         from builtin_interfaces.msg import Time
         self._float, self._bool, self._time = Float64, Bool, Time
-        self.pub_current = ri.quiet_publisher(self, Float64, contract.CURRENT_COMMAND)
-        self.pub_enable = ri.quiet_publisher(self, Bool, contract.DRIVE_ENABLE)
-        self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION)
-        self.pub_estimate = ri.quiet_publisher(self, JointState, contract.ESTIMATE)
-        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
+        rec = node_ps["wait_for_recorder"]          # a recorder in the run: deep writer histories
+        self.pub_current = ri.quiet_publisher(self, Float64, contract.CURRENT_COMMAND, recorded=rec)
+        self.pub_enable = ri.quiet_publisher(self, Bool, contract.DRIVE_ENABLE, recorded=rec)
+        self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION, recorded=rec)
+        self.pub_estimate = ri.quiet_publisher(self, JointState, contract.ESTIMATE, recorded=rec)
+        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=rec)
         # one lock serialises the driver between callbacks: the node runner spins one thread
         # today, and a multi-threaded executor must not change the driver's behaviour
         self._lock = threading.Lock()

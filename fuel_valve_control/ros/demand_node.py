@@ -41,8 +41,9 @@ class DemandNode(Node):
         self.lockstep = self.ps["lockstep"]
         from std_msgs.msg import Float64
         self._msg_type = Float64
-        self.pub_pct = ri.quiet_publisher(self, Float64, contract.DEMAND)
-        self.pub_ma = ri.quiet_publisher(self, Float64, contract.DEMAND_MA)
+        rec = self.ps["wait_for_recorder"]          # a recorder in the run: deep writer histories
+        self.pub_pct = ri.quiet_publisher(self, Float64, contract.DEMAND, recorded=rec)
+        self.pub_ma = ri.quiet_publisher(self, Float64, contract.DEMAND_MA, recorded=rec)
         self.t0 = None
         ri.handle_parameter_changes(self, DEMAND_NODE_SPEC, self.check_parameters, self.apply_parameters)
         self._pending_tick = None

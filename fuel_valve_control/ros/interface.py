@@ -13,6 +13,7 @@ loop measured worse with 100 in one comparison; recorders keep deep reader queue
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import Iterable, Sequence
 
@@ -27,13 +28,20 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=R
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 TELEMETRY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.VOLATILE)
+#: writer history of a volatile topic while a recorder is part of the run (``wait_for_recorder``):
+#: samples a starved recorder has not acknowledged yet, which DDS re-sends once it runs again.
+#: The 1 kHz topics times the worst stall of the recorder process seen on the loaded 2-core
+#: machine (a few hundred ms): with depth 1 or 10 a reliable keep-last writer overwrites the
+#: unacknowledged sample and the bag misses it.  The loop's readers still keep only the newest.
+RECORDED_WRITER_DEPTH = 1000
 
 
-def quiet_publisher(node, msg_type, topic: str, qos: QoSProfile | None = None):
+def quiet_publisher(node, msg_type, topic: str, qos: QoSProfile | None = None, recorded: bool = False):
     """A publisher without rclpy's default QoS-event handlers: each handler is one more entity
-    in every executor wait, and in a 1 kHz loop that overhead is most of the cost."""
+    in every executor wait, and in a 1 kHz loop that overhead is most of the cost.
+    ``recorded``: a recorder is part of the run (:func:`qos_for`)."""
     from rclpy.event_handler import PublisherEventCallbacks
-    return node.create_publisher(msg_type, topic, qos or qos_for(topic),
+    return node.create_publisher(msg_type, topic, qos or qos_for(topic, recorded),
                                  event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
 
 
@@ -44,13 +52,17 @@ def quiet_subscription(node, msg_type, topic: str, callback, qos: QoSProfile | N
                                     event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
 
 
-def qos_for(topic: str) -> QoSProfile:
-    """The QoS profile of one of the suite's topics (by its relative name)."""
-    if topic in c.LOOP_TOPICS:
-        return LOOP_QOS
+def qos_for(topic: str, recorded: bool = False) -> QoSProfile:
+    """The QoS profile of one of the suite's topics (by its relative name; anything else, e.g.
+    ``/clock``, is telemetry).  ``recorded`` (a publisher's, while a recorder is in the run):
+    volatile topics keep :data:`RECORDED_WRITER_DEPTH` samples for the recorder's re-sends."""
     if topic in c.LATCHED_TOPICS:
         return LATCHED_QOS
-    return TELEMETRY_QOS
+    base = LOOP_QOS if topic in c.LOOP_TOPICS else TELEMETRY_QOS
+    if recorded:
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=RECORDED_WRITER_DEPTH,
+                          reliability=base.reliability, durability=base.durability)
+    return base
 
 
 # --- messages ----------------------------------------------------------------------------------
@@ -78,12 +90,22 @@ def joint_values(msg, field: str = "position") -> dict[str, float]:
 def labelled_array(labels: Iterable[str], values: Sequence[float]):
     """``std_msgs/Float64MultiArray`` whose layout has one dimension per entry, labelled with
     the entry's name (size 1, stride 1), so readers can find values by name."""
-    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+    from std_msgs.msg import Float64MultiArray
     msg = Float64MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label=label, size=1, stride=1) for label in labels]
-    msg.layout.data_offset = 0
+    msg.layout = _layout(tuple(labels))
     msg.data = [float(v) for v in values]
     return msg
+
+
+@functools.lru_cache(maxsize=16)
+def _layout(labels: tuple[str, ...]):
+    """The ``MultiArrayLayout`` of :func:`labelled_array`, built once per label set: the plant
+    publishes one array per period, and building its 13 dimension messages each time cost more
+    than the publish's Python side (cProfile of a lockstep run, benchmarks/ros_loop.py
+    --profile).  Shared read-only: nothing changes a published message's layout."""
+    from std_msgs.msg import MultiArrayDimension, MultiArrayLayout
+    return MultiArrayLayout(dim=[MultiArrayDimension(label=label, size=1, stride=1) for label in labels],
+                            data_offset=0)
 
 
 def array_values(msg) -> dict[str, float]:

@@ -142,12 +142,13 @@ class PlantNode(Node):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Bool, Float64, Float64MultiArray
         from diagnostic_msgs.msg import DiagnosticArray
-        self.pub_resolver = ri.quiet_publisher(self, JointState, contract.RESOLVER)
-        self.pub_truth = ri.quiet_publisher(self, JointState, contract.JOINT_STATES)
-        self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, contract.DRIVE)
-        self.pub_pressure = ri.quiet_publisher(self, Float64, contract.PRESSURE_DIFFERENTIAL)
+        rec = node_ps["wait_for_recorder"]          # a recorder in the run: deep writer histories
+        self.pub_resolver = ri.quiet_publisher(self, JointState, contract.RESOLVER, recorded=rec)
+        self.pub_truth = ri.quiet_publisher(self, JointState, contract.JOINT_STATES, recorded=rec)
+        self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, contract.DRIVE, recorded=rec)
+        self.pub_pressure = ri.quiet_publisher(self, Float64, contract.PRESSURE_DIFFERENTIAL, recorded=rec)
         self._float = Float64
-        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
+        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=rec)
         #: messages published per topic (printed at exit) and the recorder hold (wait_for_recorder)
         self.recorder_gate = ri.RecorderGate(self, node_ps["wait_for_recorder"])
         # the loop's inputs, taken by the node runner's executor; drive_enable first: in
@@ -160,7 +161,7 @@ class PlantNode(Node):
             from builtin_interfaces.msg import Time
             from rosgraph_msgs.msg import Clock
             self._clock_msg, self._time_msg = Clock, Time     # built every period: resolve once
-            self.pub_clock = ri.quiet_publisher(self, Clock, contract.CLOCK, ri.TELEMETRY_QOS)
+            self.pub_clock = ri.quiet_publisher(self, Clock, contract.CLOCK, recorded=rec)
             self._started = False
             self._waiting_since = time.monotonic()
             self._participants = node_ps["lockstep_participants"]
