@@ -108,6 +108,40 @@ def _layout(labels: tuple[str, ...]):
                             data_offset=0)
 
 
+class LabelledArrayCdr:
+    """The serialized (CDR) :func:`labelled_array` of a fixed label set, for
+    ``Publisher.publish(bytes)`` (rclpy's public raw publish): the same bytes as publishing the
+    message, without converting its constant layout (one string per label) on every publish.
+
+    The plant publishes its 13-value ``drive`` telemetry every period; converting that message
+    cost it more than any other publish (benchmarks/ros_loop.py --profile).  The bytes are the
+    serialized message of a probe, up to its data, followed by the values packed as
+    little-endian doubles; the constructor checks, for two probes, that they have the length
+    of ``serialize_message``'s and deserialise to the same message (alignment padding is not
+    compared: the serializer leaves it uninitialised), so the layout is verified, not assumed.
+    """
+
+    def __init__(self, labels: Sequence[str]):
+        import struct
+        from rclpy.serialization import deserialize_message, serialize_message
+        from std_msgs.msg import Float64MultiArray
+        self.labels = tuple(labels)
+        self._pack = struct.Struct(f"<{len(self.labels)}d").pack
+        probes = [tuple(0.5 + k for k in range(len(self.labels))), tuple(-1e-3 * k for k in range(len(self.labels)))]
+        tail = len(self._pack(*probes[0]))
+        ref = serialize_message(labelled_array(self.labels, probes[0]))
+        self._prefix = ref[:len(ref) - tail]
+        for probe in probes:
+            msg = labelled_array(self.labels, probe)
+            data = self(probe)
+            if len(serialize_message(msg)) != len(data) or deserialize_message(data, Float64MultiArray) != msg:
+                raise ValueError("labelled_array: this middleware's CDR differs from the packed layout")
+
+    def __call__(self, values: Sequence[float]) -> bytes:
+        """CDR bytes of ``labelled_array(labels, values)``."""
+        return self._prefix + self._pack(*values)
+
+
 def array_values(msg) -> dict[str, float]:
     """Decode :func:`labelled_array` (works on rclpy and rosbags message objects)."""
     labels = [d.label for d in msg.layout.dim]

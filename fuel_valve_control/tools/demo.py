@@ -103,6 +103,11 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
             codes = suite.stop()
             summary["exit_codes"] = codes
             summary["loop"] = suite.loop_statistics()
+            if bag is not None and codes.get("recorder") in CLEAN_EXIT_CODES:
+                try:
+                    summary["recording"] = suite.recording_losses()
+                except (OSError, KeyError, TypeError, ValueError):    # no readable metadata.yaml
+                    summary["recording"] = None
     finally:
         final = monitor.status_line(plan.duration_s)
         summary.update(final_status=final, worst_level=monitor.worst_level, faults=monitor.fault_messages,
@@ -151,6 +156,14 @@ def print_summary(summary: dict, out=sys.stdout) -> None:
               f"99 % within {loop['rtt_p99_ms']:.3f} ms (a period is 1 ms)", file=out)
     if loop and summary["lockstep"]:
         print(f"loop: {loop.get('commands')} control periods in lockstep", file=out)
+    rec = summary.get("recording")
+    if rec:
+        missing = {t.rsplit('/', 1)[-1]: v["published"] - v["in_bag"] for t, v in rec["topics"].items()
+                   if v["published"] != v["in_bag"]}
+        published = sum(v["published"] for v in rec["topics"].values())
+        print(f"recording: {rec['bag_messages']} messages in the bag; of the {published} the nodes published on "
+              f"the recorded topics " + (f"{sum(missing.values())} are missing ({missing})" if missing else
+                                         "none is missing"), file=out)
     print(f"node logs: {summary.get('run_dir')}", file=out, flush=True)
 
 

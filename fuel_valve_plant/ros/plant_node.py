@@ -146,6 +146,7 @@ class PlantNode(Node):
         self.pub_resolver = ri.quiet_publisher(self, JointState, contract.RESOLVER, recorded=rec)
         self.pub_truth = ri.quiet_publisher(self, JointState, contract.JOINT_STATES, recorded=rec)
         self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, contract.DRIVE, recorded=rec)
+        self._drive_cdr = ri.LabelledArrayCdr(contract.TELEMETRY_LABELS)   # serialized: see its docstring
         self.pub_pressure = ri.quiet_publisher(self, Float64, contract.PRESSURE_DIFFERENTIAL, recorded=rec)
         self._float = Float64
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=rec)
@@ -162,6 +163,7 @@ class PlantNode(Node):
             from rosgraph_msgs.msg import Clock
             self._clock_msg, self._time_msg = Clock, Time     # built every period: resolve once
             self.pub_clock = ri.quiet_publisher(self, Clock, contract.CLOCK, recorded=rec)
+            self._clock_topic = self.pub_clock.topic_name       # as remapped (the valve's own clock)
             self._started = False
             self._waiting_since = time.monotonic()
             self._participants = node_ps["lockstep_participants"]
@@ -326,8 +328,9 @@ class PlantNode(Node):
                 or time.monotonic() - self._last_publish_mono < LOCKSTEP_RESEND_S):
             return
         self._last_publish_mono = time.monotonic()      # next copy after another timeout
-        for pub, msg in self._tick_msgs:
+        for pub, msg, topic in self._tick_msgs:
             pub.publish(msg)
+            self.recorder_gate.count(topic)
         self.republished += 1
         self.get_logger().info(f"lockstep: no command for t = {self.plant.time:.3f} s within "
                                f"{LOCKSTEP_RESEND_S:g} s: tick re-published", throttle_duration_sec=5.0)
@@ -344,7 +347,8 @@ class PlantNode(Node):
             stamp = self._time_msg(sec=sec, nanosec=int(round((t - sec) * 1e9)))
             clock = self._clock_msg(clock=stamp)
             self.pub_clock.publish(clock)
-            self._tick_msgs = ((self.pub_clock, clock),)
+            self.recorder_gate.count(self._clock_topic)
+            self._tick_msgs = ((self.pub_clock, clock, self._clock_topic),)
         else:
             stamp = self.get_clock().now().to_msg()
         dp = self.plant.pressure_sample()
@@ -359,12 +363,12 @@ class PlantNode(Node):
             self.pub_resolver.publish(resolver)
             self.recorder_gate.count(contract.RESOLVER)
             if self.lockstep:
-                self._tick_msgs += ((self.pub_resolver, resolver),)
+                self._tick_msgs += ((self.pub_resolver, resolver, contract.RESOLVER),)
         truth = self.plant.truth()
         self.pub_truth.publish(ri.joint_state(
             stamp, (truth.motor_angle, truth.valve_angle), (truth.motor_velocity, truth.valve_velocity),
             (truth.electromagnetic_torque, truth.coupling_torque)))
-        self.pub_drive.publish(ri.labelled_array(contract.TELEMETRY_LABELS, self.plant.telemetry()))
+        self.pub_drive.publish(self._drive_cdr(self.plant.telemetry()))
         self.recorder_gate.count(contract.JOINT_STATES)
         self.recorder_gate.count(contract.DRIVE)
 
