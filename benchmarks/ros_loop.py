@@ -17,7 +17,7 @@ Variants (each run ``--repeat`` times, interleaved, so a change of machine load 
 * ``plain``: plant + controller + demand;
 * ``record`` (``--record``, or both with ``--both``): the ``recorder`` too (started first,
   stopped last, every suite topic, MCAP, as the launcher and main job run it; the nodes
-  publish once it has matched, ``wait_for_recorder``).  Per topic: the messages the nodes
+  publish once it has matched, ``recorded_topics``).  Per topic: the messages the nodes
   published (each node prints its counts at exit, and how many of them went out before the
   recorder had matched) against the messages in the bag's metadata.  ``lost`` = published -
   in bag - published before the match (never below 0); ``startup`` = what the bag misses of

@@ -4,7 +4,7 @@ and ``benchmarks/ros_loop.py --record`` run it.
 
 Every publishing node counts what it sends per topic and prints it at exit (node_runner);
 with a recorder in the run they hold their first publish until it has matched
-(``wait_for_recorder``, ``interface.RecorderGate``), and the launcher stops the publishers
+(``recorded_topics``, ``interface.RecorderGate``), and the launcher stops the publishers
 first and the recorder last (it drains, then closes the bag).  So the bag's metadata must
 hold exactly what was published, topic by topic: no start-up loss, no loss in the run, no
 queue drop.  The run is short and the test waits on conditions, not on the clock's speed.

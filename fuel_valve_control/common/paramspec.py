@@ -291,9 +291,13 @@ def to_ros_yaml(spec: ParamSpec, values: Mapping[str, Any] | None = None, header
 
 
 #: the node parameter every publishing node of the suite (plant, controller, demand) shares:
-#: when a recorder is part of the run (the launcher sets it), the node holds its first publish
-#: until the recorder's subscriptions to its topics have matched
-#: (:class:`fuel_valve_control.ros.interface.RecorderGate`), so the bag holds every message
-WAIT_FOR_RECORDER = Param("wait_for_recorder", False, "", "hold publishing until the run's recorder node (same "
-                          "namespace) has matched every topic of this node it records, at most 20 s of wall "
-                          "time, so no message is lost to discovery")
+#: when a recorder is part of the run (the launcher and the launch file set it to what it
+#: records), the node holds its first publish until the recorder's subscriptions to those of
+#: its topics have matched (:class:`fuel_valve_control.ros.interface.RecorderGate`), so the bag
+#: holds every message.  ``[""]``: no recorder (a string list needs a non-empty default)
+#: ``recorded_topics`` entry meaning "every topic of the node" (the recorder's default list)
+ALL_TOPICS = "*"
+RECORDED_TOPICS = Param("recorded_topics", [""], "", "topics the run's recorder node (same namespace) records: "
+                        "'*' = every topic, else names (relative ones follow the namespace); [''] = no "
+                        "recorder.  The node publishes once the recorder has matched each of its topics in "
+                        "the list (at most 20 s of wall time), so no message is lost to discovery")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ..common.config_dir import default_config_dir
 from ..common.contract import PRESSURE_MAX_KPA, STROKE_RAD
-from ..common.paramspec import WAIT_FOR_RECORDER, ConfigError, Param, ParamSet, ParamSpec
+from ..common.paramspec import RECORDED_TOPICS, ConfigError, Param, ParamSet, ParamSpec
 
 MODES = ("pi", "pi_dither", "observer", "observer_fc", "kalman_fc", "fc_gain", "observer_ff", "observer_fp")
 DEFAULT_MODE = "observer_ff"  # best measured (README table); SPEC named observer_fc
@@ -269,7 +269,7 @@ CONTROLLER_NODE_PARAMS = (
           "take-over of a valve already held by a drive (the plant's start_held)", -40.0, 40.0),
     Param("monitor_drive_telemetry", False, "", "subscribe to the plant's drive telemetry for the "
           "measured-current check (one more 1 kHz subscription)"),
-    WAIT_FOR_RECORDER,
+    RECORDED_TOPICS,
 )
 CONTROLLER_NODE_SPEC = CONTROLLER_SPEC.extended(CONTROLLER_NODE_PARAMS)
 

@@ -86,12 +86,14 @@ class ControllerNode(Node):
         from std_srvs.srv import Trigger
         from builtin_interfaces.msg import Time
         self._float, self._bool, self._time = Float64, Bool, Time
-        rec = node_ps["wait_for_recorder"]          # a recorder in the run: deep writer histories
-        self.pub_current = ri.quiet_publisher(self, Float64, contract.CURRENT_COMMAND, recorded=rec)
-        self.pub_enable = ri.quiet_publisher(self, Bool, contract.DRIVE_ENABLE, recorded=rec)
-        self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION, recorded=rec)
-        self.pub_estimate = ri.quiet_publisher(self, JointState, contract.ESTIMATE, recorded=rec)
-        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=rec)
+        recorded = ri.recorded_topics(node_ps["recorded_topics"])
+
+        deep = bool(recorded)                 # a recorder in the run: deep writer histories
+        self.pub_current = ri.quiet_publisher(self, Float64, contract.CURRENT_COMMAND, recorded=deep)
+        self.pub_enable = ri.quiet_publisher(self, Bool, contract.DRIVE_ENABLE, recorded=deep)
+        self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION, recorded=deep)
+        self.pub_estimate = ri.quiet_publisher(self, JointState, contract.ESTIMATE, recorded=deep)
+        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=deep)
         # one lock serialises the driver between callbacks: the node runner spins one thread
         # today, and a multi-threaded executor must not change the driver's behaviour
         self._lock = threading.Lock()
@@ -105,8 +107,8 @@ class ControllerNode(Node):
             ri.quiet_subscription(self, Float64MultiArray, contract.DRIVE, self.on_drive)
         self._decimation = node_ps["telemetry_decimation"]
         self._periods = 0
-        #: messages published per topic (printed at exit) and the recorder hold (wait_for_recorder)
-        self.recorder_gate = ri.RecorderGate(self, node_ps["wait_for_recorder"])
+        #: messages published per topic (printed at exit) and the recorder hold (recorded_topics)
+        self.recorder_gate = ri.RecorderGate(self, recorded)
         self._compute = ComputeTime()
         self.create_service(Trigger, "~/trip", self.on_trip)
         self.create_service(Trigger, "~/reset", self.on_reset)

@@ -41,16 +41,18 @@ class DemandNode(Node):
         self.lockstep = self.ps["lockstep"]
         from std_msgs.msg import Float64
         self._msg_type = Float64
-        rec = self.ps["wait_for_recorder"]          # a recorder in the run: deep writer histories
-        self.pub_pct = ri.quiet_publisher(self, Float64, contract.DEMAND, recorded=rec)
-        self.pub_ma = ri.quiet_publisher(self, Float64, contract.DEMAND_MA, recorded=rec)
+        recorded = ri.recorded_topics(self.ps["recorded_topics"])
+
+        deep = bool(recorded)                 # a recorder in the run: deep writer histories
+        self.pub_pct = ri.quiet_publisher(self, Float64, contract.DEMAND, recorded=deep)
+        self.pub_ma = ri.quiet_publisher(self, Float64, contract.DEMAND_MA, recorded=deep)
         self.t0 = None
         ri.handle_parameter_changes(self, DEMAND_NODE_SPEC, self.check_parameters, self.apply_parameters)
         self._pending_tick = None
         self._answered_tick = None
         self._controller_matched = False
-        #: messages published per topic (printed at exit) and the recorder hold (wait_for_recorder)
-        self.recorder_gate = ri.RecorderGate(self, self.ps["wait_for_recorder"])
+        #: messages published per topic (printed at exit) and the recorder hold (recorded_topics)
+        self.recorder_gate = ri.RecorderGate(self, recorded)
         if self.lockstep:
             from rosgraph_msgs.msg import Clock
             ri.quiet_subscription(self, Clock, contract.CLOCK, self.on_clock, ri.TELEMETRY_QOS)

@@ -20,6 +20,7 @@ from typing import Iterable, Sequence
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..common import contract as c
+from ..common.paramspec import ALL_TOPICS
 
 # --- QoS ---------------------------------------------------------------------------------------
 LOOP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -28,7 +29,7 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=R
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 TELEMETRY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.VOLATILE)
-#: writer history of a volatile topic while a recorder is part of the run (``wait_for_recorder``):
+#: writer history of a volatile topic while a recorder is part of the run (``recorded_topics``):
 #: samples a starved recorder has not acknowledged yet, which DDS re-sends once it runs again.
 #: The 1 kHz topics times the worst stall of the recorder process seen on the loaded 2-core
 #: machine (a few hundred ms): with depth 1 or 10 a reliable keep-last writer overwrites the
@@ -229,26 +230,33 @@ def read_spec(node, spec, names: Iterable[str] | None = None) -> dict:
 # --- recording ----------------------------------------------------------------------------------
 #: name of the recorder node (tools/recorder.py) a :class:`RecorderGate` waits for
 RECORDER_NODE = "recorder"
+#: publishers every rclpy node has, never part of a run's recording
+_INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events")
+
+
+def recorded_topics(entries) -> tuple[str, ...]:
+    """The node parameter ``recorded_topics`` (common.paramspec.RECORDED_TOPICS) cleaned up:
+    ``()`` = no recorder in the run, else the names (or :data:`ALL_TOPICS`)."""
+    return tuple(e.strip() for e in entries if e.strip())
 
 
 class RecorderGate:
-    """Counts what a node publishes per topic and, with ``wait`` (the node's
-    ``wait_for_recorder`` parameter: a recorder is part of the run), holds the node's
-    publishing until the run's recorder has matched.
+    """Counts what a node publishes per topic and, with a recorder in the run (``recorded``:
+    the node's ``recorded_topics``, :func:`recorded_topics`), holds the node's publishing until
+    the recorder has matched every topic of this node that it records.
 
     Why: a volatile sample published before the recorder's subscription has matched the
     publisher never reaches the bag, so a recorded run would lose its first messages to
     discovery.  The gate :attr:`is_open` once (checked every ``CHECK_S`` on a steady timer,
     graph queries never on the hot path):
 
-    * the recorder node of this namespace is in the graph with its subscriptions, and for
-      every publisher of this node whose topic it records, the publisher has matched every
-      subscription discovery shows on that topic (``get_subscription_count()``);
-    * that has held for :data:`SETTLE_S` (endpoint discovery of the recorder's participant
-      arrives over a few ms, and the reader side matches a little after the writer side);
+    * for every publisher of this node on a recorded topic, discovery shows the recorder node
+      of this namespace subscribed to it and the publisher has matched every subscription
+      discovery shows on that topic (``get_subscription_count()``);
+    * that has held for :data:`SETTLE_S` (the reader side matches a little after the writer);
     * or, never stalling a run, after :data:`TIMEOUT_S` of wall time without it (logged).
 
-    Without ``wait`` it is open from the start.  :meth:`count` records every publish in
+    Without a recorder it is open from the start.  :meth:`count` records every publish in
     :attr:`published` and, while the gate is still closed, in :attr:`before_recorder`
     (messages the recorder may legitimately miss: start-up, not loss); the node runner prints
     both at exit and ``benchmarks/ros_loop.py --record`` compares them with the bag.
@@ -256,22 +264,23 @@ class RecorderGate:
     """
 
     CHECK_S = 0.05
-    SETTLE_S = 0.5
+    SETTLE_S = 0.2
     TIMEOUT_S = 20.0
 
-    def __init__(self, node, wait: bool):
+    def __init__(self, node, recorded: tuple[str, ...]):
         import collections
         import threading
         import time
         self._node = node
         self._time = time.monotonic
+        self._recorded = recorded
         self.published = collections.Counter()
         self.before_recorder = collections.Counter()
         self.opened = threading.Event()       # the plant's loop thread waits on it
         self._since = self._time()
         self._ready_since = None
         self._timer = None
-        if not wait:
+        if not recorded:
             self.opened.set()
             return
         from rclpy.clock import Clock, ClockType
@@ -288,18 +297,21 @@ class RecorderGate:
         if not self.opened.is_set():
             self.before_recorder[topic] += 1
 
-    def _recorded_publishers_matched(self) -> bool:
+    def recorded_publishers(self) -> list:
+        """This node's publishers on topics the recorder records."""
         node = self._node
-        try:
-            recorded = {name for name, _ in node.get_subscriber_names_and_types_by_node(
-                RECORDER_NODE, node.get_namespace())}
-        except Exception:                   # noqa: BLE001 - rclpy raises when the node is not (yet) known
-            return False
-        if not recorded:
-            return False
-        for pub in node.publishers:
-            topic = pub.topic_name
-            if topic in recorded and pub.get_subscription_count() < node.count_subscribers(topic):
+        if ALL_TOPICS in self._recorded:
+            return [p for p in node.publishers if p.topic_name not in _INFRASTRUCTURE_TOPICS]
+        # entries as the recorder takes them: "name" or "name:pkg/msg/Type"
+        names = {node.resolve_topic_name(t.partition(":")[0].strip()) for t in self._recorded}
+        return [p for p in node.publishers if p.topic_name in names]
+
+    def _matched(self) -> bool:
+        node = self._node
+        me = (RECORDER_NODE, node.get_namespace())
+        for pub in self.recorded_publishers():
+            subs = node.get_subscriptions_info_by_topic(pub.topic_name)
+            if me not in {(i.node_name, i.node_namespace) for i in subs} or pub.get_subscription_count() < len(subs):
                 return False
         return True
 
@@ -307,7 +319,7 @@ class RecorderGate:
         if self.opened.is_set():
             return
         now = self._time()
-        if not self._recorded_publishers_matched():
+        if not self._matched():
             self._ready_since = None
             if now - self._since > self.TIMEOUT_S:
                 self._open(f"recorder still unmatched after {self.TIMEOUT_S:g} s: publishing anyway")

@@ -42,6 +42,7 @@ import yaml
 
 from ..common import contract
 from ..common.config_dir import default_config_dir
+from ..common.paramspec import ALL_TOPICS
 
 if TYPE_CHECKING:                       # no simulator import for a process starter
     from .run_plan import RunPlan
@@ -79,11 +80,14 @@ def clock_participants(record: bool, observers: int = 0) -> int:
     return len(CLOCK_NODES) + (1 if record else 0) + observers
 
 
-def recording_parameters(node: str, record: bool) -> dict:
-    """Recording wiring of ``node``: with a recorder in the run, the publishing nodes hold their
-    first publish until it has matched (``wait_for_recorder``, see
+def recording_parameters(node: str, record: bool, topics: list[str] | None = None) -> dict:
+    """Recording wiring of ``node``: with a recorder in the run (recording ``topics``, None: its
+    default, every topic), the publishing nodes hold their first publish until it has matched
+    those of their topics (``recorded_topics``, see
     :class:`fuel_valve_control.ros.interface.RecorderGate`), so the bag loses nothing to discovery."""
-    return {"wait_for_recorder": True} if record and node in PUBLISHING_NODES else {}
+    if not record or node not in PUBLISHING_NODES:
+        return {}
+    return {"recorded_topics": list(topics) if topics else [ALL_TOPICS]}
 
 
 def clock_topic(namespace: str) -> str:
@@ -165,6 +169,8 @@ class Launcher:
         self.env.setdefault("PYTHONUNBUFFERED", "1")
         self.observers = observers
         self.procs: dict[str, subprocess.Popen] = {}
+        #: what the recorder records (:meth:`start_recorder`; None: every topic)
+        self.record_topics: list[str] | None = None
         self.logs: dict[str, Path] = {}
         self._node_params = plan.node_parameters()
 
@@ -179,7 +185,7 @@ class Launcher:
         """What ``name``'s parameter file holds: the plan's node parameters and the clock wiring."""
         params = dict(self._node_params.get(name, {}))
         params.update(lockstep_parameters(name, self.lockstep, self.clock_participants()))
-        params.update(recording_parameters(name, self.bag is not None))
+        params.update(recording_parameters(name, self.bag is not None, self.record_topics))
         return params
 
     def start(self, names=None) -> None:
@@ -196,6 +202,7 @@ class Launcher:
         params.update(lockstep_parameters("recorder", self.lockstep, self.clock_participants()))
         if topics:
             params["topics"] = topics
+            self.record_topics = list(topics)
         self._spawn("recorder", params, None)
 
     def start_gate(self) -> None:

@@ -18,7 +18,7 @@ suite's (:mod:`fuel_valve_control.ros.node_runner`, rclpy's events executor).
 Subscriptions are RELIABLE, KEEP_LAST ``DEPTH``; ``drive_enable`` is TRANSIENT_LOCAL like its
 publisher so a recorder started late still gets the latched state.  No message is lost to
 start-up or to a stalled recorder when the suite's nodes know a recorder is in the run
-(``wait_for_recorder``, set by the launcher and the launch file): they publish once it has
+(``recorded_topics``, set by the launcher and the launch file): they publish once it has
 matched and keep deep writer histories for its re-sends (``interface.RecorderGate``,
 ``interface.RECORDED_WRITER_DEPTH``).  metadata.yaml carries,
 per topic, the message count written and the QoS profiles its publishers offered (as

@@ -142,16 +142,18 @@ class PlantNode(Node):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Bool, Float64, Float64MultiArray
         from diagnostic_msgs.msg import DiagnosticArray
-        rec = node_ps["wait_for_recorder"]          # a recorder in the run: deep writer histories
-        self.pub_resolver = ri.quiet_publisher(self, JointState, contract.RESOLVER, recorded=rec)
-        self.pub_truth = ri.quiet_publisher(self, JointState, contract.JOINT_STATES, recorded=rec)
-        self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, contract.DRIVE, recorded=rec)
+        recorded = ri.recorded_topics(node_ps["recorded_topics"])
+
+        deep = bool(recorded)                 # a recorder in the run: deep writer histories
+        self.pub_resolver = ri.quiet_publisher(self, JointState, contract.RESOLVER, recorded=deep)
+        self.pub_truth = ri.quiet_publisher(self, JointState, contract.JOINT_STATES, recorded=deep)
+        self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, contract.DRIVE, recorded=deep)
         self._drive_cdr = ri.LabelledArrayCdr(contract.TELEMETRY_LABELS)   # serialized: see its docstring
-        self.pub_pressure = ri.quiet_publisher(self, Float64, contract.PRESSURE_DIFFERENTIAL, recorded=rec)
+        self.pub_pressure = ri.quiet_publisher(self, Float64, contract.PRESSURE_DIFFERENTIAL, recorded=deep)
         self._float = Float64
-        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=rec)
-        #: messages published per topic (printed at exit) and the recorder hold (wait_for_recorder)
-        self.recorder_gate = ri.RecorderGate(self, node_ps["wait_for_recorder"])
+        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=deep)
+        #: messages published per topic (printed at exit) and the recorder hold (recorded_topics)
+        self.recorder_gate = ri.RecorderGate(self, recorded)
         # the loop's inputs, taken by the node runner's executor; drive_enable first: in
         # lockstep a command steps the plant at once, with the enable state it applies to
         ri.quiet_subscription(self, Bool, contract.DRIVE_ENABLE, self.on_enable)
@@ -162,7 +164,7 @@ class PlantNode(Node):
             from builtin_interfaces.msg import Time
             from rosgraph_msgs.msg import Clock
             self._clock_msg, self._time_msg = Clock, Time     # built every period: resolve once
-            self.pub_clock = ri.quiet_publisher(self, Clock, contract.CLOCK, recorded=rec)
+            self.pub_clock = ri.quiet_publisher(self, Clock, contract.CLOCK, recorded=deep)
             self._clock_topic = self.pub_clock.topic_name       # as remapped (the valve's own clock)
             self._started = False
             self._waiting_since = time.monotonic()
