@@ -20,7 +20,7 @@ Launch arguments:
   ``/clock:=/<namespace>/clock``, so several valves launched side by side (one launch per
   ``namespace``) each run their own deterministic lockstep.
 * ``record`` -- ``true``: also start the ``recorder`` node, writing the bag ``bag``; plant,
-  controller and demand get ``recorded_topics: ['*']`` (they publish once it has matched).
+  controller and demand get ``recorded_topics: '*'`` (they publish once it has matched).
 * ``bag`` -- recorder ``output`` directory (default ``fuel_valve_bag``).
 * ``demand_profile`` -- overrides the demand node's ``profile`` (empty: the one in
   ``config/demand.yaml``).
@@ -82,7 +82,7 @@ def _nodes(context, *args, **kwargs):
             params['use_sim_time'] = True
     if record:     # publish once the recorder matched (tools/launcher.recording_parameters)
         for params in (plant, controller, demand):
-            params['recorded_topics'] = ['*']      # the recorder's default: every topic
+            params['recorded_topics'] = '*'        # the recorder's default: every topic
     if mode:
         controller['mode'] = mode
     if profile:

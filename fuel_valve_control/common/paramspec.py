@@ -294,10 +294,10 @@ def to_ros_yaml(spec: ParamSpec, values: Mapping[str, Any] | None = None, header
 #: when a recorder is part of the run (the launcher and the launch file set it to what it
 #: records), the node holds its first publish until the recorder's subscriptions to those of
 #: its topics have matched (:class:`fuel_valve_control.ros.interface.RecorderGate`), so the bag
-#: holds every message.  ``[""]``: no recorder (a string list needs a non-empty default)
+#: holds every message.  A comma-separated string (a launch file passes it as it is): "" = no recorder
 #: ``recorded_topics`` entry meaning "every topic of the node" (the recorder's default list)
 ALL_TOPICS = "*"
-RECORDED_TOPICS = Param("recorded_topics", [""], "", "topics the run's recorder node (same namespace) records: "
-                        "'*' = every topic, else names (relative ones follow the namespace); [''] = no "
-                        "recorder.  The node publishes once the recorder has matched each of its topics in "
-                        "the list (at most 20 s of wall time), so no message is lost to discovery")
+RECORDED_TOPICS = Param("recorded_topics", "", "", "topics the run's recorder node (same namespace) records, "
+                        "comma-separated: '*' = every topic, else names (relative ones follow the namespace); "
+                        "empty = no recorder.  The node publishes once the recorder has matched each of its "
+                        "topics in the list (at most 20 s of wall time), so no message is lost to discovery")

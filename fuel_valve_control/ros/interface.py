@@ -234,10 +234,10 @@ RECORDER_NODE = "recorder"
 _INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events")
 
 
-def recorded_topics(entries) -> tuple[str, ...]:
-    """The node parameter ``recorded_topics`` (common.paramspec.RECORDED_TOPICS) cleaned up:
-    ``()`` = no recorder in the run, else the names (or :data:`ALL_TOPICS`)."""
-    return tuple(e.strip() for e in entries if e.strip())
+def recorded_topics(text: str) -> tuple[str, ...]:
+    """The node parameter ``recorded_topics`` (common.paramspec.RECORDED_TOPICS, comma-separated)
+    as names: ``()`` = no recorder in the run, else the names (or :data:`ALL_TOPICS`)."""
+    return tuple(e.strip() for e in text.split(",") if e.strip())
 
 
 class RecorderGate:

@@ -87,7 +87,7 @@ def recording_parameters(node: str, record: bool, topics: list[str] | None = Non
     :class:`fuel_valve_control.ros.interface.RecorderGate`), so the bag loses nothing to discovery."""
     if not record or node not in PUBLISHING_NODES:
         return {}
-    return {"recorded_topics": list(topics) if topics else [ALL_TOPICS]}
+    return {"recorded_topics": ",".join(topics) if topics else ALL_TOPICS}
 
 
 def clock_topic(namespace: str) -> str:
