@@ -266,6 +266,8 @@ class RecorderGate:
     CHECK_S = 0.05
     SETTLE_S = 0.2
     TIMEOUT_S = 20.0
+    #: longest wait at exit for the recorder to acknowledge what was published, s
+    DRAIN_S = 3.0
 
     def __init__(self, node, recorded: tuple[str, ...]):
         import collections
@@ -305,6 +307,24 @@ class RecorderGate:
         # entries as the recorder takes them: "name" or "name:pkg/msg/Type"
         names = {node.resolve_topic_name(t.partition(":")[0].strip()) for t in self._recorded}
         return [p for p in node.publishers if p.topic_name in names]
+
+    def drain(self) -> bool:
+        """At exit, before the node is destroyed: wait (at most :data:`DRAIN_S` in all) until every
+        recorded publisher's samples are acknowledged by its reliable readers -- the recorder,
+        which the launcher stops last.  A sample whose first delivery was lost (a starved
+        recorder) is re-sent from the writer's history only while the writer exists; a node
+        that exits first takes it with it.  True when all were acknowledged (or no recorder)."""
+        if not self._recorded:
+            return True
+        from rclpy.duration import Duration
+        end = self._time() + self.DRAIN_S
+        ok = True
+        for pub in self.recorded_publishers():
+            left = max(0.0, end - self._time())
+            ok = pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and ok
+        if not ok:
+            self._node.get_logger().warn(f"recorder: not every message acknowledged within {self.DRAIN_S:g} s at exit")
+        return ok
 
     def _matched(self) -> bool:
         node = self._node

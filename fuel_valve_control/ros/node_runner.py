@@ -146,6 +146,8 @@ def run_node(factory, args=None, on_exit=None) -> int:
             if on_exit is not None:
                 on_exit(node)
             gate = getattr(node, "recorder_gate", None)
+            if gate is not None and rclpy.ok():
+                gate.drain()                # the recorder (stopped last) has what was published
             if gate is not None:
                 # lines a benchmark or test can parse: messages this node published per topic, and
                 # how many of them went out before the run's recorder had matched (interface.RecorderGate)
