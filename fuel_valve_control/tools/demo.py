@@ -153,7 +153,8 @@ def print_summary(summary: dict, out=sys.stdout) -> None:
         print(f"loop: the plant ticked {loop['ticks']} times at 1 kHz; in {100 * loop['missed_fraction']:.2f} % of "
               f"the ticks the controller's answer to the previous sample had not arrived yet (missed periods: the "
               f"plant held the old current); sample -> command round trip median {loop['rtt_median_ms']:.3f} ms, "
-              f"99 % within {loop['rtt_p99_ms']:.3f} ms (a period is 1 ms)", file=out)
+              f"99 % within {loop['rtt_p99_ms']:.3f} ms (a period is 1 ms); machine load average "
+              f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (other work delays the nodes)", file=out)
     if loop and summary["lockstep"]:
         print(f"loop: {loop.get('commands')} control periods in lockstep", file=out)
     rec = summary.get("recording")
