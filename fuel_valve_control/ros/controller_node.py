@@ -87,7 +87,6 @@ class ControllerNode(Node):
         from builtin_interfaces.msg import Time
         self._float, self._bool, self._time = Float64, Bool, Time
         recorded = ri.recorded_topics(node_ps["recorded_topics"])
-
         deep = bool(recorded)                 # a recorder in the run: deep writer histories
         self.pub_current = ri.quiet_publisher(self, Float64, contract.CURRENT_COMMAND, recorded=deep)
         self.pub_enable = ri.quiet_publisher(self, Bool, contract.DRIVE_ENABLE, recorded=deep)

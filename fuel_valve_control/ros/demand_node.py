@@ -42,7 +42,6 @@ class DemandNode(Node):
         from std_msgs.msg import Float64
         self._msg_type = Float64
         recorded = ri.recorded_topics(self.ps["recorded_topics"])
-
         deep = bool(recorded)                 # a recorder in the run: deep writer histories
         self.pub_pct = ri.quiet_publisher(self, Float64, contract.DEMAND, recorded=deep)
         self.pub_ma = ri.quiet_publisher(self, Float64, contract.DEMAND_MA, recorded=deep)

@@ -143,7 +143,6 @@ class PlantNode(Node):
         from std_msgs.msg import Bool, Float64, Float64MultiArray
         from diagnostic_msgs.msg import DiagnosticArray
         recorded = ri.recorded_topics(node_ps["recorded_topics"])
-
         deep = bool(recorded)                 # a recorder in the run: deep writer histories
         self.pub_resolver = ri.quiet_publisher(self, JointState, contract.RESOLVER, recorded=deep)
         self.pub_truth = ri.quiet_publisher(self, JointState, contract.JOINT_STATES, recorded=deep)
