@@ -266,8 +266,10 @@ class RecorderGate:
     CHECK_S = 0.05
     SETTLE_S = 0.2
     TIMEOUT_S = 20.0
-    #: longest wait at exit for the recorder to acknowledge what was published, s
-    DRAIN_S = 3.0
+    #: longest wait at exit for the recorder to acknowledge what was published, s: more than one
+    #: writer heartbeat period (Fast DDS default 3 s), which is when a reader asks for a repair;
+    #: below the launcher's 10 s SIGINT grace
+    DRAIN_S = 5.0
 
     def __init__(self, node, recorded: tuple[str, ...]):
         import collections
