@@ -220,7 +220,7 @@ def describe(r: dict) -> str:
     if r["variant"] == "lockstep":
         return (f"lockstep {r['simulated_s']:g} s simulated in {r['wall_s']} s wall: speed {r['speed']}x real time, "
                 f"{r['period_wall_us']} us wall per period; CPU us per period {r['cpu_us_per_period']}; "
-                f"ticks re-published {r['republished_ticks']}; load {r['load_average']:.1f}")
+                f"ticks re-published {r['republished_ticks']}; load {r['load_average']:.1f}") + _profile_lines(r)
     line = (f"{r['variant']:<6} {r['seconds']} s: {r['ticks']} ticks ({r['rate_hz']} Hz), missed {r['missed_pct']:.3f} %, "
             f"round trip median {r['rtt_median_ms']} ms, p99 {r['rtt_p99_ms']} ms, max {r['rtt_max_ms']} ms; CPU "
             f"{r['cpu_fraction']}; controller compute mean {r['controller_compute_mean_ms']} ms; load "
@@ -231,11 +231,15 @@ def describe(r: dict) -> str:
         for topic, v in r["recorder_topics"].items():
             line += (f"\n         {topic:<40} published {v['published']:>7} (before match {v['before_match']:>3})  "
                      f"in bag {v['in_bag']:>7}  lost {v['lost']}")
-    for proc, p in r.get("profile", {}).items():
-        line += (f"\n       profile {proc}: {p['seconds']} s on the executor thread, {100 * (p['spin_once_share'] or 0):.0f} % "
-                 f"inside spin_once (DDS, executor, waiting); top own time, us per period: "
-                 + ", ".join(f"{name} {us}" for name, us in p["top_us_per_period"]))
-    return line
+    return line + _profile_lines(r)
+
+
+def _profile_lines(r: dict) -> str:
+    """The ``--profile`` figures of a run, one line per process."""
+    return "".join(
+        f"\n       profile {proc}: {p['seconds']} s on the executor thread, {100 * (p['spin_once_share'] or 0):.0f} % "
+        f"inside spin_once (DDS, executor, waiting); top own time, us per period: "
+        + ", ".join(f"{name} {us}" for name, us in p["top_us_per_period"]) for proc, p in r.get("profile", {}).items())
 
 
 def summarise(runs: list[dict]) -> dict:
