@@ -42,8 +42,10 @@ from .scenarios import load_scenario
 #: topics (resolver, current_command) whose recording costs CPU the loop needs on 2 cores
 REPORT_TOPICS = ["demand", "demand_ma", "joint_states", "drive", "drive_enable", "position", "estimate",
                  "/diagnostics"]
-#: wall-clock limit for the suite to come up (DDS discovery, imports), s
-STARTUP_TIMEOUT_S = 30.0
+#: wall-clock limit for the suite to come up (DDS discovery, imports, the plant kernel's JIT
+#: compilation), s: only a dead-node detector, so generous -- at load average 20 on the 2-core
+#: machine the plant and controller were still importing after 30 s
+STARTUP_TIMEOUT_S = 120.0
 
 
 # ---------------------------------------------------------------------------------- running
