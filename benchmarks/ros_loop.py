@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Real-time 1 kHz loop over DDS: plant and controller as separate processes.
+"""Real-time 1 kHz loop over DDS (plant and controller as separate processes) and lockstep speed.
 
 Starts ``plant``, ``controller`` and ``demand`` (a slow sine, so the loop works) as real
 processes through their installed executables (the run-plan and launcher of
@@ -7,19 +7,35 @@ processes through their installed executables (the run-plan and launcher of
 from ``/diagnostics``:
 
 * round trip plant -> controller -> plant: time from publishing a resolver sample to
-  receiving the current command computed from it (median / p99 / max),
-* missed control periods: plant ticks that found no new command since the previous sample,
+  receiving the current command computed from it (median / p99 / max, over the run),
+* missed control periods: plant ticks that found no new command since the previous sample
+  (counted over the measured window, after a warm-up),
 * CPU: user + system seconds of each process per second of run time.
 
-With ``--record`` the ``recorder`` runs too (started first, stopped last, every suite topic,
-MCAP, as in the main job): per topic, the messages the nodes published (each node prints
-its counts at exit) against the messages in the bag's metadata, and the recorder's own
-queue drops.
+Variants (each run ``--repeat`` times, interleaved, so a change of machine load hits both):
 
-The last line printed is a JSON object with ``rtt_p99_ms``, ``missed_fraction`` and, with
-``--record``, ``recorder_lost``.
+* ``plain``: plant + controller + demand;
+* ``record`` (``--record``, or both with ``--both``): the ``recorder`` too (started first,
+  stopped last, every suite topic, MCAP, as the launcher and main job run it; the nodes
+  publish once it has matched, ``recorded_topics``).  Per topic: the messages the nodes
+  published (each node prints its counts at exit, and how many of them went out before the
+  recorder had matched) against the messages in the bag's metadata.  ``lost`` = published -
+  in bag - published before the match (never below 0); ``startup`` = what the bag misses of
+  the messages published before the match; the recorder's own queue drops are listed too;
+* ``lockstep`` (``--lockstep S``): a lockstep run of S simulated seconds; speed = simulated s
+  per wall s, from the plant's "starting" to its "stop_after_s reached" log lines, and CPU per
+  process per control period.
 
-    python benchmarks/ros_loop.py [--seconds 60] [--record] [--domain 107] [--mode observer_ff]
+``--profile`` runs every node's spin loop under cProfile (``FUEL_VALVE_PROFILE``, see
+:mod:`fuel_valve_control.ros.node_runner`) and prints, per process, the share of its
+executor-thread time inside ``spin_once`` itself (DDS, the executor, waiting) and the
+Python functions that cost most per control period.
+
+Per run one line; then a summary per variant (median, min, max over the runs).  The last line
+printed is one JSON object: ``{"runs": [...], "summary": {variant: {...}}}``.
+
+    python benchmarks/ros_loop.py [--seconds 60] [--record | --both] [--repeat 3] [--domain 107]
+    python benchmarks/ros_loop.py --lockstep 10 [--repeat 3] [--profile]
 """
 from __future__ import annotations
 
@@ -29,18 +45,21 @@ import os
 import random
 import re
 import shutil
+import statistics
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 from fuel_valve_control.common.paramspec import ConfigError
+from fuel_valve_control.ros.node_runner import PROFILE_ENV
 from fuel_valve_control.tools.launcher import Launcher
-from fuel_valve_control.tools.run_plan import REAL_TIME, plan_run
-from fuel_valve_control.tools.scenarios import parse_scenario
+from fuel_valve_control.tools.run_plan import LOCKSTEP, REAL_TIME, plan_run
+from fuel_valve_control.tools.scenarios import load_scenario, parse_scenario
 
 #: the demand: a slow sine around 40 %, so the valve keeps moving
 DEMAND = {"type": "sine", "offset": 40.0, "amplitude": 5.0, "frequency_hz": 0.5}
+NS = "/fuel_valve_bench"
 
 
 def cpu_seconds(pid: int) -> float:
@@ -49,48 +68,38 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def published_counts(log_text: str) -> dict[str, int]:
-    """``{topic: n}`` from a node's exit line ``[name] published: {...}`` (relative names)."""
-    found = re.findall(r"\] published: (\{.*\})", log_text)
-    return json.loads(found[-1]) if found else {}
+def profile_report(profile_dir: Path, periods: int, top: int = 8) -> dict:
+    """Per process (``<node>.prof``): executor-thread seconds, the share inside ``spin_once``
+    itself (its own time: DDS, the C++ executor, waiting) and the costliest Python functions
+    (own time per control period, µs)."""
+    import pstats
+    out = {}
+    for path in sorted(profile_dir.glob("*.prof")):
+        stats = pstats.Stats(str(path)).stats           # {(file, line, fn): (cc, nc, tt, ct, callers)}
+        total = sum(v[2] for v in stats.values())
+        spin = sum(v[2] for k, v in stats.items() if k[2].endswith("spin_once") or "spin_once" in k[2])
+        rows = sorted(((v[2], k) for k in stats for v in (stats[k],) if "spin_once" not in k[2]), reverse=True)
+        out[path.stem] = {
+            "seconds": round(total, 3), "spin_once_share": round(spin / total, 3) if total else None,
+            "top_us_per_period": [(f"{Path(k[0]).name}:{k[1]}({k[2]})", round(1e6 * tt / max(periods, 1), 2))
+                                  for tt, k in rows[:top]]}
+    return out
 
 
-def recorder_report(bag: Path, launcher: Launcher, ns: str) -> dict:
-    """Per loop topic: published (the nodes' exit counts) vs in the bag (metadata.yaml)."""
-    import yaml
-    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    in_bag = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
-    published: dict[str, int] = {}
-    for name in ("plant", "controller", "demand"):
-        for topic, n in published_counts(launcher.log(name)).items():
-            published[f"{ns}/{topic}"] = published.get(f"{ns}/{topic}", 0) + n
-    topics = {t: {"published": n, "in_bag": in_bag.get(t, 0)} for t, n in sorted(published.items())}
-    dropped = re.findall(r"closed: \d+ messages, (\d+) dropped", launcher.log("recorder"))
-    return {"topics": topics, "lost": sum(max(0, v["published"] - v["in_bag"]) for v in topics.values()),
-            "queue_dropped": int(dropped[-1]) if dropped else None, "bag_messages": meta["message_count"]}
-
-
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=60.0)
-    parser.add_argument("--demand-rate", type=float, default=200.0, help="demand publish rate, Hz")
-    parser.add_argument("--mode", default=None, help="controller mode (default: controller.yaml)")
-    parser.add_argument("--record", action="store_true", help="run the recorder too (every suite topic, MCAP)")
-    parser.add_argument("--domain", type=int, default=None,
-                        help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else a random one in 100-200)")
-    args = parser.parse_args()
-    domain = args.domain if args.domain is not None else int(os.environ.get("ROS_DOMAIN_ID") or random.randint(100, 200))
+def _env(domain: int, profile_dir: Path | None) -> dict:
     env = dict(ROS_DOMAIN_ID=str(domain), PYTHONWARNINGS="ignore")
-    ns_name = "/fuel_valve_bench"
-    tmp = Path(tempfile.mkdtemp(prefix="ros_loop_"))
-    try:
-        scenario = parse_scenario({"name": "ros_loop_benchmark", "duration_s": 3600.0, "demand": DEMAND})
-        plan = plan_run(scenario, REAL_TIME, mode=args.mode, demand_overrides={"publish_rate_hz": args.demand_rate})
-    except ConfigError as exc:
-        print(f"ros_loop: {exc}", file=sys.stderr)
-        return 2
-    launcher = Launcher(plan, ns_name, run_dir=tmp, bag=tmp / "bag" if args.record else None, env=env)
-    if args.record:       # first, so it is subscribed before the loop's first messages
+    if profile_dir is not None:
+        env[PROFILE_ENV] = str(profile_dir)
+    return env
+
+
+def run_real_time(args, record: bool, domain: int, tmp: Path) -> dict:
+    """One real-time run (with or without the recorder); the result dict."""
+    scenario = parse_scenario({"name": "ros_loop_benchmark", "duration_s": 3600.0, "demand": DEMAND})
+    plan = plan_run(scenario, REAL_TIME, mode=args.mode, demand_overrides={"publish_rate_hz": args.demand_rate})
+    profile_dir = tmp / "profile" if args.profile else None
+    launcher = Launcher(plan, NS, run_dir=tmp, bag=tmp / "bag" if record else None, env=_env(domain, profile_dir))
+    if record:       # first, so it is subscribed before the loop's first messages
         launcher.start_recorder()
         launcher.wait_for_log("recorder", "recording")
     launcher.start()
@@ -99,15 +108,16 @@ def main() -> int:
     try:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
-        rclpy.init()
-        node = rclpy.create_node("ros_loop_benchmark")
-
+        context = rclpy.Context()
+        rclpy.init(context=context, domain_id=domain)
+        node = rclpy.create_node("ros_loop_benchmark", context=context)
+        executor = rclpy.executors.SingleThreadedExecutor(context=context)
+        executor.add_node(node)
         compute = []                     # controller: mean / max ms per period, per report
 
         def on_diag(msg):
             for st in msg.status:
-                if not st.name.startswith(f"{ns_name}/"):
+                if not st.name.startswith(f"{NS}/"):
                     continue
                 values = {kv.key: kv.value for kv in st.values}
                 if st.name.endswith("plant: loop"):
@@ -117,35 +127,37 @@ def main() -> int:
                                     int(values["samples_since_last_report"])))
         node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
         # warm-up: wait until the loop runs, then measure over a fresh window
-        deadline = time.monotonic() + 30.0
+        deadline = time.monotonic() + 60.0
         while time.monotonic() < deadline and float(stats.get("rtt_samples", 0) or 0) < 100:
-            rclpy.spin_once(node, timeout_sec=0.1)
+            executor.spin_once(timeout_sec=0.1)
         if not stats:
             raise SystemExit("the loop never started: " + "; ".join(launcher.log_tail(n) for n in launcher.failed()))
         start_stats = dict(stats)
         cpu0 = {n: cpu_seconds(p.pid) for n, p in procs.items()}
         t0 = time.monotonic()
         while time.monotonic() - t0 < args.seconds:
-            rclpy.spin_once(node, timeout_sec=0.1)
+            executor.spin_once(timeout_sec=0.1)
         wall = time.monotonic() - t0
         cpu = {n: (cpu_seconds(p.pid) - cpu0[n]) / wall for n, p in procs.items()}
         # one more diagnostics message so the statistics cover the whole window
         seen = stats.get("ticks")
         t1 = time.monotonic()
         while stats.get("ticks") == seen and time.monotonic() - t1 < 3.0:
-            rclpy.spin_once(node, timeout_sec=0.1)
+            executor.spin_once(timeout_sec=0.1)
+        executor.shutdown()
         node.destroy_node()
-        rclpy.shutdown()
+        rclpy.shutdown(context=context)
     finally:
         launcher.stop()            # the publishers first, the recorder last (it drains, then closes the bag)
     ticks = int(stats["ticks"]) - int(start_stats["ticks"])
     missed = int(stats["missed"]) - int(start_stats["missed"])
     result = {
+        "variant": "record" if record else "plain",
         "seconds": round(wall, 1),
-        "record": args.record,
         "ticks": ticks,
-        "rate_hz": round(ticks / wall, 1),
-        "missed_fraction": round(missed / ticks, 5) if ticks else None,
+        # over the plant's own time between the two statistics messages (the window's ends)
+        "rate_hz": round(ticks / max(float(stats["plant_time_s"]) - float(start_stats["plant_time_s"]), 1e-9), 1),
+        "missed_pct": round(100 * missed / ticks, 3) if ticks else None,
         # the plant's percentiles cover the whole run including the warm-up
         "rtt_median_ms": round(float(stats["rtt_median_ms"]), 3),
         "rtt_p99_ms": round(float(stats["rtt_p99_ms"]), 3),
@@ -154,22 +166,152 @@ def main() -> int:
         "controller_compute_mean_ms": round(sum(c[0] * c[2] for c in compute) / max(sum(c[2] for c in compute), 1), 4),
         "controller_compute_max_ms": round(max((c[1] for c in compute), default=0.0), 3),
         "exit_codes": {n: p.returncode for n, p in procs.items()},
+        "load_average": os.getloadavg()[0],
     }
-    print(f"1 kHz loop over DDS for {result['seconds']} s{' with the recorder' if args.record else ''}: {ticks} "
-          f"ticks ({result['rate_hz']} Hz), missed {100 * (result['missed_fraction'] or 0):.3f} %, round trip median "
-          f"{result['rtt_median_ms']} ms, p99 {result['rtt_p99_ms']} ms, max {result['rtt_max_ms']} ms; CPU "
-          f"{result['cpu_fraction']}; controller compute per period mean {result['controller_compute_mean_ms']} ms, "
-          f"max {result['controller_compute_max_ms']} ms; exit codes {result['exit_codes']}")
-    if args.record:
-        rec = recorder_report(launcher.bag, launcher, ns_name)
-        result.update(recorder_lost=rec["lost"], recorder_queue_dropped=rec["queue_dropped"],
-                      recorder_topics=rec["topics"], bag_messages=rec["bag_messages"])
-        for topic, v in rec["topics"].items():
-            print(f"  {topic:<36} published {v['published']:>7}  in bag {v['in_bag']:>7}")
-        print(f"recorder: {rec['bag_messages']} messages in the bag, lost {rec['lost']} (published - in bag, "
-              f"summed over the topics above), queue drops {rec['queue_dropped']}")
-    shutil.rmtree(tmp, ignore_errors=True)
-    print(json.dumps(result))
+    if record:
+        rec = launcher.recording_losses()
+        result.update(recorder_lost=rec["lost"], recorder_startup_lost=rec["startup_lost"],
+                      recorder_queue_dropped=rec["queue_dropped"], recorder_topics=rec["topics"],
+                      bag_messages=rec["bag_messages"])
+    if profile_dir is not None:
+        result["profile"] = profile_report(profile_dir, int(stats.get("commands", ticks)))
+    return result
+
+
+def _log_time(log: str, text: str) -> float | None:
+    """Wall time (s, the rclpy log line's stamp) of the first log line containing ``text``."""
+    m = re.search(r"\[(\d+\.\d+)\] \[[^\]]*\]: " + re.escape(text), log)
+    return float(m.group(1)) if m else None
+
+
+def run_lockstep(args, domain: int, tmp: Path) -> dict:
+    """One lockstep run of ``args.lockstep`` simulated seconds: speed and CPU per period."""
+    scenario = load_scenario(args.lockstep_scenario) if args.lockstep_scenario else None
+    plan = plan_run(scenario, LOCKSTEP, mode=args.mode, duration_s=args.lockstep)
+    profile_dir = tmp / "profile" if args.profile else None
+    launcher = Launcher(plan, NS, run_dir=tmp, env=_env(domain, profile_dir))
+    launcher.start()
+    cpu = {}
+    try:
+        launcher.wait_for_log("plant", "participants connected", timeout_s=120.0)
+        cpu0 = {n: cpu_seconds(p.pid) for n, p in launcher.procs.items()}
+        launcher.wait_for_log("plant", "stop_after_s reached", timeout_s=120.0 + 50.0 * args.lockstep)
+        cpu = {n: cpu_seconds(p.pid) - cpu0[n] for n, p in launcher.procs.items()}
+    finally:
+        codes = launcher.stop()
+    log = launcher.log("plant")
+    start, end = _log_time(log, "lockstep: participants connected"), _log_time(log, "lockstep: stop_after_s")
+    stats = launcher.loop_statistics() or {}
+    periods = int(stats.get("commands", 0)) or round(args.lockstep * 1000)
+    wall = end - start
+    result = {"variant": "lockstep", "simulated_s": args.lockstep, "wall_s": round(wall, 2),
+              "speed": round(args.lockstep / wall, 3), "periods": periods,
+              "period_wall_us": round(1e6 * wall / periods, 1),
+              "cpu_us_per_period": {n: round(1e6 * c / periods, 1) for n, c in cpu.items()},
+              "republished_ticks": len(re.findall(r"tick re-published", log)),
+              "exit_codes": codes, "load_average": os.getloadavg()[0]}
+    if profile_dir is not None:
+        result["profile"] = profile_report(profile_dir, periods)
+    return result
+
+
+def describe(r: dict) -> str:
+    """One line per run, in words."""
+    if r["variant"] == "lockstep":
+        return (f"lockstep {r['simulated_s']:g} s simulated in {r['wall_s']} s wall: speed {r['speed']}x real time, "
+                f"{r['period_wall_us']} us wall per period; CPU us per period {r['cpu_us_per_period']}; "
+                f"ticks re-published {r['republished_ticks']}; load {r['load_average']:.1f}") + _profile_lines(r)
+    line = (f"{r['variant']:<6} {r['seconds']} s: {r['ticks']} ticks ({r['rate_hz']} Hz), missed {r['missed_pct']:.3f} %, "
+            f"round trip median {r['rtt_median_ms']} ms, p99 {r['rtt_p99_ms']} ms, max {r['rtt_max_ms']} ms; CPU "
+            f"{r['cpu_fraction']}; controller compute mean {r['controller_compute_mean_ms']} ms; load "
+            f"{r['load_average']:.1f}")
+    if "recorder_lost" in r:
+        line += (f"\n       recorder: {r['bag_messages']} messages in the bag, lost {r['recorder_lost']}, start-up "
+                 f"lost {r['recorder_startup_lost']}, queue drops {r['recorder_queue_dropped']}")
+        for topic, v in r["recorder_topics"].items():
+            line += (f"\n         {topic:<40} published {v['published']:>7} (before match {v['before_match']:>3})  "
+                     f"in bag {v['in_bag']:>7}  lost {v['lost']}")
+    return line + _profile_lines(r)
+
+
+def _profile_lines(r: dict) -> str:
+    """The ``--profile`` figures of a run, one line per process."""
+    return "".join(
+        f"\n       profile {proc}: {p['seconds']} s on the executor thread, {100 * (p['spin_once_share'] or 0):.0f} % "
+        f"inside spin_once (DDS, executor, waiting); top own time, us per period: "
+        + ", ".join(f"{name} {us}" for name, us in p["top_us_per_period"]) for proc, p in r.get("profile", {}).items())
+
+
+def summarise(runs: list[dict]) -> dict:
+    """Per variant: median, min and max over the runs of the headline figures."""
+    keys = {"plain": ("missed_pct", "rtt_median_ms", "rtt_p99_ms", "rtt_max_ms"),
+            "record": ("missed_pct", "rtt_median_ms", "rtt_p99_ms", "rtt_max_ms", "recorder_lost",
+                       "recorder_startup_lost"),
+            "lockstep": ("speed", "wall_s", "period_wall_us")}
+    out = {}
+    for variant in keys:
+        rs = [r for r in runs if r["variant"] == variant]
+        if not rs:
+            continue
+        out[variant] = {"runs": len(rs)}
+        for k in keys[variant]:
+            vals = [r[k] for r in rs if r.get(k) is not None]
+            if vals:
+                out[variant][k] = {"median": statistics.median(vals), "min": min(vals), "max": max(vals),
+                                   "each": vals}
+        cpu = {}
+        for r in rs:
+            for proc, v in r.get("cpu_fraction", r.get("cpu_us_per_period", {})).items():
+                cpu.setdefault(proc, []).append(v)
+        out[variant]["cpu_median"] = {p: statistics.median(v) for p, v in cpu.items()}
+    return out
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60.0, help="real time: measured window per run, s")
+    parser.add_argument("--demand-rate", type=float, default=200.0, help="demand publish rate, Hz")
+    parser.add_argument("--mode", default=None, help="controller mode (default: controller.yaml)")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--record", action="store_true", help="the 'record' variant only (recorder running too)")
+    group.add_argument("--both", action="store_true", help="'plain' and 'record' runs, interleaved")
+    group.add_argument("--lockstep", type=float, metavar="S", default=None,
+                       help="lockstep speed: runs of S simulated seconds instead of real time")
+    parser.add_argument("--lockstep-scenario", default=None, help="scenario of the lockstep runs (default: the "
+                        "start-up profile)")
+    parser.add_argument("--repeat", type=int, default=1, help="runs of each variant (interleaved)")
+    parser.add_argument("--profile", action="store_true", help="cProfile every node's executor thread")
+    parser.add_argument("--domain", type=int, default=None,
+                        help="ROS_DOMAIN_ID for the runs (default: $ROS_DOMAIN_ID, else a random one in 100-200)")
+    args = parser.parse_args()
+    if args.repeat < 1:
+        parser.error("--repeat must be >= 1")
+    domain = args.domain if args.domain is not None else int(os.environ.get("ROS_DOMAIN_ID") or random.randint(100, 200))
+    variants = ["lockstep"] if args.lockstep else ["record"] if args.record else \
+        ["plain", "record"] if args.both else ["plain"]
+    runs = []
+    for k in range(args.repeat):
+        for variant in variants:
+            tmp = Path(tempfile.mkdtemp(prefix="ros_loop_"))
+            try:
+                if variant == "lockstep":
+                    r = run_lockstep(args, domain, tmp)
+                else:
+                    r = run_real_time(args, variant == "record", domain, tmp)
+            except ConfigError as exc:
+                print(f"ros_loop: {exc}", file=sys.stderr)
+                return 2
+            finally:
+                shutil.rmtree(tmp, ignore_errors=True)
+            r["run"] = k + 1
+            runs.append(r)
+            print(f"run {k + 1}/{args.repeat} " + describe(r), flush=True)
+    summary = summarise(runs)
+    for variant, s in summary.items():
+        figures = "; ".join(f"{k} {v['median']:g} (min {v['min']:g}, max {v['max']:g})"
+                            for k, v in s.items() if isinstance(v, dict) and "median" in v)
+        print(f"summary {variant} ({s['runs']} runs, median): {figures}; CPU {s['cpu_median']}")
+    print(json.dumps({"runs": runs, "summary": summary}))
     return 0
 
 

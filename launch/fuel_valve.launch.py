@@ -19,7 +19,8 @@ Launch arguments:
   valve has a clock of its own: every node of the launch gets the remapping
   ``/clock:=/<namespace>/clock``, so several valves launched side by side (one launch per
   ``namespace``) each run their own deterministic lockstep.
-* ``record`` -- ``true``: also start the ``recorder`` node, writing the bag ``bag``.
+* ``record`` -- ``true``: also start the ``recorder`` node, writing the bag ``bag``; plant,
+  controller and demand get ``recorded_topics: '*'`` (they publish once it has matched).
 * ``bag`` -- recorder ``output`` directory (default ``fuel_valve_bag``).
 * ``autostart`` -- ``true`` (default): the controller (a managed lifecycle node) configures
   and activates itself; ``false``: it starts unconfigured with the drive disabled and a
@@ -84,6 +85,9 @@ def _nodes(context, *args, **kwargs):
         plant['lockstep_participants'] = 3 if record else 2
         for params in (controller, demand, recorder):
             params['use_sim_time'] = True
+    if record:     # publish once the recorder matched (tools/launcher.recording_parameters)
+        for params in (plant, controller, demand):
+            params['recorded_topics'] = '*'        # the recorder's default: every topic
     if mode:
         controller['mode'] = mode
     if profile:

@@ -196,7 +196,7 @@ def test_default_launch_starts_three_nodes_in_namespace_with_config_files(descri
 def test_lockstep_settings(description, record):
     # the launch file only imports launch API, so it writes the clock wiring itself: it must be
     # the wiring fuel_valve_demo and the tests get from the launcher
-    from fuel_valve_control.tools.launcher import clock_participants, lockstep_parameters
+    from fuel_valve_control.tools.launcher import clock_participants, lockstep_parameters, recording_parameters
     nodes = _evaluate(description, lockstep="true", record=record)
     plant = _overrides(nodes["plant"])
     assert plant["lockstep"] is True and plant["use_sim_time"] is False  # the plant publishes /clock
@@ -206,6 +206,8 @@ def test_lockstep_settings(description, record):
         over = _overrides(node)
         assert {k: over[k] for k in lockstep_parameters(exe, True, participants)} == \
             lockstep_parameters(exe, True, participants), exe
+        # and the recording wiring: the publishers hold until the recorder matched
+        assert over.get("recorded_topics") == recording_parameters(exe, record == "true").get("recorded_topics"), exe
     for exe in ("controller", "demand"):
         assert _overrides(nodes[exe])["lockstep"] is True
         assert _overrides(nodes[exe])["use_sim_time"] is True

@@ -113,3 +113,26 @@ def test_writer_queue_is_bounded_and_counts_drops(monkeypatch):
     bag.close()
     assert writer.closed and writer.written == [b"first", b"0", b"1", b"2", b"3", b"4"]
     assert topic.count == 6
+
+
+def test_prebuilt_drive_telemetry_bytes_are_the_message():
+    # the plant publishes its drive telemetry as CDR bytes (interface.LabelledArrayCdr): they must
+    # deserialise to exactly the labelled_array message, for any values (NaN, inf, signed zero)
+    import math
+    import struct
+    from rclpy.serialization import deserialize_message, serialize_message
+    from std_msgs.msg import Float64MultiArray
+    from fuel_valve_control.common import contract
+    from fuel_valve_control.ros import interface as ri
+    cdr = ri.LabelledArrayCdr(contract.TELEMETRY_LABELS)
+    values = [math.pi * k - 3.3e-7 for k in range(len(contract.TELEMETRY_LABELS))]
+    values[1], values[2], values[3] = math.inf, -0.0, 1e-300
+    data = cdr(values)
+    msg = deserialize_message(data, Float64MultiArray)
+    assert msg == ri.labelled_array(contract.TELEMETRY_LABELS, values)
+    assert len(data) == len(serialize_message(msg))
+    assert list(ri.array_values(msg)) == list(contract.TELEMETRY_LABELS)
+    values[0] = math.nan
+    assert math.isnan(ri.array_values(deserialize_message(cdr(values), Float64MultiArray))["i_d"])
+    with pytest.raises(struct.error):            # a wrong number of values is refused
+        cdr(values[:-1])

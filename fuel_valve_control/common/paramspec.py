@@ -288,3 +288,16 @@ def to_ros_yaml(spec: ParamSpec, values: Mapping[str, Any] | None = None, header
         note = f"{p.description}; {p.range_text()}" + ("; run-time" if p.runtime else "")
         lines.append(f"    {'  ' * (len(parts) - 1)}{parts[-1]}: {text}  # {note}")
     return "\n".join(lines) + "\n"
+
+
+#: the node parameter every publishing node of the suite (plant, controller, demand) shares:
+#: when a recorder is part of the run (the launcher and the launch file set it to what it
+#: records), the node holds its first publish until the recorder's subscriptions to those of
+#: its topics have matched (:class:`fuel_valve_control.ros.interface.RecorderGate`), so the bag
+#: holds every message.  A comma-separated string (a launch file passes it as it is): "" = no recorder
+#: ``recorded_topics`` entry meaning "every topic of the node" (the recorder's default list)
+ALL_TOPICS = "*"
+RECORDED_TOPICS = Param("recorded_topics", "", "", "topics the run's recorder node (same namespace) records, "
+                        "comma-separated: '*' = every topic, else names (relative ones follow the namespace); "
+                        "empty = no recorder.  The node publishes once the recorder has matched each of its "
+                        "topics in the list (at most 20 s of wall time), so no message is lost to discovery")

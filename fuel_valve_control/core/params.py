@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ..common.config_dir import default_config_dir
 from ..common.contract import PRESSURE_MAX_KPA, STROKE_RAD
-from ..common.paramspec import ConfigError, Param, ParamSet, ParamSpec
+from ..common.paramspec import RECORDED_TOPICS, ConfigError, Param, ParamSet, ParamSpec
 
 MODES = ("pi", "pi_dither", "observer", "observer_fc", "kalman_fc", "fc_gain", "observer_ff", "observer_fp")
 DEFAULT_MODE = "observer_ff"  # best measured (README table); SPEC named observer_fc
@@ -306,6 +306,7 @@ CONTROLLER_NODE_PARAMS = (
           "twists), loaded at configure and saved at deactivate/cleanup/shutdown/exit and every "
           "learned_state_save_s ('': not persisted)"),
     Param("learned_state_save_s", 60.0, "s", "interval of the periodic save of learned_state_file", 1.0, 86400.0),
+    RECORDED_TOPICS,
 )
 CONTROLLER_NODE_SPEC = CONTROLLER_SPEC.extended(CONTROLLER_NODE_PARAMS)
 

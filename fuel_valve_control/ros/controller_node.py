@@ -33,7 +33,6 @@ with ``autostart:=false`` a supervisor uses ``~/change_state`` / ``~/get_state``
 """
 from __future__ import annotations
 
-import collections
 import functools
 import math
 import threading
@@ -139,11 +138,13 @@ class ControllerNode(LifecycleNode):
         self._float, self._bool, self._time = Float64, Bool, Time
         # plain publishers, not lifecycle ones: outside ``active`` the node must still say
         # "drive disabled, 0 A" (a lifecycle publisher would be silent)
-        self.pub_current = ri.quiet_publisher(self, Float64, contract.CURRENT_COMMAND)
-        self.pub_enable = ri.quiet_publisher(self, Bool, contract.DRIVE_ENABLE)
-        self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION)
-        self.pub_estimate = ri.quiet_publisher(self, JointState, contract.ESTIMATE)
-        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
+        recorded = ri.recorded_topics(node_ps["recorded_topics"])
+        deep = bool(recorded)                 # a recorder in the run: deep writer histories
+        self.pub_current = ri.quiet_publisher(self, Float64, contract.CURRENT_COMMAND, recorded=deep)
+        self.pub_enable = ri.quiet_publisher(self, Bool, contract.DRIVE_ENABLE, recorded=deep)
+        self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION, recorded=deep)
+        self.pub_estimate = ri.quiet_publisher(self, JointState, contract.ESTIMATE, recorded=deep)
+        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=deep)
         # one lock serialises the driver between callbacks: the node runner spins one thread
         # today, and a multi-threaded executor must not change the driver's behaviour
         self._lock = threading.Lock()
@@ -157,8 +158,8 @@ class ControllerNode(LifecycleNode):
             ri.quiet_subscription(self, Float64MultiArray, contract.DRIVE, self.on_drive)
         self._decimation = node_ps["telemetry_decimation"]
         self._periods = 0
-        #: messages published per loop topic (reported at exit: benchmarks compare bag counts)
-        self.published = collections.Counter()
+        #: messages published per topic (printed at exit) and the recorder hold (recorded_topics)
+        self.recorder_gate = ri.RecorderGate(self, recorded)
         self._compute = ComputeTime()
         self.create_service(Trigger, "~/trip", self.on_trip)
         self.create_service(Trigger, "~/reset", self.on_reset)
@@ -286,11 +287,16 @@ class ControllerNode(LifecycleNode):
         self._reset_loop_state()
 
     def _publish_disabled(self, force: bool = False) -> None:
-        """drive_enable false (when not already said) and 0 A, outside ``active``."""
+        """drive_enable false (when not already said) and 0 A, outside ``active``.  Before the
+        recorder gate opens only the latched enable false (the recorder still gets it when it
+        matches; the plant's drive starts disabled, so a 0 A command adds nothing then)."""
         if force or self._last_enable is not False:
             self.pub_enable.publish(self._bool(data=False))
+            self.recorder_gate.count(contract.DRIVE_ENABLE, latched=True)
             self._last_enable = False
-        self.pub_current.publish(self._float(data=0.0))
+        if self.recorder_gate.is_open:
+            self.pub_current.publish(self._float(data=0.0))
+            self.recorder_gate.count(contract.CURRENT_COMMAND)
 
     def _save_state(self) -> None:
         """Persist the learned state (``learned_state_file``); a failure is logged, never raised."""
@@ -338,17 +344,18 @@ class ControllerNode(LifecycleNode):
             self.run_period(sample)
 
     def _loop_matched(self) -> bool:
-        """Lockstep: the command publisher has matched the plant (checked until it has once)."""
+        """Lockstep: the command publisher has matched the plant (checked until it has once) and
+        the recorder, when the run has one, has matched this node's topics (``recorder_gate``)."""
         if not self._command_matched:
             self._command_matched = self.pub_current.get_subscription_count() >= 1
-        return self._command_matched
+        return self._command_matched and self.recorder_gate.is_open
 
     @locked
     def _run_when_matched(self) -> None:
         """Lockstep: run a period that was ready but held back for the command's match."""
         if self.driver is None:
             return
-        if self._command_matched and self._periods:
+        if self._command_matched and self.recorder_gate.is_open and self._periods:
             self._match_timer.cancel()               # matched for good: the timer's job is done
         elif self._pending_sample is not None and self._fresh_demand and self._loop_matched():
             sample, self._pending_sample = self._pending_sample, None
@@ -392,6 +399,8 @@ class ControllerNode(LifecycleNode):
             if not self._fresh_demand or not self._loop_matched():
                 self._pending_sample = sample       # wait for this period's demand (or the match)
                 return
+        elif not self.recorder_gate.is_open:
+            return                                  # real time: the loop closes once recorded
         self.run_period(sample)
 
     # ------------------------------------------------------------------ loop
@@ -432,6 +441,8 @@ class ControllerNode(LifecycleNode):
         try:
             self.pub_enable.publish(self._bool(data=False))
             self.pub_current.publish(self._float(data=0.0))
+            self.recorder_gate.count(contract.DRIVE_ENABLE, latched=True)
+            self.recorder_gate.count(contract.CURRENT_COMMAND)
             self._last_enable = False
         except Exception:                   # noqa: BLE001 - context gone: the plant's watchdog acts
             pass
@@ -441,13 +452,14 @@ class ControllerNode(LifecycleNode):
         out = self.driver.step(t)
         if out.enable != self._last_enable:       # latched topic: publish changes only, before
             self.pub_enable.publish(self._bool(data=bool(out.enable)))   # the command it applies to
+            self.recorder_gate.count(contract.DRIVE_ENABLE, latched=True)
         self.pub_current.publish(self._float(data=float(out.current_a)))
-        self.published[contract.CURRENT_COMMAND] += 1
+        self.recorder_gate.count(contract.CURRENT_COMMAND)
         self._periods += 1
         if self._periods % self._decimation == 0:
             if out.position_pct is not None:
                 self.pub_position.publish(self._float(data=float(out.position_pct)))
-                self.published[contract.POSITION] += 1
+                self.recorder_gate.count(contract.POSITION)
             est = self.driver.controller.estimate()
             sec = int(t)
             stamp = self._time(sec=sec, nanosec=int((t - sec) * 1e9)) if self.lockstep \
@@ -455,7 +467,7 @@ class ControllerNode(LifecycleNode):
             self.pub_estimate.publish(ri.joint_state(
                 stamp, (est.motor_angle, est.valve_angle), (est.motor_velocity, est.valve_velocity),
                 (est.motor_friction_nm, est.valve_friction_nm)))
-            self.published[contract.ESTIMATE] += 1
+            self.recorder_gate.count(contract.ESTIMATE)
         if out.enable != self._last_enable:
             if self._last_enable is not None:
                 # one call site per severity: rclpy refuses a site that changes severity
@@ -524,6 +536,8 @@ class ControllerNode(LifecycleNode):
     # ------------------------------------------------------------------ diagnostics
     @locked
     def publish_diagnostics(self) -> None:
+        if not self.recorder_gate.is_open:
+            return
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
         if self.driver is None:
             h = Health(1, f"{self.lifecycle_state} (managed node not configured): drive disabled",
@@ -545,6 +559,7 @@ class ControllerNode(LifecycleNode):
         msg = DiagnosticArray(status=[st])
         msg.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(msg)
+        self.recorder_gate.count(contract.DIAGNOSTICS)
         if h.level != self._level:
             self.get_logger().info(f"status {LEVEL_NAMES[h.level]}: {h.message}")
             self._level = h.level

@@ -11,7 +11,6 @@ tick, so a lockstep run sees one demand per control period).  Profile parameters
 """
 from __future__ import annotations
 
-import collections
 import time
 
 from rclpy.node import Node
@@ -42,15 +41,17 @@ class DemandNode(Node):
         self.lockstep = self.ps["lockstep"]
         from std_msgs.msg import Float64
         self._msg_type = Float64
-        self.pub_pct = ri.quiet_publisher(self, Float64, contract.DEMAND)
-        self.pub_ma = ri.quiet_publisher(self, Float64, contract.DEMAND_MA)
+        recorded = ri.recorded_topics(self.ps["recorded_topics"])
+        deep = bool(recorded)                 # a recorder in the run: deep writer histories
+        self.pub_pct = ri.quiet_publisher(self, Float64, contract.DEMAND, recorded=deep)
+        self.pub_ma = ri.quiet_publisher(self, Float64, contract.DEMAND_MA, recorded=deep)
         self.t0 = None
         ri.handle_parameter_changes(self, DEMAND_NODE_SPEC, self.check_parameters, self.apply_parameters)
         self._pending_tick = None
         self._answered_tick = None
         self._controller_matched = False
-        #: messages published per topic (reported at exit: benchmarks compare bag counts)
-        self.published = collections.Counter()
+        #: messages published per topic (printed at exit) and the recorder hold (recorded_topics)
+        self.recorder_gate = ri.RecorderGate(self, recorded)
         if self.lockstep:
             from rosgraph_msgs.msg import Clock
             ri.quiet_subscription(self, Clock, contract.CLOCK, self.on_clock, ri.TELEMETRY_QOS)
@@ -89,7 +90,7 @@ class DemandNode(Node):
         is matched: the controller waits for this very message, and one published before its
         subscription matched would be lost (the run would stall).  Other subscribers (a
         monitor, a recorder) may be seen first, so "all seen are matched" alone is not enough."""
-        if self._pending_tick is None:
+        if self._pending_tick is None or not self.recorder_gate.is_open:
             return
         topic, pub = (contract.DEMAND, self.pub_pct) if self.output == "percent" else (contract.DEMAND_MA, self.pub_ma)
         if not self._controller_matched:
@@ -110,16 +111,18 @@ class DemandNode(Node):
         self.publish(t)
 
     def publish(self, now: float | None = None) -> None:
+        if not self.recorder_gate.is_open:      # real time: the profile starts once it is
+            return
         now = self.now_s() if now is None else now
         if self.t0 is None:
             self.t0 = now if not self.lockstep else 0.0
         pct = self.profile.value(now - self.t0)
         if self.output == "percent":
             self.pub_pct.publish(self._msg_type(data=float(pct)))
-            self.published[contract.DEMAND] += 1
+            self.recorder_gate.count(contract.DEMAND)
         else:
             self.pub_ma.publish(self._msg_type(data=contract.percent_to_ma(min(max(pct, 0.0), 100.0))))
-            self.published[contract.DEMAND_MA] += 1
+            self.recorder_gate.count(contract.DEMAND_MA)
 
 
 def main(args=None) -> int:

@@ -25,11 +25,15 @@ arrive, and the second would otherwise land in the clean-up and end the process 
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
 
 #: longest time one ``spin_once`` blocks, s: how late a shutdown without a wake-up is seen
 SPIN_TIMEOUT_S = 0.1
+#: environment variable: a directory; when set, every node's spin loop runs under cProfile and
+#: writes ``<dir>/<node name>.prof`` at the end (benchmarks/ros_loop.py --profile reads them)
+PROFILE_ENV = "FUEL_VALVE_PROFILE"
 #: GIL switch interval, s: a sample arriving while another thread of the process (the plant's
 #: tick thread) runs Python waits at most this long (CPython's default is 5 ms, five periods)
 SWITCH_INTERVAL_S = 0.0002
@@ -45,10 +49,24 @@ def spin(executor, context=None, until=None, timeout_s: float = SPIN_TIMEOUT_S) 
     """Spin ``executor`` until ``context`` (default: rclpy's) shuts down or ``until()`` is true.
 
     ``spin_once`` with a timeout, never ``spin()``: the events executor's untimed spin ignores
-    shutdown (see the module docstring)."""
+    shutdown (see the module docstring).  With :data:`PROFILE_ENV` set, the loop runs under
+    cProfile (the executor thread only: the callbacks and the time inside ``spin_once``)."""
     import rclpy
-    while rclpy.ok(context=context) and not (until is not None and until()):
-        executor.spin_once(timeout_sec=timeout_s)
+    profile_dir = os.environ.get(PROFILE_ENV)
+    profiler = None
+    if profile_dir:
+        import cProfile
+        profiler = cProfile.Profile()
+        profiler.enable()
+    try:
+        while rclpy.ok(context=context) and not (until is not None and until()):
+            executor.spin_once(timeout_sec=timeout_s)
+    finally:
+        if profiler is not None:
+            profiler.disable()
+            names = "+".join(n.get_name() for n in executor.get_nodes()) or str(os.getpid())
+            os.makedirs(profile_dir, exist_ok=True)
+            profiler.dump_stats(os.path.join(profile_dir, f"{names}.prof"))
 
 
 def quiet_signals(handler=None) -> None:
@@ -127,9 +145,15 @@ def run_node(factory, args=None, on_exit=None) -> int:
         if node is not None:
             if on_exit is not None:
                 on_exit(node)
-            if getattr(node, "published", None) is not None:
-                # one line a benchmark or test can parse: messages this node published per topic
-                print(f"[{node.get_name()}] published: {json.dumps(dict(node.published))}", flush=True)
+            gate = getattr(node, "recorder_gate", None)
+            if gate is not None and rclpy.ok():
+                gate.drain()                # the recorder (stopped last) has what was published
+            if gate is not None:
+                # lines a benchmark or test can parse: messages this node published per topic, and
+                # how many of them went out before the run's recorder had matched (interface.RecorderGate)
+                print(f"[{node.get_name()}] published: {json.dumps(dict(gate.published))}", flush=True)
+                print(f"[{node.get_name()}] published before the recorder matched: "
+                      f"{json.dumps(dict(gate.before_recorder))}", flush=True)
         tear_down(node, executor)
     return code
 

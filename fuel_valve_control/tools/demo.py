@@ -42,8 +42,10 @@ from .scenarios import load_scenario
 #: topics (resolver, current_command) whose recording costs CPU the loop needs on 2 cores
 REPORT_TOPICS = ["demand", "demand_ma", "joint_states", "drive", "drive_enable", "position", "estimate",
                  "/diagnostics"]
-#: wall-clock limit for the suite to come up (DDS discovery, imports), s
-STARTUP_TIMEOUT_S = 60.0
+#: wall-clock limit for the suite to come up (DDS discovery, imports, the plant kernel's JIT
+#: compilation), s: only a dead-node detector, so generous -- at load average 20 on the 2-core
+#: machine the plant and controller were still importing after 30 s
+STARTUP_TIMEOUT_S = 120.0
 
 
 # ---------------------------------------------------------------------------------- running
@@ -103,6 +105,11 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
             codes = suite.stop()
             summary["exit_codes"] = codes
             summary["loop"] = suite.loop_statistics()
+            if bag is not None and codes.get("recorder") in CLEAN_EXIT_CODES:
+                try:
+                    summary["recording"] = suite.recording_losses()
+                except (OSError, KeyError, TypeError, ValueError):    # no readable metadata.yaml
+                    summary["recording"] = None
     finally:
         final = monitor.status_line(plan.duration_s)
         summary.update(final_status=final, worst_level=monitor.worst_level, faults=monitor.fault_messages,
@@ -148,9 +155,18 @@ def print_summary(summary: dict, out=sys.stdout) -> None:
         print(f"loop: the plant ticked {loop['ticks']} times at 1 kHz; in {100 * loop['missed_fraction']:.2f} % of "
               f"the ticks the controller's answer to the previous sample had not arrived yet (missed periods: the "
               f"plant held the old current); sample -> command round trip median {loop['rtt_median_ms']:.3f} ms, "
-              f"99 % within {loop['rtt_p99_ms']:.3f} ms (a period is 1 ms)", file=out)
+              f"99 % within {loop['rtt_p99_ms']:.3f} ms (a period is 1 ms); machine load average "
+              f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (other work delays the nodes)", file=out)
     if loop and summary["lockstep"]:
         print(f"loop: {loop.get('commands')} control periods in lockstep", file=out)
+    rec = summary.get("recording")
+    if rec:
+        missing = {t.rsplit('/', 1)[-1]: v["published"] - v["in_bag"] for t, v in rec["topics"].items()
+                   if v["published"] != v["in_bag"]}
+        published = sum(v["published"] for v in rec["topics"].values())
+        print(f"recording: {rec['bag_messages']} messages in the bag; of the {published} the nodes published on "
+              f"the recorded topics " + (f"{sum(missing.values())} are missing ({missing})" if missing else
+                                         "none is missing"), file=out)
     print(f"node logs: {summary.get('run_dir')}", file=out, flush=True)
 
 

@@ -16,6 +16,8 @@ writes the same lockstep wiring and ``test/test_launch_file.py`` checks it again
   so two valves side by side in lockstep neither tick on each other's clock nor count each
   other's participants;
 * environment: the caller's plus ``env`` (e.g. ``ROS_DOMAIN_ID``), unbuffered output;
+* recording wiring: with a bag, the plant, controller and demand hold their first publish until
+  the recorder has matched (:func:`recording_parameters`), so the bag holds everything they send;
 * logs: ``<run_dir>/<node>.log`` (stdout and stderr);
 * stop: SIGINT (publishers first, the recorder last, so the bag holds all they sent), then SIGTERM,
   then SIGKILL for what hangs; the exit codes are returned.
@@ -24,6 +26,7 @@ No rclpy and no simulator imports here (only subprocesses and parameter files).
 """
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -39,6 +42,7 @@ import yaml
 
 from ..common import contract
 from ..common.config_dir import default_config_dir
+from ..common.paramspec import ALL_TOPICS
 
 if TYPE_CHECKING:                       # no simulator import for a process starter
     from .run_plan import RunPlan
@@ -48,6 +52,8 @@ MODULES = {"plant": "fuel_valve_plant.ros.plant_node", "controller": "fuel_valve
            "demand": "fuel_valve_control.ros.demand_node", "recorder": "fuel_valve_control.tools.recorder"}
 #: nodes that subscribe to /clock in lockstep (besides observers); the plant publishes it
 CLOCK_NODES = ("controller", "demand")
+#: nodes whose publishing waits for the run's recorder to match (:func:`recording_parameters`)
+PUBLISHING_NODES = ("plant", "controller", "demand")
 #: stop order: the publishers first (demand, then the loop), the recorder last, so it drains and
 #: records everything they published before it closes the bag
 STOP_ORDER = ("demand", "controller", "plant", "recorder")
@@ -72,6 +78,16 @@ def clock_participants(record: bool, observers: int = 0) -> int:
     """Distinct nodes subscribed to /clock in a lockstep run (what the plant waits for):
     controller and demand, the recorder when recording, plus ``observers``."""
     return len(CLOCK_NODES) + (1 if record else 0) + observers
+
+
+def recording_parameters(node: str, record: bool, topics: list[str] | None = None) -> dict:
+    """Recording wiring of ``node``: with a recorder in the run (recording ``topics``, None: its
+    default, every topic), the publishing nodes hold their first publish until it has matched
+    those of their topics (``recorded_topics``, see
+    :class:`fuel_valve_control.ros.interface.RecorderGate`), so the bag loses nothing to discovery."""
+    if not record or node not in PUBLISHING_NODES:
+        return {}
+    return {"recorded_topics": ",".join(topics) if topics else ALL_TOPICS}
 
 
 def clock_topic(namespace: str) -> str:
@@ -153,6 +169,8 @@ class Launcher:
         self.env.setdefault("PYTHONUNBUFFERED", "1")
         self.observers = observers
         self.procs: dict[str, subprocess.Popen] = {}
+        #: what the recorder records (:meth:`start_recorder`; None: every topic)
+        self.record_topics: list[str] | None = None
         self.logs: dict[str, Path] = {}
         self._node_params = plan.node_parameters()
 
@@ -167,6 +185,7 @@ class Launcher:
         """What ``name``'s parameter file holds: the plan's node parameters and the clock wiring."""
         params = dict(self._node_params.get(name, {}))
         params.update(lockstep_parameters(name, self.lockstep, self.clock_participants()))
+        params.update(recording_parameters(name, self.bag is not None, self.record_topics))
         return params
 
     def start(self, names=None) -> None:
@@ -183,6 +202,7 @@ class Launcher:
         params.update(lockstep_parameters("recorder", self.lockstep, self.clock_participants()))
         if topics:
             params["topics"] = topics
+            self.record_topics = list(topics)
         self._spawn("recorder", params, None)
 
     def start_gate(self) -> None:
@@ -264,6 +284,41 @@ class Launcher:
             return yaml.safe_load(m.group(1).replace("'", '"'))
         except yaml.YAMLError:
             return None
+
+    def published_counts(self) -> dict[str, dict[str, int]]:
+        """``{topic: {"published": n, "before_match": m}}`` summed over the publishing nodes'
+        exit lines (node_runner: every message each sent, and how many before the run's
+        recorder had matched), topics fully qualified in this run's namespace."""
+        out: dict[str, dict[str, int]] = {}
+        for name in PUBLISHING_NODES:
+            log = self.log(name)
+            for key, label in (("published", "published"), ("before_match", "published before the recorder matched")):
+                found = re.findall(rf"\] {label}: (\{{.*\}})", log)
+                for topic, n in (json.loads(found[-1]) if found else {}).items():
+                    full = topic if topic.startswith("/") else f"{self.namespace}/{topic}"
+                    entry = out.setdefault(full, {"published": 0, "before_match": 0})
+                    entry[key] += n
+        return out
+
+    def recording_losses(self) -> dict:
+        """Per topic, what the nodes published against what the bag's metadata.yaml holds (call
+        after :meth:`stop`): ``lost`` = published - in bag - published before the recorder
+        matched (never below 0: a real loss), ``startup_lost`` = what the bag misses of the
+        messages published before the match.  Also the totals and the recorder's own queue
+        drops (its closing summary)."""
+        meta = yaml.safe_load((self.bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        in_bag = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
+        topics = {}
+        for topic, c in sorted(self.published_counts().items()):
+            if topic not in in_bag:
+                continue                    # not recorded (a topic list without it)
+            missing = max(0, c["published"] - in_bag[topic])
+            topics[topic] = dict(c, in_bag=in_bag[topic], startup_lost=min(c["before_match"], missing),
+                                 lost=max(0, missing - c["before_match"]))
+        dropped = re.findall(r"closed: \d+ messages, (\d+) dropped", self.log("recorder"))
+        return {"topics": topics, "lost": sum(v["lost"] for v in topics.values()),
+                "startup_lost": sum(v["startup_lost"] for v in topics.values()),
+                "queue_dropped": int(dropped[-1]) if dropped else None, "bag_messages": meta["message_count"]}
 
     def __enter__(self):
         return self

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-from ..common.paramspec import ConfigError, Param, ParamSpec
+from ..common.paramspec import RECORDED_TOPICS, ConfigError, Param, ParamSpec
 
 # Start-up to core idle as in the field recordings (dissertation figs 2-1, 2-5): light-off
 # and acceleration with the demand moving between 23 and 28 % in ramps and steps, then
@@ -299,6 +299,7 @@ DEMAND_NODE_PARAMS = (
           choices=("percent", "ma"), runtime=True),
     Param("publish_rate_hz", 200.0, "Hz", "publish rate in real time", 1.0, 10000.0),
     Param("lockstep", False, "", "publish once per /clock tick (deterministic lockstep runs)"),
+    RECORDED_TOPICS,
 )
 DEMAND_NODE_SPEC = PROFILE_SPEC.extended(DEMAND_NODE_PARAMS)
 

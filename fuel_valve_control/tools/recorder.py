@@ -16,7 +16,11 @@ logged at the end lists per topic the messages written and any dropped.  The exe
 suite's (:mod:`fuel_valve_control.ros.node_runner`, rclpy's events executor).
 
 Subscriptions are RELIABLE, KEEP_LAST ``DEPTH``; ``drive_enable`` is TRANSIENT_LOCAL like its
-publisher so a recorder started late still gets the latched state.  metadata.yaml carries,
+publisher so a recorder started late still gets the latched state.  No message is lost to
+start-up or to a stalled recorder when the suite's nodes know a recorder is in the run
+(``recorded_topics``, set by the launcher and the launch file): they publish once it has
+matched and keep deep writer histories for its re-sends (``interface.RecorderGate``,
+``interface.RECORDED_WRITER_DEPTH``).  metadata.yaml carries,
 per topic, the message count written and the QoS profiles its publishers offered (as
 ``ros2 bag record`` stores them, so ``ros2 bag play`` offers the same), and ``ros_distro:
 jazzy``.  Timestamps follow ``ros2 bag record`` (Jazzy): the receive time (MCAP
@@ -53,9 +57,10 @@ from ..common.paramspec import Param, ParamSpec
 from ..ros import interface as ri
 from ..ros import node_runner
 
-#: per-topic queue of the subscriptions: a deep reliable queue absorbs bursts while a chunk
-#: is being flushed to disk
-DEPTH = 1000
+#: per-topic queue of the subscriptions, messages: a starved recorder process finds what arrived
+#: meanwhile still queued (5 s of a 1 kHz topic; deeper than the suite's writers keep for it,
+#: interface.RECORDED_WRITER_DEPTH, so a re-sent sample is never pushed out here)
+DEPTH = 5000
 BAG_VERSION = 9
 #: the distribution whose message definitions and type hashes the bag carries (the rosbags
 #: typestore used below is Jazzy's; rosbag2 writes its distro into metadata.yaml)

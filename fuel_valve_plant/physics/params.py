@@ -15,7 +15,7 @@ from pathlib import Path
 
 from fuel_valve_control.common.config_dir import default_config_dir
 from fuel_valve_control.common.contract import PRESSURE_MAX_KPA, STROKE_RAD
-from fuel_valve_control.common.paramspec import ConfigError, Param, ParamSet, ParamSpec
+from fuel_valve_control.common.paramspec import RECORDED_TOPICS, ConfigError, Param, ParamSet, ParamSpec
 
 FRICTION_MODELS = ("stick_slip", "lugre")
 RESOLVER_FAULTS = ("none", "resolver_stuck", "resolver_dropout", "resolver_noise_burst")
@@ -134,6 +134,7 @@ PLANT_NODE_PARAMS = (
     Param("start_held", False, "", "start at rest at initial_position_rad held there by the drive (coupling "
           "twisted, holding current flowing), as the offline simulator's initial_percent does; false: at rest "
           "with the drive off"),
+    RECORDED_TOPICS,
 )
 PLANT_NODE_SPEC = PLANT_SPEC.extended(PLANT_NODE_PARAMS)
 

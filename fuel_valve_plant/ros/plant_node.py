@@ -48,7 +48,6 @@ Drive faults (the drive's own protection, independent of the controller; reporte
 """
 from __future__ import annotations
 
-import collections
 import functools
 import json
 import threading
@@ -131,8 +130,6 @@ class PlantNode(Node):
         self._command_rejected = False
         self._bad_commands = 0
         self.stats = LoopStats()
-        #: messages published per loop topic (reported at exit: benchmarks compare bag counts)
-        self.published = collections.Counter()
         self._got_command = False
         self._last_publish_mono = None
         # drive protection (module docstring): watchdog and internal-error latch
@@ -145,12 +142,17 @@ class PlantNode(Node):
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Bool, Float64, Float64MultiArray
         from diagnostic_msgs.msg import DiagnosticArray
-        self.pub_resolver = ri.quiet_publisher(self, JointState, contract.RESOLVER)
-        self.pub_truth = ri.quiet_publisher(self, JointState, contract.JOINT_STATES)
-        self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, contract.DRIVE)
-        self.pub_pressure = ri.quiet_publisher(self, Float64, contract.PRESSURE_DIFFERENTIAL)
+        recorded = ri.recorded_topics(node_ps["recorded_topics"])
+        deep = bool(recorded)                 # a recorder in the run: deep writer histories
+        self.pub_resolver = ri.quiet_publisher(self, JointState, contract.RESOLVER, recorded=deep)
+        self.pub_truth = ri.quiet_publisher(self, JointState, contract.JOINT_STATES, recorded=deep)
+        self.pub_drive = ri.quiet_publisher(self, Float64MultiArray, contract.DRIVE, recorded=deep)
+        self._drive_cdr = ri.LabelledArrayCdr(contract.TELEMETRY_LABELS)   # serialized: see its docstring
+        self.pub_pressure = ri.quiet_publisher(self, Float64, contract.PRESSURE_DIFFERENTIAL, recorded=deep)
         self._float = Float64
-        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS)
+        self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=deep)
+        #: messages published per topic (printed at exit) and the recorder hold (recorded_topics)
+        self.recorder_gate = ri.RecorderGate(self, recorded)
         # the loop's inputs, taken by the node runner's executor; drive_enable first: in
         # lockstep a command steps the plant at once, with the enable state it applies to
         ri.quiet_subscription(self, Bool, contract.DRIVE_ENABLE, self.on_enable)
@@ -161,7 +163,8 @@ class PlantNode(Node):
             from builtin_interfaces.msg import Time
             from rosgraph_msgs.msg import Clock
             self._clock_msg, self._time_msg = Clock, Time     # built every period: resolve once
-            self.pub_clock = ri.quiet_publisher(self, Clock, contract.CLOCK, ri.TELEMETRY_QOS)
+            self.pub_clock = ri.quiet_publisher(self, Clock, contract.CLOCK, recorded=deep)
+            self._clock_topic = self.pub_clock.topic_name       # as remapped (the valve's own clock)
             self._started = False
             self._waiting_since = time.monotonic()
             self._participants = node_ps["lockstep_participants"]
@@ -246,7 +249,10 @@ class PlantNode(Node):
 
     # ------------------------------------------------------------------ timing
     def realtime_loop(self) -> None:
-        """Real-time mode: tick every period on a sleep-until schedule."""
+        """Real-time mode: tick every period on a sleep-until schedule (from the moment the
+        recorder, if the run has one, has matched: :class:`~fuel_valve_control.ros.interface.RecorderGate`)."""
+        while self._running and not self.recorder_gate.opened.wait(0.05):
+            pass
         last = time.monotonic()
         next_tick = last + self.period
         while self._running:
@@ -286,8 +292,8 @@ class PlantNode(Node):
 
     def try_start(self) -> None:
         """Lockstep: start once the controller (and the other participants) are connected."""
-        if self._started:                # a call already queued when the timer was cancelled
-            return
+        if self._started or not self.recorder_gate.is_open:   # a queued call after the cancel;
+            return                                            # the recorder still matching
         clock = self.pub_clock.topic_name           # /clock as remapped: the valve's own clock
         clock_nodes = {(i.node_namespace, i.node_name) for i in self.get_subscriptions_info_by_topic(clock)}
         # the graph (what discovery has seen) and the publishers' matched subscriptions (what a
@@ -328,8 +334,9 @@ class PlantNode(Node):
                 or time.monotonic() - self._last_publish_mono < LOCKSTEP_RESEND_S):
             return
         self._last_publish_mono = time.monotonic()      # next copy after another timeout
-        for pub, msg in self._tick_msgs:
+        for pub, msg, topic in self._tick_msgs:
             pub.publish(msg)
+            self.recorder_gate.count(topic)
         self.republished += 1
         self.get_logger().info(f"lockstep: no command for t = {self.plant.time:.3f} s within "
                                f"{LOCKSTEP_RESEND_S:g} s: tick re-published", throttle_duration_sec=5.0)
@@ -348,29 +355,30 @@ class PlantNode(Node):
             stamp = self._time_msg(sec=sec, nanosec=int(round((t - sec) * 1e9)))
             clock = self._clock_msg(clock=stamp)
             self.pub_clock.publish(clock)
-            self._tick_msgs = ((self.pub_clock, clock),)
+            self.recorder_gate.count(self._clock_topic)
+            self._tick_msgs = ((self.pub_clock, clock, self._clock_topic),)
         elif stamp is None:
             stamp = self.get_clock().now().to_msg()
         dp = self.plant.pressure_sample()
         if dp is not None:        # first: in lockstep the controller uses it this very period
             self.pub_pressure.publish(self._float(data=dp))
-            self.published[contract.PRESSURE_DIFFERENTIAL] += 1
+            self.recorder_gate.count(contract.PRESSURE_DIFFERENTIAL)
         sample = self.plant.resolver()
         self._got_command = False
         self._last_publish_mono = time.monotonic()
         if sample is not None:
             resolver = ri.joint_state(stamp, (sample.motor_rad, sample.valve_rad))
             self.pub_resolver.publish(resolver)
-            self.published[contract.RESOLVER] += 1
+            self.recorder_gate.count(contract.RESOLVER)
             if self.lockstep:
-                self._tick_msgs += ((self.pub_resolver, resolver),)
+                self._tick_msgs += ((self.pub_resolver, resolver, contract.RESOLVER),)
         truth = self.plant.truth()
         self.pub_truth.publish(ri.joint_state(
             stamp, (truth.motor_angle, truth.valve_angle), (truth.motor_velocity, truth.valve_velocity),
             (truth.electromagnetic_torque, truth.coupling_torque)))
-        self.pub_drive.publish(ri.labelled_array(contract.TELEMETRY_LABELS, self.plant.telemetry()))
-        self.published[contract.JOINT_STATES] += 1
-        self.published[contract.DRIVE] += 1
+        self.pub_drive.publish(self._drive_cdr(self.plant.telemetry()))
+        self.recorder_gate.count(contract.JOINT_STATES)
+        self.recorder_gate.count(contract.DRIVE)
 
     # ------------------------------------------------------------------ parameters
     @guarded
@@ -384,6 +392,8 @@ class PlantNode(Node):
 
     @guarded
     def publish_diagnostics(self) -> None:
+        if not self.recorder_gate.is_open:
+            return
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
         s = self.stats.summary()
         st = DiagnosticStatus(name=f"{self.get_fully_qualified_name()}: loop", hardware_id="fuel_valve_plant")
@@ -411,6 +421,7 @@ class PlantNode(Node):
         msg = DiagnosticArray(status=[st])
         msg.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(msg)
+        self.recorder_gate.count(contract.DIAGNOSTICS)
 
 
 def main(args=None) -> int:
