@@ -132,6 +132,8 @@ class ValveDriver:
         self._dp_prev: tuple[float, float] | None = None   # (t, kPa) of the last finite reading
         self.pressure_kpa = self.ps["pressure.fallback_kpa"]   # Δp the law is scheduled for now
         self.last = DriverOutput(0.0, False, "waiting", None, None)
+        #: a :class:`~.valve_tests.ValveTests` attaches itself here: while a test runs it owns the demand
+        self.valve_test = None
 
     # ------------------------------------------------------------------ parameters
     def check_params(self, changes: dict) -> ParamSet:
@@ -365,6 +367,8 @@ class ValveDriver:
             out = self._step(t)
             if not math.isfinite(out.current_a):
                 raise ArithmeticError(f"non-finite current command {out.current_a!r} A")
+            if self.valve_test is not None:
+                self.valve_test.observe(t, out)       # records; aborts on faults (never raises)
             return out
         except Exception as exc:           # noqa: BLE001 - see the module docstring
             self.internal_fault("step", exc)
@@ -400,6 +404,8 @@ class ValveDriver:
                                      dict(self.faults), dict(self.warnings))
             return self.last
         demand_rad = self.demand_rad()
+        if self.valve_test is not None:           # a running valve test owns the demand
+            demand_rad = self.valve_test.demand(t, demand_rad)
         if not self._armed:
             # after a stall from zero torque, what the drive really applied once its watchdog
             # tripped (resuming the old request drove the valve on: 49 % for a 40 % step); the
