@@ -417,6 +417,33 @@ class ValveTests:
         self.findings_by_test[name] = findings
 
 
+def results_in(doc) -> list[dict]:
+    """Valve-test results in a JSON document, oldest first: one result (a dict with ``test``),
+    ``fuel_valve_sim --json`` output (``valve_tests``: name -> result), a
+    ``fuel_valve_report --json`` document (``valve_tests``: a list) or a list of results."""
+    if isinstance(doc, list):
+        return [r for r in doc if isinstance(r, dict) and "test" in r]
+    if not isinstance(doc, dict):
+        return []
+    if "test" in doc:
+        return [doc]
+    found = doc.get("valve_tests")
+    if isinstance(found, dict):
+        found = sorted(found.values(), key=lambda r: r.get("t_end_s") or 0.0)
+    return results_in(found or [])
+
+
+def load_baselines(path: str) -> list[dict]:
+    """The completed results in the JSON file ``path`` (:func:`results_in`); raises
+    ``OSError``/``ValueError`` for a missing or unreadable file or one without results."""
+    import json
+    with open(path) as f:
+        found = [r for r in results_in(json.load(f)) if r.get("status") == "completed"]
+    if not found:
+        raise ValueError(f"{path}: no completed valve-test result in it")
+    return found
+
+
 class Analysis:
     """Figures of one completed run (see the module docstring for the definitions)."""
 
@@ -526,6 +553,8 @@ class Analysis:
             for tag in ("out", "back"):
                 figs[f"travel_time_{tag}_s"] = self._travel_time(tag)
             figs["travel_pct"] = abs(seg_out.end - seg_out.start) / self.driver.stroke * 100.0
+            # where the valve came to rest after the return, against where it started
+            figs["return_error_pct"] = float(self.pos[-1] - run.origin) / self.driver.stroke * 100.0
         self.curve = {"position_pct": _pct_list(pair["centres"], self.driver.stroke),
                       "torque_open_nm": _list(pair["open"]), "torque_close_nm": _list(pair["close"]),
                       "friction_nm": _list(pair["friction"]), "load_nm": _list(pair["load"])}

@@ -19,7 +19,7 @@ import json
 import math
 
 from ..common import contract
-from ..core.valve_tests import PARTIAL_STROKE, SIGNATURE, ValveTests
+from ..core.valve_tests import PARTIAL_STROKE, SIGNATURE, ValveTests, load_baselines
 from . import interface as ri
 
 
@@ -34,8 +34,8 @@ def create_valve_test_interface(node, driver, lock) -> ValveTests:
     path = driver.ps["tests.baseline_path"]
     if path:
         try:
-            with open(path) as f:
-                tests.set_baseline(json.load(f))
+            for result in load_baselines(path):
+                tests.set_baseline(result)
             node.get_logger().info(f"valve tests: baseline loaded from {path}")
         except (OSError, ValueError) as exc:
             node.get_logger().error(f"valve tests: baseline {path} not used ({exc}); the first run is the baseline")

@@ -1,10 +1,12 @@
 """Offline closed-loop simulator (no ROS): plant + valve driver + demand profile -> metrics.
 
     fuel_valve_sim --scenario NAME|FILE [--controller MODE] [--set section.key=value ...]
-                   [--seed N] [--json PATH] [--plot PATH] [--trace PATH.csv]
+                   [--seed N] [--json PATH] [--plot PATH] [--trace PATH.csv] [--baseline PATH.json]
 
 Prints one JSON object: ``{"scenario", "controller", "metrics", "sim_time_s", "wall_time_s",
-"real_time_factor"}`` plus ``"segments"`` (per step/hold/sweep/trip details).  Unknown
+"real_time_factor"}`` plus ``"segments"`` (per step/hold/sweep/trip details), and for a
+scenario with valve-test events (``config/valve_tests/*.yaml``) ``"valve_tests"`` (name ->
+result, :mod:`fuel_valve_control.core.valve_tests`) and ``"valve_test_refusals"``.  Unknown
 scenario, mode or parameter: a message on stderr and exit code 2.
 
 ``--trace`` writes the run's time series as CSV (columns: :mod:`.trace`).  The run's set-up
@@ -29,7 +31,7 @@ from fuel_valve_plant.physics.plant import Plant
 from ..common.paramspec import ConfigError, ParamSet, parse_overrides
 from ..core.driver import ValveDriver
 from ..core.params import MODES
-from ..core.valve_tests import ValveTests
+from ..core.valve_tests import ValveTests, load_baselines
 from . import metrics as M
 from .run_plan import OFFLINE, RunPlan, apply_event, plan_run
 from .scenarios import Scenario, load_scenario
@@ -173,6 +175,9 @@ def main(argv=None) -> int:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="override a plant or controller parameter, e.g. plant.friction_scale=2")
     parser.add_argument("--seed", type=int, help="resolver noise seed")
+    parser.add_argument("--baseline", metavar="PATH.json", help="valve tests (scenario events signature_test, "
+                        "partial_stroke_test): judge them against the completed results in this JSON file "
+                        "(an earlier --json output); default: the first run of each test is its baseline")
     parser.add_argument("--json", metavar="PATH", help="also write the JSON result here")
     parser.add_argument("--plot", metavar="PATH", help="write a PNG of the run here")
     parser.add_argument("--trace", metavar="PATH.csv", help="write the run's time series here (CSV, header row "
@@ -182,10 +187,11 @@ def main(argv=None) -> int:
         over = parse_overrides(args.overrides, ("plant", "controller"))
         plan = plan_run(load_scenario(args.scenario), OFFLINE, mode=args.controller, seed=args.seed,
                         plant_overrides=over["plant"], controller_overrides=over["controller"])
-    except ConfigError as exc:
+        baselines = load_baselines(args.baseline) if args.baseline else []
+    except (ConfigError, OSError, ValueError) as exc:
         print(f"fuel_valve_sim: error: {exc}", file=sys.stderr)
         return 2
-    result = simulate_plan(plan)
+    result = simulate_plan(plan, baselines)
     doc = M.jsonable(result.summary())
     text = json.dumps(doc)
     print(text)
@@ -195,6 +201,9 @@ def main(argv=None) -> int:
     if args.plot:
         from .plotting import plot_result
         plot_result(result, args.plot)
+        if result.valve_tests:               # the friction/hysteresis diagrams beside it
+            from .report import plot_valve_tests
+            plot_valve_tests(list(result.valve_tests.values()), args.plot, baselines)
     if args.trace:
         from .trace import write_trace
         write_trace(args.trace, result.series())
