@@ -43,18 +43,27 @@ def create_valve_test_interface(node, driver, lock) -> ValveTests:
 
     def publish(result: dict) -> None:
         publisher.publish(String(data=json.dumps(result, default=_finite)))
-        log = node.get_logger().warn if result["status"] != "completed" or result["findings"] else node.get_logger().info
-        log(f"{result['test']} test {result['status']}"
-            + (f": {result['reason']}" if result["reason"] else "")
-            + (f"; {'; '.join(result['findings'])}" if result["findings"] else ""))
+        text = (f"{result['test']} test {result['status']}" + (f": {result['reason']}" if result["reason"] else "")
+                + (f"; {'; '.join(result['findings'])}" if result["findings"] else ""))
+        # one call site per severity: rclpy refuses a site whose severity changes
+        if result["status"] != "completed" or result["findings"]:
+            node.get_logger().warn(text)
+        else:
+            node.get_logger().info(text)
 
     tests.listeners.append(publish)
 
     def service(name: str):
         def call(request, response):
-            with lock:
-                response.success, response.message = tests.start(name)
-            (node.get_logger().info if response.success else node.get_logger().warn)(response.message)
+            try:
+                with lock:
+                    response.success, response.message = tests.start(name)
+            except Exception as exc:        # noqa: BLE001 - answer the caller; the loop is untouched
+                response.success, response.message = False, f"internal error: {exc!r}"
+            if response.success:
+                node.get_logger().info(response.message)
+            else:
+                node.get_logger().warn(response.message)
             return response
         return call
 
