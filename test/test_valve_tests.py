@@ -247,3 +247,30 @@ def test_signature_refused_while_hunting_or_tracking_error():
         driver3.step(t)
     ok, message = tests3.start(SIGNATURE)
     assert not ok and "tracking error" in message
+
+
+def test_report_recognises_valve_tests_and_plots_them_next_to_the_baseline(tmp_path, capsys):
+    """``fuel_valve_report``: results recorded on ``valve_test`` in a bag, or in a JSON file."""
+    import json
+    from pathlib import Path
+
+    from fuel_valve_control.tools import report
+    from fuel_valve_control.tools.bag_io import Bag
+
+    base = signature(6206.0).valve_tests[SIGNATURE]
+    worn = signature(6206.0, 2.0, baselines=[base]).valve_tests[SIGNATURE]
+    bag = Bag(Path(tmp_path / "bag"), "mcap", {}, {}, {},
+              texts={"/fuel_valve/valve_test": [json.dumps(base), json.dumps(worn)], "/other": ["not json"]})
+    found = report.valve_test_results(bag)
+    assert [r["figures"]["friction_mean_nm"] for r in found] == [base["figures"]["friction_mean_nm"],
+                                                                 worn["figures"]["friction_mean_nm"]]
+    written = report.plot_valve_tests(found, tmp_path / "run.png")       # baseline: the bag's first run
+    assert written == [str(tmp_path / "run_signature.png")] and Path(written[0]).stat().st_size > 10_000
+    (tmp_path / "worn.json").write_text(json.dumps({"valve_tests": {SIGNATURE: worn}}))
+    (tmp_path / "base.json").write_text(json.dumps(base))
+    assert report.main([str(tmp_path / "worn.json"), "--baseline", str(tmp_path / "base.json"),
+                        "--plot", str(tmp_path / "offline.png")]) == 0
+    out = capsys.readouterr().out
+    assert "maintenance required" in out and (tmp_path / "offline_signature.png").is_file()
+    (tmp_path / "empty.json").write_text("{}")
+    assert report.main([str(tmp_path / "empty.json")]) == 2
