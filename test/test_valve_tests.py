@@ -274,3 +274,65 @@ def test_report_recognises_valve_tests_and_plots_them_next_to_the_baseline(tmp_p
     assert "maintenance required" in out and (tmp_path / "offline_signature.png").is_file()
     (tmp_path / "empty.json").write_text("{}")
     assert report.main([str(tmp_path / "empty.json")]) == 2
+
+
+def test_every_runtime_tests_parameter_is_read_by_the_valve_tests():
+    """The ``tests.*`` run-time keys (test_runtime_params leaves them to this test): a short
+    signature and a partial stroke run on the plant read each one."""
+    from collections.abc import Mapping
+
+    from fuel_valve_plant.physics.plant import Plant
+
+    from fuel_valve_control.core.params import CONTROLLER_SPEC
+
+    class Reads(Mapping):
+        def __init__(self, values):
+            self.values, self.read = values, set()
+
+        def __getitem__(self, name):
+            self.read.add(name)
+            return self.values[name]
+
+        def __iter__(self):
+            return iter(self.values)
+
+        def __len__(self):
+            return len(self.values)
+
+    plant = Plant(load_plant_params(overrides={"pressure_differential_kpa": 0.0, "initial_position_rad": 0.3}))
+    ps = load_controller_params(overrides={"tests.enable": True, "tests.signature.start_pct": 30.0,
+                                           "tests.signature.end_pct": 34.0, "tests.signature.steps_pct": [1.0],
+                                           "tests.signature.dwell_s": 0.2, "tests.signature.step_time_s": 0.2,
+                                           "tests.partial.fraction_pct": 2.0, "tests.partial.dwell_s": 0.2})
+    driver = ValveDriver(ps)
+    tests = ValveTests(driver)
+    reads = Reads(driver.ps)
+    driver.ps = reads
+    t, period = 0.0, driver.period
+
+    def loop(seconds):
+        nonlocal t
+        for _ in range(int(round(seconds / period))):
+            driver.demand_percent(t, 30.0)
+            driver.pressure_differential(t, 0.0)
+            s = plant.resolver()
+            driver.resolver(s.stamp_s, s.motor_rad, s.valve_rad)
+            out = driver.step(t)
+            plant.set_command(out.current_a, out.enable)
+            plant.advance(period)
+            t += period
+
+    loop(2.5)
+    for name in (SIGNATURE, PARTIAL_STROKE):
+        assert tests.start(name)[0], tests.refusals
+        while tests.running:
+            loop(0.1)
+        assert tests.last_result(name)["status"] == "completed", tests.last_result(name)["reason"]
+        loop(2.2)
+    for name in (SIGNATURE, PARTIAL_STROKE):         # the second runs are judged: degradation_ratio
+        tests.start(name)
+        while tests.running:
+            loop(0.1)
+        loop(2.2)
+    wanted = {p.name for p in CONTROLLER_SPEC if p.runtime and p.name.startswith("tests.")}
+    assert wanted - reads.read == set()

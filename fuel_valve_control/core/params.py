@@ -240,8 +240,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "operator demand moves further than this from its value at the start", 0.05, 50.0, runtime=True),
     Param("tests.degradation_ratio", 1.5, "", "a figure (friction, breakaway, travel time) beyond this ratio "
           "of the baseline's, or below its inverse, raises 'maintenance required'", 1.05, 10.0, runtime=True),
-    Param("tests.baseline_path", "", "", "JSON file of a stored baseline result (fuel_valve_report format); "
-          "empty: the first completed run of each test is the baseline", runtime=True),
+    Param("tests.baseline_path", "", "", "controller node, read at start-up: JSON file of stored completed "
+          "results (a valve_test message, fuel_valve_sim/fuel_valve_report --json output); empty: the first "
+          "completed run of each test is its baseline"),
     Param("tests.signature.start_pct", 20.0, "%", "lower end of the signature ramp, percent of stroke",
           2.0, 98.0, runtime=True),
     Param("tests.signature.end_pct", 60.0, "%", "upper end of the signature ramp, percent of stroke",
