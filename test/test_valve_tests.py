@@ -266,7 +266,9 @@ def test_report_recognises_valve_tests_and_plots_them_next_to_the_baseline(tmp_p
                                                                  worn["figures"]["friction_mean_nm"]]
     written = report.plot_valve_tests(found, tmp_path / "run.png")       # baseline: the bag's first run
     assert written == [str(tmp_path / "run_signature.png")] and Path(written[0]).stat().st_size > 10_000
-    (tmp_path / "worn.json").write_text(json.dumps({"valve_tests": {SIGNATURE: worn}}))
+    # as fuel_valve_sim --json writes it: NaN figures (a step that never settled) become null
+    written_by_sim = dict(worn, figures=dict(worn["figures"], step_2pct_up_settling_time_s=None))
+    (tmp_path / "worn.json").write_text(json.dumps({"valve_tests": {SIGNATURE: written_by_sim}}))
     (tmp_path / "base.json").write_text(json.dumps(base))
     assert report.main([str(tmp_path / "worn.json"), "--baseline", str(tmp_path / "base.json"),
                         "--plot", str(tmp_path / "offline.png")]) == 0

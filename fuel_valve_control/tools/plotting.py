@@ -143,7 +143,7 @@ def plot_valve_test(result: Mapping, path: str, baseline: Mapping | None = None,
     ax.grid(True, alpha=0.3)
     axf.set_xlabel("valve position [% of stroke]")
     axf.set_ylabel("friction = (opening - closing) / 2 [N*m]")
-    axf.set_ylim(bottom=0.0)
+    axf.set_ylim(0.0, 1.3 * max(axf.get_ylim()[1], 1e-3))     # a flat friction line off the frame
     lines = [f"{k} = {figs[k]:.4g}" for k in ("friction_mean_nm", "breakaway_open_nm", "breakaway_close_nm",
                                               "breakaway_nm", "spring_rate_nm_per_rad", "spring_preload_nm",
                                               "hysteresis_pct", "deadband_pct", "travel_time_out_s",

@@ -345,7 +345,8 @@ def _report_json(path: str, plot: str | None, baselines: list[dict]) -> int:
         figs = res.get("figures") or {}
         print(f"{res['test']}: {res['status']} {res.get('reason') or ''}")
         for key, value in figs.items():
-            print(f"  {key:<36} {value:.6g} {unit_of(key)}")
+            text = "n/a" if not isinstance(value, (int, float)) else f"{value:.6g} {unit_of(key)}"
+            print(f"  {key:<36} {text}")     # n/a: NaN, written as null by fuel_valve_sim --json
         for finding in res.get("findings") or []:
             print(f"  {finding}")
     if plot:
