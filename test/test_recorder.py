@@ -151,13 +151,14 @@ def test_recorded_bag_reads_back(lockstep_bag):
     # /clock is the valve's own clock in lockstep (launcher.clock_remap)
     expected = {"/diagnostics"} | {f"{NS}/{t}" for t in (
         "clock", "demand", "demand_ma", "position", "current_command", "drive_enable", "resolver", "joint_states",
-        "drive", "estimate", "pressure_differential")}
+        "drive", "estimate", "pressure_differential", "valve_test")}     # valve_test: no test run, 0 messages
     assert set(counts) == expected
     # every message the nodes published is in the bag, topic by topic (a tick the plant re-published
     # after a wall-clock stall -- /clock and resolver -- was sent twice and is in it twice) ...
     published = run.launcher.recording_losses()["topics"]
     assert {t: v["in_bag"] for t, v in published.items()} == {t: v["published"] for t, v in published.items()}
-    assert set(published) == expected - {f"{NS}/demand_ma"}        # the demand node publishes percent
+    # the demand node publishes percent; no valve test ran, so nothing was published on valve_test
+    assert set(published) == expected - {f"{NS}/demand_ma", f"{NS}/valve_test"}
     # ... and every period is in it once per topic
     for topic in ("joint_states", "drive", "current_command", "demand"):
         assert counts[f"{NS}/{topic}"] == PERIODS, (topic, counts[f"{NS}/{topic}"])

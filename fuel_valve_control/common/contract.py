@@ -22,6 +22,9 @@ JOINT_STATES = "joint_states"
 DRIVE = "drive"
 ESTIMATE = "estimate"
 PRESSURE_DIFFERENTIAL = "pressure_differential"
+#: results of the controller's valve tests (signature, partial stroke): one JSON document per
+#: finished run in a std_msgs/String (core/valve_tests.py documents the keys), latched
+VALVE_TEST = "valve_test"
 DIAGNOSTICS = "/diagnostics"
 CLOCK = "/clock"
 
@@ -37,13 +40,14 @@ TOPIC_TYPES = {
     DRIVE: "std_msgs/msg/Float64MultiArray",
     ESTIMATE: "sensor_msgs/msg/JointState",
     PRESSURE_DIFFERENTIAL: "std_msgs/msg/Float64",
+    VALVE_TEST: "std_msgs/msg/String",
     DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
 }
 
 #: topics of the control loop itself (keep-last-1: a loop wants the newest value, no backlog)
 LOOP_TOPICS = (RESOLVER, CURRENT_COMMAND, DEMAND, DEMAND_MA)
 #: topics that are latched (a late joiner still learns the state)
-LATCHED_TOPICS = (DRIVE_ENABLE,)
+LATCHED_TOPICS = (DRIVE_ENABLE, VALVE_TEST)
 
 MOTOR_JOINT = "motor_shaft"
 VALVE_JOINT = "valve_shaft"

@@ -165,6 +165,8 @@ class ValveDriver:
         self._settled_demand: float | None = None
         self._last_swap = -self.param_swap_periods
         self.law_swaps = 0                         # laws replaced at run time (diagnostics)
+        #: a :class:`~.valve_tests.ValveTests` attaches itself here: while a test runs it owns the demand
+        self.valve_test = None
 
     def __getstate__(self):
         """Copyable (``copy.deepcopy``, pickle): the parameter lock is not state."""
@@ -491,6 +493,9 @@ class ValveDriver:
                 self.valve_health.update(t, dt, self._meas.valve_rad, self.demand_rad(),
                                          None if self._dp is None else self.pressure_kpa, out.enable,
                                          self.controller.law.friction_trend)
+            if self.valve_test is not None:
+                self.valve_test.observe(t, out)       # records; aborts on faults (never raises)
+                self.valve_test.report_health(self.valve_health)
             return out
         except Exception as exc:           # noqa: BLE001 - see the module docstring
             self.internal_fault("step", exc)
@@ -528,6 +533,8 @@ class ValveDriver:
                                      dict(self.faults), dict(self.warnings))
             return self.last
         demand_rad = self.demand_rad()
+        if self.valve_test is not None:           # a running valve test owns the demand
+            demand_rad = self.valve_test.demand(t, demand_rad)
         if not self._armed:
             # after a stall from zero torque, what the drive really applied once its watchdog
             # tripped (resuming the old request drove the valve on: 49 % for a 40 % step); the

@@ -262,6 +262,45 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           0.0, 1e12, runtime=True),
     Param("health.reversal_limit", 10000000, "", "reversals that need maintenance (NE107 M)", 0, 2**62,
           runtime=True),
+    # --- valve tests (core/valve_tests.py: signature and partial-stroke tests) -----------------
+    Param("tests.enable", False, "", "test mode: the operator's consent to a valve signature test (it takes "
+          "the valve off the demand for tens of seconds); partial-stroke tests do not need it", runtime=True),
+    Param("tests.hunting_limit_rad", 2e-3, "rad", "a test is refused while the valve's position spread over "
+          "the last 2 s (half peak-to-peak) exceeds this: hunting or still moving", 1e-4, 0.1, runtime=True),
+    Param("tests.abort_band_pct", 1.0, "%", "a running test is aborted (the demand handed back) when the "
+          "operator demand moves further than this from its value at the start", 0.05, 50.0, runtime=True),
+    Param("tests.degradation_ratio", 1.5, "", "a figure (friction, breakaway, travel time) beyond this ratio "
+          "of the baseline's, or below its inverse, raises 'maintenance required'", 1.05, 10.0, runtime=True),
+    Param("tests.baseline_path", "", "", "controller node, read at start-up: JSON file of stored completed "
+          "results (a valve_test message, fuel_valve_sim/fuel_valve_report --json output); empty: the first "
+          "completed run of each test is its baseline"),
+    Param("tests.signature.start_pct", 20.0, "%", "lower end of the signature ramp, percent of stroke",
+          2.0, 98.0, runtime=True),
+    Param("tests.signature.end_pct", 60.0, "%", "upper end of the signature ramp, percent of stroke",
+          2.0, 98.0, runtime=True),
+    Param("tests.signature.ramp_rate_pct_s", 5.0, "%/s", "ramp rate of the signature (slow: inertial and "
+          "viscous torques small against friction)", 0.1, 50.0, runtime=True),
+    Param("tests.signature.dwell_s", 1.0, "s", "rest at each end of a ramp and before the steps", 0.1, 30.0,
+          runtime=True),
+    Param("tests.signature.steps_pct", [0.1, 0.25, 0.5, 1.0, 2.0], "%", "step sizes of the step-response part "
+          "(each stepped up from the ramp's start and back), percent of stroke", 0.01, 20.0, runtime=True),
+    Param("tests.signature.step_time_s", 1.0, "s", "time each step is held (settling time is measured "
+          "within it)", 0.1, 30.0, runtime=True),
+    Param("tests.signature.bins", 10, "", "position bins of the friction/load curve over the ramp range", 3,
+          200, runtime=True),
+    Param("tests.partial.fraction_pct", 10.0, "%", "partial-stroke travel, percent of stroke (toward closed "
+          "when there is room, else toward open)", 0.5, 50.0, runtime=True),
+    Param("tests.partial.max_travel_pct", 15.0, "%", "largest excursion the turbine tolerates: a larger "
+          "fraction is refused, a larger excursion aborts the test", 0.5, 50.0, runtime=True),
+    Param("tests.partial.max_time_s", 10.0, "s", "longest the turbine tolerates the valve off its demand: "
+          "the test aborts beyond it", 0.5, 120.0, runtime=True),
+    Param("tests.partial.rate_pct_s", 10.0, "%/s", "rate of the partial-stroke moves", 0.5, 200.0, runtime=True),
+    Param("tests.partial.dwell_s", 0.5, "s", "rest at the far end and after the return", 0.05, 10.0,
+          runtime=True),
+    Param("tests.partial.demand_window_s", 2.0, "s", "a partial-stroke test is refused while the demand moved "
+          "over this window ...", 0.1, 60.0, runtime=True),
+    Param("tests.partial.demand_band_pct", 0.5, "%", "... by more than this (peak to peak, percent of stroke)",
+          0.01, 20.0, runtime=True),
     # --- nominal model (defaults = plant nominal values) --------------------------------------
     _nominal("motor_inertia_kgm2", 6.93e-6, "kg*m^2", "rotor inertia Jm", 0.0, 1.0, low_open=True),
     _nominal("motor_viscous_nms", 2.6e-5, "N*m*s/rad", "rotor viscous friction Bm", 0.0, 1.0),
@@ -357,3 +396,5 @@ def check_consistency(ps: ParamSet) -> None:
     """Cross-parameter rules a single range cannot express (raises :class:`ConfigError`)."""
     if ps["limits.continuous_current_a"] > ps["limits.peak_current_a"]:
         raise ConfigError("controller: limits.continuous_current_a must not exceed limits.peak_current_a")
+    if ps["tests.signature.start_pct"] >= ps["tests.signature.end_pct"]:
+        raise ConfigError("controller: tests.signature.start_pct must be below tests.signature.end_pct")

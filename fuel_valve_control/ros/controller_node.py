@@ -8,7 +8,9 @@ timer keeps the fault logic running when samples stop, so silence trips the driv
 Topics (SPEC §4): subscribes ``demand`` (percent), ``demand_ma`` (4-20 mA), ``resolver``,
 ``pressure_differential`` (measured Δp, kPa: schedules the friction terms) and, optionally,
 the plant's ``drive`` telemetry (measured current for the over-current check); publishes ``current_command`` (A), ``drive_enable``, ``position`` (percent),
-``estimate`` and ``/diagnostics``.  Services ``~/trip`` and ``~/reset`` (std_srvs/Trigger).
+``estimate`` and ``/diagnostics``.  Services ``~/trip`` and ``~/reset`` (std_srvs/Trigger); the
+valve tests' ``~/signature_test``, ``~/partial_stroke_test`` and latched ``valve_test``
+(:mod:`.valve_test_services`).
 
 With ``lockstep:=true`` (and ``use_sim_time:=true``) each period waits for a fresh demand as
 well as the resolver sample, so runs are deterministic: the demand source is part of the
@@ -43,6 +45,7 @@ from rclpy.lifecycle import Node as LifecycleNode, State, TransitionCallbackRetu
 from ..common import contract
 from . import interface as ri
 from .node_runner import run_node
+from .valve_test_services import ValveTestInterface
 from ..common.paramspec import ConfigError
 
 from ..core.params import CONTROLLER_NODE_SPEC, CONTROLLER_SPEC, load_controller_params
@@ -163,6 +166,8 @@ class ControllerNode(LifecycleNode):
         self._compute = ComputeTime()
         self.create_service(Trigger, "~/trip", self.on_trip)
         self.create_service(Trigger, "~/reset", self.on_reset)
+        #: signature / partial-stroke tests: ~/signature_test, ~/partial_stroke_test, latched valve_test
+        self.valve_tests = ValveTestInterface(self, self._lock)    # a ValveTests per configure
         ri.handle_parameter_changes(self, CONTROLLER_SPEC, self.check_parameters, self.apply_parameters)
         self.create_timer(1.0 / node_ps["diagnostics_rate_hz"], self.publish_diagnostics)
         if node_ps["autostart"]:
@@ -207,6 +212,7 @@ class ControllerNode(LifecycleNode):
                 self.get_logger().info(message)
             else:
                 self.get_logger().warn(message)
+        self.valve_tests.attach(driver)
         self.driver, self.stroke = driver, driver.stroke
         self._reset_loop_state()
         period = driver.period
@@ -284,6 +290,7 @@ class ControllerNode(LifecycleNode):
             self.destroy_timer(timer)
         self._loop_timers = []
         self.driver = None
+        self.valve_tests.detach()
         self._reset_loop_state()
 
     def _publish_disabled(self, force: bool = False) -> None:
@@ -552,7 +559,7 @@ class ControllerNode(LifecycleNode):
             self.fail_safe("health", exc)
             h = Health(2, f"FAULT: internal error while reporting health: {exc}", {"faults": "internal_error"})
         values = dict(h.values, malformed_messages=self._bad_messages, periods=self._periods,
-                      **self._compute.take())
+                      **self._compute.take(), **self.valve_tests.summary())
         st = DiagnosticStatus(level=bytes([h.level]), name=f"{self.get_fully_qualified_name()}: valve driver",
                               message=h.message, hardware_id="fuel_valve_driver",
                               values=[KeyValue(key=k, value=_fmt(v)) for k, v in values.items()])

@@ -67,6 +67,7 @@ class Bag:
     types: dict                                     # full topic name -> message type
     diagnostics: dict = field(default_factory=dict)  # status name -> {key: value} (newest)
     custom_data: dict = field(default_factory=dict)
+    texts: dict = field(default_factory=dict)        # full topic name -> [std_msgs/String data, ...]
 
     @property
     def name(self) -> str:
@@ -125,12 +126,16 @@ def read_bag(path: str | Path, topics: list[str] | None = None) -> Bag:
                 bases = {t.strip("/").rsplit("/", 1)[-1] for t in topics}
                 wanted = [c for c in wanted if c.topic in topics or c.topic.rstrip("/").rsplit("/", 1)[-1] in bases]
             diagnostics: dict[str, dict] = {}
+            texts: dict[str, list] = {}
             for conn, log_ns, data in (reader.messages(connections=wanted) if wanted else ()):
                 msg = reader.deserialize(data, conn.msgtype)
                 if conn.msgtype == "diagnostic_msgs/msg/DiagnosticArray":
                     for st in msg.status:
                         diagnostics[st.name] = {kv.key: kv.value for kv in st.values}
                         diagnostics[st.name]["_message"] = st.message
+                    continue
+                if conn.msgtype == "std_msgs/msg/String":
+                    texts.setdefault(conn.topic, []).append(msg.data)
                     continue
                 raw.setdefault(conn.topic, []).append((log_ns, conn.msgtype, msg))
     except AnyReaderError as exc:
@@ -140,7 +145,7 @@ def read_bag(path: str | Path, topics: list[str] | None = None) -> Bag:
     except Exception as exc:  # noqa: BLE001 - corrupt storage files raise many types
         raise BagError(f"cannot read bag {str(directory)!r}: {type(exc).__name__}: {exc}") from None
     out = {name: _columns(name, items) for name, items in raw.items()}
-    return Bag(directory, storage, out, counts, types, diagnostics, custom)
+    return Bag(directory, storage, out, counts, types, diagnostics, custom, texts)
 
 
 def _storage_of(directory: Path) -> str:

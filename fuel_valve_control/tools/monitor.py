@@ -14,6 +14,8 @@ from __future__ import annotations
 import math
 import time
 
+from .scenarios import TRIGGER_ACTIONS
+
 
 class Monitor:
     """An in-process rclpy node that watches the run: suite time, demand, position, current,
@@ -163,11 +165,11 @@ def _float(text):
 
 
 def send_event(monitor: Monitor, namespace: str, ev, out):
-    """Send a scenario event (trip | reset | set_plant | set_controller) to the suite; returns the
+    """Send a scenario event (a controller Trigger service, set_plant, set_controller) to the suite; returns the
     pending service future (None when the service is not there)."""
     ns = "/" + namespace.strip("/")
     print(f"event at {ev.at_s:g} s: {ev.action} {ev.params or ''}", file=out, flush=True)
-    if ev.action in ("trip", "reset"):
+    if ev.action in TRIGGER_ACTIONS:
         return monitor.call_trigger(f"{ns}/controller/{ev.action}")
     node = "plant" if ev.action == "set_plant" else "controller"
     return monitor.set_parameters(f"{ns}/{node}", ev.params)

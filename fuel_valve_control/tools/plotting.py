@@ -104,3 +104,55 @@ def plot_result(result, path: str) -> str:
     series = result.series()
     title = f"{result.scenario} - mode {result.controller}"
     return plot_series(series, path, title, result.segments, result.metrics)
+
+
+def _nan(values) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in values], dtype=float)
+
+
+def plot_valve_test(result: Mapping, path: str, baseline: Mapping | None = None, title: str = "") -> str:
+    """The friction/hysteresis diagram of a valve-test result (core/valve_tests.py): drive
+    torque at the valve vs position in both directions (raw samples light, per-bin levels
+    bold; a ``baseline`` result dashed), and friction vs position next to the baseline's."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, axf) = plt.subplots(1, 2, figsize=(13, 5.5), constrained_layout=True)
+    trace = result.get("trace") or {}
+    if trace.get("position_pct"):
+        pos, tq = _nan(trace["position_pct"]), _nan(trace["torque_nm"])
+        up = np.array(trace["opening"], dtype=bool)
+        ax.plot(pos[up], tq[up], ".", color="tab:red", ms=1.5, alpha=0.3, label="opening (samples)")
+        ax.plot(pos[~up], tq[~up], ".", color="tab:blue", ms=1.5, alpha=0.3, label="closing (samples)")
+    for res, style, who in ((result, "-", "this run"), (baseline, "--", "baseline")):
+        curve = (res or {}).get("curve") or {}
+        if not curve.get("position_pct"):
+            continue
+        x = _nan(curve["position_pct"])
+        ax.plot(x, _nan(curve["torque_open_nm"]), style, color="darkred", lw=2, label=f"opening, {who}")
+        ax.plot(x, _nan(curve["torque_close_nm"]), style, color="navy", lw=2, label=f"closing, {who}")
+        axf.plot(x, _nan(curve["friction_nm"]), style, color="k", lw=2,
+                 label=f"{who}: {res['figures'].get('friction_mean_nm', float('nan')):.3f} N*m "
+                       f"at {res.get('pressure_kpa', 0):.0f} kPa")
+    figs = result.get("figures", {})
+    ax.set_xlabel("valve position [% of stroke]")
+    ax.set_ylabel("drive torque at the valve [N*m]")
+    ax.set_title(title or f"{result.get('test')} test ({result.get('status')}): torque vs position", fontsize=10)
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(True, alpha=0.3)
+    axf.set_xlabel("valve position [% of stroke]")
+    axf.set_ylabel("friction = (opening - closing) / 2 [N*m]")
+    axf.set_ylim(0.0, 1.3 * max(axf.get_ylim()[1], 1e-3))     # a flat friction line off the frame
+    lines = [f"{k} = {figs[k]:.4g}" for k in ("friction_mean_nm", "breakaway_open_nm", "breakaway_close_nm",
+                                              "breakaway_nm", "spring_rate_nm_per_rad", "spring_preload_nm",
+                                              "hysteresis_pct", "deadband_pct", "travel_time_out_s",
+                                              "friction_to_baseline_ratio")
+             if isinstance(figs.get(k), (int, float))]
+    lines += list(result.get("findings") or []) or ["no findings"]
+    axf.set_title("\n".join(lines), fontsize=8, loc="left")
+    axf.legend(loc="lower right", fontsize=8)
+    axf.grid(True, alpha=0.3)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

@@ -1,4 +1,12 @@
-"""``fuel_valve_report BAG [--json PATH] [--plot PATH] [--trace PATH.csv]``: SPEC §5 metrics of a recorded run.
+"""``fuel_valve_report BAG [--json PATH] [--plot PATH] [--trace PATH.csv] [--baseline PATH.json]``: SPEC §5 metrics of a recorded run.
+
+Valve tests (issue 12): a bag with results on the controller's latched ``valve_test`` topic
+(signature / partial-stroke runs) also gets them in the report (``valve_tests``) and, with
+``--plot out.png``, the friction/hysteresis diagram of the latest run of each test in
+``out_signature.png`` / ``out_partial_stroke.png``, drawn next to a baseline: the matching
+completed result in ``--baseline`` (a JSON file: a result, or ``fuel_valve_sim --json`` /
+``fuel_valve_report --json`` output), else the first completed run of that test in the bag.
+``BAG`` may also be such a JSON file (an offline run): then only the diagrams are drawn.
 
 Reads a bag (MCAP or sqlite3, from ``recorder`` or ``ros2 bag record``) with :mod:`.bag_io`,
 rebuilds the trace the offline simulator logs and runs the *same* metric code on it
@@ -34,6 +42,7 @@ import numpy as np
 
 from ..common import contract
 from . import metrics as M
+from ..core.valve_tests import PARTIAL_STROKE, SIGNATURE, load_baselines, results_in, unit_of
 from .bag_io import Bag, BagError, TopicData, read_bag
 
 REQUIRED = {
@@ -198,6 +207,38 @@ def controller_mode(bag: Bag) -> str:
 
 
 
+def valve_test_results(bag: Bag) -> list[dict]:
+    """The valve-test results recorded on the ``valve_test`` topic(s), in recording order."""
+    out = []
+    for topic, texts in bag.texts.items():
+        if topic.rstrip("/").rsplit("/", 1)[-1] != contract.VALVE_TEST:
+            continue
+        for text in texts:
+            try:
+                out.extend(results_in(json.loads(text)))
+            except ValueError:
+                continue                     # not ours: a foreign String on a same-named topic
+    return out
+
+
+def plot_valve_tests(results: list[dict], plot: str | Path, baselines: list[dict] = ()) -> list[str]:
+    """Diagram of the latest completed run of each test in ``results`` next to its baseline
+    (the test's first result in ``baselines``, else its first completed run in ``results``
+    when that is another run); written beside ``plot`` as ``<stem>_<test>.png``."""
+    from .plotting import plot_valve_test
+    written = []
+    plot = Path(plot)
+    for name in (SIGNATURE, PARTIAL_STROKE):
+        runs = [r for r in results if r.get("test") == name and r.get("status") == "completed"]
+        if not runs:
+            continue
+        stored = [b for b in baselines if b.get("test") == name]
+        base = stored[0] if stored else (runs[0] if len(runs) > 1 else None)
+        path = plot.with_name(f"{plot.stem}_{name}{plot.suffix or '.png'}")
+        written.append(plot_valve_test(runs[-1], str(path), base))
+    return written
+
+
 def analyse(bag: Bag) -> tuple[dict, dict]:
     """(report dict, plot series) of a bag already read."""
     if bag.message_count == 0:
@@ -208,10 +249,14 @@ def analyse(bag: Bag) -> tuple[dict, dict]:
            "sim_time_s": float(trace.t[-1] - trace.t[0]), "segments": segments,
            "bag": {"path": str(bag.path), "storage": bag.storage, "messages": bag.message_count,
                    "topics": dict(sorted(bag.counts.items())), "sources": sources}}
+    tests = valve_test_results(bag)
+    if tests:
+        doc["valve_tests"] = tests
     return M.jsonable(doc), series
 
 
-def analyse_bag(path: str | Path, plot: str | Path | None = None, trace: str | Path | None = None) -> dict:
+def analyse_bag(path: str | Path, plot: str | Path | None = None, trace: str | Path | None = None,
+                baselines: list[dict] = ()) -> dict:
     """SPEC §5 metrics of the bag at ``path`` as ``fuel_valve_sim`` reports them (plus a
     ``bag`` section); writes the multi-panel PNG to ``plot`` and the time-series CSV
     (:mod:`.trace`) to ``trace`` when given.  Raises :class:`ReportError` /
@@ -224,6 +269,7 @@ def analyse_bag(path: str | Path, plot: str | Path | None = None, trace: str | P
         from .plotting import plot_series
         plot_series(series, str(plot), f"{doc['scenario']} - mode {doc['controller']} (bag)", doc["segments"],
                     doc["metrics"])
+        doc["valve_test_plots"] = plot_valve_tests(doc.get("valve_tests", []), plot, baselines)
     return doc
 
 
@@ -247,6 +293,13 @@ def format_report(doc: dict) -> str:
         lines.append(f"  {s['kind']:<6} {s['t_start_s']:8.3f} - {s['t_end_s']:8.3f} s{extra}")
     if not doc["segments"]:
         lines.append("  (no steps, holds, sweeps or trips found in the demand)")
+    for res in doc.get("valve_tests", []):
+        figs = res.get("figures") or {}
+        lines.append(f"valve test {res.get('test')}: {res.get('status')}" + (f" ({res['reason']})" if res.get("reason") else "")
+                     + "".join(f", {k} {figs[k]:.4g} {unit_of(k)}" for k in ("friction_mean_nm", "breakaway_open_nm",
+                                                                              "breakaway_close_nm", "breakaway_nm")
+                               if isinstance(figs.get(k), (int, float))))
+        lines.extend(f"  {f}" for f in res.get("findings") or [])
     lines.append("metrics:")
     for key, value in doc["metrics"].items():
         text = "n/a (not reached)" if value is None else f"{value:.6g} {UNITS.get(key, '')}"
@@ -257,15 +310,21 @@ def format_report(doc: dict) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="fuel_valve_report", description="SPEC §5 metrics of a recorded "
                                      "fuel_valve run (rosbag2 bag, MCAP or sqlite3).")
-    parser.add_argument("bag", help="bag directory (or its .mcap / .db3 file)")
+    parser.add_argument("bag", help="bag directory (or its .mcap / .db3 file), or a JSON file of valve-test "
+                        "results (fuel_valve_sim --json of a config/valve_tests scenario): diagrams only")
     parser.add_argument("--json", metavar="PATH", help="also write the JSON result here")
     parser.add_argument("--plot", metavar="PATH", help="write a multi-panel PNG here")
     parser.add_argument("--trace", metavar="PATH.csv", help="write the run's time series here (CSV, the columns "
                         "of fuel_valve_sim --trace)")
+    parser.add_argument("--baseline", metavar="PATH.json", help="valve tests: draw the diagrams next to the "
+                        "completed results in this JSON file (default: the first run of each test)")
     args = parser.parse_args(argv)
     try:
-        doc = analyse_bag(args.bag, args.plot, args.trace)
-    except (BagError, ReportError) as exc:
+        baselines = load_baselines(args.baseline) if args.baseline else []
+        if args.bag.endswith(".json"):
+            return _report_json(args.bag, args.plot, baselines)
+        doc = analyse_bag(args.bag, args.plot, args.trace, baselines)
+    except (BagError, ReportError, OSError, ValueError) as exc:
         print(f"fuel_valve_report: error: {exc}", file=sys.stderr)
         return 2
     print(format_report(doc))
@@ -273,6 +332,26 @@ def main(argv=None) -> int:
     if args.json:
         with open(args.json, "w") as f:
             f.write(json.dumps(doc, indent=2) + "\n")
+    return 0
+
+
+def _report_json(path: str, plot: str | None, baselines: list[dict]) -> int:
+    """``fuel_valve_report RESULTS.json``: the valve-test results of an offline run."""
+    with open(path) as f:
+        results = results_in(json.load(f))
+    if not results:
+        raise ReportError(f"{path}: no valve-test results in it")
+    for res in results:
+        figs = res.get("figures") or {}
+        print(f"{res['test']}: {res['status']} {res.get('reason') or ''}")
+        for key, value in figs.items():
+            text = "n/a" if not isinstance(value, (int, float)) else f"{value:.6g} {unit_of(key)}"
+            print(f"  {key:<36} {text}")     # n/a: NaN, written as null by fuel_valve_sim --json
+        for finding in res.get("findings") or []:
+            print(f"  {finding}")
+    if plot:
+        for written in plot_valve_tests(results, plot, baselines):
+            print(f"diagram: {written}")
     return 0
 
 

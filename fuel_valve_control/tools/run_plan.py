@@ -146,6 +146,10 @@ def apply_event(event: Event, plant: Plant, driver: ValveDriver) -> None:
     the same events through the nodes' services, see :mod:`.monitor`)."""
     if event.action == "trip":
         driver.trip("scenario trip")
+    elif event.action in ("signature_test", "partial_stroke_test"):
+        from ..core.valve_tests import ValveTests
+        tests = driver.valve_test if driver.valve_test is not None else ValveTests(driver)
+        tests.start(event.action[:-len("_test")])      # a refusal is kept in tests.refusals
     elif event.action == "reset":
         driver.reset()
     elif event.action == "set_plant":

@@ -12,7 +12,8 @@ A scenario file::
     plant: {coupling.stiffness_nm_per_rad: 48}                   # parameter overrides
     controller: {}
     events:
-      - {at_s: 0.5, action: trip}                                # trip | reset
+      - {at_s: 0.5, action: trip}                                # trip | reset | signature_test |
+                                                                 # partial_stroke_test
       - {at_s: 2.0, action: set_plant, params: {load_torque_nm: 3}}
       - {at_s: 2.0, action: set_controller, params: {mode: pi}}
 """
@@ -29,7 +30,9 @@ from ..common.config_dir import default_config_dir
 
 from .profiles import Profile, ProfileError, make_profile
 
-EVENT_ACTIONS = ("trip", "reset", "set_plant", "set_controller")
+#: trip/reset and the valve tests are the controller's Trigger services of the same name
+TRIGGER_ACTIONS = ("trip", "reset", "signature_test", "partial_stroke_test")
+EVENT_ACTIONS = TRIGGER_ACTIONS + ("set_plant", "set_controller")
 _KEYS = {"name", "description", "duration_s", "pressure_differential_kpa", "initial_percent", "demand",
          "plant", "controller", "events"}
 

@@ -1,10 +1,12 @@
 """Offline closed-loop simulator (no ROS): plant + valve driver + demand profile -> metrics.
 
     fuel_valve_sim --scenario NAME|FILE [--controller MODE] [--set section.key=value ...]
-                   [--seed N] [--json PATH] [--plot PATH] [--trace PATH.csv]
+                   [--seed N] [--json PATH] [--plot PATH] [--trace PATH.csv] [--baseline PATH.json]
 
 Prints one JSON object: ``{"scenario", "controller", "metrics", "sim_time_s", "wall_time_s",
-"real_time_factor"}`` plus ``"segments"`` (per step/hold/sweep/trip details).  Unknown
+"real_time_factor"}`` plus ``"segments"`` (per step/hold/sweep/trip details), and for a
+scenario with valve-test events (``config/valve_tests/*.yaml``) ``"valve_tests"`` (name ->
+result, :mod:`fuel_valve_control.core.valve_tests`) and ``"valve_test_refusals"``.  Unknown
 scenario, mode or parameter: a message on stderr and exit code 2.
 
 ``--trace`` writes the run's time series as CSV (columns: :mod:`.trace`).  The run's set-up
@@ -29,9 +31,13 @@ from fuel_valve_plant.physics.plant import Plant
 from ..common.paramspec import ConfigError, ParamSet, parse_overrides
 from ..core.driver import ValveDriver
 from ..core.params import MODES
+from ..core.valve_tests import ValveTests, load_baselines
 from . import metrics as M
 from .run_plan import OFFLINE, RunPlan, apply_event, plan_run
 from .scenarios import Scenario, load_scenario
+
+#: scenario events that start a valve test
+VALVE_TEST_ACTIONS = ("signature_test", "partial_stroke_test")
 
 #: columns of :attr:`SimResult.log`
 LOG_COLUMNS = ("t", "demand_rad", "position_rad", "measured_rad", "motor_rad", "velocity_rad_s", "current_cmd_a",
@@ -51,6 +57,10 @@ class SimResult:
     wall_time_s: float
     stroke_rad: float
     fault: np.ndarray = field(default_factory=lambda: np.zeros(0))   # 1: a latched driver fault
+    #: valve-test results by test name (core/valve_tests.py), when the scenario ran tests
+    valve_tests: dict = field(default_factory=dict)
+    #: messages of refused valve-test requests
+    valve_test_refusals: list = field(default_factory=list)
 
     def column(self, name: str) -> np.ndarray:
         return self.log[:, LOG_COLUMNS.index(name)]
@@ -69,10 +79,14 @@ class SimResult:
                 "enable": c("enable"), "fault": self.fault}
 
     def summary(self) -> dict:
-        return {"scenario": self.scenario, "controller": self.controller, "metrics": self.metrics,
-                "sim_time_s": self.sim_time_s, "wall_time_s": round(self.wall_time_s, 4),
-                "real_time_factor": round(self.sim_time_s / max(self.wall_time_s, 1e-9), 2),
-                "segments": self.segments}
+        out = {"scenario": self.scenario, "controller": self.controller, "metrics": self.metrics,
+               "sim_time_s": self.sim_time_s, "wall_time_s": round(self.wall_time_s, 4),
+               "real_time_factor": round(self.sim_time_s / max(self.wall_time_s, 1e-9), 2),
+               "segments": self.segments}
+        if self.valve_tests or self.valve_test_refusals:
+            out["valve_tests"] = self.valve_tests
+            out["valve_test_refusals"] = self.valve_test_refusals
+        return out
 
 
 def build(scenario: Scenario, plant_overrides=None, controller_overrides=None, seed=None,
@@ -90,11 +104,18 @@ def simulate(scenario: Scenario, plant_ps: ParamSet, controller_ps: ParamSet) ->
     return simulate_plan(plan)
 
 
-def simulate_plan(plan: RunPlan) -> SimResult:
+def simulate_plan(plan: RunPlan, baselines: list[dict] = ()) -> SimResult:
     """Run an offline plan: every control period events due, demand, resolver sample, driver
-    step, plant step (the order of the ROS loop)."""
+    step, plant step (the order of the ROS loop).  A plan with valve-test events runs them on
+    a :class:`~fuel_valve_control.core.valve_tests.ValveTests`, judged against ``baselines``
+    (stored results; none: the first run of each test is its baseline)."""
     plant = Plant(plan.plant_params)
     driver = ValveDriver(plan.controller_params)
+    tests = None
+    if baselines or any(ev.action in VALVE_TEST_ACTIONS for ev in plan.events):
+        tests = ValveTests(driver)
+        for doc in baselines:
+            tests.set_baseline(doc)
     period = driver.period
     stroke = plan.plant_params["valve.stroke_rad"]
     plan.start_held(plant, driver)
@@ -133,7 +154,8 @@ def simulate_plan(plan: RunPlan) -> SimResult:
     wall = time.perf_counter() - start
     trace = M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9], stroke)
     metrics, segments = M.compute(trace)
-    return SimResult(plan.name, plan.mode, log, metrics, segments, n * period, wall, stroke, fault)
+    return SimResult(plan.name, plan.mode, log, metrics, segments, n * period, wall, stroke, fault,
+                     dict(tests.results) if tests else {}, list(tests.refusals) if tests else [])
 
 
 def run(scenario_name: str, mode: str | None = None, plant_overrides=None, controller_overrides=None,
@@ -153,6 +175,9 @@ def main(argv=None) -> int:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="override a plant or controller parameter, e.g. plant.friction_scale=2")
     parser.add_argument("--seed", type=int, help="resolver noise seed")
+    parser.add_argument("--baseline", metavar="PATH.json", help="valve tests (scenario events signature_test, "
+                        "partial_stroke_test): judge them against the completed results in this JSON file "
+                        "(an earlier --json output); default: the first run of each test is its baseline")
     parser.add_argument("--json", metavar="PATH", help="also write the JSON result here")
     parser.add_argument("--plot", metavar="PATH", help="write a PNG of the run here")
     parser.add_argument("--trace", metavar="PATH.csv", help="write the run's time series here (CSV, header row "
@@ -162,10 +187,11 @@ def main(argv=None) -> int:
         over = parse_overrides(args.overrides, ("plant", "controller"))
         plan = plan_run(load_scenario(args.scenario), OFFLINE, mode=args.controller, seed=args.seed,
                         plant_overrides=over["plant"], controller_overrides=over["controller"])
-    except ConfigError as exc:
+        baselines = load_baselines(args.baseline) if args.baseline else []
+    except (ConfigError, OSError, ValueError) as exc:
         print(f"fuel_valve_sim: error: {exc}", file=sys.stderr)
         return 2
-    result = simulate_plan(plan)
+    result = simulate_plan(plan, baselines)
     doc = M.jsonable(result.summary())
     text = json.dumps(doc)
     print(text)
@@ -175,6 +201,9 @@ def main(argv=None) -> int:
     if args.plot:
         from .plotting import plot_result
         plot_result(result, args.plot)
+        if result.valve_tests:               # the friction/hysteresis diagrams beside it
+            from .report import plot_valve_tests
+            plot_valve_tests(list(result.valve_tests.values()), args.plot, baselines)
     if args.trace:
         from .trace import write_trace
         write_trace(args.trace, result.series())
