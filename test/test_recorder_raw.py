@@ -113,3 +113,27 @@ def test_writer_queue_is_bounded_and_counts_drops(monkeypatch):
     bag.close()
     assert writer.closed and writer.written == [b"first", b"0", b"1", b"2", b"3", b"4"]
     assert topic.count == 6
+
+
+def test_final_write_stops_at_the_deadline_and_counts_the_rest_as_dropped():
+    """A stop under ``ros2 launch`` must close the bag before launch escalates to SIGTERM and
+    SIGKILL: the backlog is written until the deadline, the rest is dropped and counted."""
+    import time
+    from fuel_valve_control.tools.recorder import BagWriterThread, _Topic
+    writer = _SlowWriter()
+    topic = _Topic("/t", "std_msgs/msg/Float64")
+    bag = BagWriterThread(lambda: writer, lambda w, t: "conn", [topic])
+    bag.put(topic, 0, b"first")
+    assert writer.entered.wait(5.0)                  # the thread holds "first"
+    for i in range(500):
+        bag.put(topic, 1 + i, b"%d" % i)
+    closer = threading.Thread(target=bag.close, kwargs={"deadline": time.monotonic()})   # already due
+    closer.start()
+    while not bag._stop.is_set():
+        time.sleep(0.001)
+    writer.release.set()
+    closer.join(10.0)
+    assert writer.closed
+    assert 1 < len(writer.written) < 501             # some of the backlog written, not all
+    assert topic.count == len(writer.written)
+    assert bag.dropped == {"/t": 501 - len(writer.written)}   # the rest counted, none lost silently
