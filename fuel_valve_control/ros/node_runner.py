@@ -167,12 +167,18 @@ def tear_down(node, executor) -> None:
 
 
 def end_process(code: int) -> None:
-    """End a node process whose :func:`tear_down` is done: flush stdout/stderr, then
-    ``os._exit(code)`` without the interpreter's finalization (see the module docstring: on a
-    loaded machine it outlasted launch's SIGINT-to-SIGTERM escalation)."""
+    """End a node process whose :func:`tear_down` is done: flush stdout/stderr (Python's and
+    the C library's, where rcutils' console logging writes), then ``os._exit(code)`` without
+    the interpreter's finalization (see the module docstring: on a loaded machine it outlasted
+    launch's SIGINT-to-SIGTERM escalation)."""
+    import ctypes
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except Exception:                   # noqa: BLE001 - a closed pipe: nothing to flush to
             pass
+    try:
+        ctypes.CDLL(None).fflush(None)      # every C stdio stream (rcutils may buffer stdout)
+    except Exception:                       # noqa: BLE001 - no C library handle: nothing buffered there
+        pass
     os._exit(code)
