@@ -172,6 +172,15 @@ def end_process(code: int) -> None:
     the interpreter's finalization (see the module docstring: on a loaded machine it outlasted
     launch's SIGINT-to-SIGTERM escalation)."""
     import ctypes
+    cov = sys.modules.get("coverage")
+    if cov is not None:                     # subprocess coverage saves at exit, which is skipped
+        try:
+            current = cov.Coverage.current()
+            if current is not None:
+                current.stop()
+                current.save()
+        except Exception:                   # noqa: BLE001 - measuring must not change the exit
+            pass
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
