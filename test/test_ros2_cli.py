@@ -393,8 +393,9 @@ def test_two_valves_in_lockstep_each_deterministic(env, tmp_path, launches, laun
         demands[ns] = (len(bag.find(f"/{ns}/demand")), len(clock))
     for ns, (n_demand, n_clock) in demands.items():
         # one demand per tick of its own clock (a shared clock: about one per tick of either
-        # plant); the last few ticks may be cut off by the Ctrl-C
-        assert abs(n_demand - n_clock) <= 5, (ns, n_demand, n_clock)
+        # plant, +30 % and more); the last ticks may be cut off by the Ctrl-C, which reaches the
+        # demand node, the plant and the recorder at slightly different ticks
+        assert abs(n_demand - n_clock) <= max(5, 0.002 * n_clock), (ns, n_demand, n_clock)
     a, b = truth["lock_a"], truth["lock_b"]
     common, ia, ib = np.intersect1d(a[:, 0], b[:, 0], return_indices=True)
     assert len(common) > 500
