@@ -3,6 +3,7 @@
     ros2 launch fuel_valve fuel_valve.launch.py
     ros2 launch fuel_valve fuel_valve.launch.py mode:=pi lockstep:=true
     ros2 launch fuel_valve fuel_valve.launch.py record:=true bag:=run1 demand_profile:=step
+    ros2 launch fuel_valve fuel_valve.launch.py valves:=valve1,valve2 lockstep:=true
 
 All nodes run in the namespace ``namespace`` (default ``fuel_valve``; topics are relative, so
 they follow it) with the parameter files ``config/plant.yaml``, ``config/controller.yaml`` and
@@ -11,16 +12,21 @@ they follow it) with the parameter files ``config/plant.yaml``, ``config/control
 Launch arguments:
 
 * ``namespace`` -- namespace of every node (default ``fuel_valve``).
+* ``valves`` -- comma-separated namespaces, e.g. ``valve1,valve2``: one launch starts a
+  complete stack (plant, controller, demand, + recorder) per namespace, every one configured by
+  the other arguments, and one Ctrl-C stops them all.  Empty (default): one valve in
+  ``namespace``.
 * ``mode`` -- controller ``mode`` (empty: the one in ``config/controller.yaml``).
 * ``lockstep`` -- ``true``: deterministic simulated time.  The plant gets ``lockstep: true``
   and publishes the clock (its own ``use_sim_time`` stays false); the controller, the demand
   node (both ``lockstep: true``) and the recorder run with ``use_sim_time: true``; the plant
   waits for ``lockstep_participants`` = 2 clock subscribers (3 with ``record:=true``).  Each
   valve has a clock of its own: every node of the launch gets the remapping
-  ``/clock:=/<namespace>/clock``, so several valves launched side by side (one launch per
+  ``/clock:=/<namespace>/clock``, so several valves (``valves:=...``, or one launch per
   ``namespace``) each run their own deterministic lockstep.
-* ``record`` -- ``true``: also start the ``recorder`` node, writing the bag ``bag``; plant,
-  controller and demand get ``recorded_topics: '*'`` (they publish once it has matched).
+* ``record`` -- ``true``: also start the ``recorder`` node, writing the bag ``bag`` (with
+  ``valves``: one bag per valve, ``<bag>_<namespace>``); plant, controller and demand get
+  ``recorded_topics: '*'`` (they publish once it has matched).
 * ``bag`` -- recorder ``output`` directory (default ``fuel_valve_bag``).
 * ``autostart`` -- ``true`` (default): the controller (a managed lifecycle node) configures
   and activates itself; ``false``: it starts unconfigured with the drive disabled and a
@@ -42,6 +48,8 @@ PACKAGE = 'fuel_valve'
 
 ARGUMENTS = (
     ('namespace', 'fuel_valve', 'namespace of all nodes (topic names are relative)'),
+    ('valves', '', 'comma-separated namespaces, one complete valve stack each (e.g. valve1,valve2); '
+                   'empty: one valve in namespace'),
     ('mode', '', "controller mode: pi, pi_dither, observer, observer_fc, kalman_fc, fc_gain, "
                  "observer_ff (empty: config/controller.yaml)"),
     ('lockstep', 'false', 'true: deterministic simulated time, the plant publishes /clock and '
@@ -65,13 +73,27 @@ def _flag(context, name):
     raise ValueError(f"launch argument '{name}' must be true or false, got {text!r}")
 
 
+def _namespaces(context):
+    """The valves' namespaces: the ``valves`` list, else ``namespace`` alone."""
+    valves = [v.strip() for v in LaunchConfiguration('valves').perform(context).split(',') if v.strip()]
+    if len(set(v.strip('/') for v in valves)) != len(valves):
+        raise ValueError(f"launch argument 'valves' lists a namespace twice: {valves}")
+    return valves or [LaunchConfiguration('namespace').perform(context)]
+
+
 def _nodes(context, *args, **kwargs):
-    """The nodes, once the launch arguments are known."""
+    """The nodes of every valve, once the launch arguments are known."""
+    namespaces = _namespaces(context)
+    return [node for namespace in namespaces
+            for node in _valve(context, namespace, bag_suffix=f'_{namespace.strip("/")}' if len(namespaces) > 1 else '')]
+
+
+def _valve(context, namespace, bag_suffix=''):
+    """One valve's nodes in ``namespace``."""
     config = os.path.join(get_package_share_directory(PACKAGE), 'config')
-    namespace = LaunchConfiguration('namespace').perform(context)
     mode = LaunchConfiguration('mode').perform(context).strip()
     profile = LaunchConfiguration('demand_profile').perform(context).strip()
-    bag = LaunchConfiguration('bag').perform(context)
+    bag = LaunchConfiguration('bag').perform(context) + bag_suffix
     lockstep = _flag(context, 'lockstep')
     record = _flag(context, 'record')
 

@@ -30,7 +30,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = ROOT / "launch" / "fuel_valve.launch.py"
 CONFIG_FILES = {"plant": "plant.yaml", "controller": "controller.yaml", "demand": "demand.yaml"}
-ARGUMENTS = {"namespace": "fuel_valve", "mode": "", "lockstep": "false", "record": "false",
+ARGUMENTS = {"namespace": "fuel_valve", "valves": "", "mode": "", "lockstep": "false", "record": "false",
              "autostart": "true", "bag": "fuel_valve_bag", "demand_profile": ""}
 # rclpy declares use_sim_time on every node
 ROS_PARAMS = {"use_sim_time"}
@@ -119,14 +119,20 @@ def description(monkeypatch):
     return module.generate_launch_description()
 
 
-def _evaluate(description, **overrides) -> dict:
-    """Run the OpaqueFunction(s) with the declared defaults + overrides; {executable: node}."""
+def _all_nodes(description, **overrides) -> list:
+    """Run the OpaqueFunction(s) with the declared defaults + overrides; every node."""
     declared = {e.name: e.default_value for e in description.entities if type(e).__name__ == "DeclareLaunchArgument"}
     context = types.SimpleNamespace(launch_configurations={**declared, **overrides})
     nodes = [e for e in description.entities if type(e).__name__ == "Node"]
     for entity in description.entities:
         if type(entity).__name__ == "OpaqueFunction":
             nodes += entity.execute(context) or []
+    return nodes
+
+
+def _evaluate(description, **overrides) -> dict:
+    """:func:`_all_nodes` of a one-valve launch; {executable: node}."""
+    nodes = _all_nodes(description, **overrides)
     by_exe = {n.executable: n for n in nodes}
     assert len(by_exe) == len(nodes), "an executable is started twice"
     return by_exe
@@ -269,3 +275,29 @@ def test_autostart_argument_reaches_the_controller_only(description, text, value
     assert all("autostart" not in _overrides(nodes[exe]) for exe in ("plant", "demand"))
     with pytest.raises(ValueError, match="autostart"):
         _evaluate(description, autostart="later")
+
+
+@pytest.mark.parametrize("lockstep", ["false", "true"])
+def test_valves_start_one_complete_stack_per_namespace_each_on_its_own_clock(description, lockstep):
+    from fuel_valve_control.tools.launcher import clock_participants, clock_remap
+    nodes = _all_nodes(description, valves="valve1, /valve2", lockstep=lockstep, record="true", bag="/tmp/b",
+                       mode="pi")
+    by_ns: dict[str, dict] = {}
+    for node in nodes:
+        stack = by_ns.setdefault(node.kwargs["namespace"], {})
+        assert node.executable not in stack, (node.kwargs["namespace"], node.executable)
+        stack[node.executable] = node
+    assert set(by_ns) == {"valve1", "/valve2"}
+    for ns, stack in by_ns.items():
+        assert set(stack) == {"plant", "controller", "demand", "recorder"}
+        assert _overrides(stack["recorder"])["output"] == f"/tmp/b_{ns.strip('/')}"   # a bag per valve
+        assert _overrides(stack["controller"])["mode"] == "pi"                        # every valve configured alike
+        for exe, node in stack.items():
+            remaps = [f"{a}:={b}" for a, b in node.kwargs.get("remappings") or []]
+            assert (["-r", *remaps] if remaps else []) == clock_remap(ns, lockstep == "true"), (ns, exe)
+        if lockstep == "true":
+            assert _overrides(stack["plant"])["lockstep_participants"] == clock_participants(True)
+    # one valve when valves is empty; a namespace listed twice would start two plants on one clock
+    assert {n.kwargs["namespace"] for n in _all_nodes(description, valves=" ")} == {"fuel_valve"}
+    with pytest.raises(ValueError, match="twice"):
+        _all_nodes(description, valves="v1,/v1")

@@ -136,3 +136,27 @@ def test_prebuilt_drive_telemetry_bytes_are_the_message():
     assert math.isnan(ri.array_values(deserialize_message(cdr(values), Float64MultiArray))["i_d"])
     with pytest.raises(struct.error):            # a wrong number of values is refused
         cdr(values[:-1])
+
+
+def test_final_write_stops_at_the_deadline_and_counts_the_rest_as_dropped():
+    """A stop under ``ros2 launch`` must close the bag before launch escalates to SIGTERM and
+    SIGKILL: the backlog is written until the deadline, the rest is dropped and counted."""
+    import time
+    from fuel_valve_control.tools.recorder import BagWriterThread, _Topic
+    writer = _SlowWriter()
+    topic = _Topic("/t", "std_msgs/msg/Float64")
+    bag = BagWriterThread(lambda: writer, lambda w, t: "conn", [topic])
+    bag.put(topic, 0, b"first")
+    assert writer.entered.wait(5.0)                  # the thread holds "first"
+    for i in range(500):
+        bag.put(topic, 1 + i, b"%d" % i)
+    closer = threading.Thread(target=bag.close, kwargs={"deadline": time.monotonic()})   # already due
+    closer.start()
+    while not bag._stop.is_set():
+        time.sleep(0.001)
+    writer.release.set()
+    closer.join(10.0)
+    assert writer.closed
+    assert 1 < len(writer.written) < 501             # some of the backlog written, not all
+    assert topic.count == len(writer.written)
+    assert bag.dropped == {"/t": 501 - len(writer.written)}   # the rest counted, none lost silently

@@ -112,13 +112,15 @@ class Launch:
             self.proc.wait()
             raise AssertionError(f"launch still running {timeout} s after Ctrl-C:\n{self.output()}") from None
 
-    def assert_clean_exit(self, code: int, nodes=NODES) -> None:
-        """Launch exited 0 and reported every node as finished cleanly (exit code 0)."""
+    def assert_clean_exit(self, code: int, nodes=NODES, valves: int = 1) -> None:
+        """Launch exited 0 and reported every node (of each of ``valves`` valves) as finished
+        cleanly (exit code 0), without escalating to SIGTERM/SIGKILL on the way."""
         text = self.output()
         assert code == 0, text
         for node in nodes:
-            assert re.search(rf"\[{node}-\d+\]: process has finished cleanly", text), (node, text)
+            assert len(re.findall(rf"\[{node}-\d+\]: process has finished cleanly", text)) == valves, (node, text)
         assert "process has died" not in text, text
+        assert "escalating to" not in text, text        # every node ended within launch's 5 s
 
     def stop(self) -> None:
         if self.proc.poll() is None:
@@ -167,7 +169,10 @@ def default_launch(env, tmp_path_factory):
     """``ros2 launch fuel_valve fuel_valve.launch.py namespace:=cli mode:=pi``, running."""
     la = Launch(env, tmp_path_factory.mktemp("default"), "namespace:=cli", "mode:=pi")
     try:
-        la.wait_for(r"\[cli\.controller\]: status OK: running, mode pi")
+        la.wait_for(r"\[cli\.controller\]: controller up: mode pi")
+        # the loop is up: OK, or a fault latched at start-up (a 1 kHz loop on a loaded 2-core
+        # machine may miss the 20 ms resolver timeout; the tests that need the drive reset it)
+        la.wait_for(r"\[cli\.controller\]: status (OK|ERROR)")
         yield la
     finally:
         la.stop()
@@ -296,6 +301,28 @@ def test_lifecycle_through_ros2_service_call(env, tmp_path, launches):
     assert "success=True" in (out := change(4)), out          # deactivate
     assert "label='inactive'" in state()
     la.wait_for(r"\[cli_lc\.controller\]: controller deactivated: drive disabled")
+
+
+def test_mode_pi_runs_the_pi_baseline_and_moves_the_valve(env, tmp_path, launches):
+    """``mode:=pi``: the controller's ``mode`` parameter is ``pi`` and the valve follows the
+    start-up demand (23-28 %) from closed.  In lockstep: a real-time loop on a loaded 2-core
+    machine trips the plant's 5 ms drive watchdog again and again and the spring holds the
+    valve closed (the default launch of this module runs ``mode:=pi`` in real time too)."""
+    la = Launch(env, tmp_path, "namespace:=cli_pi", "mode:=pi", "lockstep:=true")
+    launches.append(la)
+    la.wait_for(r"\[cli_pi\.controller\]: controller up: mode pi")
+    la.wait_for(r"\[cli_pi\.plant\]: lockstep: participants connected, starting")
+    wait_nodes(env, "cli_pi")
+    assert re.search(r"String value is:\s*pi\b", ros2(env, "param", "get", "/cli_pi/controller", "mode", *GRAPH))
+    end = time.monotonic() + 90.0
+    positions = []
+    while not positions or positions[-1] < 15.0:
+        assert time.monotonic() < end, (positions, la.output()[-3000:])
+        out = ros2(env, "topic", "echo", "--once", "--field", "data", "/cli_pi/position", "std_msgs/msg/Float64",
+                   timeout=60.0)
+        # (the output may also say "A message was lost!!!": the value is the numeric line)
+        positions.append(float(re.search(r"^\s*(-?[\d.]+(?:e[-+]?\d+)?)\s*$", out, re.M | re.I).group(1)))
+    assert positions[-1] < 35.0, positions          # towards the demand, not past it
     la.assert_clean_exit(la.ctrl_c())
 
 
@@ -303,7 +330,9 @@ def test_ctrl_c_stops_every_process_with_exit_code_0(env, tmp_path, launches):
     la = Launch(env, tmp_path, "namespace:=cli_stop", "record:=true", f"bag:={tmp_path / 'bag'}")
     launches.append(la)
     la.wait_for(r"\[cli_stop\.recorder\]: recording")
-    la.wait_for(r"\[cli_stop\.controller\]: status ")         # the loop is up (OK, or a latched fault)
+    la.wait_for(r"\[cli_stop\.plant\]: plant up")
+    la.wait_for(r"\[cli_stop\.demand\]: demand up")
+    la.wait_for(r"\[cli_stop\.controller\]: status (OK|ERROR)")   # the loop is up (OK, or a latched fault)
     time.sleep(2.0)
     la.assert_clean_exit(la.ctrl_c(), NODES + ("recorder",))
     assert "loop statistics: {" in la.output()          # the plant's exit report, through the logger
@@ -339,10 +368,28 @@ def test_two_valves_in_real_time(env, tmp_path, launches):
         la.assert_clean_exit(la.ctrl_c())
 
 
-def test_two_valves_in_lockstep_each_deterministic(env, tmp_path, launches):
-    """Two valves, same configuration, lockstep, at once: each on its own clock, so each runs
-    exactly the offline simulator's trajectory (a shared /clock made the demand nodes tick on
-    both plants' clocks)."""
+def test_two_valves_in_one_launch_stop_on_one_ctrl_c(env, tmp_path, launches):
+    """``valves:=one_a,one_b``: one launch, two complete valves; one Ctrl-C stops every process
+    of both with exit code 0 and no SIGTERM escalation."""
+    la = Launch(env, tmp_path, "valves:=one_a,one_b")
+    launches.append(la)
+    for ns in ("one_a", "one_b"):
+        la.wait_for(rf"\[{ns}\.plant\]: plant up")
+        la.wait_for(rf"\[{ns}\.demand\]: demand up")
+        la.wait_for(rf"\[{ns}\.controller\]: status (OK|ERROR)")   # loop up (a start-up fault may latch)
+    names = wait_nodes(env, "one_a") + wait_nodes(env, "one_b")
+    for ns in ("one_a", "one_b"):
+        assert sorted(n for n in set(names) if n.startswith(f"/{ns}/")) == [f"/{ns}/{n}" for n in sorted(NODES)]
+    assert "same name" not in la.output()
+    la.assert_clean_exit(la.ctrl_c(), valves=2)
+
+
+@pytest.mark.parametrize("launched", ["one launch", "two launches"])
+def test_two_valves_in_lockstep_each_deterministic(env, tmp_path, launches, launched):
+    """Two valves, same configuration, lockstep, at once (``valves:=lock_a,lock_b`` in one
+    launch, or one launch per namespace): each on its own clock, so each runs exactly the
+    offline simulator's trajectory (a shared /clock made the demand nodes tick on both plants'
+    clocks)."""
     import numpy as np
     sys.path.insert(0, str(ROOT))
     from fuel_valve_control.common.contract import VALVE_JOINT
@@ -351,18 +398,25 @@ def test_two_valves_in_lockstep_each_deterministic(env, tmp_path, launches):
     from fuel_valve_control.tools.sim import simulate_plan
 
     valves = ("lock_a", "lock_b")
-    runs = {ns: Launch(env, tmp_path, f"namespace:={ns}", "lockstep:=true", "record:=true",
-                       f"bag:={tmp_path / ns}") for ns in valves}
-    launches += list(runs.values())
+    if launched == "one launch":
+        one = Launch(env, tmp_path, f"valves:={','.join(valves)}", "lockstep:=true", "record:=true",
+                     f"bag:={tmp_path / 'bag'}")
+        runs, bags = {ns: one for ns in valves}, {ns: tmp_path / f"bag_{ns}" for ns in valves}
+        launches.append(one)
+    else:
+        runs = {ns: Launch(env, tmp_path, f"namespace:={ns}", "lockstep:=true", "record:=true",
+                           f"bag:={tmp_path / ns}") for ns in valves}
+        bags = {ns: tmp_path / ns for ns in valves}
+        launches += list(runs.values())
     for ns, la in runs.items():
         la.wait_for(rf"\[{ns}\.plant\]: lockstep: participants connected, starting")
     # let both run a while of simulated time (as fast as the loops go: a few seconds of wall time)
     time.sleep(8.0)
-    for la in runs.values():
-        la.assert_clean_exit(la.ctrl_c(), NODES + ("recorder",))
+    for la in dict.fromkeys(runs.values()):
+        la.assert_clean_exit(la.ctrl_c(), NODES + ("recorder",), valves=len(valves) if launched == "one launch" else 1)
     truth, demands = {}, {}
     for ns in valves:
-        bag = read_bag(tmp_path / ns)
+        bag = read_bag(bags[ns])
         js = bag.find(f"/{ns}/joint_states")
         clock = bag.find(f"/{ns}/clock")
         assert js is not None and clock is not None and len(js) > 500, (ns, list(bag.topics))
@@ -371,8 +425,9 @@ def test_two_valves_in_lockstep_each_deterministic(env, tmp_path, launches):
         demands[ns] = (len(bag.find(f"/{ns}/demand")), len(clock))
     for ns, (n_demand, n_clock) in demands.items():
         # one demand per tick of its own clock (a shared clock: about one per tick of either
-        # plant); the last few ticks may be cut off by the Ctrl-C
-        assert abs(n_demand - n_clock) <= 5, (ns, n_demand, n_clock)
+        # plant, +30 % and more); the last ticks may be cut off by the Ctrl-C, which reaches the
+        # demand node, the plant and the recorder at slightly different ticks
+        assert abs(n_demand - n_clock) <= max(5, 0.002 * n_clock), (ns, n_demand, n_clock)
     a, b = truth["lock_a"], truth["lock_b"]
     common, ia, ib = np.intersect1d(a[:, 0], b[:, 0], return_indices=True)
     assert len(common) > 500

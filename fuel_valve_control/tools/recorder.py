@@ -36,11 +36,18 @@ callback either.  Readers that need the send time use the header stamps.
 
 SIGINT and SIGTERM only set a flag, so a message being written is never interrupted; the
 node then drains what is already queued, closes the writer (which writes metadata.yaml with
-the message counts) and logs a summary.  A SIGKILL loses the bag's index and metadata.
+the message counts) and logs a summary.  A SIGKILL loses the bag's index and metadata, so the
+stop is bounded: the drain and the writing of the queue's backlog end ``STOP_BUDGET_S`` after
+the stop request, well inside ``ros2 launch``'s 5 s between its SIGINT and SIGTERM (and
+SIGKILL 5 s later).  On a starved CPU (a loaded 2-core machine gave the recorder ~5 % of a
+core) the backlog can outlast it: what is still queued then is dropped and counted per topic
+in the summary ("N DROPPED"), never silently -- a closed bag with a counted loss instead of a
+bag killed without its index.
 """
 from __future__ import annotations
 
 import importlib
+import math
 import shutil
 import sys
 import time
@@ -85,6 +92,11 @@ FLUSH_INTERVAL_S = 0.25
 DRAIN_LIMIT_S = 0.5
 #: the drain ends once no message arrived for this long, s
 DRAIN_IDLE_S = 0.05
+#: longest time from a stop request (SIGINT/SIGTERM) to closing the bag, s: the drain and the
+#: writing of the queued backlog share it; what is still queued then is dropped and counted.
+#: ros2 launch escalates to SIGTERM 5 s after its SIGINT and to SIGKILL 5 s later; closing the
+#: bag, tearing down and exiting need the rest
+STOP_BUDGET_S = 2.0
 
 
 class RecorderError(Exception):
@@ -256,6 +268,7 @@ class BagWriterThread:
         self._open, self._connect, self._topics = open_writer, connect, topics
         self._queue = collections.deque()
         self.dropped: dict[str, int] = {}
+        self._deadline: float | None = None      # time.monotonic() the final write stops at
         self.error: BaseException | None = None
         self._ready, self._stop = threading.Event(), threading.Event()
         self._thread = threading.Thread(target=self._run, name="bag-writer", daemon=True)
@@ -287,7 +300,8 @@ class BagWriterThread:
                     flushed = time.monotonic()
                     if not flush_storage(writer):
                         flushed = float("inf")       # not supported by this rosbags: stop trying
-            self._write_queued(writer)
+            self._write_queued(writer, math.inf if self._deadline is None else self._deadline)
+            self._drop_queued()
             for topic in self._topics:
                 if topic.connection is None:   # subscribed but nothing arrived: still listed, count 0
                     topic.connection = self._connect(writer, topic)
@@ -295,17 +309,31 @@ class BagWriterThread:
         except BaseException as exc:          # noqa: BLE001 - reported by close()
             self.error = exc
 
-    def _write_queued(self, writer) -> None:
+    def _write_queued(self, writer, deadline: float | None = None) -> None:
+        """Write the queue out.  A pass of the running loop (``deadline`` None) yields to a
+        stop request; the final pass writes until ``deadline`` (``time.monotonic()``)."""
         queue, write = self._queue, writer.write
+        n = 0
         while queue:
+            n += 1
+            if n % 64 == 0 and (self._stop.is_set() if deadline is None else time.monotonic() > deadline):
+                return
             topic, stamp, data = queue.popleft()
             if topic.connection is None:
                 topic.connection = self._connect(writer, topic)
             write(topic.connection, stamp, data)
             topic.count += 1
 
-    def close(self) -> None:
-        """Write what is queued and close the bag (metadata.yaml); raises what the thread hit."""
+    def _drop_queued(self) -> None:
+        """Count what is still queued as dropped (the final write ran out of time)."""
+        while self._queue:
+            topic = self._queue.popleft()[0]
+            self.dropped[topic.name] = self.dropped.get(topic.name, 0) + 1
+
+    def close(self, deadline: float | None = None) -> None:
+        """Write what is queued (until ``deadline``, ``time.monotonic()``; the rest is dropped
+        and counted) and close the bag (metadata.yaml); raises what the thread hit."""
+        self._deadline = deadline
         self._stop.set()
         self._thread.join()
         if self.error is not None:
@@ -421,14 +449,15 @@ class Recorder(Node):
         except Exception:
             pass
 
-    def finish(self) -> dict[str, int]:
-        """Write what is queued, close the bag (metadata.yaml with the message counts and
-        ``ros_distro``) and log the summary, dropped messages included; idempotent.
+    def finish(self, deadline: float | None = None) -> dict[str, int]:
+        """Write what is queued (until ``deadline``, ``time.monotonic()``: the rest is dropped
+        and counted), close the bag (metadata.yaml with the message counts and ``ros_distro``)
+        and log the summary, dropped messages included; idempotent.
         Returns ``{topic: messages written}``."""
         if self._bag is not None:
             bag, self._bag = self._bag, None
+            bag.close(deadline)
             self.dropped = bag.dropped
-            bag.close()
             set_ros_distro(self.path / "metadata.yaml")
             counts = {t.name: t.count for t in self._topics.values()}
             width = max(len(n) for n in counts)
@@ -464,8 +493,8 @@ def reindex_main(argv: list[str]) -> int:
 
 def main(args=None) -> int:
     """Record until SIGINT / SIGTERM.  Exit codes: 0 ok, 1 bag could not be finalised,
-    2 configuration error (printed on stderr).  ``recorder --reindex <bag>``: see
-    :func:`reindex_main`."""
+    2 configuration error (printed on stderr).  Ends the process (``os._exit``) once the bag
+    is closed and the node torn down.  ``recorder --reindex <bag>``: see :func:`reindex_main`."""
     argv = list(sys.argv[1:] if args is None else args[1:])
     if argv[:1] == ["--reindex"]:
         return reindex_main(argv[1:])
@@ -478,7 +507,7 @@ def main(args=None) -> int:
     node_runner.quiet_signals(stop.append)
     if not node_runner.init_or_explain(args):
         return 2
-    node = executor = None
+    node = executor = stopped_at = None
     code = 0
     try:
         try:
@@ -490,9 +519,10 @@ def main(args=None) -> int:
         executor.add_node(node)
         try:
             node_runner.spin(executor, until=lambda: bool(stop), timeout_s=0.05)
+            stopped_at = time.monotonic()
             # take what is already queued in the subscriptions before closing
             # (until none arrived for DRAIN_IDLE_S; at most DRAIN_LIMIT_S if publishers go on)
-            now = time.monotonic()
+            now = stopped_at
             deadline, idle_since, last = now + DRAIN_LIMIT_S, now, node.received
             while rclpy.ok() and now < deadline and now - idle_since < DRAIN_IDLE_S:
                 executor.spin_once(timeout_sec=DRAIN_IDLE_S / 5)
@@ -502,13 +532,13 @@ def main(args=None) -> int:
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         try:
-            node.finish()
+            node.finish((stopped_at or time.monotonic()) + STOP_BUDGET_S)
         except Exception as exc:  # disk full, permissions: say so, do not hide it
             print(f"recorder: could not finalise bag {node.path}: {exc}", file=sys.stderr, flush=True)
             code = 1
     finally:
         node_runner.tear_down(node, executor)
-    return code
+    node_runner.end_process(code)       # the bag is closed: no interpreter finalization (node_runner)
 
 
 if __name__ == "__main__":
