@@ -51,6 +51,7 @@ class SimResult:
     wall_time_s: float
     stroke_rad: float
     fault: np.ndarray = field(default_factory=lambda: np.zeros(0))   # 1: a latched driver fault
+    warnings: dict = field(default_factory=dict)    # the driver's warnings at the end (code -> message)
 
     def column(self, name: str) -> np.ndarray:
         return self.log[:, LOG_COLUMNS.index(name)]
@@ -133,7 +134,8 @@ def simulate_plan(plan: RunPlan) -> SimResult:
     wall = time.perf_counter() - start
     trace = M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9], stroke)
     metrics, segments = M.compute(trace)
-    return SimResult(plan.name, plan.mode, log, metrics, segments, n * period, wall, stroke, fault)
+    return SimResult(plan.name, plan.mode, log, metrics, segments, n * period, wall, stroke, fault,
+                     dict(driver.warnings))
 
 
 def run(scenario_name: str, mode: str | None = None, plant_overrides=None, controller_overrides=None,
