@@ -232,14 +232,15 @@ def test_friction_check_reads_the_static_friction_of_a_quasi_static_breakaway():
 
 
 def _hold_and_small_steps(mode, true_kpa, told_kpa, check_ratio=None):
-    """6.5 s offline at 20 %: hold, +-0.5 % and +1 % steps, a 2.5 s final hold, with the Δp transducer
+    """9 s offline at 20 %: a 1.5 s hold (the check needs breakaways both ways: observer_fc,
+    told max on a valve at Δp 0, is caught at 1.24 s), +-0.5 % and +1 % steps, a 3 s final hold, with the Δp transducer
     biased so that it reads ``told_kpa`` while the valve is at ``true_kpa``."""
     from fuel_valve_control.tools import metrics as M
     from fuel_valve_control.tools import sim
     from fuel_valve_control.tools.scenarios import parse_scenario
-    points = [[0, 20], [1.0, 20], [1.0, 20.5], [2.0, 20.5], [2.0, 20.0], [3.0, 20.0], [3.0, 21.0], [4.0, 21.0],
-              [4.0, 20.5], [6.5, 20.5]]
-    sc = parse_scenario({"name": "dp_wrong", "duration_s": 6.5, "initial_percent": 20,
+    points = [[0, 20], [1.5, 20], [1.5, 20.5], [3.0, 20.5], [3.0, 20.0], [4.5, 20.0], [4.5, 21.0], [6.0, 21.0],
+              [6.0, 20.5], [9.0, 20.5]]
+    sc = parse_scenario({"name": "dp_wrong", "duration_s": 9.0, "initial_percent": 20,
                          "pressure_differential_kpa": true_kpa,
                          "demand": {"type": "points", "points": points, "interpolation": "previous"}})
     ctrl = {} if check_ratio is None else {"pressure.friction_check_ratio": check_ratio}
