@@ -173,8 +173,6 @@ class ValveDriver:
         parameter it was built from (or the mode) changes."""
         new, prepared = self._prepare(changes)
         demand_cfg = demand_filter_config(new)
-        if new["pressure.friction_check_ratio"] != self.ps["pressure.friction_check_ratio"]:
-            self.friction_check = self._make_friction_check(new)
         self.ps = new
         self.demand_filter.cfg = demand_cfg
         self.controller.reconfigure(new, self._meas if self._armed else None, self.pressure_kpa, prepared)
@@ -310,9 +308,17 @@ class ValveDriver:
         """The Δp for the law after the cross-check with the friction met this period (kPa):
         ``scheduled_kpa`` while they agree, else the Δp the friction met says (and the
         :data:`PRESSURE_FRICTION` warning latched)."""
+        ratio = self.ps["pressure.friction_check_ratio"]       # run time: read every period
+        if ratio <= 0.0:
+            self.friction_check = None
+            if self._friction_override:
+                self._friction_override = False
+                self.controller.law.friction_rescheduled(scheduled_kpa)
+            return scheduled_kpa
         check = self.friction_check
         if check is None:
-            return scheduled_kpa
+            check = self.friction_check = self._make_friction_check(self.ps)
+        check.ratio_band = ratio                                # what was met so far stays
         check.update(self._meas, self.controller.last_torque, scheduled_kpa)
         override = not check.plausible(scheduled_kpa)
         if override != self._friction_override:
