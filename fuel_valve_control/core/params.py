@@ -72,7 +72,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "implausible (full scale in ~12 ms: faster than any fuel-system hydraulic transient)",
           1.0, 1e8, low_open=True, runtime=True),
     Param("pressure.friction_check_ratio", 4.0, "", "cross-check of the Δp schedule against the valve friction "
-          "met at breakaway (core/friction_check.py): a met/scheduled static friction outside 1/ratio..ratio "
+          "met at breakaway (core/friction_check.py): a met/scheduled static friction outside 1/ratio..2 ratio "
           "makes the Δp reading implausible (warning) and schedules the friction terms for the Δp the friction "
           "met says; wider than the friction spread the laws adapt to themselves (x0.5..3), narrower than the "
           "x11 a wrong Δp can make (0 = off)", 0.0, 100.0, runtime=True),
