@@ -18,9 +18,9 @@ it with the friction the Δp schedule predicts:
   torque readings over the window must span no more than ``quasi_static`` of the level met.
 * **met static level**: per direction, the median of the latest ``keep`` breakaways (a valve
   that crept or was still ringing when it "came to rest" gives an outlier now and then); the
-  mean of the two directions (an error in the known load, e.g. the flow torque of a wrong Δp,
-  then cancels: it adds to one direction and subtracts from the other), after at least
-  ``min_breakaways`` breakaways.
+  mean of the two directions (an error in the known load, e.g. the flow torque of a wrong Δp
+  or an unknown steady load, then cancels: it adds to one direction and subtracts from the
+  other), once both directions and at least ``min_breakaways`` breakaways have been seen.
 * **verdict**: the ratio met / scheduled static level.  Outside ``1/ratio_band .. 2 ratio_band``
   the Δp reading is implausible; the Δp whose nominal friction equals the friction met
   (:meth:`friction_pressure_kpa`) is then what the friction terms should be scheduled for.
@@ -114,9 +114,12 @@ class FrictionCheck:
     def met_static_nm(self) -> float | None:
         """Static valve friction met (N*m): the mean over the directions seen; None before
         ``min_breakaways`` breakaways."""
-        if self.breakaways < self.min_breakaways:
+        # both directions: a steady load the model does not know (up to the continuous torque)
+        # adds to one and subtracts from the other; one direction alone read it as friction
+        # (a closing-only reading under a 9 N*m load said 0 friction and latched a fault)
+        if self.breakaways < self.min_breakaways or not all(self.static_met.values()):
             return None
-        medians = [float(np.median(v)) for v in self.static_met.values() if v]
+        medians = [float(np.median(v)) for v in self.static_met.values()]
         return max(sum(medians) / len(medians), 0.0)
 
     def ratio(self, pressure_kpa: float) -> float | None:
