@@ -7,7 +7,10 @@ Every run draws, from its own seed (``--seed`` + run index):
 * friction: scale 0.5…3 (log-uniform), model stick-slip / Stribeck / LuGre, per-breakaway
   scatter of the static level (rms 2…8 %) and a position ripple (0…5 %, period 5…50 mrad);
 * Δp: the true one (half the runs at the maximum, the rest 0…max) and what the controller is
-  told (:func:`controller_knowledge`: exact, measured with noise, wrong, or missing → fallback);
+  told: the plant's Δp transducer reads it exact, with an offset (measured with noise, or
+  wrong: a ``pressure_sensor.bias_kpa`` that makes it read the told value), or sends nothing
+  (missing → the controller's fallback, set to the told value) (:func:`plant_overrides`,
+  :func:`controller_knowledge`);
 * coupling stiffness ×0.3…1, motor and valve inertia ±20 % each, a steady load up to the
   actuator's continuous torque (with spring and flow torque) or a small opening load;
 * resolver noise 0…1 count rms (both), delay 0…1 ms, gear backlash 0…2 mrad, supply 18…32 V;
@@ -149,6 +152,11 @@ def plant_overrides(case: dict) -> dict:
         "supply_voltage_v": case["supply_v"],
         "seed": case["seed"] % (2**31 - 1),
     }
+    # what the Δp transducer tells the controller: the told value, or nothing (missing)
+    if case["dp_kind"] == "missing":
+        over["pressure_sensor.silent"] = True
+    else:
+        over["pressure_sensor.bias_kpa"] = case["dp_told_kpa"] - case["dp_true_kpa"]
     if case["friction_model"] == "stribeck":
         over["friction.valve.stribeck_velocity_rad_s"] = case["stribeck_valve_rad_s"]
         over["friction.motor.stribeck_velocity_rad_s"] = case["stribeck_motor_rad_s"]
@@ -156,12 +164,10 @@ def plant_overrides(case: dict) -> dict:
 
 
 def controller_knowledge(case: dict) -> dict:
-    """What the controller is told about the operating point: the one place to change when Δp
-    becomes a measured input (then the told value goes to the plant's Δp transducer instead)
-    and when the controller learns to take a measured resolver delay."""
-    # Δp is now a measured input (the plant's transducer); until the transducer can be biased,
-    # the "told" value is the controller's fallback (used when the measurement is missing)
-    told = {"pressure.fallback_kpa": case["dp_told_kpa"]}
+    """What the controller is told about the operating point besides its Δp input (which the
+    plant's biased or silent transducer carries, :func:`plant_overrides`): the fallback a
+    missing Δp reading falls back to, and the measured resolver delay."""
+    told = {"pressure.fallback_kpa": case["dp_told_kpa"]} if case["dp_kind"] == "missing" else {}
     if "resolver_delay_s" in CONTROLLER_SPEC.params:
         told["resolver_delay_s"] = case["resolver_delay_s"]
     return told

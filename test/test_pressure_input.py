@@ -15,6 +15,7 @@ import pytest
 from fuel_valve_control.common.contract import PRESSURE_MAX_KPA
 from fuel_valve_control.core.driver import PRESSURE_INPUT, ValveDriver
 from fuel_valve_control.core.params import load_controller_params
+from fuel_valve_control.core.signals import Measurement
 from fuel_valve_plant.physics.params import load_plant_params
 from fuel_valve_plant.physics.plant import Plant
 
@@ -186,3 +187,95 @@ def test_fallback_value_changes_at_run_time():
     drv.set_params({"pressure.fallback_kpa": 2000.0})
     run(drv, 1, t0=0.005)
     assert drv.pressure_kpa == 2000.0
+
+
+# ------------------------------------------------------------------ a transducer that reads wrong
+def test_transducer_bias_gain_error_and_silence():
+    plant = Plant(load_plant_params(overrides={"pressure_differential_kpa": 3000.0}))
+    assert plant.pressure_differential() == 3000.0                 # defaults: an exact transducer
+    plant.set_params({"pressure_sensor.bias_kpa": -500.0, "pressure_sensor.gain_error": 0.1})
+    assert plant.pressure_differential() == pytest.approx(3000.0 * 1.1 - 500.0)
+    plant.set_params({"pressure_sensor.silent": True})
+    samples = []
+    for _ in range(50):
+        samples.append(plant.pressure_sample())
+        plant.advance(PERIOD)
+    assert samples == [None] * 50
+
+
+def test_friction_check_reads_the_static_friction_of_a_quasi_static_breakaway():
+    from fuel_valve_control.core.friction_check import FrictionCheck
+    from fuel_valve_control.core.model import NominalModel
+    from fuel_valve_control.common.contract import RESOLVER_COUNT_RAD
+    ps = load_controller_params()
+    m = NominalModel.from_params(ps)
+    check = FrictionCheck(m, PERIOD, RESOLVER_COUNT_RAD, 4.0)
+    ts = 1.2                                   # N*m: the valve's static friction (Δp ~ 0.14 max)
+    k = m.coupling_stiffness_nm_per_rad
+    valve = VALVE
+    for direction in (1, -1, 1, -1):
+        load = m.load_torque(valve, 0.0)
+        # wind the drive up slowly (quasi-static) until the valve torque reaches +-Ts, then slip
+        for i in range(60):
+            net = direction * ts * i / 59
+            torque_valve = load + net
+            motor = (valve + torque_valve / k) * m.gear_ratio
+            motor_torque = (torque_valve + direction * m.gear_ratio * m.motor_coulomb_nm) / m.gear_ratio
+            check.update(Measurement(motor, valve), motor_torque, 0.0)
+        valve += direction * 2e-3
+        check.update(Measurement(motor, valve), motor_torque, 0.0)
+    assert check.breakaways == 4
+    assert check.met_static_nm == pytest.approx(ts, rel=0.05)
+    assert check.plausible(0.0)                                 # Ts(0) = 0.5 N*m: ratio 2.4
+    assert not check.plausible(PRESSURE_MAX_KPA)                # Ts(max) = 5.5 N*m: ratio 0.22
+    assert check.friction_pressure_kpa() == pytest.approx((ts - 0.5) / 5.0 * PRESSURE_MAX_KPA, rel=0.1)
+
+
+def _hold_and_small_steps(mode, true_kpa, told_kpa, check_ratio=4.0):
+    """9 s offline at 20 %: a 1.5 s hold (the check needs breakaways both ways: observer_fc,
+    told max on a valve at Δp 0, is caught at 1.24 s), +-0.5 % and +1 % steps, a 3 s final hold, with the Δp transducer
+    biased so that it reads ``told_kpa`` while the valve is at ``true_kpa``."""
+    from fuel_valve_control.tools import metrics as M
+    from fuel_valve_control.tools import sim
+    from fuel_valve_control.tools.scenarios import parse_scenario
+    points = [[0, 20], [1.5, 20], [1.5, 20.5], [3.0, 20.5], [3.0, 20.0], [4.5, 20.0], [4.5, 21.0], [6.0, 21.0],
+              [6.0, 20.5], [9.0, 20.5]]
+    sc = parse_scenario({"name": "dp_wrong", "duration_s": 9.0, "initial_percent": 20,
+                         "pressure_differential_kpa": true_kpa,
+                         "demand": {"type": "points", "points": points, "interpolation": "previous"}})
+    ctrl = {"pressure.friction_check_ratio": check_ratio}
+    p, c = sim.build(sc, {"pressure_sensor.bias_kpa": told_kpa - true_kpa}, ctrl, 0, mode)
+    res = sim.simulate(sc, p, c)
+    log = res.log
+    tr = M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9], res.stroke_rad)
+    return M.plateau_results(tr), res
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode, true_kpa, told_kpa", [
+    ("observer_ff", 0.0, PRESSURE_MAX_KPA),
+    ("observer_ff", PRESSURE_MAX_KPA, 0.0),
+    ("observer_fc", 0.0, PRESSURE_MAX_KPA),
+])
+def test_wrong_pressure_reading_is_caught_by_the_friction_met_and_never_hunts(mode, true_kpa, told_kpa):
+    from fuel_valve_control.core.driver import PRESSURE_FRICTION
+    plateaus, res = _hold_and_small_steps(mode, true_kpa, told_kpa)
+    assert len(plateaus) == 4
+    assert not any(pl["hunts"] for pl in plateaus), [(pl["hunting_amplitude_rad"], pl["hunting_reversals"])
+                                                     for pl in plateaus]
+    assert PRESSURE_FRICTION in res.warnings and "implausible" in res.warnings[PRESSURE_FRICTION]
+    assert not res.fault.any()
+
+
+@pytest.mark.slow
+def test_without_the_friction_check_a_reading_above_the_real_pressure_hunts():
+    # the case the check exists for (measured: observer_ff hunts on all 4 plateaus, 26 counts)
+    plateaus, res = _hold_and_small_steps("observer_ff", 0.0, PRESSURE_MAX_KPA, check_ratio=0.0)
+    assert sum(pl["hunts"] for pl in plateaus) >= 2
+    assert not res.warnings
+
+
+@pytest.mark.slow
+def test_a_right_reading_raises_no_friction_warning():
+    plateaus, res = _hold_and_small_steps("observer_ff", PRESSURE_MAX_KPA, PRESSURE_MAX_KPA)
+    assert not res.warnings and not any(pl["hunts"] for pl in plateaus)

@@ -18,6 +18,14 @@ observer_fc: told 6206 kPa with the real Δp 0 -> a 4.4e-3 rad limit cycle; told
 real Δp 6206 kPa -> no limit cycle).  Valid samples are used again as soon as they arrive; the
 warning stays latched until :meth:`ValveDriver.reset`.
 
+A reading can be plausible as a signal and still wrong (a biased transducer, a gain error):
+:class:`~.friction_check.FrictionCheck` compares the static friction the valve shows at every
+breakaway with the friction the Δp schedule predicts.  Beyond ``pressure.friction_check_ratio``
+either way the :data:`PRESSURE_FRICTION` warning latches and the friction terms are scheduled
+for the Δp the friction met says instead (until the reading agrees with the friction again):
+measured with ``fuel_valve_sim``, told Δp max on a valve at Δp 0 hunted; see
+test_pressure_input.py for the figures.
+
 Faults latch until :meth:`reset` and all react the same way: drive enable false and zero
 current, so the return spring closes the valve (fail safe).  A stale demand with
 ``demand_timeout_action: hold`` is the one exception: the valve holds the last good demand
@@ -42,6 +50,7 @@ from ..common.contract import (NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_
 from ..common.paramspec import ParamSet
 
 from .demand_filter import DemandFilter, DemandFilterConfig
+from .friction_check import FrictionCheck
 from .health import ValveHealth
 from .params import CONTROLLER_SPEC, check_consistency, check_tighten_only
 from .position_controller import PositionController
@@ -79,6 +88,8 @@ PARAM_SWAP_SETTLED_RAD = 5e-3
 PARAM_SWAP_MAX_WAIT_S = 1.0
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
+#: warning code of a measured Δp that disagrees with the valve friction met (friction_check.py)
+PRESSURE_FRICTION = "pressure_differential_implausible"
 
 
 def _guarded(method):
@@ -141,6 +152,10 @@ class ValveDriver:
         self._dp_t: float | None = None
         self._dp_prev: tuple[float, float] | None = None   # (t, kPa) of the last finite reading
         self.pressure_kpa = self.ps["pressure.fallback_kpa"]   # Δp the law is scheduled for now
+        self._scheduled_kpa = self.pressure_kpa                  # Δp of the reading (or fallback)
+        #: static friction met at breakaways vs the Δp schedule (None: check off)
+        self.friction_check = self._make_friction_check(self.ps)
+        self._friction_override = False    # the law is scheduled for the friction met, not the reading
         self.last = DriverOutput(0.0, False, "waiting", None, None)
         #: drive inhibited (the managed node outside ``active``): enable false, 0 A; a reset
         #: does not lift it, only :meth:`set_inhibited` does (the node's ``activate``)
@@ -398,6 +413,40 @@ class ValveDriver:
             return
         self._dp, self._dp_t = min(max(kpa, 0.0), PRESSURE_MAX_KPA), t
 
+    def _make_friction_check(self, ps: ParamSet) -> FrictionCheck | None:
+        ratio = ps["pressure.friction_check_ratio"]
+        return FrictionCheck(self.controller.model, self.period, RESOLVER_COUNT_RAD, ratio) if ratio > 0.0 else None
+
+    def _friction_checked(self, scheduled_kpa: float) -> float:
+        """The Δp for the law after the cross-check with the friction met this period (kPa):
+        ``scheduled_kpa`` while they agree, else the Δp the friction met says (and the
+        :data:`PRESSURE_FRICTION` warning latched)."""
+        ratio = self.ps["pressure.friction_check_ratio"]       # run time: read every period
+        if ratio <= 0.0:
+            self.friction_check = None
+            if self._friction_override:
+                self._friction_override = False
+                self.controller.law.friction_rescheduled(scheduled_kpa)
+            return scheduled_kpa
+        check = self.friction_check
+        if check is None:
+            check = self.friction_check = self._make_friction_check(self.ps)
+        check.ratio_band = ratio                                # what was met so far stays
+        check.update(self._meas, self.controller.last_torque, scheduled_kpa)
+        override = not check.plausible(scheduled_kpa)
+        if override != self._friction_override:
+            self._friction_override = override
+            self.controller.law.friction_rescheduled(check.friction_pressure_kpa() if override else scheduled_kpa)
+        if not override:
+            return scheduled_kpa
+        met_kpa = check.friction_pressure_kpa()
+        source = "measured" if self._dp is not None else "fallback"
+        self.warnings.setdefault(PRESSURE_FRICTION, (
+            f"{source} pressure differential {scheduled_kpa:.0f} kPa implausible: the valve broke away at "
+            f"{check.met_static_nm:.2f} N*m static friction, {check.ratio(scheduled_kpa):.2f} x what that Δp "
+            f"predicts; friction scheduled for {met_kpa:.0f} kPa from the friction met"))
+        return met_kpa
+
     def _warn_pressure(self, why: str) -> None:
         self.warnings.setdefault(PRESSURE_INPUT, why + f"; friction scheduled for the fallback "
                                                        f"{self.ps['pressure.fallback_kpa']:g} kPa")
@@ -451,10 +500,14 @@ class ValveDriver:
                 return False, "cannot reset: no valid demand"
             if self._meas_t is None or t - self._meas_t > ps["faults.resolver_timeout_s"]:
                 return False, "cannot reset: no resolver samples"
-        cleared = sorted(self.faults) + sorted(k for k in self.warnings if k in (DEMAND_STALE, PRESSURE_INPUT))
+        cleared = sorted(self.faults) + sorted(k for k in self.warnings
+                                               if k in (DEMAND_STALE, PRESSURE_INPUT, PRESSURE_FRICTION))
         self.faults.clear()
         self.warnings.pop(DEMAND_STALE, None)
         self.warnings.pop(PRESSURE_INPUT, None)     # latches again next period if still invalid
+        self.warnings.pop(PRESSURE_FRICTION, None)  # latches again after two breakaways if still wrong
+        if self.friction_check is not None:
+            self.friction_check.reset()
         self._tracking_time = self._twist_time = 0.0
         self.controller.reset_limits()
         self.controller.reset_learning()        # nothing learned before the fault outlives it
@@ -513,7 +566,7 @@ class ValveDriver:
         self._t = t
         if self._t_first is None:
             self._t_first = t
-        pressure = self.pressure_kpa = self._scheduled_pressure(t)
+        pressure = self._scheduled_kpa = self.pressure_kpa = self._scheduled_pressure(t)
         # --- staleness checks
         if self._meas_t is not None and t - self._meas_t > ps["faults.resolver_timeout_s"]:
             self._latch(RESOLVER_STALE, f"no resolver sample for {(t - self._meas_t) * 1e3:.0f} ms")
@@ -543,6 +596,10 @@ class ValveDriver:
             self._stalled = False
             self._arm_torque = 0.0        # re-arming after a fault starts from zero torque
             self._armed = True
+            if self.friction_check is not None:
+                self.friction_check.reset()   # the valve moved with the drive off: not friction
+            self._friction_override = False  # the law was reset for the reading's Δp
+        pressure = self.pressure_kpa = self._friction_checked(pressure)
         applied = self.controller.last_current     # what the drive applied since the sample before
         current = self.controller.update(t, demand_rad, self._meas, pressure)
         # --- faults that the loop itself detects; leaky counts: a dip below the limit takes time
@@ -634,7 +691,10 @@ class ValveDriver:
             "friction_trend": law.friction_trend(),
             "deadband_rad": law.deadband_rad(),
             "pressure_differential_kpa": self.pressure_kpa,
-            "pressure_source": "fallback" if self._dp is None else "measured",
+            "pressure_source": ("friction_met" if self._friction_override else
+                                "fallback" if self._dp is None else "measured"),
+            "friction_met_ratio": (None if self.friction_check is None
+                                   else self.friction_check.ratio(self._scheduled_kpa)),
             "i2t_budget_used": self.controller.i2t_budget_fraction,
             "stall_rearms": self.stall_rearms,
             "law_swaps": self.law_swaps, "params_pending": self.params_pending,

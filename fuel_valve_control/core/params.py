@@ -57,6 +57,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("demand_timeout_s", 0.5, "s", "demand older than this is stale", 0.005, 60.0, runtime=True),
     Param("demand_timeout_action", "trip", "", "on a stale demand: hold the last demand or trip",
           choices=("hold", "trip"), runtime=True),
+    Param("resolver_delay_s", 0.0, "s", "measured delay of the resolver samples (conversion, transport), "
+          "compensated in the state observers: a sample corrects the estimate of when it was taken, which is "
+          "predicted forward over the inputs applied since (rounded to loop periods; 0 = none)", 0.0, 0.02),
     # --- measured pressure differential (input topic pressure_differential) ----------------
     Param("pressure.fallback_kpa", 0.0, "kPa", "Δp the friction-dependent terms are scheduled for while "
           "the measured Δp is missing, stale or implausible (0: the lowest friction, which cannot "
@@ -68,6 +71,13 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("pressure.max_rate_kpa_s", 5.0e5, "kPa/s", "a change between two readings faster than this is "
           "implausible (full scale in ~12 ms: faster than any fuel-system hydraulic transient)",
           1.0, 1e8, low_open=True, runtime=True),
+    Param("pressure.friction_check_ratio", 0.0, "", "cross-check of the Δp schedule against the valve friction "
+          "met at breakaway (core/friction_check.py): a met/scheduled static friction outside 1/ratio..2 ratio "
+          "makes the Δp reading implausible (warning) and schedules the friction terms for the Δp the friction "
+          "met says; wider than the friction spread the laws adapt to themselves (x0.5..3), narrower than the "
+          "x11 a wrong Δp can make; 4 in the tests. 0 = off, the default: in the --quick robustness campaign "
+          "it latched 2 faults and 5 hunting runs against 0 and 4 without it, not yet traced)", 0.0, 100.0,
+          runtime=True),
     # --- demand conditioning (core/demand_filter.py; every mode but the pi baselines) ------
     Param("demand.conditioning", True, "", "condition the demand (glitch median, noise-sized hold band) "
           "before the loop; the pi/pi_dither baselines always take it raw", runtime=True),

@@ -167,7 +167,8 @@ class PositionController:
         seating = Seating(ps["seat.margin_pct"] / 100.0 * m.stroke_rad, ps["seat.overtravel_rad"],
                           ps["seat.torque_nm"], m.stroke_rad)
         main = StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode, ps),
-                                seating, speed_window=ps["ff.speed_window_periods"])
+                                seating, speed_window=ps["ff.speed_window_periods"],
+                                delay_periods=int(round(ps["resolver_delay_s"] / period)))
         if mode != "observer_fp":
             return main
         return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner))

@@ -61,6 +61,7 @@ class SimResult:
     valve_tests: dict = field(default_factory=dict)
     #: messages of refused valve-test requests
     valve_test_refusals: list = field(default_factory=list)
+    warnings: dict = field(default_factory=dict)    # the driver's warnings at the end (code -> message)
 
     def column(self, name: str) -> np.ndarray:
         return self.log[:, LOG_COLUMNS.index(name)]
@@ -155,7 +156,8 @@ def simulate_plan(plan: RunPlan, baselines: list[dict] = ()) -> SimResult:
     trace = M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9], stroke)
     metrics, segments = M.compute(trace)
     return SimResult(plan.name, plan.mode, log, metrics, segments, n * period, wall, stroke, fault,
-                     dict(tests.results) if tests else {}, list(tests.refusals) if tests else [])
+                     dict(tests.results) if tests else {}, list(tests.refusals) if tests else [],
+                     warnings=dict(driver.warnings))
 
 
 def run(scenario_name: str, mode: str | None = None, plant_overrides=None, controller_overrides=None,

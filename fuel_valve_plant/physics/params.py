@@ -114,6 +114,13 @@ PLANT_SPEC = ParamSpec("plant", [
     Param("pressure_sensor.noise_kpa", 0.0, "kPa", "rms noise of the measured pressure differential "
           "(0 = exact, so the documented control figures hold; ~6 = 0.1 % of full scale, an industrial "
           "transducer)", 0.0, 500.0, runtime=True),
+    # a transducer that reads wrong (robustness studies, the controller's Δp cross-check):
+    # reading = Δp (1 + gain_error) + bias_kpa + noise; both 0 = an exact transducer
+    Param("pressure_sensor.bias_kpa", 0.0, "kPa", "offset of the measured pressure differential (0 = none)",
+          -PRESSURE_MAX_KPA, PRESSURE_MAX_KPA, runtime=True),
+    Param("pressure_sensor.gain_error", 0.0, "", "relative gain error of the measured pressure differential "
+          "(0 = none, -1 = reads 0 whatever the pressure)", -1.0, 10.0, runtime=True),
+    Param("pressure_sensor.silent", False, "", "the transducer sends nothing (a lost Δp input)", runtime=True),
 ])
 
 #: parameters of the plant *node* only (timing and start-up of the ROS process); the node's

@@ -271,11 +271,12 @@ class Plant:
         return ResolverSample(self.time - self._delay_steps * self.dt, motor, valve)
 
     def pressure_differential(self) -> float:
-        """The Δp transducer read now, kPa: the true differential plus seeded Gaussian noise of
-        ``pressure_sensor.noise_kpa`` rms (not clamped: a real transducer reads a little below
-        zero or above full scale too)."""
-        noise = self._ps["pressure_sensor.noise_kpa"]
-        dp = self._ps["pressure_differential_kpa"]
+        """The Δp transducer read now, kPa: the true differential times ``1 + gain_error`` plus
+        ``bias_kpa`` plus seeded Gaussian noise of ``pressure_sensor.noise_kpa`` rms (not clamped:
+        a real transducer reads a little below zero or above full scale too)."""
+        ps = self._ps
+        noise = ps["pressure_sensor.noise_kpa"]
+        dp = ps["pressure_differential_kpa"] * (1.0 + ps["pressure_sensor.gain_error"]) + ps["pressure_sensor.bias_kpa"]
         return float(dp + noise * self._dp_rng.standard_normal()) if noise > 0.0 else float(dp)
 
     def pressure_sample(self) -> float | None:
@@ -287,6 +288,8 @@ class Plant:
         nxt = self._dp_next_step + self._dp_every
         # behind schedule (a stalled real-time loop): resynchronise instead of a burst of samples
         self._dp_next_step = nxt if nxt > self._steps else self._steps + self._dp_every
+        if self._ps["pressure_sensor.silent"]:
+            return None
         return self.pressure_differential()
 
     @property

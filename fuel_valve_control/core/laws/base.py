@@ -30,6 +30,11 @@ class ControlLaw(ABC):
         """Forget what the law learned about the valve (back to the nominal model): a fault
         reset calls it, so a value learned from a disturbance cannot outlive the fault."""
 
+    def friction_rescheduled(self, pressure_kpa: float) -> None:
+        """The Δp the friction terms are scheduled for jumped to ``pressure_kpa`` (kPa): the
+        driver found the Δp reading implausible against the friction met (or agreeing again).
+        Friction levels seeded from the old schedule are re-seeded from the new one."""
+
     def applied(self, torque_nm: float, saturated: bool) -> None:
         """The torque actually applied after limits (for observers and anti-windup)."""
 
