@@ -22,6 +22,7 @@ from fuel_valve_control.core import model as model_mod
 from fuel_valve_control.core import position_controller as pc
 from fuel_valve_control.core.driver import ValveDriver
 from fuel_valve_control.core.params import MODES, load_controller_params
+from fuel_valve_control.tools.sim import exchange_period
 from fuel_valve_plant.physics.params import load_plant_params
 from fuel_valve_plant.physics.plant import Plant
 
@@ -34,13 +35,7 @@ def loop(drv: ValveDriver, plant: Plant, t0: float, periods: int, demand, each=N
         t = t0 + k * drv.period
         if each is not None:
             each(k, t)
-        drv.demand_percent(t, demand(t))
-        dp = plant.pressure_sample()
-        if dp is not None:
-            drv.pressure_differential(t, dp)
-        s = plant.resolver()
-        drv.resolver(s.stamp_s, s.motor_rad, s.valve_rad)
-        out = drv.step(t)
+        out, _ = exchange_period(drv, plant, t, demand(t))
         plant.set_command(out.current_a, out.enable)
         plant.advance(drv.period)
         valve.append(100.0 * plant.truth().valve_angle / STROKE_RAD)

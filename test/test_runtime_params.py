@@ -17,6 +17,7 @@ from fuel_valve_control.core import driver as D
 from fuel_valve_control.core.driver import ValveDriver
 from fuel_valve_control.core.params import CONTROLLER_SPEC, MODES, TIGHTEN_ONLY, load_controller_params
 from fuel_valve_control.core.position_controller import PositionController
+from fuel_valve_control.tools.sim import exchange_period
 from fuel_valve_plant.physics.params import load_plant_params
 from fuel_valve_plant.physics.plant import Plant
 
@@ -77,13 +78,7 @@ def closed_loop(drv: ValveDriver, plant: Plant, t0: float, periods: int, demand_
     currents = []
     for k in range(periods):
         t = t0 + k * drv.period
-        drv.demand_percent(t, demand_pct)
-        dp = plant.pressure_sample()
-        if dp is not None:
-            drv.pressure_differential(t, dp)
-        s = plant.resolver()
-        drv.resolver(s.stamp_s, s.motor_rad, s.valve_rad)
-        out = drv.step(t)
+        out, _ = exchange_period(drv, plant, t, demand_pct)
         currents.append(out.current_a)
         plant.set_command(out.current_a, out.enable)
         plant.advance(drv.period)

@@ -105,6 +105,23 @@ def simulate(scenario: Scenario, plant_ps: ParamSet, controller_ps: ParamSet) ->
     return simulate_plan(plan)
 
 
+def exchange_period(driver, plant, t: float, demand_pct: float):
+    """One control period's exchange at time ``t`` (s), in the order the nodes exchange it:
+    the demand (percent), the Δp transducer (at its own rate), the resolver sample (when the
+    plant gives one), then the driver's step.  Returns ``(DriverOutput, resolver sample or
+    None)``; applying the command and advancing the plant is the caller's (it may log the
+    state in between).  The one loop body of the offline simulator and of the tests that close
+    the loop around a driver."""
+    driver.demand_percent(t, demand_pct)
+    dp = plant.pressure_sample()
+    if dp is not None:
+        driver.pressure_differential(t, dp)
+    sample = plant.resolver()
+    if sample is not None:
+        driver.resolver(sample.stamp_s, sample.motor_rad, sample.valve_rad)
+    return driver.step(t), sample
+
+
 def simulate_plan(plan: RunPlan, baselines: list[dict] = ()) -> SimResult:
     """Run an offline plan: every control period events due, demand, resolver sample, driver
     step, plant step (the order of the ROS loop).  A plan with valve-test events runs them on
@@ -130,15 +147,7 @@ def simulate_plan(plan: RunPlan, baselines: list[dict] = ()) -> SimResult:
         t = k * period
         for ev in events.due(t):
             apply_event(ev, plant, driver)
-        pct = demand.value(t)
-        driver.demand_percent(t, pct)
-        dp = plant.pressure_sample()              # the Δp transducer, at its own rate
-        if dp is not None:
-            driver.pressure_differential(t, dp)
-        sample = plant.resolver()
-        if sample is not None:
-            driver.resolver(sample.stamp_s, sample.motor_rad, sample.valve_rad)
-        out = driver.step(t)
+        out, sample = exchange_period(driver, plant, t, demand.value(t))
         est = driver.controller.estimate()
         truth = plant.truth()
         i_d, i_q = plant.currents
