@@ -150,14 +150,18 @@ class Probe:
         msg = self.get(contract.JOINT_STATES)
         return None if msg is None else msg.position[1]
 
-    def driver_status(self):
-        """The controller's latest /diagnostics status (or None)."""
+    def status(self, suffix: str):
+        """This namespace's latest /diagnostics status whose name ends with ``suffix`` (or None)."""
         with self.lock:
             for name, st in self.diagnostics.items():
-                # /diagnostics is global: take this namespace's controller only
-                if name.startswith(self.node.get_namespace() + "/") and name.endswith("valve driver"):
+                # /diagnostics is global: take this namespace's nodes only
+                if name.startswith(self.node.get_namespace() + "/") and name.endswith(suffix):
                     return st
         return None
+
+    def driver_status(self):
+        """The controller's latest /diagnostics status (or None)."""
+        return self.status("valve driver")
 
     def driver_level(self) -> int | None:
         st = self.driver_status()

@@ -32,11 +32,7 @@ CLOSE_TIME_S = 0.120
 
 
 def _plant_status(probe):
-    with probe.lock:
-        for name, st in probe.diagnostics.items():
-            if name.startswith(probe.node.get_namespace() + "/") and name.endswith("plant: loop"):
-                return st
-    return None
+    return probe.status("plant: loop")
 
 
 def _level(st):
