@@ -249,6 +249,8 @@ def seized(tmp_path, request):
     plan = plan_run(None, REAL_TIME, controller_overrides={
         "faults.tracking_error_time_s": 0.3, "faults.i2t_fault_time_s": 0.5,
         "faults.resolver_disagreement_margin_rad": 0.2, **getattr(request, "param", {}),
+        # the test plays a drive without a command watchdog (and without a drive_status)
+        "faults.drive_command_timeout_s": 0.0,
         # the test's Python threads play the resolver and the supervisor: allow them gaps
         # (measured: a 0.62 s demand gap with two CPU hogs on the shared machine)
         "faults.resolver_timeout_s": 1.0, "demand_timeout_s": 3.0})

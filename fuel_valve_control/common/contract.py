@@ -20,6 +20,9 @@ DRIVE_ENABLE = "drive_enable"
 RESOLVER = "resolver"
 JOINT_STATES = "joint_states"
 DRIVE = "drive"
+#: the drive's state word (std_msgs/UInt8, latched, published on change): one of the
+#: ``DRIVE_STATE_*`` codes below, like a CiA 402 status word or an ODrive axis state
+DRIVE_STATUS = "drive_status"
 ESTIMATE = "estimate"
 PRESSURE_DIFFERENTIAL = "pressure_differential"
 #: results of the controller's valve tests (signature, partial stroke): one JSON document per
@@ -38,6 +41,7 @@ TOPIC_TYPES = {
     RESOLVER: "sensor_msgs/msg/JointState",
     JOINT_STATES: "sensor_msgs/msg/JointState",
     DRIVE: "std_msgs/msg/Float64MultiArray",
+    DRIVE_STATUS: "std_msgs/msg/UInt8",
     ESTIMATE: "sensor_msgs/msg/JointState",
     PRESSURE_DIFFERENTIAL: "std_msgs/msg/Float64",
     VALVE_TEST: "std_msgs/msg/String",
@@ -47,7 +51,22 @@ TOPIC_TYPES = {
 #: topics of the control loop itself (keep-last-1: a loop wants the newest value, no backlog)
 LOOP_TOPICS = (RESOLVER, CURRENT_COMMAND, DEMAND, DEMAND_MA)
 #: topics that are latched (a late joiner still learns the state)
-LATCHED_TOPICS = (DRIVE_ENABLE, VALVE_TEST)
+LATCHED_TOPICS = (DRIVE_ENABLE, VALVE_TEST, DRIVE_STATUS)
+
+# --- the drive's state word (DRIVE_STATUS) ---------------------------------------------------
+DRIVE_STATE_DISABLED = 0         # off because drive_enable is false (the controller's choice)
+DRIVE_STATE_ENABLED = 1          # on: applying current_command
+#: off by its own command watchdog (no current_command for the drive's timeout); it stays off
+#: until the controller re-enables it (a drive_enable true received after the trip)
+DRIVE_STATE_WATCHDOG = 2
+#: off by an internal drive error; latched until drive_enable goes false, then true
+DRIVE_STATE_FAULT = 3
+DRIVE_STATE_NAMES = {DRIVE_STATE_DISABLED: "disabled", DRIVE_STATE_ENABLED: "enabled",
+                     DRIVE_STATE_WATCHDOG: "watchdog", DRIVE_STATE_FAULT: "fault"}
+#: default command watchdog of the drive, s (five 1 kHz periods): the plant's
+#: ``command_timeout_s`` and the controller's ``faults.drive_command_timeout_s`` (what it
+#: assumes of a drive that does not report its state) both default to it
+DRIVE_COMMAND_TIMEOUT_S = 0.005
 
 MOTOR_JOINT = "motor_shaft"
 VALVE_JOINT = "valve_shaft"

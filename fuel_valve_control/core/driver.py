@@ -45,7 +45,7 @@ import threading
 from collections import deque
 from dataclasses import dataclass, field, replace
 
-from ..common.contract import (NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_HIGH_MA, NE43_USABLE_LOW_MA,
+from ..common.contract import (DRIVE_STATE_FAULT, DRIVE_STATE_NAMES, DRIVE_STATE_WATCHDOG, NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_HIGH_MA, NE43_USABLE_LOW_MA,
                                 PERCENT_FAIL_MARGIN, PRESSURE_MAX_KPA, RESOLVER_COUNT_RAD, ma_to_percent)
 from ..common.paramspec import ParamSet
 
@@ -65,15 +65,12 @@ OVERCURRENT = "overcurrent_i2t"
 TRIPPED = "commanded_trip"
 #: an exception in the driver's own code (law, limits, arithmetic) or a non-finite command
 INTERNAL = "internal_error"
+#: the drive reports an internal fault of its own (:data:`~..common.contract.DRIVE_STATE_FAULT`)
+DRIVE_FAULT = "drive_fault"
 FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE, TRACKING, OVERCURRENT, TRIPPED,
-               INTERNAL)
-#: a gap between two loop periods longer than this many periods is a stalled loop: the drive's
-#: command watchdog (the plant's ``command_timeout_s``, 5 ms by default) has switched the drive
-#: off meanwhile and the law's state is stale, so the loop re-arms from the measurement with
-#: zero torque (the drive was off) instead of resuming with a stale observer and integrator.
-#: 20 periods, not 5: a plant publishing slower than the loop or a jittery one (a loaded
-#: machine) must not keep re-arming the law (that hid a jam from the I2t supervision in
-#: test_nodes' seized rig)
+               INTERNAL, DRIVE_FAULT)
+#: the longest loop gap counted as time by the duty counters (NE107 inputs), periods: a stalled
+#: loop's gap is not operating time
 STALL_REARM_PERIODS = 20
 #: a reset is refused until the inputs have been plausible for this long, s: an intermittent
 #: cause (a resolver noise burst, a flickering demand) must not be reset between two bad samples
@@ -115,6 +112,9 @@ class DriverOutput:
     position_pct: float | None
     faults: dict = field(default_factory=dict)      # code -> message (latched)
     warnings: dict = field(default_factory=dict)    # code -> message
+    #: the drive switched itself off under the running law (its command watchdog) and the loop
+    #: has re-armed: send drive_enable true again (an explicit re-enable) with this command
+    reenable: bool = False
 
 
 class ValveDriver:
@@ -142,8 +142,12 @@ class ValveDriver:
         self._armed = False
         self._arm_torque = 0.0
         self._t: float | None = None               # time of the latest step
-        self.stall_rearms = 0                      # re-arms after a stalled loop (diagnostics)
+        self.stall_rearms = 0                      # re-arms after the drive went off (diagnostics)
         self._stalled = False
+        #: the drive's state word (:meth:`drive_status`): None until a drive reports one (then
+        #: the reports, not the loop gap, say when the drive switched itself off)
+        self.drive_state: int | None = None
+        self._drive_tripped = False                # the drive reported its watchdog off while armed
         self._tracking_time = 0.0                  # leaky time beyond the tracking limit, s
         self._twist_time = 0.0                     # leaky time the twist disagreed with the torque, s
         self._positions: deque = deque(maxlen=int(2.0 / self.period))
@@ -462,6 +466,25 @@ class ValveDriver:
         return self.ps["pressure.fallback_kpa"] if self._dp is None else self._dp
 
     @_guarded
+    def drive_status(self, t: float, state: int) -> None:
+        """The drive's state word at ``t`` (a ``DRIVE_STATE_*`` code of the contract, like a CiA
+        402 status word).  Off by its own command watchdog while the loop runs the drive
+        (:data:`~..common.contract.DRIVE_STATE_WATCHDOG`): the law's state is stale (its
+        observer assumed the commanded current acted), so the next period re-arms from the
+        measurement with zero torque and re-enables the drive; the drive stays off until then.
+        An internal drive fault latches :data:`DRIVE_FAULT`.  Other codes are the echo of the
+        loop's own enable.  Once a drive has reported, the loop gap rule
+        (``faults.drive_command_timeout_s``) is not used."""
+        if state not in DRIVE_STATE_NAMES:
+            self._latch(DRIVE_FAULT, f"drive reports an unknown state {state!r}")
+            return
+        self.drive_state = state
+        if state == DRIVE_STATE_WATCHDOG and self._armed:
+            self._drive_tripped = True
+        elif state == DRIVE_STATE_FAULT and self._armed:
+            self._latch(DRIVE_FAULT, "the drive reports an internal fault (drive off); reset re-enables it")
+
+    @_guarded
     def measured_current(self, t: float, amps: float) -> None:
         """Optional drive telemetry: a current beyond the hardware rating is an over-current."""
         limit = 1.1 * self.ps["limits.peak_current_a"]
@@ -559,10 +582,12 @@ class ValveDriver:
         self._periods += 1
         self._commit_params()                     # a waiting parameter change: swap at the boundary
         ps = self.ps
-        if self._armed and self._t is not None and t - self._t > STALL_REARM_PERIODS * self.period:
-            self._armed = False                   # stalled: re-arm below from the measurement
-            self._stalled = True
+        reenable = False
+        if self._armed and self._drive_went_off(t, ps):
+            self._armed = False                   # re-arm below from the measurement, zero torque
+            self._stalled = reenable = True
             self.stall_rearms += 1
+        self._drive_tripped = False
         self._t = t
         if self._t_first is None:
             self._t_first = t
@@ -633,8 +658,17 @@ class ValveDriver:
         self._settled_periods = self._settled_periods + 1 if holding_now else 0
         self._settled_demand = demand_rad
         self.last = DriverOutput(current, True, "holding" if holding else "running", self._demand_pct,
-                                 position_pct, {}, dict(self.warnings))
+                                 position_pct, {}, dict(self.warnings), reenable=reenable)
         return self.last
+
+    def _drive_went_off(self, t: float, ps: ParamSet) -> bool:
+        """The drive switched itself off since the last period (the loop ran it): it reported
+        its watchdog trip, or -- a drive that does not report its state -- the loop's gap
+        exceeded the drive's command timeout ``faults.drive_command_timeout_s`` (0: none)."""
+        if self.drive_state is not None:
+            return self._drive_tripped
+        timeout = ps["faults.drive_command_timeout_s"]
+        return timeout > 0.0 and self._t is not None and t - self._t > timeout
 
     def demand_rad(self) -> float | None:
         """The demand the loop follows (rad): conditioned (:mod:`.demand_filter`) unless the
@@ -697,6 +731,7 @@ class ValveDriver:
                                    else self.friction_check.ratio(self._scheduled_kpa)),
             "i2t_budget_used": self.controller.i2t_budget_fraction,
             "stall_rearms": self.stall_rearms,
+            "drive_state": "unreported" if self.drive_state is None else DRIVE_STATE_NAMES[self.drive_state],
             "law_swaps": self.law_swaps, "params_pending": self.params_pending,
             "faults": ",".join(out.faults) or "none", "warnings": ",".join(out.warnings) or "none",
         }

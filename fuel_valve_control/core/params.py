@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..common.config_dir import default_config_dir
-from ..common.contract import PRESSURE_MAX_KPA, STROKE_RAD
+from ..common.contract import DRIVE_COMMAND_TIMEOUT_S, PRESSURE_MAX_KPA, STROKE_RAD
 from ..common.paramspec import RECORDED_TOPICS, ConfigError, Param, ParamSet, ParamSpec
 
 MODES = ("pi", "pi_dither", "observer", "observer_fc", "kalman_fc", "fc_gain", "observer_ff", "observer_fp")
@@ -245,6 +245,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("faults.stamp_future_tolerance_s", 0.05, "s", "a resolver sample stamped further than this ahead "
           "of the loop's clock is implausible (dropped; it never becomes the reference of the jump check)",
           0.001, 1.0, runtime=True),
+    Param("faults.drive_command_timeout_s", DRIVE_COMMAND_TIMEOUT_S, "s", "command watchdog of a drive that "
+          "does not report its state (no drive_status): a loop gap longer than this switched the drive off, so "
+          "the loop re-arms from the measurement with zero torque and re-enables it; 0: the drive has no "
+          "command watchdog.  A drive that reports its state is followed instead (driver.py)", 0.0, 1.0),
     Param("faults.i2t_fault_time_s", 2.0, "s", "time the loop may ask for more than the I2t limit allows "
           "(jam / overload) before the fault latches", 0.05, 60.0, runtime=True),
     # --- valve health: NAMUR NE107 status and duty counters (core/health.py, issue 12) ---------

@@ -6,8 +6,11 @@ is the loop's clock, so the command leaves as soon as the measurement arrives); 
 timer keeps the fault logic running when samples stop, so silence trips the drive too.
 
 Topics (SPEC §4): subscribes ``demand`` (percent), ``demand_ma`` (4-20 mA), ``resolver``,
-``pressure_differential`` (measured Δp, kPa: schedules the friction terms) and, optionally,
-the plant's ``drive`` telemetry (measured current for the over-current check); publishes ``current_command`` (A), ``drive_enable``, ``position`` (percent),
+``pressure_differential`` (measured Δp, kPa: schedules the friction terms), ``drive_status``
+(the drive's state word: a drive that switched itself off on its command watchdog is re-armed
+from the measurement with zero torque and re-enabled, ``ValveDriver.drive_status``) and,
+optionally, the plant's ``drive`` telemetry (measured current for the over-current check);
+publishes ``current_command`` (A), ``drive_enable``, ``position`` (percent),
 ``estimate`` and ``/diagnostics``.  Services ``~/trip`` and ``~/reset`` (std_srvs/Trigger); the
 valve tests' ``~/signature_test``, ``~/partial_stroke_test`` and latched ``valve_test``
 (:mod:`.valve_test_services`).
@@ -135,7 +138,7 @@ class ControllerNode(LifecycleNode):
 
         from diagnostic_msgs.msg import DiagnosticArray
         from sensor_msgs.msg import JointState
-        from std_msgs.msg import Bool, Float64, Float64MultiArray
+        from std_msgs.msg import Bool, Float64, Float64MultiArray, UInt8
         from std_srvs.srv import Trigger
         from builtin_interfaces.msg import Time
         self._float, self._bool, self._time = Float64, Bool, Time
@@ -157,6 +160,7 @@ class ControllerNode(LifecycleNode):
         ri.quiet_subscription(self, Float64, contract.DEMAND, self.on_demand)
         ri.quiet_subscription(self, Float64, contract.DEMAND_MA, self.on_demand_ma)
         ri.quiet_subscription(self, JointState, contract.RESOLVER, self.on_resolver)
+        ri.quiet_subscription(self, UInt8, contract.DRIVE_STATUS, self.on_drive_status)
         if node_ps["monitor_drive_telemetry"]:
             ri.quiet_subscription(self, Float64MultiArray, contract.DRIVE, self.on_drive)
         self._decimation = node_ps["telemetry_decimation"]
@@ -381,6 +385,11 @@ class ControllerNode(LifecycleNode):
             self.driver.measured_current(self.now_s(), math.hypot(values["i_d"], values["i_q"]))
 
     @locked
+    def on_drive_status(self, msg) -> None:
+        if self.driver is not None:
+            self.driver.drive_status(self.now_s(), int(msg.data))
+
+    @locked
     def on_resolver(self, msg) -> None:
         if self.driver is None:             # unconfigured / finalized: the drive stays off
             self._publish_disabled()
@@ -457,9 +466,16 @@ class ControllerNode(LifecycleNode):
     def publish_step(self, t: float) -> None:
         """One driver period: the command first (the plant is waiting for it), then the rest."""
         out = self.driver.step(t)
-        if out.enable != self._last_enable:       # latched topic: publish changes only, before
-            self.pub_enable.publish(self._bool(data=bool(out.enable)))   # the command it applies to
+        # latched topic: publish changes only, and a re-enable of a drive that switched itself
+        # off (out.reenable); before the command it applies to
+        if out.enable != self._last_enable or (out.enable and out.reenable):
+            self.pub_enable.publish(self._bool(data=bool(out.enable)))
             self.recorder_gate.count(contract.DRIVE_ENABLE, latched=True)
+            if out.reenable:
+                self.get_logger().warn(f"the drive switched itself off (state "
+                                       f"{contract.DRIVE_STATE_NAMES.get(self.driver.drive_state, 'unreported')}): "
+                                       "re-armed from the measurement with zero torque, drive re-enabled",
+                                       throttle_duration_sec=1.0)
         self.pub_current.publish(self._float(data=float(out.current_a)))
         self.recorder_gate.count(contract.CURRENT_COMMAND)
         self._periods += 1

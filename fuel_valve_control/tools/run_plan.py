@@ -179,6 +179,8 @@ def plan_run(scenario: Scenario | None, timing: str = OFFLINE, *, mode: str | No
     if scenario.pressure_kpa is not None:      # set on the plant only: the controller measures it
         plant["pressure_differential_kpa"] = scenario.pressure_kpa
     plant.update(plant_overrides or {})
+    if "command_timeout_s" in plant:   # one drive timeout: what the controller assumes follows the plant's
+        controller["faults.drive_command_timeout_s"] = plant["command_timeout_s"]
     controller.update(controller_overrides or {})
     if seed is not None:
         plant["seed"] = seed

@@ -14,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from fuel_valve_control.common.config_dir import default_config_dir
-from fuel_valve_control.common.contract import PRESSURE_MAX_KPA, STROKE_RAD
+from fuel_valve_control.common.contract import DRIVE_COMMAND_TIMEOUT_S, PRESSURE_MAX_KPA, STROKE_RAD
 from fuel_valve_control.common.paramspec import RECORDED_TOPICS, ConfigError, Param, ParamSet, ParamSpec
 
 FRICTION_MODELS = ("stick_slip", "lugre")
@@ -134,10 +134,11 @@ PLANT_NODE_PARAMS = (
           "controller, demand, recorder...) to wait for before the first step", 0, 100),
     Param("stop_after_s", 0.0, "s", "lockstep: stop advancing once the plant time reaches this (0: never), so "
           "a recorded run has exactly this length", 0.0, 1e6),
-    Param("command_timeout_s", 0.005, "s", "real time: drive watchdog; a published resolver sample not answered "
-          "by a current_command for this long disables the drive (the spring closes the valve) until commands "
-          "resume with the drive enabled, as a real drive does on a lost command stream (lockstep: not used, "
-          "time stands still without commands)", 0.002, 0.1),
+    Param("command_timeout_s", DRIVE_COMMAND_TIMEOUT_S, "s", "real time: drive watchdog; a published resolver "
+          "sample not answered by a current_command for this long disables the drive (the spring closes the "
+          "valve) and reports it on drive_status; it stays off until the controller re-enables it (a "
+          "drive_enable true received after the trip), as a real drive does on a lost command stream "
+          "(lockstep: not used, time stands still without commands)", 0.002, 0.1),
     Param("start_held", False, "", "start at rest at initial_position_rad held there by the drive (coupling "
           "twisted, holding current flowing), as the offline simulator's initial_percent does; false: at rest "
           "with the drive off"),

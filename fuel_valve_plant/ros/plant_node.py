@@ -36,12 +36,17 @@ Malformed commands (NaN, inf) never reach the physics: the drive treats them as 
 current with the drive disabled, like a drive that rejects a corrupt set-point.
 
 Drive faults (the drive's own protection, independent of the controller; reported as ERROR on
-``/diagnostics`` while active, counted in its values):
+``/diagnostics`` while active, counted in its values, and in the drive's state word
+``drive_status``: latched std_msgs/UInt8, published on change, ``contract.DRIVE_STATE_*``):
 
 * command watchdog (real time): a resolver sample left unanswered for ``command_timeout_s``
   (default 5 ms, five periods) disables the drive, so a dead or stalled controller cannot leave
-  the last current applied; the spring closes the valve.  It clears when commands resume with
-  ``drive_enable`` true.  In lockstep time stands still without commands: not used.
+  the last current applied; the spring closes the valve.  Like a real drive it does not
+  re-enable by itself when commands resume (the controller's law state is stale by then: its
+  observer assumed the commanded current acted, and resuming its command drove a soak's valve
+  30 % past the demand): it stays off, state ``watchdog``, until the controller re-enables it
+  (a ``drive_enable`` true received after the trip), and then applies only commands received
+  after that.  In lockstep time stands still without commands: not used.
 * internal error: an exception in a callback or in the physics disables the drive and is
   latched until the controller re-enables the drive (``drive_enable`` false, then true); the
   node keeps running.
@@ -138,9 +143,11 @@ class PlantNode(Node):
         self._watchdog_off = False
         self._watchdog_trips = 0
         self._fault: str | None = None
+        self._state_reported: int | None = None     # the drive state word last published
+        self._state_lock = threading.Lock()         # published from the loop thread and callbacks
 
         from sensor_msgs.msg import JointState
-        from std_msgs.msg import Bool, Float64, Float64MultiArray
+        from std_msgs.msg import Bool, Float64, Float64MultiArray, UInt8
         from diagnostic_msgs.msg import DiagnosticArray
         recorded = ri.recorded_topics(node_ps["recorded_topics"])
         deep = bool(recorded)                 # a recorder in the run: deep writer histories
@@ -150,6 +157,8 @@ class PlantNode(Node):
         self._drive_cdr = ri.LabelledArrayCdr(contract.TELEMETRY_LABELS)   # serialized: see its docstring
         self.pub_pressure = ri.quiet_publisher(self, Float64, contract.PRESSURE_DIFFERENTIAL, recorded=deep)
         self._float = Float64
+        self.pub_status = ri.quiet_publisher(self, UInt8, contract.DRIVE_STATUS, recorded=deep)
+        self._uint8 = UInt8
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=deep)
         #: messages published per topic (printed at exit) and the recorder hold (recorded_topics)
         self.recorder_gate = ri.RecorderGate(self, recorded)
@@ -159,6 +168,7 @@ class PlantNode(Node):
         self.sub_command = ri.quiet_subscription(self, Float64, contract.CURRENT_COMMAND, self.on_command)
         ri.handle_parameter_changes(self, PLANT_SPEC, self.plant.check_params, self.apply_parameters)
         self.create_timer(1.0, self.publish_diagnostics)
+        self.report_state()
         if self.lockstep:
             from builtin_interfaces.msg import Time
             from rosgraph_msgs.msg import Clock
@@ -194,6 +204,27 @@ class PlantNode(Node):
             self.plant.set_command(0.0, False)
         except Exception:                   # noqa: BLE001 - the physics itself failed: nothing to set
             pass
+        try:
+            self.report_state()
+        except Exception:                   # noqa: BLE001 - context gone: /diagnostics says it too
+            pass
+
+    def drive_state(self) -> int:
+        """The drive's state word (``contract.DRIVE_STATE_*``)."""
+        if self._fault is not None:
+            return contract.DRIVE_STATE_FAULT
+        if self._watchdog_off:
+            return contract.DRIVE_STATE_WATCHDOG
+        return contract.DRIVE_STATE_ENABLED if self._enable else contract.DRIVE_STATE_DISABLED
+
+    def report_state(self) -> None:
+        """Publish the drive's state word when it has changed (latched: a late joiner learns it)."""
+        with self._state_lock:
+            state = self.drive_state()
+            if state != self._state_reported:
+                self._state_reported = state
+                self.pub_status.publish(self._uint8(data=state))
+                self.recorder_gate.count(contract.DRIVE_STATUS, latched=True)
 
     def _check_watchdog(self, now: float) -> None:
         """Real time, each tick: disable the drive when a sample stays unanswered too long."""
@@ -202,14 +233,13 @@ class PlantNode(Node):
             self._watchdog_off = True
             self._watchdog_trips += 1
             self.get_logger().error(f"drive watchdog: no current command for {(now - self._awaiting_since) * 1e3:.1f} "
-                                    f"ms (limit {self._command_timeout * 1e3:g} ms): drive disabled",
-                                    throttle_duration_sec=1.0)
+                                    f"ms (limit {self._command_timeout * 1e3:g} ms): drive disabled until the "
+                                    "controller re-enables it", throttle_duration_sec=1.0)
+            self.report_state()
 
     def _command_arrived(self) -> None:
+        # resumed commands do not re-enable a tripped drive: only the controller does (on_enable)
         self._awaiting_since = None
-        if self._watchdog_off and self._enable:
-            self._watchdog_off = False
-            self.get_logger().info("drive watchdog: commands resumed, drive enabled")
 
     # ------------------------------------------------------------------ inputs
     @guarded
@@ -240,7 +270,14 @@ class PlantNode(Node):
         if enable and not self._enable and self._fault is not None:
             self.get_logger().info(f"drive re-enabled by the controller: cleared {self._fault}")
             self._fault = None
+        if enable and self._watchdog_off:
+            # the controller has seen the trip and re-armed (a true sent after the trip): back
+            # on, but with zero current until its first command after the re-enable
+            self._watchdog_off = False
+            self._iq = 0.0
+            self.get_logger().info("drive watchdog: re-enabled by the controller")
         self._enable = enable
+        self.report_state()
 
     def _apply_command(self) -> None:
         enabled = (self._enable and not self._command_rejected and not self._watchdog_off
