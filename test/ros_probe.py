@@ -16,12 +16,15 @@ import time
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from fuel_valve_control.common import contract  # noqa: E402
 from fuel_valve_control.ros import interface as ri
 
 DEEP = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE)
+#: latched topics: every change kept (the writer keeps the last one for a late joiner)
+DEEP_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class Probe:
@@ -29,7 +32,7 @@ class Probe:
         from diagnostic_msgs.msg import DiagnosticArray
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState
-        from std_msgs.msg import Bool, Float64
+        from std_msgs.msg import Bool, Float64, UInt8
 
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context)
@@ -44,9 +47,10 @@ class Probe:
         # only what the tests read: each 1 kHz subscription is Python work per period, and in
         # lockstep the probe's executor paces the whole loop
         types = {contract.POSITION: Float64, contract.CURRENT_COMMAND: Float64, contract.DRIVE_ENABLE: Bool,
-                 contract.JOINT_STATES: JointState}
+                 contract.JOINT_STATES: JointState, contract.DRIVE_STATUS: UInt8}
         for topic, mtype in types.items():
-            qos = ri.LATCHED_QOS if topic == contract.DRIVE_ENABLE else DEEP
+            qos = (ri.LATCHED_QOS if topic == contract.DRIVE_ENABLE
+                   else DEEP_LATCHED if topic in contract.LATCHED_TOPICS else DEEP)
             self.node.create_subscription(mtype, topic, lambda m, t=topic: self._store(t, m), qos)
         self.node.create_subscription(DiagnosticArray, contract.DIAGNOSTICS, self._on_diag, DEEP)
         self.pub_demand = self.node.create_publisher(Float64, contract.DEMAND, ri.LOOP_QOS)

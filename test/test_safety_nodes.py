@@ -59,7 +59,7 @@ def realtime(tmp_path):
                                                            "diagnostics_rate_hz": 10.0})
     s = Launcher(plan, "/wd", tmp_path)
     s.start(("plant", "controller"))
-    probe = Probe("/wd", keep_all=(contract.JOINT_STATES,))
+    probe = Probe("/wd", keep_all=(contract.JOINT_STATES, contract.DRIVE_STATUS))
     try:
         yield s, probe
     finally:
@@ -120,8 +120,52 @@ def test_stalled_controller_does_not_run_the_valve_away(realtime):
     # to 10 periods per tick, so up to 5 + 10 ms of the stale command (a load-average-30 run:
     # 49 %); 55 % still fails a drive that kept its command for 20 ms (53 % from a hold at 40 %).
     assert peak_pct < 55.0, peak_pct
-    # the loop recovers on its own: commands resumed, the plant re-enabled the drive
+    # the loop recovers on its own: the plant reported its watchdog trip, the controller
+    # re-armed and re-enabled the drive
     _hold(probe, 40.0, timeout=20.0)
+
+
+def _states_since(probe, t0_mono) -> list[int]:
+    return [int(m.data) for m in probe.since(contract.DRIVE_STATUS, t0_mono)]
+
+
+def test_short_controller_stalls_at_a_hold_the_drive_reports_and_the_controller_re_enables(realtime):
+    # the soak's defect: 5-20 ms loop gaps at a hold; the drive switched itself off and on
+    # again while the controller's law went on as if the current had acted, and the valve
+    # ran to 82.8 % for a 47.5 % demand.  Now the plant reports its watchdog trip and stays off
+    # until the controller, re-armed from the measurement with zero torque, re-enables it.
+    s, probe = realtime
+    demand = 47.5
+    _hold(probe, demand)
+    pid = s.procs["controller"].pid
+    mono = time.monotonic()
+    trips = 0
+    for _ in range(10):                 # 12 ms stalls until five have tripped the drive
+        before = time.monotonic()
+        os.kill(pid, signal.SIGSTOP)
+        time.sleep(0.012)
+        os.kill(pid, signal.SIGCONT)
+        # the trip is reported, then the drive is enabled again (by the controller: the plant
+        # alone no longer does it); generous timeout for a loaded machine
+        probe.wait_for(lambda: contract.DRIVE_STATE_ENABLED in _states_since(probe, before)[1:]
+                       or (not _states_since(probe, before) and time.monotonic() - before > 1.0),
+                       20.0, "the drive re-enabled after a watchdog trip (or no trip)")
+        states = _states_since(probe, before)
+        if contract.DRIVE_STATE_WATCHDOG in states:
+            trips += 1
+            assert states[states.index(contract.DRIVE_STATE_WATCHDOG) + 1:].count(contract.DRIVE_STATE_ENABLED), states
+        time.sleep(0.3)
+        if trips >= 5:
+            break
+    assert trips >= 3, f"only {trips} stalls tripped the drive watchdog"
+    time.sleep(0.5)
+    valve = [v for _, v in _truth_since(probe, mono)]
+    peak_pct = 100.0 * max(valve) / STROKE_RAD
+    print(f"{trips} drive watchdog trips from 12 ms controller stalls at a {demand} % hold: peak {peak_pct:.2f} %")
+    assert peak_pct <= demand + 2.0, peak_pct
+    values = probe.driver_values()
+    assert int(values["stall_rearms"]) >= trips, values.get("stall_rearms")
+    assert probe.driver_level() in (0, 1), probe.driver_status().message     # running, no fault
 
 
 # ------------------------------------------------------------------ a defect in the loop
