@@ -56,11 +56,15 @@ def quiet_subscription(node, msg_type, topic: str, callback, qos: QoSProfile | N
 def qos_for(topic: str, recorded: bool = False) -> QoSProfile:
     """The QoS profile of one of the suite's topics (by its relative name; anything else, e.g.
     ``/clock``, is telemetry).  ``recorded`` (a publisher's, while a recorder is in the run):
-    volatile topics keep :data:`RECORDED_WRITER_DEPTH` samples for the recorder's re-sends."""
+    writers keep :data:`RECORDED_WRITER_DEPTH` samples for the recorder's re-sends."""
     if topic in c.LATCHED_TOPICS:
-        return LATCHED_QOS
-    base = LOOP_QOS if topic in c.LOOP_TOPICS else TELEMETRY_QOS
+        base = LATCHED_QOS
+    else:
+        base = LOOP_QOS if topic in c.LOOP_TOPICS else TELEMETRY_QOS
     if recorded:
+        # latched ones too: a state that changes twice within a recorder stall (drive_status:
+        # watchdog, then enabled again a millisecond later) must reach the bag twice; a late
+        # joiner then replays the recent changes, in order, ending on the state in force
         return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=RECORDED_WRITER_DEPTH,
                           reliability=base.reliability, durability=base.durability)
     return base
