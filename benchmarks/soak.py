@@ -42,9 +42,6 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ros_loop import recorder_report  # noqa: E402  (one reader of the nodes' published counts)
-
 from fuel_valve_control.common.contract import STROKE_RAD, VALVE_JOINT  # noqa: E402
 from fuel_valve_control.tools.launcher import Launcher  # noqa: E402
 from fuel_valve_control.tools.run_plan import LOCKSTEP, REAL_TIME, plan_run  # noqa: E402
@@ -229,12 +226,13 @@ def main() -> int:
         for h in hogs:
             h.send_signal(signal.SIGKILL)
             h.wait()
-    rec = recorder_report(launcher.bag, launcher, ns)
+    rec = launcher.recording_losses()          # the one reader of the nodes' published counts
     excess = valve_excess(launcher.bag)
     disabled = re.findall(r"drive DISABLED: state \w+(?:, faults: (.*))?", launcher.log("controller"))
     from fuel_valve_control.tools.bag_io import read_bag
     diag = read_bag(launcher.bag, ["/diagnostics"]).diagnostics
     plant_diag = next((v for k, v in diag.items() if k.endswith("plant: loop") or "plant" in k), {})
+    controller_diag = next((v for k, v in diag.items() if "controller" in k and "stall_rearms" in v), {})
 
     warm_up_s = min(WARM_UP_S, 0.25 * wall)
 
@@ -255,20 +253,23 @@ def main() -> int:
                                                                  for n, s in rss.items()}},
         "drive_disablements": len(disabled), "fault_messages": sorted(set(f for f in disabled if f))[:10],
         "plant_watchdog_trips": plant_diag.get("watchdog_trips"),
+        "controller_rearms_after_drive_off": controller_diag.get("stall_rearms"),
         "operator_resets": None if operator is None else operator.resets,
         "operator_faults_seen": None if operator is None else operator.faults[:10],
         "valve_excess_max_pct": excess["excess_max_pct"], "valve_excess": excess,
-        "bag_lost": rec["lost"], "bag_queue_dropped": rec["queue_dropped"], "bag_messages": rec["bag_messages"],
+        "bag_lost": rec["lost"], "bag_startup_lost": rec["startup_lost"], "bag_queue_dropped": rec["queue_dropped"], "bag_messages": rec["bag_messages"],
         "bag_topics": rec["topics"],
     }
     print(f"soak {args.minutes:g} min {result['timing']}, {args.cpu_hog} CPU hog(s): died {died}, drive "
-          f"disablements {len(disabled)}, plant watchdog trips {result['plant_watchdog_trips']}")
+          f"disablements {len(disabled)}, plant watchdog trips {result['plant_watchdog_trips']}, controller "
+          f"re-arms after the drive went off {result['controller_rearms_after_drive_off']}")
     for name, s in result["rss"].items():
         print(f"  RSS {name:<10} {s}")
     print(f"  valve over demand (drive enabled): max {excess['excess_max_pct']} % over {excess['samples']} samples")
     for topic, v in rec["topics"].items():
         print(f"  {topic:<40} published {v['published']:>8}  in bag {v['in_bag']:>8}")
-    print(f"  bag: {rec['bag_messages']} messages, lost {rec['lost']}, queue drops {rec['queue_dropped']}")
+    print(f"  bag: {rec['bag_messages']} messages, lost {rec['lost']} (before the recorder matched: "
+          f"{rec['startup_lost']}), queue drops {rec['queue_dropped']}")
     if args.keep:
         print(f"  run directory kept: {tmp}")
     else:

@@ -20,7 +20,8 @@ false, 0 A); and outside a latched fault the valve never goes beyond the largest
 the last 0.3 s + 2 % of stroke (:func:`check_safe`; a mode that does worse at its defaults,
 the pi_dither baseline, observer_fc and kalman_fc after a switch, is held to its own figure
 + 0.5 %).  Plant parameters describe the valve, not a command: rejected or the plant runs.
-Known shortfalls are strict xfails: :data:`KNOWN_OVERSHOOT`, :data:`PLANT_DIVERGES`.
+Known shortfalls are strict xfails: :data:`KNOWN_OVERSHOOT`.  In-range plant values with which the
+fixed-step physics diverged (:data:`PLANT_DIVERGED`) are now refused by its stability check.
 The DDS side (every subscription and parameter of the real node objects, the services):
 ``test_fuzz_nodes.py``.
 """
@@ -291,9 +292,9 @@ def reference_excess(mode: str | None, target: str | None) -> float:
     return _REFERENCE[key]
 
 
-#: in-range plant values with which the fixed-step physics diverges (NaN after a few
-#: periods; the resolver then raises converting NaN): the plant's ranges admit them
-PLANT_DIVERGES = [("motor.pole_pairs", 32), ("motor.flux_linkage_wb", 1.0), ("coupling.damping_nms", 100.0)]
+#: in-range plant values with which the fixed-step physics diverged (NaN after a few periods;
+#: the resolver then raised converting NaN): refused now (physics/stability.py)
+PLANT_DIVERGED = [("motor.pole_pairs", 32), ("motor.flux_linkage_wb", 1.0), ("coupling.damping_nms", 100.0)]
 
 
 @pytest.mark.slow
@@ -305,15 +306,45 @@ def test_plant_parameter_boundary_values_are_rejected_or_run(name):
     plant runs (finite, no exception) and the controller stays supervised (faults: drive off)."""
     p = PLANT_NODE_SPEC.params[name]
     for value in boundary_values(p):
-        if (name, value) not in PLANT_DIVERGES:
-            _plant_case(p, name, value)
+        _plant_case(p, name, value)
 
 
-@pytest.mark.xfail(strict=True, reason="in-range plant value: the fixed-step physics diverges to NaN "
-                   "(plant range or consistency check to tighten); see PLANT_DIVERGES")
-@pytest.mark.parametrize("name, value", PLANT_DIVERGES)
-def test_plant_parameter_values_known_to_diverge(name, value):
-    _plant_case(PLANT_NODE_SPEC.params[name], name, value)
+@pytest.mark.parametrize("name, value", PLANT_DIVERGED)
+def test_plant_values_that_diverged_are_refused_by_the_stability_check(name, value):
+    _plant_case(PLANT_NODE_SPEC.params[name], name, value)      # refused, or runs finite
+    with pytest.raises(ValueError, match="unstable"):
+        check_consistency(base_params()[1].replace({name: value}))
+    if PLANT_SPEC.params[name].runtime:                          # at run time: refused, unchanged
+        plant = Plant(base_params()[1])
+        before = plant.params
+        with pytest.raises(ValueError, match="unstable"):
+            plant.set_params({name: value})
+        assert plant.params is before
+
+
+def test_the_stability_check_follows_the_electromechanical_pole():
+    """With the current regulator saturated the back-EMF closes an explicit loop of gain
+    g = 1.5 p² ψ² b dt / Jm per step (b = (1 - a) / R, a = exp(-R dt / Lq)), stable while
+    g < 2 (1 - a) (physics/stability.py): the check refuses exactly the pole-pair counts and
+    flux linkages beyond that bound (a margin of 10 % around it left out)."""
+    base = base_params()[1]
+    for name, values in (("motor.pole_pairs", range(1, 33)), ("motor.flux_linkage_wb", (0.01, 0.03, 0.05, 0.07,
+                                                                                         0.1, 0.3, 1.0))):
+        for value in values:
+            ps = base.replace({name: value})
+            dt, r, lq = 1.0 / ps["physics_rate_hz"], ps["motor.resistance_ohm"], ps["motor.lq_h"]
+            a = math.exp(-r * dt / lq)
+            g = 1.5 * (ps["motor.pole_pairs"] * ps["motor.flux_linkage_wb"]) ** 2 * (1 - a) / r * dt \
+                / ps["motor.inertia_kgm2"]
+            ratio = g / (2.0 * (1.0 - a))
+            if abs(ratio - 1.0) < 0.1:
+                continue
+            try:
+                check_consistency(ps)
+                refused = False
+            except ValueError:
+                refused = True
+            assert refused == (ratio > 1.0), (name, value, ratio)
 
 
 def _plant_case(p, name, value):

@@ -168,3 +168,7 @@ def check_consistency(ps: ParamSet) -> None:
         raise ConfigError("plant: valve static friction at full pressure must be >= its Coulomb friction")
     if ps["initial_position_rad"] > ps["valve.stroke_rad"]:
         raise ConfigError("plant: initial_position_rad must lie within the stroke (<= valve.stroke_rad)")
+    # in-range values can still combine into a mode the explicit fixed-step physics cannot
+    # integrate (issue 13: pole pairs 32, flux linkage 1 Wb, coupling damping 100 N*m*s/rad)
+    from .stability import check_step_stability      # it needs the kernel packing (plant.py)
+    check_step_stability(ps)
