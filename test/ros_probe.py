@@ -192,14 +192,19 @@ class Probe:
         assert client.wait_for_service(timeout_sec=timeout), f"service {service} not available"
         return self._wait_future(client.call_async(Trigger.Request()), timeout, service)
 
-    def set_params(self, node: str, params: dict, timeout: float = 15.0) -> list:
-        """SetParameters on ``node`` (relative to the namespace); returns the results."""
-        from rcl_interfaces.srv import SetParameters
+    def set_params(self, node: str, params: dict, timeout: float = 15.0, atomically: bool = False) -> list:
+        """SetParameters on ``node`` (relative to the namespace; each parameter on its own);
+        returns the results.  ``atomically``: SetParametersAtomically (all or none), whose one
+        result is returned as a one-element list."""
+        from rcl_interfaces.srv import SetParameters, SetParametersAtomically
         from rclpy.parameter import Parameter
-        client = self.node.create_client(SetParameters, f"{node}/set_parameters")
-        assert client.wait_for_service(timeout_sec=timeout), f"{node}/set_parameters not available"
-        req = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in params.items()])
-        return self._wait_future(client.call_async(req), timeout, f"{node}/set_parameters").results
+        srv, name = (SetParametersAtomically, "set_parameters_atomically") if atomically else \
+            (SetParameters, "set_parameters")
+        client = self.node.create_client(srv, f"{node}/{name}")
+        assert client.wait_for_service(timeout_sec=timeout), f"{node}/{name} not available"
+        req = srv.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in params.items()])
+        resp = self._wait_future(client.call_async(req), timeout, f"{node}/{name}")
+        return [resp.result] if atomically else resp.results
 
     def get_params(self, node: str, names: list[str], timeout: float = 15.0) -> list:
         from rcl_interfaces.srv import GetParameters

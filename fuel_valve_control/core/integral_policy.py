@@ -74,9 +74,16 @@ class JumpLearner:
     x 0.1 jumps 30x the nominal jump at any Δp (a cap of 20 left that corner hunting at
     Δp = 0); 50 gives margin.
 
-    A disturbance (a load kick, a stalled loop) can look like a big jump; :meth:`reset` (a
-    fault reset) returns to the nominal ratio, so what was learned from it cannot outlive a
-    fault (issue 13).
+    A disturbance (a load kick, a stalled loop) can look like a big jump, and it inflated the
+    deadband (issue 13.4: two 60 ms ±25 N*m kicks, ratio x16, the valve resting 7 % off its
+    demand).  So a measurement must be plausible as the drive's own breakaway: the stuck ramp
+    pushes a valve resting outside the deadband toward the target, so a breakaway starts there
+    and moves toward the target (it may overshoot).  A valve displaced beyond the deadband any
+    other way (away from the target, or from rest inside the deadband, where the drive only
+    relaxes) was moved by something else: that move is not learned, and neither is any
+    breakaway until the valve has rested within the deadband again (the return from the
+    displacement is a recovery, not stick-slip) or a new move starts.  :meth:`reset` (a fault reset) returns to the nominal
+    ratio, so nothing learned before a fault outlives it.
     """
 
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4):
@@ -90,17 +97,34 @@ class JumpLearner:
         self.ratio = 1.0
         self._stuck_at: float | None = None
         self._start: float | None = None
+        self.disturbed = False            # moved away from the target: learning paused
+        self.rejected = 0                 # breakaways not learned as implausible (diagnostics)
 
-    def update(self, valve: float, stuck: bool, holding: bool, nominal_jump: float) -> None:
+    def update(self, valve: float, stuck: bool, holding: bool, nominal_jump: float,
+               target: float | None = None, band: float = 0.0) -> None:
+        """One period: valve angle (rad), at rest or not, holding (no planned move), the nominal
+        jump (rad); ``target`` (rad, None: no plausibility check) and the deadband in force
+        ``band`` (rad) judge whether a breakaway was the drive's own (class docstring)."""
         if not holding:
             self._start = None
+            self.disturbed = False
         elif not stuck and self._stuck_at is not None and self._start is None:
             self._start = self._stuck_at                      # broke away while holding
         elif stuck and self._start is not None:
-            jump = abs(valve - self._start)
-            if jump >= self.min_jump:
-                self.ratio += self.gain * (jump / nominal_jump - self.ratio)
+            moved = valve - self._start
+            if abs(moved) >= self.min_jump:
+                # the drive's breakaway: from rest outside the deadband (where the stuck ramp
+                # pushes), toward the target
+                ramp = target is None or (abs(target - self._start) > band and moved * (target - self._start) > 0.0)
+                if not ramp and abs(moved) > band:
+                    self.disturbed = True                     # displaced beyond the band: not the drive
+                if ramp and not self.disturbed:
+                    self.ratio += self.gain * (abs(moved) / nominal_jump - self.ratio)
+                elif self.disturbed:
+                    self.rejected += 1
             self.ratio = min(max(self.ratio, self.limits[0]), self.limits[1])
             self._start = None
+        if stuck and self.disturbed and self._start is None and target is not None and abs(target - valve) <= band:
+            self.disturbed = False                            # at rest within the deadband again
         self._stuck_at = valve if stuck else None
 

@@ -147,7 +147,8 @@ class StateFeedbackLaw(ControlLaw):
         self.reference = ref
         stuck = abs(valve_speed) <= self.integral.stuck_speed
         nominal_jump = m.friction(pressure_kpa).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
-        self.jumps.update(meas.valve_rad, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad))
+        self.jumps.update(meas.valve_rad, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad),
+                          target, self.deadband)
         self.deadband = self.integral.deadband(m, pressure_kpa, self.jumps.ratio)
         error = ref.position - thl
         outside = abs(target - thl) > self.deadband and not ref.moving
