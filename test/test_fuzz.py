@@ -144,11 +144,14 @@ CONTROLLER_INPUTS = {
                  ("stamp", lambda loop, v: _resolver(loop, stamp=v)),
                  ("stamp_offset", lambda loop, v: _resolver(loop, stamp=loop.t + v))],
     c.DRIVE: [("current", lambda loop, v: loop.drv.measured_current(loop.t, v))],
+    c.DRIVE_STATUS: [("state", lambda loop, v: loop.drv.drive_status(loop.t, v))],
 }
 #: values per input beyond BAD_NUMBERS: out of range for that input (percent, mA, kPa, rad, s)
 EXTRA = {c.DEMAND: [105.1, 150.0, -5.1, -50.0, 100.0, 0.0], c.DEMAND_MA: [3.6, 3.7, 20.9, 21.0, 25.0, 4.0, 20.0],
          c.PRESSURE_DIFFERENTIAL: [c.PRESSURE_MAX_KPA * 2, -500.0],
-         c.RESOLVER: [c.STROKE_RAD + 0.5, -0.5, 3600.0, -3600.0, 0.06], c.DRIVE: [100.0, -100.0]}
+         c.RESOLVER: [c.STROKE_RAD + 0.5, -0.5, 3600.0, -3600.0, 0.06], c.DRIVE: [100.0, -100.0],
+         c.DRIVE_STATUS: [c.DRIVE_STATE_DISABLED, c.DRIVE_STATE_ENABLED, c.DRIVE_STATE_WATCHDOG,
+                          c.DRIVE_STATE_FAULT, 4, 255]}
 
 INPUT_CASES = [pytest.param(topic, name, value, burst, id=f"{topic}-{name}-{value!r}-{'burst' if burst else 'once'}")
                for topic, injectors in CONTROLLER_INPUTS.items() for name, _ in injectors

@@ -46,6 +46,8 @@ def bad_messages(msg_type) -> list:
         out = [msg_type(data=v) for v in BAD_NUMBERS]
     elif name == "std_msgs/Bool":
         out = [msg_type(data=True), msg_type(data=False), msg_type(data=True)]
+    elif name == "std_msgs/UInt8":                 # the drive's state word: every code, unknown ones
+        out = [msg_type(data=v) for v in (0, 1, 2, 3, 4, 127, 255, 2, 1)]
     elif name == "sensor_msgs/JointState":
         from builtin_interfaces.msg import Time
         stamps = [Time(sec=2**31 - 1), Time(sec=-2**31), Time(sec=0, nanosec=999_999_999), Time()]

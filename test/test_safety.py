@@ -142,24 +142,26 @@ def test_the_jump_learner_learns_the_drives_breakaways_not_displacements():
     from fuel_valve_control.core.integral_policy import JumpLearner
     nominal, band, target = 1e-3, 1e-3, 0.5
 
-    def breakaway(learner, start, end):
+    def breakaway(learner, start, end, driven=True):
         learner.update(start, True, True, nominal, target, band)
-        learner.update(start, False, True, nominal, target, band)
+        learner.update(start, False, True, nominal, target, band, driven)
         learner.update(end, True, True, nominal, target, band)
     j = JumpLearner()
-    breakaway(j, target - 3e-3, target + 2e-3)          # from outside the band, toward (and past) the target
+    breakaway(j, target - 3e-3, target + 2e-3)          # the drive's breakaway, past the target
     assert j.ratio == pytest.approx(1.0 + j.gain * (5.0 - 1.0))
     learned = j.ratio
-    breakaway(j, target + 2e-3, target + 0.05)          # away from the target: a displacement
-    breakaway(j, target + 0.05, target - 0.01)          # the recovery from it
+    breakaway(j, target + 5e-4, target - 1.2e-3, driven=False)  # not driven, not displaced: learned
+    assert not j.disturbed and j.ratio != learned
+    learned = j.ratio
+    breakaway(j, target + 5e-4, target - 0.05, driven=False)    # a kick: displaced beyond the band
+    breakaway(j, target - 0.05, target + 0.01)                  # the recovery from it
     assert j.ratio == learned and j.disturbed and j.rejected == 2
-    breakaway(j, target - 0.01, target + 5e-4)          # rests within the band again: learning resumes
+    breakaway(j, target + 0.01, target + 5e-4)                  # rests within the band again
+    assert not j.disturbed and j.rejected == 3
+    breakaway(j, target + 5e-4, target - 0.05, driven=False)
+    j.update(target, True, False, nominal, target, band)        # a new move: the displacement is over
     assert not j.disturbed
-    breakaway(j, target + 5e-4, target + 0.04)          # from rest inside the band: not the ramp
-    assert j.ratio == learned
-    j.update(target, True, False, nominal, target, band)    # a new move: the displacement is over
-    assert not j.disturbed
-    for _ in range(50):                                  # bounded whatever it measures
+    for _ in range(50):                                         # bounded whatever it measures
         breakaway(j, target - 0.2, target + 0.2)
     assert j.ratio == j.limits[1]
     j.reset()

@@ -76,13 +76,13 @@ class JumpLearner:
 
     A disturbance (a load kick, a stalled loop) can look like a big jump, and it inflated the
     deadband (issue 13.4: two 60 ms ±25 N*m kicks, ratio x16, the valve resting 7 % off its
-    demand).  So a measurement must be plausible as the drive's own breakaway: the stuck ramp
-    pushes a valve resting outside the deadband toward the target, so a breakaway starts there
-    and moves toward the target (it may overshoot).  A valve displaced beyond the deadband any
-    other way (away from the target, or from rest inside the deadband, where the drive only
-    relaxes) was moved by something else: that move is not learned, and neither is any
-    breakaway until the valve has rested within the deadband again (the return from the
-    displacement is a recovery, not stick-slip) or a new move starts.  :meth:`reset` (a fault reset) returns to the nominal
+    demand).  So a measurement must be plausible as the drive's own breakaway: the drive broke
+    the valve loose only if its torque on the valve (beyond the load it holds) had reached the
+    lowest static friction the valve can have (the caller judges it: ``driven``).  A valve
+    that breaks away with less and ends up further from the target by more than the deadband
+    was displaced by something else: that move is not learned, and neither is any breakaway
+    until the valve has rested within the deadband again (the return from the displacement is a
+    recovery, not stick-slip) or a new move starts.  :meth:`reset` (a fault reset) returns to the nominal
     ratio, so nothing learned before a fault outlives it.
     """
 
@@ -97,30 +97,31 @@ class JumpLearner:
         self.ratio = 1.0
         self._stuck_at: float | None = None
         self._start: float | None = None
-        self.disturbed = False            # moved away from the target: learning paused
+        self.disturbed = False            # displaced by something else: learning paused
+        self._driven = True               # the breakaway in progress was the drive's
         self.rejected = 0                 # breakaways not learned as implausible (diagnostics)
 
     def update(self, valve: float, stuck: bool, holding: bool, nominal_jump: float,
-               target: float | None = None, band: float = 0.0) -> None:
+               target: float | None = None, band: float = 0.0, driven: bool = True) -> None:
         """One period: valve angle (rad), at rest or not, holding (no planned move), the nominal
-        jump (rad); ``target`` (rad, None: no plausibility check) and the deadband in force
-        ``band`` (rad) judge whether a breakaway was the drive's own (class docstring)."""
+        jump (rad); ``driven``: the drive's torque could have broken the valve loose (read when
+        it does), ``target`` and ``band`` (rad): the target and the deadband in force, for the
+        end of a displacement (class docstring)."""
         if not holding:
             self._start = None
             self.disturbed = False
         elif not stuck and self._stuck_at is not None and self._start is None:
             self._start = self._stuck_at                      # broke away while holding
+            self._driven = driven
         elif stuck and self._start is not None:
             moved = valve - self._start
+            if (not self._driven and target is not None
+                    and abs(target - valve) > abs(target - self._start) + band):
+                self.disturbed = True                         # displaced off the target, not by the drive
             if abs(moved) >= self.min_jump:
-                # the drive's breakaway: from rest outside the deadband (where the stuck ramp
-                # pushes), toward the target
-                ramp = target is None or (abs(target - self._start) > band and moved * (target - self._start) > 0.0)
-                if not ramp and abs(moved) > band:
-                    self.disturbed = True                     # displaced beyond the band: not the drive
-                if ramp and not self.disturbed:
+                if not self.disturbed:
                     self.ratio += self.gain * (abs(moved) / nominal_jump - self.ratio)
-                elif self.disturbed:
+                else:
                     self.rejected += 1
             self.ratio = min(max(self.ratio, self.limits[0]), self.limits[1])
             self._start = None
