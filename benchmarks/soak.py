@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fuel_valve_control.common.contract import STROKE_RAD, VALVE_JOINT  # noqa: E402
+from fuel_valve_control.common.contract import DRIVE_STATE_ENABLED, STROKE_RAD, VALVE_JOINT  # noqa: E402
 from fuel_valve_control.tools.launcher import Launcher  # noqa: E402
 from fuel_valve_control.tools.run_plan import LOCKSTEP, REAL_TIME, plan_run  # noqa: E402
 from fuel_valve_control.tools.scenarios import parse_scenario  # noqa: E402
@@ -69,10 +69,14 @@ def rss_mb(pid: int) -> float | None:
 
 
 def valve_excess(bag_dir: Path) -> dict:
-    """Largest valve-over-demand excess (percent of stroke) while the drive was enabled."""
+    """Largest valve-over-demand excess (percent of stroke) while the controller enabled the
+    drive (``drive_enable`` true), and while the drive was really on (its ``drive_status``
+    enabled too: not off by its command watchdog, where the spring closes the valve, or
+    friction at high Δp holds it where it stopped, so the valve lags a falling demand)."""
     from fuel_valve_control.tools.bag_io import read_bag
-    bag = read_bag(bag_dir, ["joint_states", "demand", "drive_enable"])
+    bag = read_bag(bag_dir, ["joint_states", "demand", "drive_enable", "drive_status"])
     js, dem, en = bag.find("joint_states"), bag.find("demand"), bag.find("drive_enable")
+    status = bag.find("drive_status")
     if js is None or dem is None or len(dem) == 0:
         return {"excess_max_pct": None, "samples": 0}
     t = js.log_ns
@@ -106,9 +110,18 @@ def valve_excess(bag_dir: Path) -> dict:
         enabled = (idx >= 0) & (en["data"][np.maximum(idx, 0)] > 0.5)
     mask = valid & enabled & np.isfinite(valve)
     excess = valve[mask] - dmax[mask]
-    return {"excess_max_pct": round(float(excess.max()), 3) if excess.size else None,
-            "samples": int(mask.sum()), "samples_drive_off": int((valid & ~enabled).sum()),
-            "excess_over_2pct_samples": int((excess > 2.0).sum())}
+    out = {"excess_max_pct": round(float(excess.max()), 3) if excess.size else None,
+           "samples": int(mask.sum()), "samples_drive_off": int((valid & ~enabled).sum()),
+           "excess_over_2pct_samples": int((excess > 2.0).sum())}
+    if status is not None and len(status):
+        idx = np.searchsorted(status.log_ns, t, side="right") - 1
+        on = (idx >= 0) & (status["data"][np.maximum(idx, 0)] == DRIVE_STATE_ENABLED)
+        sel = mask & on
+        ex_on = valve[sel] - dmax[sel]
+        out.update(drive_on_excess_max_pct=round(float(ex_on.max()), 3) if ex_on.size else None,
+                   drive_on_samples=int(sel.sum()), drive_on_excess_over_2pct_samples=int((ex_on > 2.0).sum()),
+                   watchdog_off_samples=int((mask & ~on).sum()))
+    return out
 
 
 class Operator:
@@ -265,7 +278,9 @@ def main() -> int:
           f"re-arms after the drive went off {result['controller_rearms_after_drive_off']}")
     for name, s in result["rss"].items():
         print(f"  RSS {name:<10} {s}")
-    print(f"  valve over demand (drive enabled): max {excess['excess_max_pct']} % over {excess['samples']} samples")
+    print(f"  valve over demand (drive enabled): max {excess['excess_max_pct']} % over {excess['samples']} samples; "
+          f"drive really on (drive_status): max {excess.get('drive_on_excess_max_pct')} % over "
+          f"{excess.get('drive_on_samples')} samples")
     for topic, v in rec["topics"].items():
         print(f"  {topic:<40} published {v['published']:>8}  in bag {v['in_bag']:>8}")
     print(f"  bag: {rec['bag_messages']} messages, lost {rec['lost']} (before the recorder matched: "

@@ -587,6 +587,9 @@ class ValveDriver:
             self._armed = False                   # re-arm below from the measurement, zero torque
             self._stalled = reenable = True
             self.stall_rearms += 1
+            # the twist check compared the coupling with a current the drive did not apply
+            # while it was off: that time is no evidence of a failed resolver
+            self._twist_time = 0.0
         self._drive_tripped = False
         self._t = t
         if self._t_first is None:

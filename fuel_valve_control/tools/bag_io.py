@@ -7,7 +7,7 @@ arrays per topic, with the ``rosbags`` library (no ROS install needed).
 
 Per message type the numeric content becomes named columns of a :class:`TopicData`:
 
-* ``std_msgs/Float64`` / ``Bool``: ``data``;
+* ``std_msgs/Float64`` / ``Bool`` / ``UInt8``: ``data``;
 * ``sensor_msgs/JointState``: ``<joint>.position|velocity|effort`` (NaN where absent) and the
   header stamp;
 * ``std_msgs/Float64MultiArray``: one column per layout label (the suite's labelled
@@ -166,7 +166,7 @@ def _columns(topic: str, items: list) -> TopicData:
     msgs = [i[2] for i in items]
     data = TopicData(topic, msgtype, log_ns)
     n = len(msgs)
-    if msgtype in ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Bool"):
+    if msgtype in ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Bool", "std_msgs/msg/UInt8"):
         data.columns["data"] = np.array([float(m.data) for m in msgs])
     elif msgtype == "rosgraph_msgs/msg/Clock":
         data.stamp_ns = np.array([_stamp_ns(m.clock) for m in msgs], dtype=np.int64)
