@@ -386,10 +386,12 @@ def _stalls(report: bool, gap_periods: int, demand: float = 47.5, stalls: int = 
             peak = max(peak, plant.truth().valve_angle)
         if report:
             drv.drive_status(t, contract.DRIVE_STATE_WATCHDOG)
-        drive_on = not report
+        drive_on, enabled = not report, True
         for _ in range(300):
             out, _ = sim.exchange_period(drv, plant, t, demand)
-            drive_on = drive_on or out.reenable
+            # the drive comes back on an explicit re-enable or an enable edge (plant_node)
+            drive_on = drive_on or out.reenable or (out.enable and not enabled)
+            enabled = out.enable
             plant.set_command(out.current_a if drive_on else 0.0, out.enable and drive_on)
             plant.advance(period)
             t += period
@@ -404,5 +406,6 @@ def test_controller_stalls_at_a_hold_keep_the_valve_within_demand_plus_2_percent
     # reproduced here as the control case); reported and re-armed, it stays within
     peak, drv = _stalls(True, gap_periods)
     assert peak <= 47.5 + 2.0 and not drv.last.faults and drv.stall_rearms == 5, (peak, drv.last.faults)
+    assert drv.last.enable and drv.last.state == "running"
     v1_peak, _ = _stalls(False, 19)
     assert v1_peak > 47.5 + 2.0, v1_peak

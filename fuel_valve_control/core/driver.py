@@ -72,6 +72,10 @@ FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE
 #: the longest loop gap counted as time by the duty counters (NE107 inputs), periods: a stalled
 #: loop's gap is not operating time
 STALL_REARM_PERIODS = 20
+#: a valve slower than this (rad/s, 3 % of stroke per second) over the latest
+#: REST_WINDOW_SAMPLES resolver samples is at rest: a drive-off re-arm waits for it
+REST_SPEED_RAD_S = 0.03
+REST_WINDOW_SAMPLES = 10
 #: a reset is refused until the inputs have been plausible for this long, s: an intermittent
 #: cause (a resolver noise burst, a flickering demand) must not be reset between two bad samples
 RESET_QUIET_S = 0.1
@@ -148,6 +152,11 @@ class ValveDriver:
         #: the reports, not the loop gap, say when the drive switched itself off)
         self.drive_state: int | None = None
         self._drive_tripped = False                # the drive reported its watchdog off while armed
+        #: after the drive went off the loop re-arms only once the valve is at rest: a re-arm
+        #: starts the observer at rest, and re-arming a valve in full swing (a starved loop
+        #: tripping the drive every few periods mid-move) drove it 25 % past its demand
+        self._rearm_at_rest = False
+        self._recent: deque = deque(maxlen=REST_WINDOW_SAMPLES)   # (t, valve rad) of the latest samples
         self._tracking_time = 0.0                  # leaky time beyond the tracking limit, s
         self._twist_time = 0.0                     # leaky time the twist disagreed with the torque, s
         self._positions: deque = deque(maxlen=int(2.0 / self.period))
@@ -357,6 +366,7 @@ class ValveDriver:
         self._meas_bad = None
         self._meas = Measurement(float(motor_rad), float(valve_rad))
         self._meas_t = t
+        self._recent.append((t, float(valve_rad)))
 
     def _implausible(self, t, motor, valve) -> str | None:
         if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (motor, valve)):
@@ -585,7 +595,7 @@ class ValveDriver:
         reenable = False
         if self._armed and self._drive_went_off(t, ps):
             self._armed = False                   # re-arm below from the measurement, zero torque
-            self._stalled = reenable = True
+            self._stalled = reenable = self._rearm_at_rest = True
             self.stall_rearms += 1
             # the twist check compared the coupling with a current the drive did not apply
             # while it was off: that time is no evidence of a failed resolver
@@ -616,6 +626,11 @@ class ValveDriver:
         demand_rad = self.demand_rad()
         if self.valve_test is not None:           # a running valve test owns the demand
             demand_rad = self.valve_test.demand(t, demand_rad)
+        if not self._armed and self._rearm_at_rest and not self._valve_at_rest():
+            # the drive is off (it switched itself off): wait, drive off, until the valve rests
+            self.last = DriverOutput(0.0, False, "waiting", self._demand_pct, position_pct, {}, dict(self.warnings))
+            return self.last
+        self._rearm_at_rest = False
         if not self._armed:
             # after a stall from zero torque, what the drive really applied once its watchdog
             # tripped (resuming the old request drove the valve on: 49 % for a 40 % step); the
@@ -663,6 +678,15 @@ class ValveDriver:
         self.last = DriverOutput(current, True, "holding" if holding else "running", self._demand_pct,
                                  position_pct, {}, dict(self.warnings), reenable=reenable)
         return self.last
+
+    def _valve_at_rest(self) -> bool:
+        """The valve moved less than :data:`REST_SPEED_RAD_S` on average over the latest
+        :data:`REST_WINDOW_SAMPLES` resolver samples (a window long enough to average the
+        resolver's one-count noise, 1e-4 rad, below that speed)."""
+        if len(self._recent) < self._recent.maxlen:
+            return False
+        (t0, v0), (t1, v1) = self._recent[0], self._recent[-1]
+        return t1 > t0 and abs(v1 - v0) / (t1 - t0) <= REST_SPEED_RAD_S
 
     def _drive_went_off(self, t: float, ps: ParamSet) -> bool:
         """The drive switched itself off since the last period (the loop ran it): it reported
