@@ -46,6 +46,11 @@ PROFILE_ENV = "FUEL_VALVE_PROFILE"
 #: GIL switch interval, s: a sample arriving while another thread of the process (the plant's
 #: tick thread) runs Python waits at most this long (CPython's default is 5 ms, five periods)
 SWITCH_INTERVAL_S = 0.0002
+#: environment variable: timer slack of a real-time loop thread, ns (:func:`set_timer_slack`;
+#: unset: :data:`LOOP_TIMER_SLACK_NS`; benchmarks/ros_loop.py --timer-slack sets it to compare)
+TIMER_SLACK_ENV = "FUEL_VALVE_TIMER_SLACK_NS"
+#: timer slack of the plant's tick thread, ns (0: the kernel default of the thread, 50 us)
+LOOP_TIMER_SLACK_NS = 0
 
 
 def make_executor(context=None):
@@ -76,6 +81,24 @@ def spin(executor, context=None, until=None, timeout_s: float = SPIN_TIMEOUT_S) 
             names = "+".join(n.get_name() for n in executor.get_nodes()) or str(os.getpid())
             os.makedirs(profile_dir, exist_ok=True)
             profiler.dump_stats(os.path.join(profile_dir, f"{names}.prof"))
+
+
+def set_timer_slack(ns: int | None = None) -> int | None:
+    """Set the calling thread's timer slack (Linux ``prctl(PR_SET_TIMERSLACK)``, libc via
+    ctypes): how much later than asked the kernel may end its sleeps, to batch wake-ups (default
+    50 us).  ``ns`` None: :data:`TIMER_SLACK_ENV`, else :data:`LOOP_TIMER_SLACK_NS`; 0 leaves
+    the default.  Returns the slack now in force (ns), None where the call is not available."""
+    import ctypes
+    if ns is None:
+        ns = int(os.environ.get(TIMER_SLACK_ENV) or LOOP_TIMER_SLACK_NS)
+    pr_set_timerslack, pr_get_timerslack = 29, 30          # <linux/prctl.h>
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if ns > 0 and libc.prctl(pr_set_timerslack, ctypes.c_ulong(ns), 0, 0, 0) != 0:
+            return None
+        return int(libc.prctl(pr_get_timerslack, 0, 0, 0, 0))
+    except (OSError, AttributeError):       # no libc handle / no prctl: not Linux
+        return None
 
 
 def quiet_signals(handler=None) -> None:

@@ -3,6 +3,7 @@ separate processes talking over DDS, watch it live and summarise it.
 
     fuel_valve_demo [--scenario NAME|FILE] [--lockstep] [--controller MODE] [--bag DIR]
                     [--duration S] [--namespace NS] [--set section.key=value ...]
+                    [--nice NAME=N,...|off] [--affinity NAME=CPU,...] [--fifo NAME,...]
 
 The stand-in for ``ros2 launch`` on machines with only the PyPI ROS wheels (the launch file
 ``launch/fuel_valve.launch.py`` does the same job on a full ROS install).  Without
@@ -21,6 +22,11 @@ an event's exact period matters).
 While it runs, one status line per second (simulated time in lockstep) shows demand,
 position, error, current, valve-friction estimate, driver state and faults; at the end a
 summary, and with ``--bag`` the bag's report (``fuel_valve_report``) and its plot.
+OS scheduling (``--nice``, ``--affinity``, ``--fifo``; :class:`.launcher.Scheduling`): by
+default the processes outside the 1 kHz loop -- demand node, recorder, and this process with
+its monitor -- run at a lower priority (niceness 5), so on a busy 2-core machine they wait
+rather than the plant and controller.
+
 Exit code: 0 run completed, 1 a node failed, 2 bad arguments.
 """
 from __future__ import annotations
@@ -33,7 +39,8 @@ from pathlib import Path
 
 from ..common.paramspec import ConfigError, parse_overrides
 from ..core.params import MODES
-from .launcher import CLEAN_EXIT_CODES, Launcher
+from .launcher import (CLEAN_EXIT_CODES, Launcher, Scheduling, add_scheduling_arguments, nice_own_threads,
+                       scheduling_from_args)
 from .monitor import Monitor, send_event
 from .run_plan import LOCKSTEP, REAL_TIME, RunPlan, plan_run
 from .scenarios import load_scenario
@@ -51,10 +58,17 @@ STARTUP_TIMEOUT_S = 120.0
 # ---------------------------------------------------------------------------------- running
 def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, run_dir: Path | None = None,
         out=sys.stdout, status_period_s: float = 1.0, bag_storage: str = "mcap", env: dict | None = None,
-        record_truth: bool = False) -> dict:
+        record_truth: bool = False, scheduling: Scheduling | None = None) -> dict:
     """Start the suite, run ``plan`` (real time or lockstep) to its end, stop it.  Returns a
     summary dict (``ok``, final status, faults, loop statistics, node exit codes, ``truth``:
-    (stamp s, true valve angle rad, velocity rad/s) per plant sample when ``record_truth``)."""
+    (stamp s, true valve angle rad, velocity rad/s) per plant sample when ``record_truth``).
+
+    ``scheduling``: OS priorities of the processes (:class:`.launcher.Scheduling`; None: its
+    default); its ``monitor`` niceness applies to this process once every node is started.
+    The loop statistics (``loop``) are the plant's last report before the stop (the run's
+    periods from the loop's closing to the profile's end; what the plant counts while the
+    suite shuts down -- ticks with the controller already gone -- is no part of the run)."""
+    scheduling = Scheduling() if scheduling is None else scheduling
     lockstep = plan.lockstep
     if env and "ROS_DOMAIN_ID" in env:
         os.environ["ROS_DOMAIN_ID"] = str(env["ROS_DOMAIN_ID"])
@@ -62,8 +76,9 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
     summary: dict = {"lockstep": lockstep, "duration_s": plan.duration_s, "namespace": monitor.node.get_namespace()}
     wall0 = time.monotonic()
     try:
-        with Launcher(plan, namespace, run_dir, bag, bag_storage, env, observers=1) as suite:
+        with Launcher(plan, namespace, run_dir, bag, bag_storage, env, observers=1, scheduling=scheduling) as suite:
             summary["run_dir"] = str(suite.run_dir)
+            summary["scheduling_refused"] = suite.scheduling_refused     # filled as the nodes start
             if bag:
                 suite.start_recorder(None if lockstep else REPORT_TOPICS)
             if lockstep:                    # profile time = simulated time: all at once
@@ -73,6 +88,9 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
                 if not _wait(monitor, suite, monitor.controller_ready):
                     return _failed(summary, suite, "the controller did not come up", out)
                 suite.start(("demand",))
+            for why in nice_own_threads(scheduling.nice.get("monitor", 0)):
+                suite.scheduling_refused.append(why)
+                print(f"fuel_valve_demo: {why}", file=sys.stderr, flush=True)
             t_start = None
             next_status = 0.0
             events = plan.event_queue()
@@ -102,9 +120,11 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
                     return _failed(summary, suite, "lockstep run stalled", out)
             monitor.spin_for(0.2)                   # let the last diagnostics arrive
             summary["wall_time_s"] = round(time.monotonic() - wall0, 2)
+            summary["loop"] = monitor.loop_statistics()     # before the stop (see the docstring)
             codes = suite.stop()
             summary["exit_codes"] = codes
-            summary["loop"] = suite.loop_statistics()
+            if lockstep or summary["loop"] is None:         # lockstep: the commands at the plant's exit
+                summary["loop"] = suite.loop_statistics()
             if bag is not None and codes.get("recorder") in CLEAN_EXIT_CODES:
                 try:
                     summary["recording"] = suite.recording_losses()
@@ -152,7 +172,8 @@ def print_summary(summary: dict, out=sys.stdout) -> None:
                                              else ""), file=out)
     loop = summary.get("loop")
     if loop and "rtt_median_ms" in loop and not summary["lockstep"]:
-        print(f"loop: the plant ticked {loop['ticks']} times at 1 kHz; in {100 * loop['missed_fraction']:.2f} % of "
+        print(f"loop: during the run the plant ticked {loop['ticks']} times at 1 kHz; in "
+              f"{100 * loop['missed_fraction']:.2f} % of "
               f"the ticks the controller's answer to the previous sample had not arrived yet (missed periods: the "
               f"plant held the old current); sample -> command round trip median {loop['rtt_median_ms']:.3f} ms, "
               f"99 % within {loop['rtt_p99_ms']:.3f} ms (a period is 1 ms); machine load average "
@@ -185,7 +206,13 @@ def main(argv=None) -> int:
     parser.add_argument("--run-dir", help="where node logs and parameter files go (default: a temp dir)")
     parser.add_argument("--set", action="append", default=[], metavar="section.key=value",
                         help="plant.* / controller.* parameter override (repeatable)")
+    add_scheduling_arguments(parser)
     args = parser.parse_args(argv)
+    try:
+        scheduling = scheduling_from_args(args)
+    except ValueError as exc:
+        print(f"fuel_valve_demo: {exc}", file=sys.stderr)
+        return 2
     try:
         over = parse_overrides(args.set, ("plant", "controller"))
         scenario = load_scenario(args.scenario) if args.scenario else None
@@ -201,7 +228,7 @@ def main(argv=None) -> int:
           f"{'lockstep' if args.lockstep else 'real time 1 kHz'} | {plan.duration_s:g} s"
           + (f" | recording {args.bag}" if args.bag else ""), flush=True)
     summary = run(plan, args.namespace, Path(args.bag) if args.bag else None,
-                  Path(args.run_dir) if args.run_dir else None, bag_storage=args.storage)
+                  Path(args.run_dir) if args.run_dir else None, bag_storage=args.storage, scheduling=scheduling)
     print_summary(summary)
     if not summary.get("ok"):
         return 1

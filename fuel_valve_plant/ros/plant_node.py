@@ -57,7 +57,7 @@ from rclpy.node import Node
 
 from fuel_valve_control.common import contract
 from fuel_valve_control.ros import interface as ri
-from fuel_valve_control.ros.node_runner import run_node
+from fuel_valve_control.ros.node_runner import run_node, set_timer_slack
 from fuel_valve_control.common.paramspec import ConfigError
 from ..physics.plant import Plant
 from ..physics.params import PLANT_NODE_SPEC, PLANT_SPEC, check_consistency
@@ -86,11 +86,16 @@ def guarded(method):
 
 class LoopStats:
     """Round-trip times and missed periods of the control loop, seen from the plant; ticks and
-    missed periods count from the first command received (before it the loop is open)."""
+    missed periods count from the first command received (before it the loop is open).
+
+    Also the tick thread's own lateness (wake-up time minus the scheduled tick, s, every tick):
+    it tells a late tick (sleep overshoot, the tick thread not scheduled, the GIL held by the
+    executor thread) from a late answer (the round trip), the two causes of a missed period."""
 
     def __init__(self, keep: int = 200000):
         self.keep = keep
         self.rtts: list[float] = []
+        self.lates: list[float] = []
         self.ticks = 0
         self.missed = 0
         self.commands = 0
@@ -99,15 +104,25 @@ class LoopStats:
         if len(self.rtts) < self.keep:
             self.rtts.append(seconds)
 
+    def add_late(self, seconds: float) -> None:
+        if len(self.lates) < self.keep:
+            self.lates.append(seconds)
+
     def summary(self) -> dict:
         out = {"ticks": self.ticks, "missed": self.missed, "commands": self.commands,
                "missed_fraction": self.missed / self.ticks if self.ticks else 0.0}
         if self.rtts:
-            s = sorted(self.rtts)
-            pick = lambda q: s[min(int(q * len(s)), len(s) - 1)]  # noqa: E731
-            out.update(rtt_median_ms=1e3 * pick(0.5), rtt_p99_ms=1e3 * pick(0.99), rtt_max_ms=1e3 * s[-1],
-                       rtt_samples=len(s))
+            out.update(rtt_median_ms=1e3 * _quantile(self.rtts, 0.5), rtt_p99_ms=1e3 * _quantile(self.rtts, 0.99),
+                       rtt_max_ms=1e3 * max(self.rtts), rtt_samples=len(self.rtts))
+        if self.lates:
+            out.update(tick_late_median_ms=1e3 * _quantile(self.lates, 0.5),
+                       tick_late_p99_ms=1e3 * _quantile(self.lates, 0.99), tick_late_max_ms=1e3 * max(self.lates))
         return out
+
+
+def _quantile(values: list[float], q: float) -> float:
+    s = sorted(values)
+    return s[min(int(q * len(s)), len(s) - 1)]
 
 
 class PlantNode(Node):
@@ -179,6 +194,7 @@ class PlantNode(Node):
         else:
             self._lock = threading.Lock()
             self._running = True
+            self.timer_slack_ns: int | None = None      # the tick thread's, once it runs
             self._thread = threading.Thread(target=self.realtime_loop, name="plant-loop", daemon=True)
             self._thread.start()
         self.get_logger().info(
@@ -251,6 +267,7 @@ class PlantNode(Node):
     def realtime_loop(self) -> None:
         """Real-time mode: tick every period on a sleep-until schedule (from the moment the
         recorder, if the run has one, has matched: :class:`~fuel_valve_control.ros.interface.RecorderGate`)."""
+        self.timer_slack_ns = set_timer_slack()     # this thread's sleeps (node_runner)
         while self._running and not self.recorder_gate.opened.wait(0.05):
             pass
         last = time.monotonic()
@@ -260,6 +277,7 @@ class PlantNode(Node):
             if delay > 0:
                 time.sleep(delay)
             now = time.monotonic()
+            self.stats.add_late(now - next_tick)
             # the sample instant: the state published this tick is the state at this time, so
             # consecutive stamps differ by the simulated elapsed time even when the thread is
             # pre-empted between here and the publish (a stamp taken at publish time made a
@@ -417,6 +435,8 @@ class PlantNode(Node):
         if self.lockstep:
             values["lockstep_ticks_republished"] = str(self.republished)
         values.update({k: f"{v:.6g}" if isinstance(v, float) else str(v) for k, v in s.items()})
+        if not self.lockstep:
+            values["timer_slack_ns"] = str(getattr(self, "timer_slack_ns", None))
         st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[st])
         msg.header.stamp = self.get_clock().now().to_msg()
