@@ -36,8 +36,9 @@ executor-thread time inside ``spin_once`` itself (DDS, the executor, waiting) an
 Python functions that cost most per control period.
 
 OS levers (A/B: run the script alternately with and without, the runs interleave):
-``--nice`` / ``--affinity`` / ``--fifo`` (the launcher's :class:`Scheduling`, default its
-niceness of the processes outside the loop), ``--timer-slack NS`` (the plant tick thread's
+``--nice`` / ``--affinity`` / ``--fifo`` (the launcher's :class:`Scheduling`; default: plant
+and controller SCHED_FIFO where permitted, recorder and monitor niceness 5; ``--nice off
+--fifo off``: none), ``--timer-slack NS`` (the plant tick thread's
 timer slack).  Each run's JSON holds the levers in force (``levers``) and the plant's tick
 lateness (wake-up minus scheduled tick: median / p99 / max over the run), to tell a late
 tick from a late answer.
@@ -46,7 +47,7 @@ Per run one line; then a summary per variant (median, min, max over the runs).  
 printed is one JSON object: ``{"runs": [...], "summary": {variant: {...}}}``.
 
     python benchmarks/ros_loop.py [--seconds 60] [--record | --both | --main | --all] [--repeat 3] [--domain 107]
-                                  [--nice demand=5,recorder=5|off] [--affinity plant=0,controller=1]
+                                  [--nice recorder=5,monitor=5|off] [--affinity plant=0,controller=1]
                                   [--fifo plant,controller] [--timer-slack 1000]
     python benchmarks/ros_loop.py --lockstep 10 [--repeat 3] [--profile]
 """

@@ -23,9 +23,10 @@ While it runs, one status line per second (simulated time in lockstep) shows dem
 position, error, current, valve-friction estimate, driver state and faults; at the end a
 summary, and with ``--bag`` the bag's report (``fuel_valve_report``) and its plot.
 OS scheduling (``--nice``, ``--affinity``, ``--fifo``; :class:`.launcher.Scheduling`): by
-default the processes outside the 1 kHz loop -- demand node, recorder, and this process with
-its monitor -- run at a lower priority (niceness 5), so on a busy 2-core machine they wait
-rather than the plant and controller.
+default the plant and the controller run SCHED_FIFO in real time where the OS permits it
+(root or CAP_SYS_NICE; otherwise a line says so and they run at normal priority), the
+recorder and this process with its monitor at a lower priority (niceness 5), so on a busy
+2-core machine the 1 kHz loop is served first.
 
 Exit code: 0 run completed, 1 a node failed, 2 bad arguments.
 """
@@ -79,6 +80,7 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
         with Launcher(plan, namespace, run_dir, bag, bag_storage, env, observers=1, scheduling=scheduling) as suite:
             summary["run_dir"] = str(suite.run_dir)
             summary["scheduling_refused"] = suite.scheduling_refused     # filled as the nodes start
+            summary["real_time_priority"] = [] if lockstep else list(scheduling.fifo)
             if bag:
                 suite.start_recorder(None if lockstep else REPORT_TOPICS)
             if lockstep:                    # profile time = simulated time: all at once
@@ -162,6 +164,19 @@ def _failed(summary: dict, suite: Launcher, why: str, out) -> dict:
     return summary
 
 
+def _priority_note(summary: dict) -> str:
+    """How the loop's processes were scheduled, in words (launcher.Scheduling)."""
+    fifo = summary.get("real_time_priority") or []
+    refused = [n for n in fifo if any("SCHED_FIFO" in r and f" for {n} " in r
+                                      for r in summary.get("scheduling_refused", []))]
+    if not fifo:
+        return "normal (real-time priority off: --fifo off)"
+    if refused:
+        return (f"normal for {', '.join(refused)}: real-time priority (SCHED_FIFO) needs root or CAP_SYS_NICE; "
+                "without it other work on the machine delays the loop")
+    return f"real time (SCHED_FIFO) for {', '.join(fifo)}: other work on the machine waits for the loop"
+
+
 def print_summary(summary: dict, out=sys.stdout) -> None:
     print("\n=== summary ===", file=out)
     print(f"mode: {'lockstep (simulated time)' if summary['lockstep'] else 'real time'}, "
@@ -178,6 +193,7 @@ def print_summary(summary: dict, out=sys.stdout) -> None:
               f"plant held the old current); sample -> command round trip median {loop['rtt_median_ms']:.3f} ms, "
               f"99 % within {loop['rtt_p99_ms']:.3f} ms (a period is 1 ms); machine load average "
               f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (other work delays the nodes)", file=out)
+        print(f"loop priority: {_priority_note(summary)}", file=out)
     if loop and summary["lockstep"]:
         print(f"loop: {loop.get('commands')} control periods in lockstep", file=out)
     rec = summary.get("recording")

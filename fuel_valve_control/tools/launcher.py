@@ -20,8 +20,9 @@ writes the same lockstep wiring and ``test/test_launch_file.py`` checks it again
   the recorder has matched (:func:`recording_parameters`), so the bag holds everything they send;
 * OS scheduling (:class:`Scheduling`): in real time the loop's two processes, plant and
   controller, run SCHED_FIFO where the OS permits it (root, CAP_SYS_NICE or an RLIMIT_RTPRIO),
-  the nodes outside the loop -- demand, recorder -- at a lower priority (niceness 5), so on a
-  busy machine the 1 kHz loop is served first; optionally CPU affinity per node.  What the OS
+  and the recorder, which may lag (its writers keep 1000 samples), at a lower priority
+  (niceness 5), so on a busy machine the 1 kHz loop is served first; optionally CPU affinity
+  per node.  What the OS
   refuses (SCHED_FIFO for an unprivileged user, a CPU that does not exist) is printed and the
   node runs at normal priority: never a failed start;
 * logs: ``<run_dir>/<node>.log`` (stdout and stderr);
@@ -81,8 +82,11 @@ except BaseException:
 """
 
 
-#: default niceness of the processes outside the loop (measured: benchmarks/ros_loop.py --nice; README)
-DEFAULT_NICE = {"demand": 5, "recorder": 5, "monitor": 5}
+#: default niceness of the processes outside the loop that may lag without harm (measured:
+#: benchmarks/ros_loop.py --nice; README).  Not the demand node: its silence trips the drive
+#: (``demand_timeout_s``, 0.5 s), and niced on a loaded machine (load average 20 on 2 cores)
+#: it was starved that long -- a nice-5 process gets a third of a nice-0 one's share
+DEFAULT_NICE = {"recorder": 5, "monitor": 5}
 #: processes that run SCHED_FIFO in real time by default, where permitted: the loop's two
 #: (benchmarks/ros_loop.py --fifo; README: on a loaded machine the only lever that kept the
 #: plant's ticks on time -- tick lateness p99 0.2 ms against 7-30 ms at normal priority)
