@@ -39,7 +39,7 @@ OS levers (A/B: run the script alternately with and without, the runs interleave
 ``--nice`` / ``--affinity`` / ``--fifo`` (the launcher's :class:`Scheduling`; default: plant
 and controller SCHED_FIFO where permitted, recorder and monitor niceness 5; ``--nice off
 --fifo off``: none), ``--timer-slack NS`` (the plant tick thread's
-timer slack).  Each run's JSON holds the levers in force (``levers``) and the plant's tick
+timer slack), ``--gc-freeze 0|1`` (the node runner's ``gc.freeze()`` after a node is built).  Each run's JSON holds the levers in force (``levers``) and the plant's tick
 lateness (wake-up minus scheduled tick: median / p99 / max over the run), to tell a late
 tick from a late answer.
 
@@ -66,7 +66,7 @@ import time
 from pathlib import Path
 
 from fuel_valve_control.common.paramspec import ConfigError
-from fuel_valve_control.ros.node_runner import PROFILE_ENV, TIMER_SLACK_ENV
+from fuel_valve_control.ros.node_runner import GC_FREEZE_ENV, PROFILE_ENV, TIMER_SLACK_ENV
 from fuel_valve_control.tools.launcher import Launcher, add_scheduling_arguments, scheduling_from_args
 from fuel_valve_control.tools.run_plan import LOCKSTEP, REAL_TIME, plan_run
 from fuel_valve_control.tools.scenarios import load_scenario, parse_scenario
@@ -106,6 +106,8 @@ def _env(args, domain: int, profile_dir: Path | None) -> dict:
         env[PROFILE_ENV] = str(profile_dir)
     if args.timer_slack is not None:
         env[TIMER_SLACK_ENV] = str(args.timer_slack)
+    if args.gc_freeze is not None:
+        env[GC_FREEZE_ENV] = args.gc_freeze
     return env
 
 
@@ -113,7 +115,8 @@ def levers(args, launcher: Launcher, stats: dict) -> dict:
     """The OS levers of a run: the launcher's scheduling, what the OS refused of it, and the
     timer slack the plant's tick thread reported."""
     return {"scheduling": launcher.scheduling.describe(), "refused": list(launcher.scheduling_refused),
-            "timer_slack_ns": stats.get("timer_slack_ns"), "timer_slack_asked": args.timer_slack}
+            "timer_slack_ns": stats.get("timer_slack_ns"), "timer_slack_asked": args.timer_slack,
+            "gc_freeze_asked": args.gc_freeze}
 
 
 def tick_lateness(stats: dict) -> dict:
@@ -168,7 +171,8 @@ def run_main(args, domain: int, tmp: Path) -> dict:
             "faults": summary.get("faults"), "ok": summary.get("ok"), "recorder_lost": rec.get("lost"),
             "missed_per_second": [m for _, m in missed_timeline(tmp / "bag")] if (tmp / "bag").exists() else None,
             "levers": {"scheduling": scheduling_from_args(args).describe(), "refused": summary.get("scheduling_refused"),
-                       "timer_slack_ns": loop.get("timer_slack_ns"), "timer_slack_asked": args.timer_slack},
+                       "timer_slack_ns": loop.get("timer_slack_ns"), "timer_slack_asked": args.timer_slack,
+                       "gc_freeze_asked": args.gc_freeze},
             "load_average": os.getloadavg()[0]}
 
 
@@ -378,6 +382,8 @@ def main() -> int:
                         help="ROS_DOMAIN_ID for the runs (default: $ROS_DOMAIN_ID, else a random one in 100-200)")
     parser.add_argument("--timer-slack", type=int, default=None, metavar="NS",
                         help="timer slack of the plant's tick thread, ns (default: the plant's own)")
+    parser.add_argument("--gc-freeze", choices=("0", "1"), default=None,
+                        help="gc.freeze() in every node once built: 1 on, 0 off (default: the node runner's)")
     add_scheduling_arguments(parser)
     args = parser.parse_args()
     if args.repeat < 1:

@@ -173,3 +173,18 @@ def test_loop_statistics_report_the_tick_lateness():
     assert s["tick_late_median_ms"] == pytest.approx(0.5)
     assert s["tick_late_p99_ms"] == pytest.approx(0.99)
     assert s["tick_late_max_ms"] == pytest.approx(0.99)
+
+
+@pytest.mark.parametrize("env, frozen", [("1", True), ("0", False), (None, None)])
+def test_freeze_heap_follows_its_switch(env, frozen):
+    from fuel_valve_control.ros import node_runner
+    script = ("import gc\nfrom fuel_valve_control.ros.node_runner import freeze_heap\n"
+              "print(freeze_heap(), gc.get_freeze_count() > 0)\n")
+    environ = {k: v for k, v in os.environ.items() if k != node_runner.GC_FREEZE_ENV}
+    if env is not None:
+        environ[node_runner.GC_FREEZE_ENV] = env
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, env=environ,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.returncode == 0, out.stderr
+    expect = node_runner.GC_FREEZE if frozen is None else frozen
+    assert out.stdout.split() == [str(expect), str(expect)]
