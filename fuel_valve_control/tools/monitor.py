@@ -11,9 +11,10 @@ services and the nodes' parameter services.
 It runs in the demo's process next to the 1 kHz loop on a 2-core machine, so it is cheap by
 construction: it samples instead of following every message.  The demand (200 Hz), position
 and estimate (100 Hz each) and ``/clock`` (every lockstep period) are read with history depth
-1, and :meth:`Monitor.spin_for` sleeps :data:`POLL_S` between takes: each take finds at most
-the newest sample per topic, which is all a status line once a second needs (a follow-every-
-message executor cost this process about a wake-up per message, ~400 a second).
+1, and :meth:`Monitor.spin_for` sleeps between takes (the demo's loop takes every 20 ms):
+each take finds at most the newest sample per topic, which is all a status line once a second
+needs.  Following every message cost this process a wake-up per message, ~400 a second:
+8 % of a core against 1-3 % sampled (benchmarks/ros_loop.py --main, ``monitor_cpu_fraction``).
 ``/diagnostics`` keeps its depth (every status counts for the worst level).  Service and
 parameter calls are asynchronous: in lockstep an event lands within a few control periods of
 its time, not exactly on it (the offline simulator applies events exactly).
