@@ -60,7 +60,7 @@ def test_refused_levers_are_reported_and_the_process_runs(sleeper, monkeypatch):
     def no_fifo(*args):
         raise PermissionError(1, "Operation not permitted")
     monkeypatch.setattr(os, "sched_setscheduler", no_fifo)       # an unprivileged user
-    sched = L.Scheduling(nice={}, affinity={"plant": (100000,)}, fifo=("plant",))
+    sched = L.Scheduling(nice={}, affinity={"plant": (100000,)}, fifo={"plant": 10})
     refused = sched.apply("plant", sleeper.pid)
     assert len(refused) == 2
     assert "affinity" in refused[0] and "SCHED_FIFO" in refused[1] and "normal priority" in refused[1]
@@ -70,9 +70,9 @@ def test_refused_levers_are_reported_and_the_process_runs(sleeper, monkeypatch):
 
 def test_fifo_is_applied_where_permitted_and_never_in_lockstep(sleeper):
     # lockstep: the processes run flat out one after the other -- no real-time policy
-    assert L.Scheduling(nice={}, fifo=("plant",)).apply("plant", sleeper.pid, real_time=False) == []
+    assert L.Scheduling(nice={}, fifo={"plant": 1}).apply("plant", sleeper.pid, real_time=False) == []
     assert os.sched_getscheduler(sleeper.pid) == os.SCHED_OTHER
-    refused = L.Scheduling(nice={}, fifo=("plant",), fifo_priority=1).apply("plant", sleeper.pid)
+    refused = L.Scheduling(nice={}, fifo={"plant": 1}).apply("plant", sleeper.pid)
     if refused:                           # not privileged here: the refusal is the behaviour
         assert "SCHED_FIFO" in refused[0]
         assert os.sched_getscheduler(sleeper.pid) == os.SCHED_OTHER
@@ -101,11 +101,13 @@ def test_default_scheduling_favours_the_loop_processes():
     sched = L.Scheduling()
     assert sched.nice == L.DEFAULT_NICE
     assert all(sched.nice.get(n, 0) == 0 for n in ("plant", "controller"))
-    assert all(sched.nice.get(n, 0) > 0 for n in ("recorder", "monitor"))
-    assert sched.nice.get("demand", 0) == 0           # its silence trips the drive
-    assert sched.fifo == ("plant", "controller") == L.DEFAULT_FIFO
-    assert 1 <= sched.fifo_priority < 50
-    assert L.Scheduling.off().describe() == {"nice": {}, "affinity": {}, "fifo": []}
+    assert sched.nice.get("monitor", 0) > 0
+    # the nodes the loop depends on are never niced (a starved demand node trips the drive)
+    assert all(sched.nice.get(n, 0) == 0 for n in ("demand", "recorder"))
+    assert sched.fifo == L.DEFAULT_FIFO
+    # the loop first, the nodes it depends on below it, all below the kernel's threads (50)
+    assert 50 > sched.fifo["plant"] == sched.fifo["controller"] > sched.fifo["demand"] >= sched.fifo["recorder"] >= 1
+    assert L.Scheduling.off().describe() == {"nice": {}, "affinity": {}, "fifo": {}}
 
 
 @pytest.mark.parametrize("nice, affinity, fifo, expect", [
@@ -113,19 +115,21 @@ def test_default_scheduling_favours_the_loop_processes():
     ("off", None, "off", L.Scheduling.off()),
     ("", None, "", L.Scheduling.off()),
     ("off", None, None, L.Scheduling(nice={})),
-    ("demand=7, recorder=2", "plant=0,controller=1+0", "plant,controller",
+    ("demand=7, recorder=2", "plant=0,controller=1+0", "plant,controller=20",
      L.Scheduling(nice={"demand": 7, "recorder": 2}, affinity={"plant": (0,), "controller": (1, 0)},
-                  fifo=("plant", "controller"))),
+                  fifo={"plant": L.DEFAULT_FIFO_PRIORITY, "controller": 20})),
 ])
 def test_parse_scheduling(nice, affinity, fifo, expect):
     assert L.parse_scheduling(nice, affinity, fifo) == expect
 
 
-@pytest.mark.parametrize("nice, affinity", [("demand=-5", None), ("demand=20", None), ("demand", None),
-                                            ("demand=x", None), (None, "plant=a"), (None, "=1")])
-def test_parse_scheduling_refuses_malformed_text(nice, affinity):
+@pytest.mark.parametrize("nice, affinity, fifo", [
+    ("demand=-5", None, None), ("demand=20", None, None), ("demand", None, None), ("demand=x", None, None),
+    (None, "plant=a", None), (None, "=1", None), (None, None, "plant=0"), (None, None, "plant=100"),
+    (None, None, "=5")])
+def test_parse_scheduling_refuses_malformed_text(nice, affinity, fifo):
     with pytest.raises(ValueError):
-        L.parse_scheduling(nice, affinity)
+        L.parse_scheduling(nice, affinity, fifo)
 
 
 def test_nice_own_threads_lowers_every_thread():

@@ -24,9 +24,9 @@ position, error, current, valve-friction estimate, driver state and faults; at t
 summary, and with ``--bag`` the bag's report (``fuel_valve_report``) and its plot.
 OS scheduling (``--nice``, ``--affinity``, ``--fifo``; :class:`.launcher.Scheduling`): by
 default the plant and the controller run SCHED_FIFO in real time where the OS permits it
-(root or CAP_SYS_NICE; otherwise a line says so and they run at normal priority), the
-recorder and this process with its monitor at a lower priority (niceness 5), so on a busy
-2-core machine the 1 kHz loop is served first.
+(root or CAP_SYS_NICE; otherwise a line says so and they run at normal priority), the demand
+node and the recorder SCHED_FIFO below them, and this process with its monitor at a lower
+priority (niceness 5), so on a busy 2-core machine the 1 kHz loop is served first.
 
 Exit code: 0 run completed, 1 a node failed, 2 bad arguments.
 """
@@ -80,7 +80,8 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
         with Launcher(plan, namespace, run_dir, bag, bag_storage, env, observers=1, scheduling=scheduling) as suite:
             summary["run_dir"] = str(suite.run_dir)
             summary["scheduling_refused"] = suite.scheduling_refused     # filled as the nodes start
-            summary["real_time_priority"] = [] if lockstep else list(scheduling.fifo)
+            summary["real_time_priority"] = [] if lockstep else [n for n in scheduling.fifo
+                                                                 if n in ("plant", "controller")]
             if bag:
                 suite.start_recorder(None if lockstep else REPORT_TOPICS)
             if lockstep:                    # profile time = simulated time: all at once

@@ -20,9 +20,9 @@ writes the same lockstep wiring and ``test/test_launch_file.py`` checks it again
   the recorder has matched (:func:`recording_parameters`), so the bag holds everything they send;
 * OS scheduling (:class:`Scheduling`): in real time the loop's two processes, plant and
   controller, run SCHED_FIFO where the OS permits it (root, CAP_SYS_NICE or an RLIMIT_RTPRIO),
-  and the recorder, which may lag (its writers keep 1000 samples), at a lower priority
-  (niceness 5), so on a busy machine the 1 kHz loop is served first; optionally CPU affinity
-  per node.  What the OS
+  the demand node and the recorder SCHED_FIFO below them, so on a busy machine the 1 kHz loop
+  is served first and the nodes it depends on next; optionally niceness and CPU affinity per
+  process.  What the OS
   refuses (SCHED_FIFO for an unprivileged user, a CPU that does not exist) is printed and the
   node runs at normal priority: never a failed start;
 * logs: ``<run_dir>/<node>.log`` (stdout and stderr);
@@ -82,18 +82,23 @@ except BaseException:
 """
 
 
-#: default niceness of the processes outside the loop that may lag without harm (measured:
-#: benchmarks/ros_loop.py --nice; README).  Not the demand node: its silence trips the drive
-#: (``demand_timeout_s``, 0.5 s), and niced on a loaded machine (load average 20 on 2 cores)
-#: it was starved that long -- a nice-5 process gets a third of a nice-0 one's share
-DEFAULT_NICE = {"recorder": 5, "monitor": 5}
-#: processes that run SCHED_FIFO in real time by default, where permitted: the loop's two
-#: (benchmarks/ros_loop.py --fifo; README: on a loaded machine the only lever that kept the
-#: plant's ticks on time -- tick lateness p99 0.2 ms against 7-30 ms at normal priority)
-DEFAULT_FIFO = ("plant", "controller")
-#: their SCHED_FIFO priority (1-99): above every normal process, below the kernel's own
-#: real-time threads (50); the kernel's real-time throttling (95 % of each second by default)
-#: still leaves the machine to the rest should one of them spin
+#: default niceness: the demo's own process (its monitor, :func:`nice_own_threads`), whose lag
+#: only delays a status line.  Not the demand node (its silence trips the drive:
+#: ``demand_timeout_s`` 0.5 s) nor the recorder (a starved one loses messages): niced on a
+#: loaded machine both were starved that long (a nice-5 process gets a third of a nice-0
+#: one's share); where SCHED_FIFO is permitted they run it below the loop (:data:`DEFAULT_FIFO`)
+DEFAULT_NICE = {"monitor": 5}
+#: processes that run SCHED_FIFO in real time by default, where permitted, and their priority
+#: (1-99): the loop's two at 10, the demand node and the recorder below them at 5 (they yield
+#: to the loop, and outrank only normal processes).  Measured (benchmarks/ros_loop.py --fifo;
+#: README): on a loaded machine (load average 15-37 on 2 cores) the only lever that kept the
+#: plant's ticks on time (tick lateness p99 0.1-0.7 ms against 2-30 ms at normal priority,
+#: missed periods 1-2 % against 11-55 %); at normal priority, or niced, the demand node was
+#: starved into a demand-stale trip (0.5 s) and the recorder lost messages.  Every priority
+#: is below the kernel's own real-time threads (50), and the kernel's real-time throttling
+#: (95 % of each second by default) still leaves the machine to the rest should one spin.
+DEFAULT_FIFO = {"plant": 10, "controller": 10, "demand": 5, "recorder": 5}
+#: SCHED_FIFO priority of a name given without one (``--fifo plant``)
 DEFAULT_FIFO_PRIORITY = 10
 
 
@@ -106,7 +111,7 @@ class Scheduling:
       lowers the priority).  Names: plant, controller, demand, recorder, gate, and ``monitor``
       for an in-process observer that applies it to itself (:func:`nice_own_threads`);
     * ``affinity``: process name -> CPUs it may run on (``os.sched_setaffinity``);
-    * ``fifo``: names that run SCHED_FIFO at ``fifo_priority`` in real time (never in lockstep,
+    * ``fifo``: process name -> SCHED_FIFO priority (1-99) in real time (never in lockstep,
       where the processes run flat out, one after the other); needs root, CAP_SYS_NICE or an
       RLIMIT_RTPRIO: refused, it is reported and the process runs at normal priority.
 
@@ -115,18 +120,17 @@ class Scheduling:
 
     nice: Mapping[str, int] = field(default_factory=lambda: dict(DEFAULT_NICE))
     affinity: Mapping[str, tuple[int, ...]] = field(default_factory=dict)
-    fifo: tuple[str, ...] = DEFAULT_FIFO
-    fifo_priority: int = DEFAULT_FIFO_PRIORITY
+    fifo: Mapping[str, int] = field(default_factory=lambda: dict(DEFAULT_FIFO))
 
     @classmethod
     def off(cls) -> "Scheduling":
         """Every process at the launcher's own priority and policy, on every CPU."""
-        return cls(nice={}, fifo=())
+        return cls(nice={}, fifo={})
 
     def describe(self) -> dict:
         """What is set, JSON-ready (the benchmarks print it)."""
         return {"nice": dict(self.nice), "affinity": {k: list(v) for k, v in self.affinity.items()},
-                "fifo": list(self.fifo)}
+                "fifo": dict(self.fifo)}
 
     def apply(self, name: str, pid: int, real_time: bool = True) -> list[str]:
         """Apply this scheduling to process ``pid`` (node ``name``; ``real_time`` False: a
@@ -147,9 +151,9 @@ class Scheduling:
                 refused.append(f"CPU affinity {sorted(cpus)} for {name} refused ({exc})")
         if real_time and name in self.fifo:
             try:
-                os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(self.fifo_priority))
+                os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(self.fifo[name]))
             except (OSError, AttributeError) as exc:
-                refused.append(f"SCHED_FIFO {self.fifo_priority} for {name} refused ({exc}): normal priority")
+                refused.append(f"SCHED_FIFO {self.fifo[name]} for {name} refused ({exc}): normal priority")
         return refused
 
 
@@ -157,24 +161,26 @@ def parse_scheduling(nice: str | None = None, affinity: str | None = None, fifo:
     """A :class:`Scheduling` from command-line text: ``nice`` ``"demand=5,recorder=5"``
     (None: :data:`DEFAULT_NICE`, ``""`` or ``"off"``: none), ``affinity``
     ``"plant=0,controller=1"`` (CPUs separated by ``+``: ``"demand=0+1"``; None: none), ``fifo``
-    ``"plant,controller"`` (None: :data:`DEFAULT_FIFO`, ``""`` or ``"off"``: none).  ValueError
-    on malformed text."""
-    def pairs(text):
+    ``"plant,controller=10,demand=5"`` (a name alone: :data:`DEFAULT_FIFO_PRIORITY`; None:
+    :data:`DEFAULT_FIFO`, ``""`` or ``"off"``: none).  ValueError on malformed text."""
+    def pairs(text, default=None):
         out = {}
         for item in filter(None, (t.strip() for t in text.split(","))):
             key, sep, value = item.partition("=")
-            if not sep or not key.strip():
+            if not key.strip() or (not sep and default is None):
                 raise ValueError(f"expected name=value, got {item!r}")
-            out[key.strip()] = value.strip()
+            out[key.strip()] = value.strip() if sep else default
         return out
     nice_map = dict(DEFAULT_NICE) if nice is None else {} if nice.strip() in ("", "off") else \
         {k: int(v) for k, v in pairs(nice).items()}
     if any(not 0 <= v <= 19 for v in nice_map.values()):
         raise ValueError(f"niceness must be 0..19 (unprivileged processes cannot raise priority): {nice_map}")
     aff = {k: tuple(int(c) for c in v.split("+")) for k, v in pairs(affinity or "").items()}
-    fifo_names = DEFAULT_FIFO if fifo is None else () if fifo.strip() in ("", "off") else \
-        tuple(filter(None, (t.strip() for t in fifo.split(","))))
-    return Scheduling(nice=nice_map, affinity=aff, fifo=fifo_names)
+    fifo_map = dict(DEFAULT_FIFO) if fifo is None else {} if fifo.strip() in ("", "off") else \
+        {k: int(v) for k, v in pairs(fifo, str(DEFAULT_FIFO_PRIORITY)).items()}
+    if any(not 1 <= v <= 99 for v in fifo_map.values()):
+        raise ValueError(f"SCHED_FIFO priorities are 1..99: {fifo_map}")
+    return Scheduling(nice=nice_map, affinity=aff, fifo=fifo_map)
 
 
 def add_scheduling_arguments(parser) -> None:
@@ -185,9 +191,10 @@ def add_scheduling_arguments(parser) -> None:
                              f"none (default: {','.join(f'{k}={v}' for k, v in DEFAULT_NICE.items())})")
     parser.add_argument("--affinity", default=None, metavar="NAME=CPU[+CPU],...",
                         help="CPU affinity of processes, e.g. plant=0,controller=1 (default: none)")
-    parser.add_argument("--fifo", default=None, metavar="NAME,...",
+    parser.add_argument("--fifo", default=None, metavar="NAME[=PRIO],...",
                         help="run these processes SCHED_FIFO in real time, 'off' for none (needs root or "
-                             f"CAP_SYS_NICE; refused: normal priority; default: {','.join(DEFAULT_FIFO)})")
+                             "CAP_SYS_NICE; refused: normal priority; default: "
+                             f"{','.join(f'{k}={v}' for k, v in DEFAULT_FIFO.items())})")
 
 
 def scheduling_from_args(args) -> Scheduling:
