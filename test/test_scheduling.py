@@ -172,23 +172,24 @@ def test_loop_statistics_report_the_tick_lateness():
     stats = LoopStats()
     assert "tick_late_p99_ms" not in stats.summary()
     for k in range(100):
-        stats.add_late(1e-5 * k)              # 0 .. 0.99 ms
+        stats.add_late(1e-5 * k + 3e-6)           # 0.003 .. 0.993 ms
     s = stats.summary()
-    assert s["tick_late_median_ms"] == pytest.approx(0.5)
-    assert s["tick_late_p99_ms"] == pytest.approx(0.99)
-    assert s["tick_late_max_ms"] == pytest.approx(0.99)
+    # quantiles to within one 10 us bin (the upper edge), the maximum exact
+    assert s["tick_late_median_ms"] == pytest.approx(0.503, abs=0.01)
+    assert s["tick_late_p99_ms"] == pytest.approx(0.993, abs=0.01)
+    assert s["tick_late_max_ms"] == pytest.approx(0.993)
 
 
-@pytest.mark.parametrize("env, frozen", [("1", True), ("0", False), (None, None)])
-def test_freeze_heap_follows_its_switch(env, frozen):
-    from fuel_valve_control.ros import node_runner
-    script = ("import gc\nfrom fuel_valve_control.ros.node_runner import freeze_heap\n"
-              "print(freeze_heap(), gc.get_freeze_count() > 0)\n")
-    environ = {k: v for k, v in os.environ.items() if k != node_runner.GC_FREEZE_ENV}
-    if env is not None:
-        environ[node_runner.GC_FREEZE_ENV] = env
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, env=environ,
-                         cwd=Path(__file__).resolve().parents[1])
-    assert out.returncode == 0, out.stderr
-    expect = node_runner.GC_FREEZE if frozen is None else frozen
-    assert out.stdout.split() == [str(expect), str(expect)]
+def test_duration_histogram_quantiles_match_sorted_samples():
+    import random
+    from fuel_valve_plant.ros.plant_node import DurationHistogram
+    rng = random.Random(4)
+    samples = [rng.expovariate(1 / 4e-4) for _ in range(5000)] + [0.5, -1e-6]   # one beyond the range, one early
+    h = DurationHistogram()
+    for x in samples:
+        h.add(x)
+    ordered = sorted(samples)
+    for q in (0.0, 0.5, 0.9, 0.99, 0.999):
+        exact = ordered[min(int(q * len(ordered)), len(ordered) - 1)]
+        assert exact - 1e-12 <= h.quantile(q) <= max(exact, 0.0) + h.resolution_s + 1e-12, q
+    assert h.max == 0.5 and h.n == len(samples) and h.quantile(1.0) == 0.5
