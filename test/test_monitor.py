@@ -54,6 +54,7 @@ def test_monitor_samples_the_newest_values_and_keeps_the_plant_loop_report():
         # sampled: the burst of 50 cost one callback (two if a take fell inside it), not 50 --
         # plus the two diagnostics
         assert mon._taken <= 4, mon._taken
+        assert mon.loop_reports == 1                      # this valve's report only
         assert mon.loop_statistics() == {"ticks": 2000, "missed": 3, "missed_fraction": 0.0015, "rtt_p99_ms": 0.5,
                                          "timer_slack_ns": "None"}
     finally:

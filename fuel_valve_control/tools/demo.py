@@ -54,6 +54,9 @@ REPORT_TOPICS = ["demand", "demand_ma", "joint_states", "drive", "drive_enable",
 #: compilation), s: only a dead-node detector, so generous -- at load average 20 on the 2-core
 #: machine the plant and controller were still importing after 30 s
 STARTUP_TIMEOUT_S = 120.0
+#: real time, at the profile's end: how long to wait for the plant's next loop report (it
+#: reports once a second), s -- a stalled one is not waited for longer
+LOOP_REPORT_WAIT_S = 5.0
 
 
 # ---------------------------------------------------------------------------------- running
@@ -66,9 +69,10 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
 
     ``scheduling``: OS priorities of the processes (:class:`.launcher.Scheduling`; None: its
     default); its ``monitor`` niceness applies to this process once every node is started.
-    The loop statistics (``loop``) are the plant's last report before the stop (the run's
-    periods from the loop's closing to the profile's end; what the plant counts while the
-    suite shuts down -- ticks with the controller already gone -- is no part of the run)."""
+    The loop statistics (``loop``) are, in real time, the plant's first report after the
+    profile's end, taken before the stop (the run's periods from the loop's closing to the
+    profile's end, plus up to a second; what the plant counts while the suite shuts down --
+    ticks with the controller already gone -- is no part of the run)."""
     scheduling = Scheduling() if scheduling is None else scheduling
     lockstep = plan.lockstep
     if env and "ROS_DOMAIN_ID" in env:
@@ -123,6 +127,8 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
                     return _failed(summary, suite, "lockstep run stalled", out)
             monitor.spin_for(0.2)                   # let the last diagnostics arrive
             summary["wall_time_s"] = round(time.monotonic() - wall0, 2)
+            if not lockstep:                        # the plant's next report covers the profile's end
+                _wait(monitor, suite, lambda n=monitor.loop_reports: monitor.loop_reports > n, LOOP_REPORT_WAIT_S)
             summary["loop"] = monitor.loop_statistics()     # before the stop (see the docstring)
             codes = suite.stop()
             summary["exit_codes"] = codes

@@ -68,6 +68,7 @@ class Monitor:
         #: the plant's latest loop statistics (its "loop" status on /diagnostics: ticks, missed,
         #: round trip ...), values as published (text)
         self.loop: dict[str, str] = {}
+        self.loop_reports = 0                      # how many of them arrived
         self._taken = 0                            # callbacks run (spin_for drains until none)
         n = self.node
         from rclpy.qos import HistoryPolicy, QoSProfile
@@ -122,6 +123,7 @@ class Monitor:
         for st in msg.status:
             if st.name == self._plant_loop_name:
                 self.loop = {kv.key: kv.value for kv in st.values}
+                self.loop_reports += 1
                 continue
             if "valve driver" not in st.name or not st.name.startswith(self.node.get_namespace() + "/"):
                 continue
