@@ -68,7 +68,8 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
     (stamp s, true valve angle rad, velocity rad/s) per plant sample when ``record_truth``).
 
     ``scheduling``: OS priorities of the processes (:class:`.launcher.Scheduling`; None: its
-    default); its ``monitor`` niceness applies to this process once every node is started.
+    default); its ``monitor`` niceness applies to this process once every node is started (in
+    real time: a lockstep monitor starved on a loaded machine lost its truth samples).
     The loop statistics (``loop``) are, in real time, the plant's first report after the
     profile's end, taken before the stop (the run's periods from the loop's closing to the
     profile's end, plus up to a second; what the plant counts while the suite shuts down --
@@ -95,7 +96,8 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
                 if not _wait(monitor, suite, monitor.controller_ready):
                     return _failed(summary, suite, "the controller did not come up", out)
                 suite.start(("demand",))
-            for why in nice_own_threads(scheduling.nice.get("monitor", 0)):
+            # real time only: in lockstep the monitor is a participant and takes every truth sample
+            for why in nice_own_threads(0 if lockstep else scheduling.nice.get("monitor", 0)):
                 suite.scheduling_refused.append(why)
                 print(f"fuel_valve_demo: {why}", file=sys.stderr, flush=True)
             t_start = None
