@@ -91,9 +91,9 @@ DEFAULT_NICE = {"monitor": 5}
 #: processes that run SCHED_FIFO in real time by default, where permitted, and their priority
 #: (1-99): the loop's two at 10, the demand node and the recorder below them at 5 (they yield
 #: to the loop, and outrank only normal processes).  Measured (benchmarks/ros_loop.py --fifo;
-#: README): on a loaded machine (load average 15-37 on 2 cores) the only lever that kept the
-#: plant's ticks on time (tick lateness p99 0.1-0.7 ms against 2-30 ms at normal priority,
-#: missed periods 1-2 % against 11-55 %); at normal priority, or niced, the demand node was
+#: README): on a loaded machine (load average 17-38 on 2 cores) the only lever that kept the
+#: plant's ticks on time (tick lateness p99 0.05-0.1 ms against 6-8 ms at normal priority,
+#: missed periods 0.08-0.4 % against 19-37 %); at normal priority, or niced, the demand node was
 #: starved into a demand-stale trip (0.5 s) and the recorder lost messages.  Every priority
 #: is below the kernel's own real-time threads (50), and the kernel's real-time throttling
 #: (95 % of each second by default) still leaves the machine to the rest should one spin.
