@@ -97,6 +97,12 @@ def test_launcher_applies_its_scheduling_to_the_processes_it_starts(tmp_path):
         la.procs["gate"].wait()
 
 
+def test_launcher_without_scheduling_keeps_its_own_priority(tmp_path):
+    from fuel_valve_control.tools.run_plan import REAL_TIME, plan_run
+    la = L.Launcher(plan_run(None, REAL_TIME), "/sched_test", tmp_path)
+    assert la.scheduling == L.Scheduling.off()
+
+
 def test_default_scheduling_favours_the_loop_processes():
     sched = L.Scheduling()
     assert sched.nice == L.DEFAULT_NICE
