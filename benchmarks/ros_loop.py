@@ -22,6 +22,10 @@ Variants (each run ``--repeat`` times, interleaved, so a change of machine load 
   recorder had matched) against the messages in the bag's metadata.  ``lost`` = published -
   in bag - published before the match (never below 0); ``startup`` = what the bag misses of
   the messages published before the match; the recorder's own queue drops are listed too;
+* ``main`` (``--main``, or all three with ``--all``): the main job itself (``fuel_valve_demo``'s
+  run: start-up profile, the recorder on the report's topics, the demo's monitor in this
+  process), its own length; the loop figures are the plant's last report before the stop,
+  as the demo prints them, plus the worst driver status;
 * ``lockstep`` (``--lockstep S``): a lockstep run of S simulated seconds; speed = simulated s
   per wall s, from the plant's "starting" to its "stop_after_s reached" log lines, and CPU per
   process per control period.
@@ -31,10 +35,20 @@ Variants (each run ``--repeat`` times, interleaved, so a change of machine load 
 executor-thread time inside ``spin_once`` itself (DDS, the executor, waiting) and the
 Python functions that cost most per control period.
 
+OS levers (A/B: run the script alternately with and without, the runs interleave):
+``--nice`` / ``--affinity`` / ``--fifo`` (the launcher's :class:`Scheduling`; default: plant
+and controller SCHED_FIFO where permitted, recorder and monitor niceness 5; ``--nice off
+--fifo off``: none), ``--timer-slack NS`` (the plant tick thread's
+timer slack), ``--gc-freeze 0|1`` (the node runner's ``gc.freeze()`` after a node is built).  Each run's JSON holds the levers in force (``levers``) and the plant's tick
+lateness (wake-up minus scheduled tick: median / p99 / max over the run), to tell a late
+tick from a late answer.
+
 Per run one line; then a summary per variant (median, min, max over the runs).  The last line
 printed is one JSON object: ``{"runs": [...], "summary": {variant: {...}}}``.
 
-    python benchmarks/ros_loop.py [--seconds 60] [--record | --both] [--repeat 3] [--domain 107]
+    python benchmarks/ros_loop.py [--seconds 60] [--record | --both | --main | --all] [--repeat 3] [--domain 107]
+                                  [--nice recorder=5,monitor=5|off] [--affinity plant=0,controller=1]
+                                  [--fifo plant,controller] [--timer-slack 1000]
     python benchmarks/ros_loop.py --lockstep 10 [--repeat 3] [--profile]
 """
 from __future__ import annotations
@@ -52,8 +66,8 @@ import time
 from pathlib import Path
 
 from fuel_valve_control.common.paramspec import ConfigError
-from fuel_valve_control.ros.node_runner import PROFILE_ENV
-from fuel_valve_control.tools.launcher import Launcher
+from fuel_valve_control.ros.node_runner import GC_FREEZE_ENV, PROFILE_ENV, TIMER_SLACK_ENV
+from fuel_valve_control.tools.launcher import Launcher, add_scheduling_arguments, scheduling_from_args
 from fuel_valve_control.tools.run_plan import LOCKSTEP, REAL_TIME, plan_run
 from fuel_valve_control.tools.scenarios import load_scenario, parse_scenario
 
@@ -86,11 +100,80 @@ def profile_report(profile_dir: Path, periods: int, top: int = 8) -> dict:
     return out
 
 
-def _env(domain: int, profile_dir: Path | None) -> dict:
+def _env(args, domain: int, profile_dir: Path | None) -> dict:
     env = dict(ROS_DOMAIN_ID=str(domain), PYTHONWARNINGS="ignore")
     if profile_dir is not None:
         env[PROFILE_ENV] = str(profile_dir)
+    if args.timer_slack is not None:
+        env[TIMER_SLACK_ENV] = str(args.timer_slack)
+    if args.gc_freeze is not None:
+        env[GC_FREEZE_ENV] = args.gc_freeze
     return env
+
+
+def levers(args, launcher: Launcher, stats: dict) -> dict:
+    """The OS levers of a run: the launcher's scheduling, what the OS refused of it, and the
+    timer slack the plant's tick thread reported."""
+    return {"scheduling": launcher.scheduling.describe(), "refused": list(launcher.scheduling_refused),
+            "timer_slack_ns": stats.get("timer_slack_ns"), "timer_slack_asked": args.timer_slack,
+            "gc_freeze_asked": args.gc_freeze}
+
+
+def tick_lateness(stats: dict) -> dict:
+    """The plant's tick lateness figures (ms, over the whole run) from its loop statistics."""
+    return {k: round(float(stats[k]), 3) for k in ("tick_late_median_ms", "tick_late_p99_ms", "tick_late_max_ms")
+            if k in stats}
+
+
+def missed_timeline(bag: Path) -> list[tuple[int, int]]:
+    """(ticks, missed) between consecutive loop reports of the plant (once a second) in a
+    recorded bag's ``/diagnostics``: where in the run the misses fall (start-up, steady, end)."""
+    from rosbags.highlevel import AnyReader
+    out, prev = [], None
+    with AnyReader([bag]) as reader:
+        conns = [c for c in reader.connections if c.topic == "/diagnostics"]
+        for conn, _, data in reader.messages(connections=conns):
+            for st in reader.deserialize(data, conn.msgtype).status:
+                if st.name == f"{NS}/plant: loop":
+                    v = {kv.key: kv.value for kv in st.values}
+                    now = (int(v["ticks"]), int(v["missed"]))
+                    if prev is not None:
+                        out.append((now[0] - prev[0], now[1] - prev[1]))
+                    prev = now
+    return out
+
+
+def run_main(args, domain: int, tmp: Path) -> dict:
+    """One run of the main job (``fuel_valve_demo``'s :func:`run`, recording the report's
+    topics, status lines discarded): the loop figures it prints and its worst driver status."""
+    import io
+    from fuel_valve_control.tools import demo
+    import resource
+    plan = plan_run(None, REAL_TIME, mode=args.mode)
+    t0 = time.monotonic()
+    own0 = resource.getrusage(resource.RUSAGE_SELF)
+    summary = demo.run(plan, NS, bag=tmp / "bag", run_dir=tmp / "run", out=io.StringIO(),
+                       env=_env(args, domain, None), scheduling=scheduling_from_args(args))
+    own1 = resource.getrusage(resource.RUSAGE_SELF)
+    wall = time.monotonic() - t0
+    loop = summary.get("loop") or {}
+    ticks = int(loop.get("ticks", 0))
+    rec = summary.get("recording") or {}
+    return {"variant": "main", "seconds": round(wall, 1), "ticks": ticks,
+            # this process: the demo's monitor (and the launcher), CPU s per wall s of the run
+            "monitor_cpu_fraction": round((own1.ru_utime + own1.ru_stime - own0.ru_utime - own0.ru_stime) / wall, 3),
+            "missed_pct": round(100 * float(loop.get("missed_fraction", float("nan"))), 3) if loop else None,
+            "rtt_median_ms": round(float(loop.get("rtt_median_ms", float("nan"))), 3),
+            "rtt_p99_ms": round(float(loop.get("rtt_p99_ms", float("nan"))), 3),
+            "rtt_max_ms": round(float(loop.get("rtt_max_ms", float("nan"))), 3),
+            "tick_lateness": tick_lateness(loop),
+            "worst_status": {0: "OK", 1: "WARN", 2: "ERROR"}.get(summary.get("worst_level"), "?"),
+            "faults": summary.get("faults"), "ok": summary.get("ok"), "recorder_lost": rec.get("lost"),
+            "missed_per_second": [m for _, m in missed_timeline(tmp / "bag")] if (tmp / "bag").exists() else None,
+            "levers": {"scheduling": scheduling_from_args(args).describe(), "refused": summary.get("scheduling_refused"),
+                       "timer_slack_ns": loop.get("timer_slack_ns"), "timer_slack_asked": args.timer_slack,
+                       "gc_freeze_asked": args.gc_freeze},
+            "load_average": os.getloadavg()[0]}
 
 
 def run_real_time(args, record: bool, domain: int, tmp: Path) -> dict:
@@ -98,7 +181,8 @@ def run_real_time(args, record: bool, domain: int, tmp: Path) -> dict:
     scenario = parse_scenario({"name": "ros_loop_benchmark", "duration_s": 3600.0, "demand": DEMAND})
     plan = plan_run(scenario, REAL_TIME, mode=args.mode, demand_overrides={"publish_rate_hz": args.demand_rate})
     profile_dir = tmp / "profile" if args.profile else None
-    launcher = Launcher(plan, NS, run_dir=tmp, bag=tmp / "bag" if record else None, env=_env(domain, profile_dir))
+    launcher = Launcher(plan, NS, run_dir=tmp, bag=tmp / "bag" if record else None,
+                        env=_env(args, domain, profile_dir), scheduling=scheduling_from_args(args))
     if record:       # first, so it is subscribed before the loop's first messages
         launcher.start_recorder()
         launcher.wait_for_log("recorder", "recording")
@@ -166,6 +250,8 @@ def run_real_time(args, record: bool, domain: int, tmp: Path) -> dict:
         "controller_compute_mean_ms": round(sum(c[0] * c[2] for c in compute) / max(sum(c[2] for c in compute), 1), 4),
         "controller_compute_max_ms": round(max((c[1] for c in compute), default=0.0), 3),
         "exit_codes": {n: p.returncode for n, p in procs.items()},
+        "tick_lateness": tick_lateness(stats),
+        "levers": levers(args, launcher, stats),
         "load_average": os.getloadavg()[0],
     }
     if record:
@@ -189,7 +275,8 @@ def run_lockstep(args, domain: int, tmp: Path) -> dict:
     scenario = load_scenario(args.lockstep_scenario) if args.lockstep_scenario else None
     plan = plan_run(scenario, LOCKSTEP, mode=args.mode, duration_s=args.lockstep)
     profile_dir = tmp / "profile" if args.profile else None
-    launcher = Launcher(plan, NS, run_dir=tmp, env=_env(domain, profile_dir))
+    launcher = Launcher(plan, NS, run_dir=tmp, env=_env(args, domain, profile_dir),
+                        scheduling=scheduling_from_args(args))
     launcher.start()
     cpu = {}
     try:
@@ -209,7 +296,7 @@ def run_lockstep(args, domain: int, tmp: Path) -> dict:
               "period_wall_us": round(1e6 * wall / periods, 1),
               "cpu_us_per_period": {n: round(1e6 * c / periods, 1) for n, c in cpu.items()},
               "republished_ticks": len(re.findall(r"tick re-published", log)),
-              "exit_codes": codes, "load_average": os.getloadavg()[0]}
+              "exit_codes": codes, "levers": levers(args, launcher, stats), "load_average": os.getloadavg()[0]}
     if profile_dir is not None:
         result["profile"] = profile_report(profile_dir, periods)
     return result
@@ -221,10 +308,17 @@ def describe(r: dict) -> str:
         return (f"lockstep {r['simulated_s']:g} s simulated in {r['wall_s']} s wall: speed {r['speed']}x real time, "
                 f"{r['period_wall_us']} us wall per period; CPU us per period {r['cpu_us_per_period']}; "
                 f"ticks re-published {r['republished_ticks']}; load {r['load_average']:.1f}") + _profile_lines(r)
+    if r["variant"] == "main":
+        return (f"main   {r['seconds']} s wall: {r['ticks']} ticks, missed {r['missed_pct']} %, round trip median "
+                f"{r['rtt_median_ms']} ms, p99 {r['rtt_p99_ms']} ms, max {r['rtt_max_ms']} ms; tick lateness "
+                f"{r['tick_lateness']}; monitor CPU {r['monitor_cpu_fraction']}; missed per second "
+                f"{r['missed_per_second']}; worst driver status {r['worst_status']}"
+                + (f" ({' | '.join(r['faults'])})" if r.get("faults") else "")
+                + f"; recorder lost {r['recorder_lost']}; levers {r['levers']}; load {r['load_average']:.1f}")
     line = (f"{r['variant']:<6} {r['seconds']} s: {r['ticks']} ticks ({r['rate_hz']} Hz), missed {r['missed_pct']:.3f} %, "
             f"round trip median {r['rtt_median_ms']} ms, p99 {r['rtt_p99_ms']} ms, max {r['rtt_max_ms']} ms; CPU "
-            f"{r['cpu_fraction']}; controller compute mean {r['controller_compute_mean_ms']} ms; load "
-            f"{r['load_average']:.1f}")
+            f"{r['cpu_fraction']}; controller compute mean {r['controller_compute_mean_ms']} ms; tick lateness "
+            f"{r['tick_lateness']}; levers {r['levers']}; load {r['load_average']:.1f}")
     if "recorder_lost" in r:
         line += (f"\n       recorder: {r['bag_messages']} messages in the bag, lost {r['recorder_lost']}, start-up "
                  f"lost {r['recorder_startup_lost']}, queue drops {r['recorder_queue_dropped']}")
@@ -247,6 +341,7 @@ def summarise(runs: list[dict]) -> dict:
     keys = {"plain": ("missed_pct", "rtt_median_ms", "rtt_p99_ms", "rtt_max_ms"),
             "record": ("missed_pct", "rtt_median_ms", "rtt_p99_ms", "rtt_max_ms", "recorder_lost",
                        "recorder_startup_lost"),
+            "main": ("missed_pct", "rtt_median_ms", "rtt_p99_ms", "rtt_max_ms", "recorder_lost"),
             "lockstep": ("speed", "wall_s", "period_wall_us")}
     out = {}
     for variant in keys:
@@ -275,6 +370,8 @@ def main() -> int:
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--record", action="store_true", help="the 'record' variant only (recorder running too)")
     group.add_argument("--both", action="store_true", help="'plain' and 'record' runs, interleaved")
+    group.add_argument("--main", action="store_true", help="the 'main' variant only (the main job)")
+    group.add_argument("--all", action="store_true", help="'plain', 'record' and 'main' runs, interleaved")
     group.add_argument("--lockstep", type=float, metavar="S", default=None,
                        help="lockstep speed: runs of S simulated seconds instead of real time")
     parser.add_argument("--lockstep-scenario", default=None, help="scenario of the lockstep runs (default: the "
@@ -283,12 +380,21 @@ def main() -> int:
     parser.add_argument("--profile", action="store_true", help="cProfile every node's executor thread")
     parser.add_argument("--domain", type=int, default=None,
                         help="ROS_DOMAIN_ID for the runs (default: $ROS_DOMAIN_ID, else a random one in 100-200)")
+    parser.add_argument("--timer-slack", type=int, default=None, metavar="NS",
+                        help="timer slack of the plant's tick thread, ns (default: the plant's own)")
+    parser.add_argument("--gc-freeze", choices=("0", "1"), default=None,
+                        help="gc.freeze() in every node once built: 1 on, 0 off (default: the node runner's)")
+    add_scheduling_arguments(parser)
     args = parser.parse_args()
     if args.repeat < 1:
         parser.error("--repeat must be >= 1")
+    try:
+        scheduling_from_args(args)
+    except ValueError as exc:
+        parser.error(str(exc))
     domain = args.domain if args.domain is not None else int(os.environ.get("ROS_DOMAIN_ID") or random.randint(100, 200))
-    variants = ["lockstep"] if args.lockstep else ["record"] if args.record else \
-        ["plain", "record"] if args.both else ["plain"]
+    variants = ["lockstep"] if args.lockstep else ["record"] if args.record else ["main"] if args.main else \
+        ["plain", "record"] if args.both else ["plain", "record", "main"] if args.all else ["plain"]
     runs = []
     for k in range(args.repeat):
         for variant in variants:
@@ -296,6 +402,8 @@ def main() -> int:
             try:
                 if variant == "lockstep":
                     r = run_lockstep(args, domain, tmp)
+                elif variant == "main":
+                    r = run_main(args, domain, tmp)
                 else:
                     r = run_real_time(args, variant == "record", domain, tmp)
             except ConfigError as exc:

@@ -48,7 +48,10 @@ def on_disk(bag: Path, storage: str) -> int:
     if not files:
         return 0
     if storage == "mcap":
-        return sum(t.count for t in bag_recovery.scan_mcap(files[0])[0].values())
+        try:
+            return sum(t.count for t in bag_recovery.scan_mcap(files[0])[0].values())
+        except bag_recovery.RecoveryError:      # created, its header not written yet (a starved writer)
+            return 0
     try:
         conn = sqlite3.connect(f"file:{files[0]}?mode=ro", uri=True, timeout=5.0)
         try:

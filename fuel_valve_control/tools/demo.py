@@ -3,6 +3,7 @@ separate processes talking over DDS, watch it live and summarise it.
 
     fuel_valve_demo [--scenario NAME|FILE] [--lockstep] [--controller MODE] [--bag DIR]
                     [--duration S] [--namespace NS] [--set section.key=value ...]
+                    [--nice NAME=N,...|off] [--affinity NAME=CPU,...] [--fifo NAME,...]
 
 The stand-in for ``ros2 launch`` on machines with only the PyPI ROS wheels (the launch file
 ``launch/fuel_valve.launch.py`` does the same job on a full ROS install).  Without
@@ -21,6 +22,12 @@ an event's exact period matters).
 While it runs, one status line per second (simulated time in lockstep) shows demand,
 position, error, current, valve-friction estimate, driver state and faults; at the end a
 summary, and with ``--bag`` the bag's report (``fuel_valve_report``) and its plot.
+OS scheduling (``--nice``, ``--affinity``, ``--fifo``; :class:`.launcher.Scheduling`): by
+default the plant and the controller run SCHED_FIFO in real time where the OS permits it
+(root or CAP_SYS_NICE; otherwise a line says so and they run at normal priority), the demand
+node and the recorder SCHED_FIFO below them, and this process with its monitor at a lower
+priority (niceness 5), so on a busy 2-core machine the 1 kHz loop is served first.
+
 Exit code: 0 run completed, 1 a node failed, 2 bad arguments.
 """
 from __future__ import annotations
@@ -33,7 +40,8 @@ from pathlib import Path
 
 from ..common.paramspec import ConfigError, parse_overrides
 from ..core.params import MODES
-from .launcher import CLEAN_EXIT_CODES, Launcher
+from .launcher import (CLEAN_EXIT_CODES, Launcher, Scheduling, add_scheduling_arguments, nice_own_threads,
+                       scheduling_from_args)
 from .monitor import Monitor, send_event
 from .run_plan import LOCKSTEP, REAL_TIME, RunPlan, plan_run
 from .scenarios import load_scenario
@@ -46,15 +54,27 @@ REPORT_TOPICS = ["demand", "demand_ma", "joint_states", "drive", "drive_enable",
 #: compilation), s: only a dead-node detector, so generous -- at load average 20 on the 2-core
 #: machine the plant and controller were still importing after 30 s
 STARTUP_TIMEOUT_S = 120.0
+#: real time, at the profile's end: how long to wait for the plant's next loop report (it
+#: reports once a second), s -- a stalled one is not waited for longer
+LOOP_REPORT_WAIT_S = 5.0
 
 
 # ---------------------------------------------------------------------------------- running
 def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, run_dir: Path | None = None,
         out=sys.stdout, status_period_s: float = 1.0, bag_storage: str = "mcap", env: dict | None = None,
-        record_truth: bool = False) -> dict:
+        record_truth: bool = False, scheduling: Scheduling | None = None) -> dict:
     """Start the suite, run ``plan`` (real time or lockstep) to its end, stop it.  Returns a
     summary dict (``ok``, final status, faults, loop statistics, node exit codes, ``truth``:
-    (stamp s, true valve angle rad, velocity rad/s) per plant sample when ``record_truth``)."""
+    (stamp s, true valve angle rad, velocity rad/s) per plant sample when ``record_truth``).
+
+    ``scheduling``: OS priorities of the processes (:class:`.launcher.Scheduling`; None: its
+    default); its ``monitor`` niceness applies to this process once every node is started (in
+    real time: a lockstep monitor starved on a loaded machine lost its truth samples).
+    The loop statistics (``loop``) are, in real time, the plant's first report after the
+    profile's end, taken before the stop (the run's periods from the loop's closing to the
+    profile's end, plus up to a second; what the plant counts while the suite shuts down --
+    ticks with the controller already gone -- is no part of the run)."""
+    scheduling = Scheduling() if scheduling is None else scheduling
     lockstep = plan.lockstep
     if env and "ROS_DOMAIN_ID" in env:
         os.environ["ROS_DOMAIN_ID"] = str(env["ROS_DOMAIN_ID"])
@@ -62,8 +82,11 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
     summary: dict = {"lockstep": lockstep, "duration_s": plan.duration_s, "namespace": monitor.node.get_namespace()}
     wall0 = time.monotonic()
     try:
-        with Launcher(plan, namespace, run_dir, bag, bag_storage, env, observers=1) as suite:
+        with Launcher(plan, namespace, run_dir, bag, bag_storage, env, observers=1, scheduling=scheduling) as suite:
             summary["run_dir"] = str(suite.run_dir)
+            summary["scheduling_refused"] = suite.scheduling_refused     # filled as the nodes start
+            summary["real_time_priority"] = [] if lockstep else [n for n in scheduling.fifo
+                                                                 if n in ("plant", "controller")]
             if bag:
                 suite.start_recorder(None if lockstep else REPORT_TOPICS)
             if lockstep:                    # profile time = simulated time: all at once
@@ -73,6 +96,10 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
                 if not _wait(monitor, suite, monitor.controller_ready):
                     return _failed(summary, suite, "the controller did not come up", out)
                 suite.start(("demand",))
+            # real time only: in lockstep the monitor is a participant and takes every truth sample
+            for why in nice_own_threads(0 if lockstep else scheduling.nice.get("monitor", 0)):
+                suite.scheduling_refused.append(why)
+                print(f"fuel_valve_demo: {why}", file=sys.stderr, flush=True)
             t_start = None
             next_status = 0.0
             events = plan.event_queue()
@@ -102,9 +129,13 @@ def run(plan: RunPlan, namespace: str = "/fuel_valve", bag: Path | None = None, 
                     return _failed(summary, suite, "lockstep run stalled", out)
             monitor.spin_for(0.2)                   # let the last diagnostics arrive
             summary["wall_time_s"] = round(time.monotonic() - wall0, 2)
+            if not lockstep:                        # the plant's next report covers the profile's end
+                _wait(monitor, suite, lambda n=monitor.loop_reports: monitor.loop_reports > n, LOOP_REPORT_WAIT_S)
+            summary["loop"] = monitor.loop_statistics()     # before the stop (see the docstring)
             codes = suite.stop()
             summary["exit_codes"] = codes
-            summary["loop"] = suite.loop_statistics()
+            if lockstep or summary["loop"] is None:         # lockstep: the commands at the plant's exit
+                summary["loop"] = suite.loop_statistics()
             if bag is not None and codes.get("recorder") in CLEAN_EXIT_CODES:
                 try:
                     summary["recording"] = suite.recording_losses()
@@ -142,6 +173,19 @@ def _failed(summary: dict, suite: Launcher, why: str, out) -> dict:
     return summary
 
 
+def _priority_note(summary: dict) -> str:
+    """How the loop's processes were scheduled, in words (launcher.Scheduling)."""
+    fifo = summary.get("real_time_priority") or []
+    refused = [n for n in fifo if any("SCHED_FIFO" in r and f" for {n} " in r
+                                      for r in summary.get("scheduling_refused", []))]
+    if not fifo:
+        return "normal (real-time priority off: --fifo off)"
+    if refused:
+        return (f"normal for {', '.join(refused)}: real-time priority (SCHED_FIFO) needs root or CAP_SYS_NICE; "
+                "without it other work on the machine delays the loop")
+    return f"real time (SCHED_FIFO) for {', '.join(fifo)}: other work on the machine waits for the loop"
+
+
 def print_summary(summary: dict, out=sys.stdout) -> None:
     print("\n=== summary ===", file=out)
     print(f"mode: {'lockstep (simulated time)' if summary['lockstep'] else 'real time'}, "
@@ -152,11 +196,13 @@ def print_summary(summary: dict, out=sys.stdout) -> None:
                                              else ""), file=out)
     loop = summary.get("loop")
     if loop and "rtt_median_ms" in loop and not summary["lockstep"]:
-        print(f"loop: the plant ticked {loop['ticks']} times at 1 kHz; in {100 * loop['missed_fraction']:.2f} % of "
+        print(f"loop: during the run the plant ticked {loop['ticks']} times at 1 kHz; in "
+              f"{100 * loop['missed_fraction']:.2f} % of "
               f"the ticks the controller's answer to the previous sample had not arrived yet (missed periods: the "
               f"plant held the old current); sample -> command round trip median {loop['rtt_median_ms']:.3f} ms, "
               f"99 % within {loop['rtt_p99_ms']:.3f} ms (a period is 1 ms); machine load average "
               f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (other work delays the nodes)", file=out)
+        print(f"loop priority: {_priority_note(summary)}", file=out)
     if loop and summary["lockstep"]:
         print(f"loop: {loop.get('commands')} control periods in lockstep", file=out)
     rec = summary.get("recording")
@@ -185,7 +231,13 @@ def main(argv=None) -> int:
     parser.add_argument("--run-dir", help="where node logs and parameter files go (default: a temp dir)")
     parser.add_argument("--set", action="append", default=[], metavar="section.key=value",
                         help="plant.* / controller.* parameter override (repeatable)")
+    add_scheduling_arguments(parser)
     args = parser.parse_args(argv)
+    try:
+        scheduling = scheduling_from_args(args)
+    except ValueError as exc:
+        print(f"fuel_valve_demo: {exc}", file=sys.stderr)
+        return 2
     try:
         over = parse_overrides(args.set, ("plant", "controller"))
         scenario = load_scenario(args.scenario) if args.scenario else None
@@ -201,7 +253,7 @@ def main(argv=None) -> int:
           f"{'lockstep' if args.lockstep else 'real time 1 kHz'} | {plan.duration_s:g} s"
           + (f" | recording {args.bag}" if args.bag else ""), flush=True)
     summary = run(plan, args.namespace, Path(args.bag) if args.bag else None,
-                  Path(args.run_dir) if args.run_dir else None, bag_storage=args.storage)
+                  Path(args.run_dir) if args.run_dir else None, bag_storage=args.storage, scheduling=scheduling)
     print_summary(summary)
     if not summary.get("ok"):
         return 1

@@ -4,8 +4,18 @@ supervisor for scenario events.
 It subscribes to the suite's demand, position feedback, friction estimate and
 ``/diagnostics`` (and, in lockstep, ``/clock`` once those have matched their publishers, so
 it is one of the lockstep participants and the run starts only when it can watch),
-keeps what the status line and the summary need, and sends scenario events through the
-controller's ``trip`` / ``reset`` services and the nodes' parameter services.  Service and
+keeps what the status line and the summary need (including the plant's latest loop
+statistics), and sends scenario events through the controller's ``trip`` / ``reset``
+services and the nodes' parameter services.
+
+In real time it runs in the demo's process next to the 1 kHz loop on a 2-core machine, so it
+is cheap by construction: it samples instead of following every message.  The demand (200 Hz), position
+and estimate (100 Hz each) and ``/clock`` (every lockstep period) are read with history depth
+1, and :meth:`Monitor.spin_for` sleeps between takes (the demo's loop takes every 20 ms):
+each take finds at most the newest sample per topic, which is all a status line once a second
+needs.  Following every message cost this process a wake-up per message, ~400 a second:
+8 % of a core against 1-3 % sampled (benchmarks/ros_loop.py --main, ``monitor_cpu_fraction``).
+``/diagnostics`` keeps its depth (every status counts for the worst level).  Service and
 parameter calls are asynchronous: in lockstep an event lands within a few control periods of
 its time, not exactly on it (the offline simulator applies events exactly).
 """
@@ -15,6 +25,10 @@ import math
 import time
 
 from .scenarios import TRIGGER_ACTIONS
+
+#: time between two takes of the monitor's subscriptions, s (events due meanwhile are sent at
+#: the next take: at most this late in real time)
+POLL_S = 0.05
 
 
 class Monitor:
@@ -36,7 +50,10 @@ class Monitor:
         from .launcher import clock_remap
         # the valve's own clock in lockstep, as its nodes have it (launcher.clock_remap)
         cli = ["--ros-args", *clock_remap(namespace, True)] if lockstep else None
-        self.node = rclpy.create_node("suite_monitor", namespace=namespace, context=self.context, cli_args=cli)
+        # no parameter services: nobody sets the monitor's parameters, and each service is one
+        # more entity in every wait of its executor
+        self.node = rclpy.create_node("suite_monitor", namespace=namespace, context=self.context, cli_args=cli,
+                                      start_parameter_services=False)
         self.lockstep = lockstep
         self.sim_time = None
         self.demand = None
@@ -48,12 +65,22 @@ class Monitor:
         self.worst_level = 0
         self.armed = False                         # a first OK status was seen
         self.fault_messages: list[str] = []
-        self.errors: list[float] = []              # |demand - position| %, per position sample
+        #: the plant's latest loop statistics (its "loop" status on /diagnostics: ticks, missed,
+        #: round trip ...), values as published (text)
+        self.loop: dict[str, str] = {}
+        self.loop_reports = 0                      # how many of them arrived
+        self._taken = 0                            # callbacks run (spin_for drains until none)
         n = self.node
+        from rclpy.qos import HistoryPolicy, QoSProfile
+        # sampled topics: the newest sample only (module docstring); reliability and durability
+        # as the publishers offer them
+        latest = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ri.TELEMETRY_QOS.reliability,
+                            durability=ri.TELEMETRY_QOS.durability)
+        self._latest_qos = latest
         #: (subscription, publishers it must have matched) before a lockstep run may start
-        self._watch = [(ri.quiet_subscription(n, Float64, contract.DEMAND, self._on_demand, ri.TELEMETRY_QOS), 1),
-                       (ri.quiet_subscription(n, Float64, contract.POSITION, self._on_position), 1),
-                       (ri.quiet_subscription(n, JointState, contract.ESTIMATE, self._on_estimate), 1),
+        self._watch = [(ri.quiet_subscription(n, Float64, contract.DEMAND, self._on_demand, latest), 1),
+                       (ri.quiet_subscription(n, Float64, contract.POSITION, self._on_position, latest), 1),
+                       (ri.quiet_subscription(n, JointState, contract.ESTIMATE, self._on_estimate, latest), 1),
                        # plant and controller
                        (ri.quiet_subscription(n, DiagnosticArray, contract.DIAGNOSTICS, self._on_diagnostics), 2)]
         self._clock_type = Clock
@@ -68,28 +95,36 @@ class Monitor:
         self.executor.add_node(n)
 
     def _on_clock(self, msg):
+        self._taken += 1
         self.sim_time = msg.clock.sec + 1e-9 * msg.clock.nanosec
 
     def _on_truth(self, msg):
+        self._taken += 1
         st = msg.header.stamp
         t = st.sec + 1e-9 * st.nanosec
         if not self.truth or t > self.truth[-1][0]:          # lockstep may re-send a sample
             self.truth.append((t, msg.position[1], msg.velocity[1]))
 
     def _on_demand(self, msg):
+        self._taken += 1
         self.demand = msg.data
 
     def _on_position(self, msg):
+        self._taken += 1
         self.position = msg.data
-        if self.demand is not None and math.isfinite(msg.data):
-            self.errors.append(abs(self.demand - msg.data))
 
     def _on_estimate(self, msg):
+        self._taken += 1
         if len(msg.effort) >= 2:
             self.friction_estimate = msg.effort[1]
 
     def _on_diagnostics(self, msg):
+        self._taken += 1
         for st in msg.status:
+            if st.name == self._plant_loop_name:
+                self.loop = {kv.key: kv.value for kv in st.values}
+                self.loop_reports += 1
+                continue
             if "valve driver" not in st.name or not st.name.startswith(self.node.get_namespace() + "/"):
                 continue
             self.level = st.level[0] if isinstance(st.level, bytes) else int(st.level)
@@ -103,11 +138,36 @@ class Monitor:
             if self.level == 2 and st.message not in self.fault_messages:
                 self.fault_messages.append(st.message)
 
+    @property
+    def _plant_loop_name(self) -> str:
+        return f"{self.node.get_namespace().rstrip('/')}/plant: loop"
+
     def spin_for(self, seconds: float) -> None:
+        """Real time: sleep ``seconds`` (:data:`POLL_S` at a time), taking what arrived after
+        each sleep; at least one take (lockstep: every message as it comes).  A take runs every ready callback (service responses, the newest
+        sample of each sampled topic, the queued diagnostics)."""
         end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        if self.lockstep:
+            # lockstep follows every message, as it did: a sampling monitor lost the truth
+            # samples of a lockstep run after its first 0.2 s (test_nodes), and nothing runs
+            # against a real-time loop there
+            while time.monotonic() < end:
+                self._join_lockstep()
+                self.executor.spin_once(timeout_sec=max(0.0, min(0.05, end - time.monotonic())))
+            return
+        while True:
+            time.sleep(max(0.0, min(POLL_S, end - time.monotonic())))
             self._join_lockstep()
-            self.executor.spin_once(timeout_sec=max(0.0, min(0.05, end - time.monotonic())))
+            self._take()
+            if time.monotonic() >= end:
+                return
+
+    def _take(self, most: int = 100000) -> None:
+        for _ in range(most):
+            before = self._taken
+            self.executor.spin_once(timeout_sec=0.0)
+            if self._taken == before:             # nothing of ours was ready (or a service reply: the
+                return                            # next take has the rest)
 
     def _join_lockstep(self) -> None:
         """Lockstep: subscribe to ``/clock`` -- which makes this node one of the participants
@@ -119,7 +179,19 @@ class Monitor:
             from ..common import contract
             from ..ros import interface as ri
             self._clock_sub = ri.quiet_subscription(self.node, self._clock_type, contract.CLOCK, self._on_clock,
-                                                    ri.TELEMETRY_QOS)
+                                                    self._latest_qos)
+
+    def loop_statistics(self) -> dict | None:
+        """The plant's latest loop statistics (:attr:`loop`) as numbers; None before the first."""
+        if not self.loop:
+            return None
+        out = {}
+        for key, text in self.loop.items():
+            try:
+                out[key] = int(text) if text.lstrip("-").isdigit() else float(text)
+            except ValueError:
+                out[key] = text
+        return out
 
     def controller_ready(self) -> bool:
         return self.level is not None

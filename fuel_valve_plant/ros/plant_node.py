@@ -62,7 +62,7 @@ from rclpy.node import Node
 
 from fuel_valve_control.common import contract
 from fuel_valve_control.ros import interface as ri
-from fuel_valve_control.ros.node_runner import run_node
+from fuel_valve_control.ros.node_runner import run_node, set_timer_slack
 from fuel_valve_control.common.paramspec import ConfigError
 from ..physics.plant import Plant
 from ..physics.params import PLANT_NODE_SPEC, PLANT_SPEC, check_consistency
@@ -89,29 +89,72 @@ def guarded(method):
     return wrapper
 
 
+class DurationHistogram:
+    """Durations (s) counted in bins of ``resolution_s`` up to ``limit_s`` (longer ones in the
+    last bin; the largest is kept exactly): quantiles without keeping or sorting the samples.
+
+    Why: the loop statistics are summarised once a second on the executor thread, with the GIL
+    held.  Sorting every round trip and tick lateness of the run so far cost milliseconds that
+    grew with the run (two lists of 60 000 floats after a minute): the tick thread and the
+    command callback waited meanwhile, and the missed periods per second grew along the run.
+    Adding is O(1), a summary O(bins)."""
+
+    def __init__(self, resolution_s: float = 1e-5, limit_s: float = 0.1):
+        self.resolution_s = resolution_s
+        self.counts = [0] * (int(round(limit_s / resolution_s)) + 1)
+        self.n = 0
+        self.max = 0.0
+
+    def add(self, seconds: float) -> None:
+        i = int(seconds / self.resolution_s) if seconds > 0.0 else 0
+        self.counts[min(i, len(self.counts) - 1)] += 1
+        self.n += 1
+        if seconds > self.max:
+            self.max = seconds
+
+    def quantile(self, q: float) -> float:
+        """The ``q`` quantile (the sample of rank ``int(q n)``, as sorted samples would give it) to
+        within one bin: the upper edge of its bin, never above the largest sample (s)."""
+        rank = min(int(q * self.n), self.n - 1)
+        seen = 0
+        for i, c in enumerate(self.counts):
+            seen += c
+            if seen > rank:            # the last bin holds everything beyond the range: its largest
+                return self.max if i == len(self.counts) - 1 else min((i + 1) * self.resolution_s, self.max)
+        return self.max
+
+
 class LoopStats:
     """Round-trip times and missed periods of the control loop, seen from the plant; ticks and
-    missed periods count from the first command received (before it the loop is open)."""
+    missed periods count from the first command received (before it the loop is open).
 
-    def __init__(self, keep: int = 200000):
-        self.keep = keep
-        self.rtts: list[float] = []
+    Also the tick thread's own lateness (wake-up time minus the scheduled tick, s, every tick):
+    it tells a late tick (sleep overshoot, the tick thread not scheduled, the GIL held by the
+    executor thread) from a late answer (the round trip), the two causes of a missed period.
+    Quantiles to 10 us (:class:`DurationHistogram`)."""
+
+    def __init__(self):
+        self.rtts = DurationHistogram()
+        self.lates = DurationHistogram()
         self.ticks = 0
         self.missed = 0
         self.commands = 0
 
     def add_rtt(self, seconds: float) -> None:
-        if len(self.rtts) < self.keep:
-            self.rtts.append(seconds)
+        self.rtts.add(seconds)
+
+    def add_late(self, seconds: float) -> None:
+        self.lates.add(seconds)
 
     def summary(self) -> dict:
         out = {"ticks": self.ticks, "missed": self.missed, "commands": self.commands,
                "missed_fraction": self.missed / self.ticks if self.ticks else 0.0}
-        if self.rtts:
-            s = sorted(self.rtts)
-            pick = lambda q: s[min(int(q * len(s)), len(s) - 1)]  # noqa: E731
-            out.update(rtt_median_ms=1e3 * pick(0.5), rtt_p99_ms=1e3 * pick(0.99), rtt_max_ms=1e3 * s[-1],
-                       rtt_samples=len(s))
+        if self.rtts.n:
+            out.update(rtt_median_ms=1e3 * self.rtts.quantile(0.5), rtt_p99_ms=1e3 * self.rtts.quantile(0.99),
+                       rtt_max_ms=1e3 * self.rtts.max, rtt_samples=self.rtts.n)
+        if self.lates.n:
+            out.update(tick_late_median_ms=1e3 * self.lates.quantile(0.5),
+                       tick_late_p99_ms=1e3 * self.lates.quantile(0.99), tick_late_max_ms=1e3 * self.lates.max)
         return out
 
 
@@ -189,6 +232,7 @@ class PlantNode(Node):
         else:
             self._lock = threading.Lock()
             self._running = True
+            self.timer_slack_ns: int | None = None      # the tick thread's, once it runs
             self._thread = threading.Thread(target=self.realtime_loop, name="plant-loop", daemon=True)
             self._thread.start()
         self.get_logger().info(
@@ -288,6 +332,7 @@ class PlantNode(Node):
     def realtime_loop(self) -> None:
         """Real-time mode: tick every period on a sleep-until schedule (from the moment the
         recorder, if the run has one, has matched: :class:`~fuel_valve_control.ros.interface.RecorderGate`)."""
+        self.timer_slack_ns = set_timer_slack()     # this thread's sleeps (node_runner)
         while self._running and not self.recorder_gate.opened.wait(0.05):
             pass
         last = time.monotonic()
@@ -297,6 +342,7 @@ class PlantNode(Node):
             if delay > 0:
                 time.sleep(delay)
             now = time.monotonic()
+            self.stats.add_late(now - next_tick)
             # the sample instant: the state published this tick is the state at this time, so
             # consecutive stamps differ by the simulated elapsed time even when the thread is
             # pre-empted between here and the publish (a stamp taken at publish time made a
@@ -454,6 +500,8 @@ class PlantNode(Node):
         if self.lockstep:
             values["lockstep_ticks_republished"] = str(self.republished)
         values.update({k: f"{v:.6g}" if isinstance(v, float) else str(v) for k, v in s.items()})
+        if not self.lockstep:
+            values["timer_slack_ns"] = str(getattr(self, "timer_slack_ns", None))
         st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[st])
         msg.header.stamp = self.get_clock().now().to_msg()
