@@ -72,6 +72,15 @@ def test_lockstep_runs_are_deterministic(lockstep_runs):
     assert np.ptp(a[:, 1]) > 0.015                # and the valve did move (20 -> 22 % = 0.021 rad)
 
 
+def test_lockstep_start_handshake_loses_no_first_tick(lockstep_runs):
+    # the plant starts once the controller's hello (its first drive_enable, sent when it can
+    # answer) has arrived: tick 0 is answered, not re-published after the 1 s resend timeout
+    for summary, _ in lockstep_runs:
+        log = (Path(summary["run_dir"]) / "plant.log").read_text()
+        assert "lockstep: participants connected, starting" in log, log
+        assert "no command for t = 0.000 s" not in log, log
+
+
 def test_lockstep_reproduces_the_offline_simulator(lockstep_runs):
     summary, text = lockstep_runs[0]
     truth = np.array(summary["truth"])

@@ -351,9 +351,61 @@ def _check_bag_metadata(bag: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------- two valves
+def test_launch_without_arguments_and_the_readme_commands(env, tmp_path, launches):
+    """``ros2 launch fuel_valve fuel_valve.launch.py`` exactly as the README's first line: the
+    namespace ``/fuel_valve``, the default mode ``observer_ff``; the README's ``ros2 node
+    list`` / ``param get`` / ``param set ... mode pi`` / ``topic echo`` on it; Ctrl-C ends
+    every process with 0."""
+    la = Launch(env, tmp_path)
+    launches.append(la)
+    la.wait_for(r"\[fuel_valve\.controller\]: controller up: mode observer_ff")
+    la.wait_for(r"\[fuel_valve\.controller\]: status (OK|ERROR)")     # the loop is up
+    names = wait_nodes(env, "fuel_valve")
+    assert sorted(n for n in names if n.startswith("/fuel_valve/")) == \
+        ["/fuel_valve/controller", "/fuel_valve/demand", "/fuel_valve/plant"], names
+    assert re.search(r"String value is:\s*observer_ff\b",
+                     ros2(env, "param", "get", "/fuel_valve/controller", "mode", *GRAPH))
+    assert "Set parameter successful" in ros2(env, "param", "set", "/fuel_valve/controller", "mode", "pi", *GRAPH)
+    assert re.search(r"String value is:\s*pi\b", ros2(env, "param", "get", "/fuel_valve/controller", "mode", *GRAPH))
+    out = ros2(env, "topic", "echo", "--once", "--field", "data", "/fuel_valve/position", "std_msgs/msg/Float64",
+               timeout=60.0)
+    assert re.search(r"^\s*-?[\d.]+(?:e[-+]?\d+)?\s*$", out, re.M | re.I), out
+    la.assert_clean_exit(la.ctrl_c())
+
+
+def test_ros2_run_a_single_node_with_its_config_file(env, tmp_path):
+    """The README's ``ros2 run fuel_valve plant --ros-args -r __ns:=... --params-file
+    <install>/share/fuel_valve/config/plant.yaml``: up with that file, Ctrl-C exits 0."""
+    prefix = ros2(env, "pkg", "prefix", "fuel_valve").strip()
+    config = Path(prefix) / "share" / "fuel_valve" / "config" / "plant.yaml"
+    assert config.is_file(), config
+    log = tmp_path / "run.log"
+    with open(log, "w") as fh:
+        proc = subprocess.Popen(["ros2", "run", "fuel_valve", "plant", "--ros-args", "-r", "__ns:=/cli_run",
+                                 "--params-file", str(config)], env=env, stdout=fh, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, start_new_session=True)
+    try:
+        end = time.monotonic() + UP_S
+        while "[cli_run.plant]: plant up: real time" not in log.read_text():
+            assert proc.poll() is None and time.monotonic() < end, log.read_text()
+            time.sleep(0.2)
+        os.killpg(proc.pid, signal.SIGINT)
+        assert proc.wait(timeout=30) == 0, log.read_text()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def test_show_args_lists_the_launch_arguments(env):
+    out = ros2(env, "launch", "fuel_valve", "fuel_valve.launch.py", "--show-args")
+    for name in ("namespace", "valves", "mode", "lockstep", "record", "bag", "autostart", "demand_profile"):
+        assert f"'{name}':" in out, (name, out)
+
+
 def test_two_valves_in_real_time(env, tmp_path, launches):
     a = Launch(env, tmp_path, "namespace:=valve_a")
-    b = Launch(env, tmp_path, "namespace:=valve_b", "mode:=pi")
+    b = Launch(env, tmp_path, "namespace:=valve_b", "mode:=pi", "demand_profile:=step")
     launches += [a, b]
     # (up and running its fault logic: two 1 kHz valves on a loaded 2-core machine may latch a
     # resolver timeout of 20 ms at start; the faults themselves are tested in test_nodes.py)
@@ -364,6 +416,9 @@ def test_two_valves_in_real_time(env, tmp_path, launches):
     names = wait_nodes(env, "valve_a") + wait_nodes(env, "valve_b")
     for ns in ("valve_a", "valve_b"):
         assert sorted(n for n in set(names) if n.startswith(f"/{ns}/")) == [f"/{ns}/{n}" for n in sorted(NODES)]
+    # each valve configured by its own launch arguments
+    assert re.search(r"String value is:\s*step\b", ros2(env, "param", "get", "/valve_b/demand", "profile", *GRAPH))
+    assert re.search(r"String value is:\s*startup\b", ros2(env, "param", "get", "/valve_a/demand", "profile", *GRAPH))
     for la in (a, b):
         la.assert_clean_exit(la.ctrl_c())
 
@@ -381,6 +436,8 @@ def test_two_valves_in_one_launch_stop_on_one_ctrl_c(env, tmp_path, launches):
     for ns in ("one_a", "one_b"):
         assert sorted(n for n in set(names) if n.startswith(f"/{ns}/")) == [f"/{ns}/{n}" for n in sorted(NODES)]
     assert "same name" not in la.output()
+    # the README's "valves differ by run-time parameters"
+    assert "Set parameter successful" in ros2(env, "param", "set", "/one_b/controller", "mode", "pi", *GRAPH)
     la.assert_clean_exit(la.ctrl_c(), valves=2)
 
 

@@ -22,7 +22,9 @@ A resolver sample whose stamp has been answered already (the plant re-publishes 
 command it has not received) is dropped, and the command is never re-sent: the plant steps
 once per command, and an unstamped copy could not be told from the next period's.  So the
 first command waits until ``current_command`` has matched the plant's subscription (a
-command published before that would be lost, and the run would stall).
+command published before that would be lost, and the run would stall).  Start handshake: the
+node's first ``drive_enable`` (false, latched) goes out once it can answer a sample, and the
+plant starts only after receiving it (:meth:`ControllerNode._say_hello`).
 
 A managed (lifecycle) node (``rclpy.lifecycle``, issue 12): ``configure`` reads and validates
 the parameters, designs the law (builds the :class:`ValveDriver`) and loads the learned state
@@ -135,6 +137,8 @@ class ControllerNode(LifecycleNode):
         self._last_enable = None
         self._level = 0
         self._loop_timers = []
+        self._sample_seen = False       # a resolver sample has arrived (lockstep: the plant started)
+        self._hello_sent = not self.lockstep        # lockstep start handshake (_say_hello)
 
         from diagnostic_msgs.msg import DiagnosticArray
         from sensor_msgs.msg import JointState
@@ -174,6 +178,10 @@ class ControllerNode(LifecycleNode):
         self.valve_tests = ValveTestInterface(self, self._lock)    # a ValveTests per configure
         ri.handle_parameter_changes(self, CONTROLLER_SPEC, self.check_parameters, self.apply_parameters)
         self.create_timer(1.0 / node_ps["diagnostics_rate_hz"], self.publish_diagnostics)
+        if self.lockstep:
+            from rclpy.clock import Clock, ClockType
+            # wall-clock: simulated time stands still until the plant starts
+            self._hello_timer = self.create_timer(0.01, self._say_hello, clock=Clock(clock_type=ClockType.STEADY_TIME))
         if node_ps["autostart"]:
             # one command as before: configure + activate now; a configuration error ends the
             # process (exit 2) instead of leaving an unconfigured node nobody will configure
@@ -301,13 +309,32 @@ class ControllerNode(LifecycleNode):
         """drive_enable false (when not already said) and 0 A, outside ``active``.  Before the
         recorder gate opens only the latched enable false (the recorder still gets it when it
         matches; the plant's drive starts disabled, so a 0 A command adds nothing then)."""
+        if self.lockstep and not self._hello_sent:
+            return          # the plant has not started: nothing to answer; the hello says "disabled"
         if force or self._last_enable is not False:
             self.pub_enable.publish(self._bool(data=False))
             self.recorder_gate.count(contract.DRIVE_ENABLE, latched=True)
             self._last_enable = False
-        if self.recorder_gate.is_open:
+        # (lockstep: no command before the plant's first sample but the hello, _say_hello; a
+        # command the plant receives after its start steps it)
+        if self.recorder_gate.is_open and not (self.lockstep and not self._sample_seen):
             self.pub_current.publish(self._float(data=0.0))
             self.recorder_gate.count(contract.CURRENT_COMMAND)
+
+    def _say_hello(self) -> None:
+        """Lockstep start handshake: once this node can answer a sample (its command publisher
+        matched to the plant's subscription, its recorder gate open), its first ``drive_enable``
+        (false: the drive starts disabled) says so.  The plant does not start before it has
+        arrived; the topic is latched (transient local), so it arrives however late the plant's
+        side matches (a volatile message would be lost then).  Before it this node publishes
+        nothing on the loop's topics.  So tick 0 is neither lost nor held here (it was: the
+        plant started when the endpoints matched, tick 0 waited for this node's recorder gate,
+        and the plant re-published it after its resend timeout)."""
+        with self._lock:
+            if self.pub_current.get_subscription_count() >= 1 and self.recorder_gate.is_open:
+                self._hello_timer.cancel()
+                self._hello_sent = True
+                self._publish_disabled(force=True)
 
     def _save_state(self) -> None:
         """Persist the learned state (``learned_state_file``); a failure is logged, never raised."""
@@ -391,6 +418,7 @@ class ControllerNode(LifecycleNode):
 
     @locked
     def on_resolver(self, msg) -> None:
+        self._sample_seen = True
         if self.driver is None:             # unconfigured / finalized: the drive stays off
             self._publish_disabled()
             return

@@ -78,8 +78,13 @@ class DemandNode(Node):
 
     def on_clock(self, msg) -> None:
         t = msg.clock.sec + 1e-9 * msg.clock.nanosec
-        if t in (self._pending_tick, self._answered_tick):
-            return                          # a re-published tick (see plant_node): answered once
+        latest = self._pending_tick if self._pending_tick is not None else self._answered_tick
+        if latest is not None and t <= latest:
+            # a re-published tick (see plant_node): answered once.  Simulated time only moves
+            # forward, so any tick not after the newest one seen is a copy, however late it
+            # comes (comparing with the last one only would answer a stale copy again, and
+            # the controller would take that extra demand for the next period's)
+            return
         self._pending_tick = t
         self._tick_since = time.monotonic()
         self._answer_tick()

@@ -23,7 +23,10 @@ Two timing modes:
   Start-up and lost samples: "connected" means matched endpoints (each publisher's
   ``get_subscription_count()`` and the command subscription's ``get_publisher_count()``),
   not merely nodes in the graph: discovery shows a participant before its endpoints match,
-  and a volatile sample published to an unmatched subscription is gone.  As a safety net a
+  and a volatile sample published to an unmatched subscription is gone.  The controller's
+  readiness is a handshake: it publishes its first ``drive_enable`` (false, latched) only once
+  it can answer a sample (command publisher matched, recorder gate open), and the plant starts
+  only after receiving it, so tick 0 is not held in the controller past the resend timeout.  As a safety net a
   tick whose command does not come within :data:`LOCKSTEP_RESEND_S` of wall time is
   re-published unchanged (``/clock`` and ``resolver``: same stamp, same values).  Every
   lockstep participant answers a stamp at most once (the controller ignores a resolver
@@ -224,6 +227,7 @@ class PlantNode(Node):
             self._stop_after = node_ps["stop_after_s"]
             self._finished = False
             self._ready_since = None
+            self._hello = False             # the controller's drive_enable received (try_start)
             self._start_timer = self.create_timer(0.05, self.try_start)
             #: the current tick's loop messages, as published (re-published unchanged when lost)
             self._tick_msgs: tuple = ()
@@ -311,6 +315,8 @@ class PlantNode(Node):
     @guarded
     def on_enable(self, msg) -> None:
         enable = bool(msg.data)
+        if self.lockstep and not self._started:
+            self._hello = True              # the controller's start-up hello (see try_start)
         if enable and not self._enable and self._fault is not None:
             self.get_logger().info(f"drive re-enabled by the controller: cleared {self._fault}")
             self._fault = None
@@ -384,10 +390,20 @@ class PlantNode(Node):
         ready = (self.count_subscribers(contract.RESOLVER) >= 1 and self.count_publishers(contract.CURRENT_COMMAND) >= 1
                  and len(clock_nodes) >= self._participants
                  and self.pub_resolver.get_subscription_count() >= max(1, self.count_subscribers(contract.RESOLVER))
-                 and self.pub_pressure.get_subscription_count() >= self.count_subscribers(contract.PRESSURE_DIFFERENTIAL)
+                 # the controller always subscribes to Δp: tick 0's sample must reach it (a
+                 # volatile sample to a subscription not matched yet is gone, and period 0
+                 # would run on the fallback Δp: 0.026 rad off the offline run)
+                 and self.pub_pressure.get_subscription_count() >= max(1, self.count_subscribers(
+                     contract.PRESSURE_DIFFERENTIAL))
                  # the command's way back: matched on this side (the controller holds its first
                  # command until its side has matched too)
                  and self.sub_command.get_publisher_count() >= 1
+                 # and the controller can answer: its hello (its first drive_enable, false, sent
+                 # once its command publisher has matched and its recorder gate is open; latched,
+                 # so it arrives however late this side matches) has arrived.  Without it tick 0
+                 # waited in the controller for its recorder gate and was re-published after
+                 # LOCKSTEP_RESEND_S
+                 and self._hello
                  # every discovered /clock subscription, not one per node: the demand node has two
                  # (its time source and its tick handler) and needs the second for the first tick
                  and self.pub_clock.get_subscription_count() >= max(self._participants,
