@@ -33,3 +33,8 @@ if [ ! -f "$stamp" ] || [ requirements.txt -nt "$stamp" ] || [ requirements-ros.
   .venv/bin/python -c "import numpy, scipy, yaml, fuel_valve_plant" # fail loudly if anything is missing
   touch "$stamp"
 fi
+# Compile the physics kernel now, once (numba, cache=True: the machine code is cached in
+# fuel_valve_plant/physics/__pycache__, where every later process finds it).  Without this a
+# fresh checkout has every node process the tests start race to compile it on its own (a few
+# CPU seconds each on the shared cores); with a valid cache this only loads it (about a second).
+.venv/bin/python -c "from fuel_valve_plant.physics.plant import Plant; p = Plant(); p.set_command(0.0, True); p.advance(1e-3)"

@@ -57,6 +57,7 @@ class Probe:
         self.pub_demand_ma = self.node.create_publisher(Float64, contract.DEMAND_MA, ri.LOOP_QOS)
         self.pub_resolver = self.node.create_publisher(JointState, contract.RESOLVER, ri.LOOP_QOS)
         self._float = Float64
+        self._clients: dict[tuple[type, str], object] = {}     # service clients, one per service
         self._demand: tuple[str, float] | None = None
         self.lockstep = lockstep
         self.ticks = 0
@@ -186,10 +187,19 @@ class Probe:
                              f"{getattr(self.driver_status(), 'message', None)!r}")
 
     # ---------------------------------------------------------------- services
+    def _client(self, srv_type, service: str, timeout: float):
+        """The probe's client of ``service``, created once and kept: a new client has to be
+        discovered by the server before its first request (DDS matching, about a second on a
+        loaded machine), so tests that call the same service many times pay that once."""
+        client = self._clients.get((srv_type, service))
+        if client is None:
+            client = self._clients[(srv_type, service)] = self.node.create_client(srv_type, service)
+        assert client.wait_for_service(timeout_sec=timeout), f"service {service} not available"
+        return client
+
     def trigger(self, service: str, timeout: float = 15.0):
         from std_srvs.srv import Trigger
-        client = self.node.create_client(Trigger, service)
-        assert client.wait_for_service(timeout_sec=timeout), f"service {service} not available"
+        client = self._client(Trigger, service, timeout)
         return self._wait_future(client.call_async(Trigger.Request()), timeout, service)
 
     def set_params(self, node: str, params: dict, timeout: float = 15.0, atomically: bool = False) -> list:
@@ -200,8 +210,7 @@ class Probe:
         from rclpy.parameter import Parameter
         srv, name = (SetParametersAtomically, "set_parameters_atomically") if atomically else \
             (SetParameters, "set_parameters")
-        client = self.node.create_client(srv, f"{node}/{name}")
-        assert client.wait_for_service(timeout_sec=timeout), f"{node}/{name} not available"
+        client = self._client(srv, f"{node}/{name}", timeout)
         req = srv.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in params.items()])
         resp = self._wait_future(client.call_async(req), timeout, f"{node}/{name}")
         return [resp.result] if atomically else resp.results
@@ -209,8 +218,7 @@ class Probe:
     def get_params(self, node: str, names: list[str], timeout: float = 15.0) -> list:
         from rcl_interfaces.srv import GetParameters
         from rclpy.parameter import parameter_value_to_python
-        client = self.node.create_client(GetParameters, f"{node}/get_parameters")
-        assert client.wait_for_service(timeout_sec=timeout), f"{node}/get_parameters not available"
+        client = self._client(GetParameters, f"{node}/get_parameters", timeout)
         resp = self._wait_future(client.call_async(GetParameters.Request(names=names)), timeout,
                                  f"{node}/get_parameters")
         return [parameter_value_to_python(v) for v in resp.values]
@@ -219,16 +227,14 @@ class Probe:
         """lifecycle_msgs ChangeState on ``node`` (relative to the namespace): its success."""
         from lifecycle_msgs.msg import Transition
         from lifecycle_msgs.srv import ChangeState
-        client = self.node.create_client(ChangeState, f"{node}/change_state")
-        assert client.wait_for_service(timeout_sec=timeout), f"{node}/change_state not available"
+        client = self._client(ChangeState, f"{node}/change_state", timeout)
         req = ChangeState.Request(transition=Transition(id=transition_id))
         return self._wait_future(client.call_async(req), timeout, f"{node}/change_state").success
 
     def lifecycle_state(self, node: str, timeout: float = 15.0) -> str:
         """The label of ``node``'s lifecycle state (lifecycle_msgs GetState)."""
         from lifecycle_msgs.srv import GetState
-        client = self.node.create_client(GetState, f"{node}/get_state")
-        assert client.wait_for_service(timeout_sec=timeout), f"{node}/get_state not available"
+        client = self._client(GetState, f"{node}/get_state", timeout)
         return self._wait_future(client.call_async(GetState.Request()), timeout,
                                  f"{node}/get_state").current_state.label
 

@@ -36,7 +36,7 @@ from fuel_valve_control.core.driver import PRESSURE_INPUT  # noqa: E402
 from fuel_valve_control.tools.profiles import DEMAND_NODE_SPEC  # noqa: E402
 from fuel_valve_plant.physics.params import PLANT_SPEC  # noqa: E402
 from fuel_valve_plant.physics.plant import pack_parameters  # noqa: E402
-from test_runtime_params import RUNTIME, changed_value  # noqa: E402
+from test_runtime_params import LAW_KEYS, RUNTIME, changed_value  # noqa: E402
 
 NS = "/params"
 
@@ -85,69 +85,123 @@ def _set(probe, node, name, value):
     assert results[0].successful, results[0].reason
 
 
-def _set_controller(probe, controller, name, value):
-    """Set and wait for the loop to swap the change in (the controller queues an accepted
+def _set_all(probe, node, values: dict) -> list[str]:
+    """Set ``values`` on ``node`` in one SetParameters request (rclpy applies them one by one,
+    each through the node's validation and post-set callbacks, as a ``ros2 param load`` would)
+    and wait for the controller's loop to swap them in; the problems, one line per parameter."""
+    # generous: the nodes' one executor thread serves the request between lockstep periods, and
+    # a law parameter builds a trial law in the on-set callback; a loaded machine stalls both
+    results = probe.set_params(node, values, timeout=120.0)
+    return [f"{name}: set to {value!r} refused: {res.reason}"
+            for (name, value), res in zip(values.items(), results) if not res.successful]
+
+
+def _wait_swapped(probe, controller, what):
+    """Wait for the loop to swap the requested change in (the controller queues an accepted
     change for a period boundary; a law replacement waits for a hold, at most 1 s: issue 13)."""
-    _set(probe, "controller", name, value)
-    probe.wait_for(lambda: not controller.driver.params_pending, 30.0, f"the swap of {name}")
+    # up to 1 s of simulated time, which in lockstep on a loaded machine can be a minute
+    probe.wait_for(lambda: not controller.driver.params_pending, 120.0, f"the swap of {what}")
 
 
 def _runtime(spec):
     return [p.name for p in spec if p.runtime]
 
 
-@pytest.mark.parametrize("name", RUNTIME)
-def test_controller_runtime_parameter_takes_effect(suite, name):
+#: the controller's run-time parameters in groups set with one request each (one law rebuild
+#: and one hold per group instead of one per parameter): the mode; the parameters the default
+#: mode's law is built from (the law is rebuilt once, from all of them); all others (the law
+#: in force must stay)
+_DEFAULT_LAW = LAW_KEYS[CONTROLLER_SPEC.params["mode"].default]
+CONTROLLER_GROUPS = {
+    "mode": ["mode"],
+    "law": [n for n in RUNTIME if n != "mode" and n in _DEFAULT_LAW],
+    "other": [n for n in RUNTIME if n != "mode" and n not in _DEFAULT_LAW],
+}
+
+
+def test_controller_groups_cover_every_runtime_parameter():
+    covered = [n for names in CONTROLLER_GROUPS.values() for n in names]
+    assert sorted(covered) == sorted(RUNTIME) and len(covered) == len(set(covered))
+
+
+@pytest.mark.parametrize("group", list(CONTROLLER_GROUPS))
+def test_controller_runtime_parameters_take_effect(suite, group):
+    """Every parameter of the group, set through the parameter service, is in the driver's and
+    the position controller's set; the law is rebuilt (and its build read the parameter) iff
+    the mode or a parameter the law in force was built from changed; the current limits follow
+    the ``limits.*`` parameters.  Then the old values are set back the same way."""
     _, controller, _, probe = suite
-    p = CONTROLLER_SPEC.params[name]
-    value = changed_value(p)
+    names = CONTROLLER_GROUPS[group]
+    values = {n: changed_value(CONTROLLER_SPEC.params[n]) for n in names}
     with controller._lock:
-        law, old = controller.driver.controller.law, controller.driver.ps[name]
-        law_reads = name == "mode" or name in controller.driver.controller.law_params
+        law, old = controller.driver.controller.law, {n: controller.driver.ps[n] for n in names}
+        law_reads = {n: n == "mode" or n in controller.driver.controller.law_params for n in names}
+    problems = []
     try:
-        _set_controller(probe, controller, name, value)
+        problems += _set_all(probe, "controller", values)
+        _wait_swapped(probe, controller, f"group {group}")
         with controller._lock:
             ctl = controller.driver.controller
-            assert controller.driver.ps[name] == value and ctl.ps[name] == value
-            if law_reads:
-                assert ctl.law is not law and (name == "mode" or name in ctl.law_params)
-            else:
-                assert ctl.law is law
-            if name.startswith("limits."):
-                assert ctl.current_limits[0] == ctl.ps["limits.peak_current_a"]
+            for n, value in values.items():
+                if not (controller.driver.ps[n] == value and ctl.ps[n] == value):
+                    problems.append(f"{n}: set {value!r}, driver has {controller.driver.ps[n]!r}, "
+                                    f"position controller {ctl.ps[n]!r}")
+                if law_reads[n] and not (ctl.law is not law and (n == "mode" or n in ctl.law_params)):
+                    problems.append(f"{n}: the law was built from it but has not been rebuilt from it")
+                if not law_reads[n] and ctl.law is not law and not any(law_reads.values()):
+                    problems.append(f"{n}: the law does not read it but was replaced")
+                if n.startswith("limits.") and ctl.current_limits[0] != ctl.ps["limits.peak_current_a"]:
+                    problems.append(f"{n}: current limits not reconfigured ({ctl.current_limits})")
     finally:
-        _set_controller(probe, controller, name, old)
+        problems += [f"restoring {p}" for p in _set_all(probe, "controller", old)]
+        _wait_swapped(probe, controller, f"group {group} restored")
+    with controller._lock:
+        problems += [f"{n}: not restored to {v!r}" for n, v in old.items() if controller.driver.ps[n] != v]
+    assert not problems, "\n".join(problems)
 
 
-@pytest.mark.parametrize("name", _runtime(PLANT_SPEC))
-def test_plant_runtime_parameter_takes_effect(suite, name):
+def test_plant_runtime_parameters_take_effect(suite):
+    """Every run-time plant parameter, set in one request: the plant's set holds each, and the
+    physics kernel's packed parameter array is exactly what the new set packs to."""
     plant, _, _, probe = suite
-    value = changed_value(PLANT_SPEC.params[name])
-    old = plant.plant.params[name]
+    names = _runtime(PLANT_SPEC)
+    values = {n: changed_value(PLANT_SPEC.params[n]) for n in names}
+    old = {n: plant.plant.params[n] for n in names}
+    problems = []
     try:
-        _set(probe, "plant", name, value)
-        assert plant.plant.params[name] == value
+        problems += _set_all(probe, "plant", values)
+        problems += [f"{n}: set {v!r}, plant has {plant.plant.params[n]!r}"
+                     for n, v in values.items() if plant.plant.params[n] != v]
         packed = np.zeros_like(plant.plant.P)
         pack_parameters(plant.plant.params, packed)
-        np.testing.assert_array_equal(plant.plant.P, packed)
+        if not np.array_equal(plant.plant.P, packed):
+            problems.append(f"kernel parameters not repacked after setting {names}")
     finally:
-        _set(probe, "plant", name, old)
+        problems += [f"restoring {p}" for p in _set_all(probe, "plant", old)]
+    problems += [f"{n}: not restored to {v!r}" for n, v in old.items() if plant.plant.params[n] != v]
+    assert not problems, "\n".join(problems)
 
 
-@pytest.mark.parametrize("name", _runtime(DEMAND_NODE_SPEC))
-def test_demand_runtime_parameter_takes_effect(suite, name):
+def test_demand_runtime_parameters_take_effect(suite):
+    """Every run-time demand-node parameter, set in one request: the node's set holds each and
+    the profile was rebuilt."""
     _, _, demand, probe = suite
-    p = DEMAND_NODE_SPEC.params[name]
+    names = _runtime(DEMAND_NODE_SPEC)
     special = {"points": [0.0, 28.0, 1.0, 29.0], "csv_path": "unused_unless_profile_is_csv.csv"}
-    value = special[name] if name in special else changed_value(p)
-    old, profile = demand.ps[name], demand.profile
+    values = {n: special[n] if n in special else changed_value(DEMAND_NODE_SPEC.params[n]) for n in names}
+    if values.get("profile") == "csv":
+        values["profile"] = "sine"
+    old, profile = {n: demand.ps[n] for n in names}, demand.profile
+    problems = []
     try:
-        if name == "profile" and value == "csv":
-            value = "sine"
-        _set(probe, "demand", name, value)
-        assert demand.ps[name] == value and demand.profile is not profile
+        problems += _set_all(probe, "demand", values)
+        problems += [f"{n}: set {v!r}, the node has {demand.ps[n]!r}" for n, v in values.items() if demand.ps[n] != v]
+        if demand.profile is profile:
+            problems.append(f"the profile was not rebuilt after setting {names}")
     finally:
-        _set(probe, "demand", name, old)
+        problems += [f"restoring {p}" for p in _set_all(probe, "demand", old)]
+    problems += [f"{n}: not restored to {v!r}" for n, v in old.items() if demand.ps[n] != v]
+    assert not problems, "\n".join(problems)
 
 
 def test_invalid_values_are_rejected_and_change_nothing(suite):
