@@ -55,7 +55,8 @@ def test_node_parameters_carry_initial_state_demand_and_timing():
     assert nodes["plant"]["stop_after_s"] == 2.0 and plan.duration_s == 2.0
     hold = Plant(plan.plant_params).hold_at(angle)
     assert nodes["controller"]["initial_current_a"] == hold > 0
-    assert nodes["demand"] == {"profile": "step", "initial": 20.0, "final": 22.0, "at_s": 0.5, "lockstep": True}
+    assert nodes["demand"] == {"profile": "step", "initial": 20.0, "final": 22.0, "at_s": 0.5, "lockstep": True,
+                               "tick_period_s": 1.0 / plan.controller_params["loop_rate_hz"]}
     assert all(p["lockstep"] is True for p in nodes.values())
     rt = plan_run(sc, REAL_TIME).node_parameters()
     assert "stop_after_s" not in rt["plant"] and rt["plant"]["lockstep"] is False

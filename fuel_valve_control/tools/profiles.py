@@ -36,6 +36,7 @@ from typing import Any, Mapping
 
 import numpy as np
 from ..common.paramspec import RECORDED_TOPICS, ConfigError, Param, ParamSpec
+from ..core.params import CONTROLLER_SPEC
 
 # Start-up to core idle as in the field recordings (dissertation figs 2-1, 2-5): light-off
 # and acceleration with the demand moving between 23 and 28 % in ramps and steps, then
@@ -299,6 +300,11 @@ DEMAND_NODE_PARAMS = (
           choices=("percent", "ma"), runtime=True),
     Param("publish_rate_hz", 200.0, "Hz", "publish rate in real time", 1.0, 10000.0),
     Param("lockstep", False, "", "publish once per /clock tick (deterministic lockstep runs)"),
+    Param("tick_period_s", 1.0 / CONTROLLER_SPEC.params["loop_rate_hz"].default, "s",
+          "lockstep: the control period the /clock ticks step by; a tick stamp within 0.1 us of k "
+          "periods is evaluated at k * period, the time the offline simulator uses (the stamp's "
+          "nanoseconds differ from it in the last bit, and a stick-slip breakaway can amplify that)",
+          1e-5, 1.0),
     RECORDED_TOPICS,
 )
 DEMAND_NODE_SPEC = PROFILE_SPEC.extended(DEMAND_NODE_PARAMS)

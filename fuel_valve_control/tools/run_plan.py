@@ -119,6 +119,8 @@ class RunPlan:
             controller["initial_current_a"] = self.hold_current_a()
         for params in (plant, controller, demand):
             params["lockstep"] = self.lockstep
+        if self.lockstep:                  # the demand is evaluated on the loop's period grid
+            demand.setdefault("tick_period_s", 1.0 / self.controller_params["loop_rate_hz"])
         if self.lockstep:                  # an explicit override (0 = run until stopped) wins
             plant.setdefault("stop_after_s", self.duration_s)
         return {"plant": plant, "controller": controller, "demand": demand}
