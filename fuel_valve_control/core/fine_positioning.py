@@ -29,6 +29,28 @@ and learned from -- and a plateau on which pulses carried the valve across the t
 ``fine.max_crossings`` times is left alone: its moves are larger than the error, pulsing on
 would be hunting.
 
+Compared with the issue's prototype (measured with per-pulse traces, issue 14 task h14b):
+
+* the pulse as the servo realises it reaches only 60-75 % of its planned peak: the PULSE phase
+  starts its sin² blend at ``t = one period`` (the first rise period is skipped) and samples
+  the acceleration feed-forward at the period boundaries, where a two-period sin² rise has
+  none.  Fixed (first period at t = 0, feed-forward at the period's midpoint) the twist reaches
+  >= 93 % of plan -- but then, with the preload raised to just below the learned breakaway
+  (not capped at the final twist) and a staircase of 0.05 x the static band, pulses that break
+  the valve loose at an overdrive of ~0 still move it 1.7-1.9e-3 rad, and the nominal box got
+  worse (median 6.5e-4 .. 2e-3, p95 2.2-5e-3 over six variants, incl. a one-period full-current
+  retreat) -- so those changes are not in;
+* the floor is the retreat acceleration of the gear output at the instant of breakaway: a
+  two-mass model (K 480 N*m/rad, valve 1.76e-3 kg*m², excess Ts - Tc 1.1 N*m) released at the
+  apex of a parabola of retreat acceleration A gives a smallest move of 1.5 / 0.96 / 0.73 /
+  0.59e-3 rad for A = 1000 / 2000 / 3000 / 4000 rad/s² (3000 rad/s² at the gear output is the
+  whole 30 A), +0.4e-3 rad per 0.1e-3 rad of overdrive.  The prototype's 0.6e-3 rad therefore
+  needs the full current *already* reversed at the apex -- a torque doublet shaped against the
+  57 A/ms slew, not a position blend through a 60 Hz servo;
+* the breakaway level is drawn anew at every stop (scatter up to 8 % rms = 0.9e-3 rad of
+  twist at max Δp), so only a staircase of small steps (pulses that do not move the valve cost
+  nothing) bounds the overdrive.
+
 All learned quantities are twists in rad *relative to* the nominal model's prediction
 ``(load(θ) ± T(Δp)) / K_nom``, so they stay meaningful across positions; they are the
 :class:`FineLearner`, which can be saved to and loaded from a JSON file.
