@@ -117,8 +117,9 @@ class Launch:
         cleanly (exit code 0), without escalating to SIGTERM/SIGKILL on the way."""
         text = self.output()
         assert code == 0, text
+        ends = [line for line in text.splitlines() if "process has" in line or "escalating" in line]
         for node in nodes:
-            assert len(re.findall(rf"\[{node}-\d+\]: process has finished cleanly", text)) == valves, (node, text)
+            assert len(re.findall(rf"\[{node}-\d+\]: process has finished cleanly", text)) == valves, (node, ends, text[-4000:])
         assert "process has died" not in text, text
         assert "escalating to" not in text, text        # every node ended within launch's 5 s
 
