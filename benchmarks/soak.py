@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from fuel_valve_control.common.contract import DRIVE_STATE_ENABLED, STROKE_RAD, VALVE_JOINT  # noqa: E402
-from fuel_valve_control.tools.launcher import Launcher  # noqa: E402
+from fuel_valve_control.tools.launcher import Launcher, add_scheduling_arguments, scheduling_from_args  # noqa: E402
 from fuel_valve_control.tools.run_plan import LOCKSTEP, REAL_TIME, plan_run  # noqa: E402
 from fuel_valve_control.tools.scenarios import parse_scenario  # noqa: E402
 
@@ -184,7 +184,9 @@ def main() -> int:
     parser.add_argument("--reset-faults", action="store_true",
                         help="call the controller's ~/reset when it reports a latched fault (counted)")
     parser.add_argument("--keep", action="store_true", help="keep the run directory (logs, bag)")
+    add_scheduling_arguments(parser)        # the main job's defaults: the soak runs the product as shipped
     args = parser.parse_args()
+    scheduling = scheduling_from_args(args)
     domain = args.domain if args.domain is not None else int(os.environ.get("ROS_DOMAIN_ID") or random.randint(100, 200))
     env = dict(ROS_DOMAIN_ID=str(domain), PYTHONWARNINGS="ignore")
     ns = "/fuel_valve_soak"
@@ -193,7 +195,7 @@ def main() -> int:
     scenario = parse_scenario({"name": "soak", "duration_s": seconds, "demand": DEMAND})
     plan = plan_run(scenario, LOCKSTEP if args.lockstep else REAL_TIME, mode=args.mode)
     launcher = Launcher(plan, ns, run_dir=tmp, bag=tmp / "bag", bag_storage=args.storage, env=env,
-                        observers=1 if args.lockstep else 0)
+                        observers=1 if args.lockstep else 0, scheduling=scheduling)
     operator = None
     hogs = [subprocess.Popen([sys.executable, "-c", HOG]) for _ in range(args.cpu_hog)]
     rss: dict[str, list] = {n: [] for n in NODES}
@@ -272,6 +274,7 @@ def main() -> int:
         "valve_excess_max_pct": excess["excess_max_pct"], "valve_excess": excess,
         "bag_lost": rec["lost"], "bag_startup_lost": rec["startup_lost"], "bag_queue_dropped": rec["queue_dropped"], "bag_messages": rec["bag_messages"],
         "bag_topics": rec["topics"],
+        "scheduling": scheduling.describe(), "scheduling_refused": list(launcher.scheduling_refused),
     }
     print(f"soak {args.minutes:g} min {result['timing']}, {args.cpu_hog} CPU hog(s): died {died}, drive "
           f"disablements {len(disabled)}, plant watchdog trips {result['plant_watchdog_trips']}, controller "
