@@ -93,7 +93,18 @@ class StateFeedbackLaw(ControlLaw):
 
     def reset(self, meas, torque_nm, pressure_kpa):
         m = self.model
-        self.xo = self.x_now = np.array([meas.motor_rad / m.gear_ratio, 0.0, meas.valve_rad, 0.0, 0.0, 0.0])
+        th1 = meas.motor_rad / m.gear_ratio
+        # start the observer at rest *in equilibrium* with the measured angles and the present
+        # torque: the torques the nominal model does not explain (a coupling softer than the
+        # model reads as a larger twist torque, friction holding a valve the drive does not)
+        # start in the disturbance states.  Starting them at 0 made the observer's first
+        # periods accelerate both shafts by the unexplained torque: on a coupling of K x 0.1
+        # (flexible_worst) the motor estimate jumped to 250 rad/s and the command hit the peak
+        # limit (36.3 A in every state-feedback mode) before the valve had moved.
+        twist = m.coupling_stiffness_nm_per_rad * (th1 - meas.valve_rad)     # N*m, + winds toward open
+        d1 = m.gear_ratio * torque_nm - twist                                 # gear output, + toward closed
+        dl = twist - m.load_torque(meas.valve_rad, pressure_kpa)             # valve, + toward closed
+        self.xo = self.x_now = np.array([th1, 0.0, meas.valve_rad, 0.0, d1, dl])
         self.shaper.reset(meas.valve_rad)
         self._valve_history.clear()
         self.compensator.reset(m, pressure_kpa)
