@@ -136,7 +136,7 @@ def test_lqr_gain_is_the_riccati_optimum_and_stabilises():
     # cost x0' P x0 (P solved here by iterating the closed-loop Lyapunov sum)
     def cost(kvec, x0):
         acl = aa - ba @ kvec[None, :]
-        qq = np.diag(q) + r * np.outer(kvec, kvec)
+        qq = q + r * np.outer(kvec, kvec)
         p = np.zeros((5, 5))
         for _ in range(20000):
             p = qq + acl.T @ p @ acl

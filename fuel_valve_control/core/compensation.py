@@ -93,11 +93,15 @@ class FriedlandPark(Compensator):
     * adaptation runs only while the valve resolver itself shows sliding (``stuck_speed``) the
       way the estimate goes, so a stuck valve never teaches the observers its stiction reaction.
 
-    Known shortfall (measured, issue 14): holding at some positions (``load_step`` at 40 %) the
-    valve-velocity estimate of a stuck valve follows the motor through the coupling model, and
-    the ±Tc term signed by it sustains a ~20 Hz motor oscillation against the stuck valve that
-    shakes it loose now and then (7e-3 rad).  Gating the valve term on measured sliding removes
-    that but then the term comes too late to help a small step break away (54-160 % overshoot).
+    * the valve term acts only while the reference moves (a planned move, or a followed
+      demand faster than the boundary velocity): holding, the valve-velocity estimate of a
+      stuck valve follows the motor through the coupling model and a ±Tc term signed by it
+      kept a ~20 Hz motor oscillation going that shook the valve loose (observer_fc 9.6e-3 rad
+      in ``load_step``, 1.0e-2 in ``startup``) and, on a K x 0.1 coupling, a 300 rad/s one at
+      31-37 A (kalman_fc).  Holding, the integral action carries the friction.
+
+    Known shortfall (measured, issue 14): a 2 % step stops ~8e-3 rad short as the reference
+    decelerates and the integrator finishes it: observer_fc overshoots 22-23 %.
     """
 
     feeds_observer = False
@@ -121,7 +125,14 @@ class FriedlandPark(Compensator):
             self.motor.update(vm, wm)
             self.valve.update(ctx.wl, wv)
         fm = m.motor_inertia_kgm2 * self.motor.compensation(vm)
-        fv = m.valve_inertia_kgm2 * self.valve.compensation(ctx.wl)
+        # the valve term only while the reference moves (faster than one valve count per
+        # period when a demand is followed): then the estimated valve velocity is motion, not
+        # the stuck valve's estimate following the motor through the coupling model (holding
+        # with it on hunted: observer_fc load_step 9.6e-3 rad, startup 1.0e-2 rad).  Gating it
+        # on measured sliding instead came too late: the drive, already at breakaway, got +Tc
+        # on top (2 % step overshoot 150 %)
+        engaged = ctx.ref_moving or abs(ctx.ref_velocity) > self.valve.boundary_velocity
+        fv = m.valve_inertia_kgm2 * self.valve.compensation(ctx.wl) if engaged else 0.0
         return self.fraction * (fm + fv / m.gear_ratio), self.fraction * fm, self.fraction * fv
 
 

@@ -126,14 +126,19 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           0.3, 3.0),
     Param("observer.bandwidth_ratio", 12.0, "", "Luenberger observer poles as a multiple of the "
           "controller poles (each pole's natural frequency)", 1.0, 20.0),
-    Param("lqr.position_error_rad", 2e-3, "rad", "Bryson scale: acceptable valve position error", 1e-6, 1.0),
+    Param("lqr.position_error_rad", 1e-2, "rad", "Bryson scale: acceptable valve position error (1e-2: a 15 Hz / zeta 0.78 dominant pair, below the coupling mode even at K x 0.1 (28 Hz); 2e-3 gave 35 Hz, which a K x 0.1 coupling turned into a 37 A oscillation)", 1e-6, 1.0),
     Param("lqr.velocity_rad_s", 2.0, "rad/s", "Bryson scale: acceptable shaft velocities", 1e-3, 1000.0),
-    Param("lqr.twist_rad", 5e-3, "rad", "Bryson scale: acceptable coupling twist", 1e-6, 1.0),
-    Param("lqr.integral_rad_s", 2e-4, "rad*s", "Bryson scale: acceptable integrated error", 1e-9, 10.0),
+    Param("lqr.twist_rad", 5e-3, "rad", "Bryson scale: acceptable coupling twist theta1 - thetaL (weighted as "
+          "a twist: cross terms of the two angles)", 1e-6, 1.0),
+    Param("lqr.integral_rad_s", 5e-4, "rad*s", "Bryson scale: acceptable integrated error (5e-4: integrator "
+          "pole at 3.2 Hz)", 1e-9, 10.0),
     Param("lqr.current_a", 1.0, "A", "Bryson scale: acceptable current (1 A: a current weight 100x the "
           "former 10 A one; 10 A gave a ~7300 N*m/rad motor-angle gain and a 104 Hz pair at zeta 0.3 that "
           "sat at the 37 A limit)", 0.01, 40.0),
-    Param("kalman.torque_noise_nm", 2.0, "N*m", "process noise: unmodelled valve torque (friction)", 1e-6, 100.0),
+    Param("kalman.torque_noise_nm", 0.2, "N*m", "process noise: change of the unmodelled valve torque per loop "
+          "period, rms (0.2: the valve-velocity estimate's noise 0.046 rad/s rms, inside the Friedland-Park sign's "
+          "boundary layer of one count per period; 2 N*m made a 500 Hz filter with 0.18 rad/s that flipped the "
+          "friction term every period)", 1e-6, 100.0),
     Param("kalman.motor_torque_noise_nm", 0.01, "N*m", "process noise: unmodelled motor torque", 1e-9, 10.0),
     Param("kalman.measurement_counts", 0.5, "counts", "resolver noise incl. quantisation, rms counts",
           0.01, 100.0),
