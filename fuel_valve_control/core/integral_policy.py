@@ -66,9 +66,16 @@ class JumpLearner:
 
     The nominal jump ``2 (Ts - Tc)/K`` assumes nominal friction and coupling; a worn valve or
     a soft coupling (x 0.1 stiffness) jumps much further, and a deadband sized for the
-    nominal jump would then hunt.  Each hold-phase breakaway (stuck -> sliding -> stuck) gives
-    a measured jump; the ratio measured/nominal is tracked with gain ``gain``.  Moves shorter
-    than ``min_jump`` (three resolver counts) are reading noise and are ignored.
+    nominal jump would then hunt.  Each breakaway outside a planned move (stuck -> sliding ->
+    stuck) gives a measured jump; the ratio measured/nominal is tracked with gain ``gain``.
+    Moves shorter than ``min_jump`` (three resolver counts) are reading noise and are ignored.
+
+    The jump is the change of the *tracking error* (valve − reference) across the slide, not
+    the valve's travel: while the reference follows a ramp, the travel includes the ramp's,
+    and a 10 %/s ramp 50 -> 40 -> 50 % was read as a jump 11x the nominal one (a 28 mrad
+    deadband: the integrator froze and the valve stopped 1.7 % short).  Across a stick-slip
+    jump the error changes by the jump whether the reference holds or moves slowly; across
+    a slide that follows a ramp it changes by the lag only.
 
     The upper limit must cover the robustness box of SPEC §6: friction x 3 on a coupling
     x 0.1 jumps 30x the nominal jump at any Δp (a cap of 20 left that corner hunting at
@@ -91,16 +98,17 @@ class JumpLearner:
         self._stuck_at: float | None = None
         self._start: float | None = None
 
-    def update(self, valve: float, stuck: bool, holding: bool, nominal_jump: float) -> None:
+    def update(self, error: float, stuck: bool, holding: bool, nominal_jump: float) -> None:
+        """One period: ``error`` valve − reference (rad), whether the valve is ``stuck``,
+        ``holding`` (no planned move) and the ``nominal_jump`` (rad)."""
         if not holding:
             self._start = None
         elif not stuck and self._stuck_at is not None and self._start is None:
             self._start = self._stuck_at                      # broke away while holding
         elif stuck and self._start is not None:
-            jump = abs(valve - self._start)
+            jump = abs(error - self._start)
             if jump >= self.min_jump:
                 self.ratio += self.gain * (jump / nominal_jump - self.ratio)
             self.ratio = min(max(self.ratio, self.limits[0]), self.limits[1])
             self._start = None
-        self._stuck_at = valve if stuck else None
-
+        self._stuck_at = error if stuck else None

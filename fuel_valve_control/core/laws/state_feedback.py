@@ -147,7 +147,9 @@ class StateFeedbackLaw(ControlLaw):
         self.reference = ref
         stuck = abs(valve_speed) <= self.integral.stuck_speed
         nominal_jump = m.friction(pressure_kpa).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
-        self.jumps.update(meas.valve_rad, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad))
+        # the jump is read from the tracking error: while the reference follows a ramp the
+        # valve's travel is mostly the ramp's (issue 14: read as a jump, it froze the integrator)
+        self.jumps.update(meas.valve_rad - ref.position, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad))
         self.deadband = self.integral.deadband(m, pressure_kpa, self.jumps.ratio)
         error = ref.position - thl
         outside = abs(target - thl) > self.deadband and not ref.moving
