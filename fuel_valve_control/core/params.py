@@ -162,7 +162,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("trajectory.voltage_fraction", 0.95, "", "observer_ff, observer_fp: fraction of the SVPWM voltage "
           "circle (supply / sqrt 3) a planned move may use at its top speed against the worst known load and "
           "friction (the rest: the feedback's corrections and the current loop)", 0.1, 1.0, low_open=True),
-    Param("trajectory.current_fraction", 0.7, "", "observer_ff, observer_fp: fraction of "
+    Param("trajectory.current_fraction", 0.65, "", "observer_ff, observer_fp: fraction of "
           "limits.peak_current_a a planned move's peak acceleration may take against the worst known load "
           "and friction (the rest: the feedback's corrections; issue 14 target <= 30 A)", 0.05, 1.0,
           low_open=True),

@@ -173,7 +173,7 @@ class PositionController:
                           ps["seat.torque_nm"], m.stroke_rad)
         main = StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode, ps),
                                 seating, speed_window=ps["ff.speed_window_periods"],
-                                delay_periods=int(round(ps["resolver_delay_s"] / period)))
+                                delay_periods=int(round(ps["resolver_delay_s"] / period)), v2=not legacy)
         if mode != "observer_fp":
             return main
         return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner))
