@@ -174,11 +174,11 @@ HOLD_SHORTFALLS = {
         "stops 3.5e-3 rad from the demand (band 2.3e-3) since the planned moves' limits are designed "
         "from the drive's voltage and current (issue 14, h14c: 1270 rad/s^2 instead of 600): the faster "
         "arrival on this soft coupling (x0.1, outside the v2 box x0.3...1) sticks farther off; not yet traced",
-    _corner(friction=0.5, inertia=0.8):
-        "stops 3.1e-3 rad from the demand, beyond this low-friction plant's jump + 2 counts "
-        "(2.5e-3 rad): the integrator deadband is sized from the controller's nominal friction "
-        "(0.55 x the 4.6e-3 rad nominal jump at max Δp), wider than this plant's own jump; "
-        "no hunting (p-p 0)",
+    _corner(friction=0.5, dp=0.0, inertia=1.2):
+        "stops 1.5e-3 rad from the demand (target 1e-3) since the planned moves' limits are designed "
+        "from the drive's voltage and current (issue 14, h14c): where the faster arrival sticks inside "
+        "the integrator deadband is a coin flip of the stick-slip (the F x0.5 J x0.8 corner at max Δp, "
+        "3.1e-3 rad before, now passes); no hunting",
 }
 
 _FF_LOW = ("the friction feed-forward is scheduled on the nominal friction and a 2 % step is too short "
