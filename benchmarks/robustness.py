@@ -166,10 +166,13 @@ def plant_overrides(case: dict) -> dict:
 def controller_knowledge(case: dict) -> dict:
     """What the controller is told about the operating point besides its Δp input (which the
     plant's biased or silent transducer carries, :func:`plant_overrides`): the fallback a
-    missing Δp reading falls back to, and the measured resolver delay."""
+    missing Δp reading falls back to, the measured resolver delay and the supply voltage the
+    drive measures on its DC bus (planned moves are designed for it)."""
     told = {"pressure.fallback_kpa": case["dp_told_kpa"]} if case["dp_kind"] == "missing" else {}
     if "resolver_delay_s" in CONTROLLER_SPEC.params:
         told["resolver_delay_s"] = case["resolver_delay_s"]
+    if "drive.supply_voltage_v" in CONTROLLER_SPEC.params:
+        told["drive.supply_voltage_v"] = case["supply_v"]
     return told
 
 

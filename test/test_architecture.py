@@ -151,6 +151,8 @@ def test_nominal_model_agrees_with_the_plant_data_sheet_values():
         "valve_coulomb_nm": "friction.valve.coulomb_nm",
         "valve_coulomb_per_dp_nm": "friction.valve.coulomb_per_dp_nm",
         "valve_static_nm": "friction.valve.static_nm", "valve_static_per_dp_nm": "friction.valve.static_per_dp_nm",
+        "motor_pole_pairs": "motor.pole_pairs", "motor_resistance_ohm": "motor.resistance_ohm",
+        "motor_lq_h": "motor.lq_h",
     }
     model_keys = {k.split(".", 1)[1] for k in c if k.startswith("model.")}
     assert model_keys == set(pairs) | {"torque_constant_nm_per_a"}, "a model.* entry has no data-sheet pair here"

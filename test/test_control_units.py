@@ -149,6 +149,46 @@ def test_lqr_gain_is_the_riccati_optimum_and_stabilises():
 
 
 # ----------------------------------------------------------------------------- PI(D) loop shape
+def _drive_voltage(model, valve_speed, current):
+    """dq voltage amplitude written out here (not the shared helper): R i + ωe ψ on q,
+    ωe Lq i on d, ωe = p N v, ψ = Kt / (1.5 p)."""
+    we = model.motor_pole_pairs * model.gear_ratio * valve_speed
+    psi = model.torque_constant_nm_per_a / (1.5 * model.motor_pole_pairs)
+    return math.hypot(model.motor_resistance_ohm * current + we * psi, we * model.motor_lq_h * current)
+
+
+@pytest.mark.parametrize("supply", [18.0, 28.0, 32.0])
+def test_trajectory_design_plans_within_the_drives_voltage_and_current(supply):
+    frac_i, frac_v = PS["trajectory.current_fraction"], PS["trajectory.voltage_fraction"]
+    lim = design.design_trajectory(MODEL, supply, PS["limits.peak_current_a"], frac_i, frac_v)
+    kt_n = MODEL.torque_constant_nm_per_a * MODEL.gear_ratio
+    viscous = MODEL.valve_viscous_nms + MODEL.b1
+    circle = supply / math.sqrt(3.0)
+    # cruising at the top speed against the worst known load uses the voltage fraction exactly
+    cruise = (viscous * lim.max_velocity_rad_s + lim.resisting_torque_nm) / kt_n
+    assert _drive_voltage(MODEL, lim.max_velocity_rad_s, cruise) == pytest.approx(frac_v * circle, rel=1e-6)
+    # the peak acceleration takes at most the planned current against that load ...
+    assert (MODEL.total_inertia * lim.max_acceleration_rad_s2 + lim.resisting_torque_nm) / kt_n \
+        <= frac_i * PS["limits.peak_current_a"] * (1 + 1e-9)
+    # ... and the whole sin² acceleration phase stays inside the voltage circle
+    s = np.linspace(0.0, 1.0, 401)
+    v = lim.max_velocity_rad_s * (s - np.sin(2 * np.pi * s) / (2 * np.pi))
+    i = (MODEL.total_inertia * lim.max_acceleration_rad_s2 * np.sin(np.pi * s) ** 2 + viscous * v
+         + lim.resisting_torque_nm) / kt_n
+    assert max(_drive_voltage(MODEL, vk, ik) for vk, ik in zip(v, i)) <= circle * (1 + 1e-3)
+
+
+def test_trajectory_top_speed_follows_the_supply():
+    speeds = [design.design_trajectory(MODEL, u, PS["limits.peak_current_a"], PS["trajectory.current_fraction"],
+                                       PS["trajectory.voltage_fraction"]).max_velocity_rad_s for u in (18, 24, 28, 32)]
+    assert speeds == sorted(speeds) and speeds[0] < 0.7 * speeds[2]
+
+
+def test_trajectory_design_refuses_a_current_budget_below_the_load():
+    with pytest.raises(design.ConfigError, match="cannot move the worst known load"):
+        design.design_trajectory(MODEL, 28.0, PS["limits.peak_current_a"], 0.2, 0.95)
+
+
 def test_pi_design_gives_crossover_and_phase_margin_on_the_nominal_plant():
     g = design.design_pid(MODEL, T, PS["pi.crossover_hz"], PS["pi.phase_margin_deg"],
                           PS["pi.integral_corner_ratio"], PS["pi.derivative_filter_ratio"])

@@ -209,9 +209,9 @@ LAW_KEYS = {mode: PositionController(CONTROLLER_SPEC.defaults().replace({"mode":
 KNOWN_OVERSHOOT = [("design.bandwidth_hz", 0.5), ("design.damping", 0.2), ("design.resonance_damping", 1.0),
                    ("design.resonance_frequency_ratio", 3.0), ("observer.bandwidth_ratio", 1.0),
                    ("integral.stuck_ramp_time_s", 0.001), ("fine.servo_hz", 200.0), ("model.gear_ratio", 1000.0),
-                   ("model.spring_preload_nm", 200.0), ("model.flow_torque_max_nm", 50.0),
-                   ("model.stroke_rad", 3.2), ("model.valve_coulomb_nm", 100.0),
-                   ("model.valve_coulomb_per_dp_nm", 100.0)]
+                   ("model.stroke_rad", 3.2)]
+# (spring preload 200, flow torque 50, valve Coulomb 100 / per Δp 100 N*m: refused at start since
+# the planned moves are designed from the drive's current, which cannot move such a load)
 
 
 @pytest.mark.slow

@@ -17,6 +17,7 @@ import numpy as np
 from scipy.linalg import solve_discrete_are
 from scipy.signal import place_poles
 
+from ..common.drive import steady_voltage, voltage_limit
 from ..common.paramspec import ConfigError
 
 from .model import NominalModel
@@ -182,6 +183,89 @@ def kalman_gain(ad: np.ndarray, g: np.ndarray, cm: np.ndarray, q: np.ndarray, r:
     with ``P`` the a-priori covariance from the dual Riccati equation."""
     p = solve_discrete_are(ad.T, cm.T, g @ q @ g.T, r)
     return p @ cm.T @ np.linalg.inv(cm @ p @ cm.T + r)
+
+
+# ------------------------------------------------------------------------------ planned moves
+@dataclass(frozen=True)
+class TrajectoryLimits:
+    """Speed and peak acceleration of planned moves (valve side, rad/s and rad/s²) and what
+    they were designed against: the worst known resisting torque (valve side, N*m), the
+    current the peak acceleration takes against it (A) and the voltage budget (V)."""
+
+    max_velocity_rad_s: float
+    max_acceleration_rad_s2: float
+    resisting_torque_nm: float
+    planned_current_a: float
+    voltage_budget_v: float
+
+
+def worst_resisting_torque(model: NominalModel) -> float:
+    """Largest torque (valve side, N*m) the model knows to oppose an opening move: return
+    spring + flow torque at maximum Δp over the stroke plus the drivetrain's Coulomb friction
+    there (valve + N x motor)."""
+    pmax = model.pressure_max_kpa
+    load = max(model.load_torque(x, pmax) for x in np.linspace(0.0, model.stroke_rad, 65))
+    lv = model.friction(pmax)
+    return load + lv.valve_coulomb_nm + model.gear_ratio * lv.motor_coulomb_nm
+
+
+def design_trajectory(model: NominalModel, supply_voltage_v: float, peak_current_a: float,
+                      current_fraction: float, voltage_fraction: float) -> TrajectoryLimits:
+    """Limits of the planned moves (sin²-shaped acceleration phases, :mod:`.trajectory`) from
+    the drive's ratings and the supply it runs from.
+
+    The dq voltage the drive needs at valve speed ``v`` with q current ``i`` is the resistive
+    drop plus the back-EMF ``ωe ψf`` and the cross-coupling ``ωe Lq i``
+    (:func:`~fuel_valve_control.common.drive.steady_voltage`, ``ωe = p N v``); the inverter
+    gives at most ``Vdc / sqrt 3``.  The current a move needs is that for inertia
+    ``(JL + N² Jm) a`` + viscous + the worst resisting torque (:func:`worst_resisting_torque`).
+
+    * Top speed: the fastest cruise that needs no more than ``voltage_fraction`` of the circle
+      (the rest stays for the feedback's corrections): it follows the supply, so at 18 V a
+      move plans slower instead of asking for a voltage the drive does not have (its current
+      loop would saturate and the valve fall behind the plan).
+    * Peak acceleration: the smaller of what ``current_fraction * peak_current_a`` gives
+      against the worst resisting torque and what keeps the whole acceleration phase up to
+      the top speed inside the full circle (resistive drop and cross-coupling grow with the
+      current; at a low supply this binds).
+
+    Raises :class:`ConfigError` when the budget cannot hold the worst load."""
+    n, kt = model.gear_ratio, model.torque_constant_nm_per_a
+    resist = worst_resisting_torque(model)
+    current = current_fraction * peak_current_a
+    inertia = model.total_inertia
+    a_current = (kt * n * current - resist) / inertia
+    circle = voltage_limit(supply_voltage_v)
+    budget = voltage_fraction * circle
+    viscous = model.valve_viscous_nms + model.b1
+    s = np.linspace(0.0, 1.0, 101)                         # fraction of an acceleration phase
+    shape_v = s - np.sin(2.0 * np.pi * s) / (2.0 * np.pi)   # v / v_top through a sin² phase
+    shape_a = np.sin(np.pi * s) ** 2                        # a / a_peak
+
+    def worst_voltage(v_top: float, a_peak: float) -> float:
+        v = v_top * shape_v
+        i = (inertia * a_peak * shape_a + viscous * v + resist) / (kt * n)
+        return max(steady_voltage(n * vk, ik, model.motor_resistance_ohm, model.motor_lq_h,
+                                  model.motor_pole_pairs, kt) for vk, ik in zip(v, i))
+
+    if a_current <= 0.0 or worst_voltage(0.0, 0.0) >= budget:
+        raise ConfigError(f"controller: {current:.3g} A (trajectory.current_fraction x limits.peak_current_a) "
+                          f"at {supply_voltage_v:g} V cannot move the worst known load "
+                          f"({resist:.3g} N*m at the valve)")
+
+    def largest(ok, hi: float) -> float:
+        """Bisection for the largest x in [0, hi] with ok(x) (ok holds at 0, fails beyond)."""
+        lo = 0.0
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+        return lo
+
+    # back-EMF alone uses the whole budget at budget / (ψf p N)
+    v_top = largest(lambda v: worst_voltage(v, 0.0) <= budget, budget / (kt / 1.5) / n)
+    a_max = a_current if worst_voltage(v_top, a_current) <= circle else \
+        largest(lambda a: worst_voltage(v_top, a) <= circle, a_current)
+    return TrajectoryLimits(v_top, float(a_max), float(resist), current, budget)
 
 
 def _place(a: np.ndarray, b: np.ndarray, poles: np.ndarray) -> np.ndarray:

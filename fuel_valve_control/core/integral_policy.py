@@ -66,9 +66,18 @@ class JumpLearner:
 
     The nominal jump ``2 (Ts - Tc)/K`` assumes nominal friction and coupling; a worn valve or
     a soft coupling (x 0.1 stiffness) jumps much further, and a deadband sized for the
-    nominal jump would then hunt.  Each hold-phase breakaway (stuck -> sliding -> stuck) gives
-    a measured jump; the ratio measured/nominal is tracked with gain ``gain``.  Moves shorter
-    than ``min_jump`` (three resolver counts) are reading noise and are ignored.
+    nominal jump would then hunt.  Each breakaway outside a planned move (stuck -> sliding ->
+    stuck) gives a measured jump; the ratio measured/nominal is tracked with gain ``gain``.
+    Moves shorter than ``min_jump`` (three resolver counts) are reading noise and are ignored.
+
+    The jump is the change of the *tracking error* (valve − reference) across the slide, not
+    the valve's travel: while the reference follows a ramp, the travel includes the ramp's,
+    and a 10 %/s ramp 50 -> 40 -> 50 % was read as a jump 11x the nominal one (a 28 mrad
+    deadband: the integrator froze and the valve stopped 1.7 % short).  Across a stick-slip
+    jump the error changes by the jump whether the reference holds or moves slowly; across
+    a slide that follows a ramp it changes by the lag only.  (The caller chooses the frame:
+    the default law's v2 hands the tracking error, the other state-feedback modes the valve
+    angle, as before.)
 
     The upper limit must cover the robustness box of SPEC §6: friction x 3 on a coupling
     x 0.1 jumps 30x the nominal jump at any Δp (a cap of 20 left that corner hunting at
@@ -103,10 +112,11 @@ class JumpLearner:
 
     def update(self, valve: float, stuck: bool, holding: bool, nominal_jump: float,
                target: float | None = None, band: float = 0.0, driven: bool = True) -> None:
-        """One period: valve angle (rad), at rest or not, holding (no planned move), the nominal
-        jump (rad); ``driven``: the drive's torque could have broken the valve loose (read when
-        it does), ``target`` and ``band`` (rad): the target and the deadband in force, for the
-        end of a displacement (class docstring)."""
+        """One period: ``valve`` the angle the jump is read from (rad: the valve angle, or the
+        tracking error valve − reference, see the class docstring), at rest or not, holding (no
+        planned move), the nominal jump (rad); ``driven``: the drive's torque could have broken
+        the valve loose (read when it does), ``target`` (in the same frame as ``valve``) and
+        ``band`` (rad): the target and the deadband in force, for the end of a displacement."""
         if not holding:
             self._start = None
             self.disturbed = False

@@ -49,6 +49,9 @@ class NominalModel:
     valve_coulomb_per_dp_nm: float
     valve_static_nm: float
     valve_static_per_dp_nm: float
+    motor_pole_pairs: float
+    motor_resistance_ohm: float
+    motor_lq_h: float
 
     @classmethod
     def from_params(cls, ps) -> "NominalModel":

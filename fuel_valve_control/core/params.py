@@ -153,10 +153,24 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "relaxes to the middle of the static-friction band (0 = off)", 0.0, 100.0, runtime=True),
     Param("integral.deadband_min_rad", 2.9e-4, "rad", "smallest deadband (3 valve resolver counts)",
           0.0, 0.05, runtime=True),
+    # --- the drive's supply (planned moves are designed for it, core/design.design_trajectory)
+    Param("drive.supply_voltage_v", 28.0, "V", "DC bus voltage of the drive (data sheet 18-32 V; set it to the "
+          "configured or measured supply): observer_ff/observer_fp plan moves no faster than the back-EMF it "
+          "leaves room for, so at 18 V a move slows down instead of saturating the voltage", 18.0, 32.0,
+          runtime=True),
     # --- reference trajectory for large demand changes -------------------------------------
-    Param("trajectory.max_velocity_rad_s", 11.0, "rad/s", "slew rate of planned moves", 0.01, 100.0),
-    Param("trajectory.max_acceleration_rad_s2", 600.0, "rad/s^2", "acceleration of planned moves",
-          1.0, 1e5),
+    Param("trajectory.max_velocity_rad_s", 11.0, "rad/s", "observer, observer_fc, kalman_fc, fc_gain: slew rate "
+          "of planned moves (observer_ff, observer_fp: designed, trajectory.voltage_fraction)", 0.01, 100.0),
+    Param("trajectory.max_acceleration_rad_s2", 600.0, "rad/s^2", "observer, observer_fc, kalman_fc, fc_gain: "
+          "peak acceleration of planned moves (observer_ff, observer_fp: designed, "
+          "trajectory.current_fraction)", 1.0, 1e5),
+    Param("trajectory.voltage_fraction", 0.95, "", "observer_ff, observer_fp: fraction of the SVPWM voltage "
+          "circle (supply / sqrt 3) a planned move may use at its top speed against the worst known load and "
+          "friction (the rest: the feedback's corrections and the current loop)", 0.1, 1.0, low_open=True),
+    Param("trajectory.current_fraction", 0.65, "", "observer_ff, observer_fp: fraction of "
+          "limits.peak_current_a a planned move's peak acceleration may take against the worst known load "
+          "and friction (the rest: the feedback's corrections; issue 14 target <= 30 A)", 0.05, 1.0,
+          low_open=True),
     Param("trajectory.step_threshold_rad", 0.005, "rad", "demand changes larger than this in one period "
           "are planned as moves", 0.0, 2.0),
     Param("trajectory.min_move_time_s", 0.02, "s", "planned moves last at least this long (lower "
@@ -325,6 +339,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     _nominal("motor_viscous_nms", 2.6e-5, "N*m*s/rad", "rotor viscous friction Bm", 0.0, 1.0),
     Param("model.torque_constant_nm_per_a", 1.5 * _POLE_PAIRS * _FLUX_LINKAGE_WB,
           "N*m/A", "motor torque per q-axis ampere, 1.5 p psi_f", 0.0, 10.0, low_open=True),
+    # the drive's voltage budget (planned moves' speed, core/design.design_trajectory)
+    _nominal("motor_pole_pairs", float(_POLE_PAIRS), "", "pole pairs p", 1.0, 32.0),
+    _nominal("motor_resistance_ohm", 0.15, "ohm", "stator phase resistance R", 0.0, 10.0),
+    _nominal("motor_lq_h", 0.28e-3, "H", "q-axis inductance Lq", 0.0, 1.0, low_open=True),
     _nominal("gear_ratio", 48.019, "", "gear ratio N", 1.0, 1000.0),
     _nominal("coupling_stiffness_nm_per_rad", 480.0, "N*m/rad", "coupling stiffness K", 0.0, 1e6, low_open=True),
     _nominal("coupling_damping_nms", 0.05, "N*m*s/rad", "coupling damping c", 0.0, 100.0),

@@ -148,8 +148,13 @@ class PositionController:
         # the slope median delays the followed velocity one sample, the demand conditioning's
         # median one more
         follow_lead = 0.0 if legacy else period * (2.0 if ps["demand.conditioning"] else 1.0)
-        shaper = TrajectoryShaper(period, ps["trajectory.max_velocity_rad_s"],
-                                  ps["trajectory.max_acceleration_rad_s2"], ps["trajectory.step_threshold_rad"],
+        if legacy:      # the dissertation's modes and fc_gain keep the limits they were measured with
+            v_max, a_max = ps["trajectory.max_velocity_rad_s"], ps["trajectory.max_acceleration_rad_s2"]
+        else:           # designed from the drive's voltage and current ratings at the supply it runs from
+            lim = design.design_trajectory(m, ps["drive.supply_voltage_v"], ps["limits.peak_current_a"],
+                                           ps["trajectory.current_fraction"], ps["trajectory.voltage_fraction"])
+            v_max, a_max = lim.max_velocity_rad_s, lim.max_acceleration_rad_s2
+        shaper = TrajectoryShaper(period, v_max, a_max, ps["trajectory.step_threshold_rad"],
                                   ps["trajectory.velocity_filter_s" if legacy else "trajectory.follow_filter_s"],
                                   ps["trajectory.min_move_time_s"], ps["trajectory.feedforward_lead_s"],
                                   follow_acceleration=not legacy, follow_lead=follow_lead)
@@ -168,7 +173,7 @@ class PositionController:
                           ps["seat.torque_nm"], m.stroke_rad)
         main = StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode, ps),
                                 seating, speed_window=ps["ff.speed_window_periods"],
-                                delay_periods=int(round(ps["resolver_delay_s"] / period)))
+                                delay_periods=int(round(ps["resolver_delay_s"] / period)), v2=not legacy)
         if mode != "observer_fp":
             return main
         return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner))

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-SQRT3 = math.sqrt(3.0)
+from fuel_valve_control.common.drive import voltage_limit  # noqa: F401  (one relation, shared with the controller)
 
 
 @dataclass(frozen=True)
@@ -33,11 +33,6 @@ class MotorConstants:
     def torque(self, i_d: float, i_q: float) -> float:
         """Electromagnetic torque, N*m (eq. 2-28)."""
         return 1.5 * self.pole_pairs * (self.flux_linkage_wb + (self.ld_h - self.lq_h) * i_d) * i_q
-
-
-def voltage_limit(supply_voltage_v: float) -> float:
-    """Largest dq voltage amplitude an SVPWM inverter produces from the DC bus, V."""
-    return supply_voltage_v / SQRT3
 
 
 def current_pi_gains(inductance_h: float, resistance_ohm: float, bandwidth_hz: float) -> tuple[float, float]:

@@ -44,8 +44,13 @@ class StateFeedbackLaw(ControlLaw):
 
     def __init__(self, name: str, model: NominalModel, period_s: float, feedback: StateFeedback,
                  observer_gain: np.ndarray, shaper: TrajectoryShaper, integral: IntegralPolicy,
-                 compensator: Compensator, seating: Seating, speed_window: int = 4, delay_periods: int = 0):
+                 compensator: Compensator, seating: Seating, speed_window: int = 4, delay_periods: int = 0,
+                 v2: bool = False):
         self.name = name
+        #: issue 14 (h14c) behaviour of the v2 modes (observer_ff, observer_fp): breakaway jumps
+        #: read from the tracking error, a settled relax not reset by speed-estimate flicker;
+        #: the dissertation's modes and fc_gain keep what they were measured with
+        self.v2 = v2
         self.model = model
         self.period = period_s
         self.fb = feedback
@@ -164,8 +169,11 @@ class StateFeedbackLaw(ControlLaw):
         # loose by something else
         drive_nm = n * self._applied - m.load_torque(thl, pressure_kpa) - self.held_load
         driven = abs(drive_nm) >= 0.5 * self.integral.load_static_fraction * m.friction(pressure_kpa).valve_static_nm
-        self.jumps.update(meas.valve_rad, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad),
-                          target, self.deadband, driven)
+        # v2: the jump is read from the tracking error: while the reference follows a ramp the
+        # valve's travel is mostly the ramp's (issue 14: read as a jump, it froze the integrator)
+        frame = ref.position if self.v2 else 0.0
+        self.jumps.update(meas.valve_rad - frame, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad),
+                          target - frame, self.deadband, driven)
         self.deadband = self.integral.deadband(m, pressure_kpa, self.jumps.ratio)
         error = ref.position - thl
         outside = abs(target - thl) > self.deadband and not ref.moving
@@ -203,7 +211,12 @@ class StateFeedbackLaw(ControlLaw):
             if self._relax_periods * self.period >= self.integral.settle_time_s:
                 self._slip = (net, meas.valve_rad)      # where and with what drive it had settled
             self._pending = -(net - self.held_load) / n * self.period / self.integral.relax_time_s / self.fb.ki
-        if not relaxing:
+        if (outside or ref.moving) if self.v2 else not relaxing:
+            # a settled valve stays settled through a period the speed estimate calls moving:
+            # with ~1 count rms resolver noise the 4-period speed flickers across the stuck
+            # threshold, the count never reached settle_time, a load beyond the static friction
+            # was never learned from its slips and the relax let it slip again and again
+            # (campaign seed 1019: 9.3 N*m, 116-count hunting on the final hold; none now)
             self._relax_periods = 0
         if outside:
             self._pending = self.period * error
