@@ -11,6 +11,7 @@ instead of starving the loop into timeouts.  (Silence cannot be tested that way:
 loop waits for the demand and the resolver instead of timing out.)"""
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 
@@ -253,3 +254,46 @@ class Probe:
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
         self._thread.join(timeout=2.0)
+
+
+@contextlib.contextmanager
+def in_process_lockstep(namespace: str, plant: dict, controller: dict, demand: dict, ready, what: str):
+    """Plant, controller and demand node in this process, in lockstep (deterministic, robust
+    under CPU load) on one executor thread, with a :class:`Probe` in a separate context (as
+    ``ros2 param set`` would be).  ``plant`` / ``controller`` / ``demand``: parameter
+    overrides (lockstep and the sim-time wiring are added; the controller's
+    ``initial_current_a`` defaults to the plant's hold current); waits for
+    ``ready(plant, controller)`` up to 60 s, then yields ``(plant, controller, demand, probe)``."""
+    from rclpy.parameter import Parameter
+
+    from fuel_valve_control.ros.controller_node import ControllerNode
+    from fuel_valve_control.ros.demand_node import DemandNode
+    from fuel_valve_plant.ros.plant_node import PlantNode
+
+    def params(values):
+        return [Parameter(k, value=v) for k, v in values.items()]
+
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    common = {"context": context, "namespace": namespace}
+    plant_node = PlantNode(**common, parameter_overrides=params({"lockstep": True, "lockstep_participants": 2, **plant}))
+    controller_node = ControllerNode(**common, parameter_overrides=params(
+        {"lockstep": True, "use_sim_time": True, "initial_current_a": plant_node._iq, **controller}))
+    demand_node = DemandNode(**common, parameter_overrides=params({"lockstep": True, "use_sim_time": True, **demand}))
+    nodes = (plant_node, controller_node, demand_node)
+    executor = SingleThreadedExecutor(context=context)
+    for node in nodes:
+        executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    probe = Probe(namespace)
+    try:
+        probe.wait_for(lambda: ready(plant_node, controller_node), 60.0, what)
+        yield plant_node, controller_node, demand_node, probe
+    finally:
+        probe.close()
+        executor.shutdown(timeout_sec=2.0)
+        for node in nodes:
+            node.destroy_node()
+        rclpy.shutdown(context=context)
+        thread.join(timeout=2.0)

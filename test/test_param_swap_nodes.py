@@ -11,7 +11,6 @@ ROS-free detail (atomicity, the swap policy): test_param_swap.py.
 """
 from __future__ import annotations
 
-import threading
 import time
 
 import pytest
@@ -20,52 +19,22 @@ pytestmark = [pytest.mark.ros]
 
 rclpy = pytest.importorskip("rclpy")
 
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
 
-from ros_probe import Probe  # noqa: E402
+from ros_probe import in_process_lockstep  # noqa: E402
 
 NS = "/swap"
-
-
-def _params(**values):
-    return [Parameter(k, value=v) for k, v in values.items()]
 
 
 @pytest.fixture
 def moving():
     """Plant, controller (observer_ff) and demand node in lockstep, the valve following a
     40 ± 10 % sine at 1 Hz (always moving); the probe sets parameters."""
-    from fuel_valve_control.ros.controller_node import ControllerNode
-    from fuel_valve_control.ros.demand_node import DemandNode
-    from fuel_valve_plant.ros.plant_node import PlantNode
-
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    common = {"context": context, "namespace": NS}
-    plant = PlantNode(**common, parameter_overrides=_params(
-        lockstep=True, lockstep_participants=2, initial_position_rad=0.4 * 1.0472, start_held=True))
-    controller = ControllerNode(**common, parameter_overrides=_params(
-        lockstep=True, use_sim_time=True, initial_current_a=plant._iq, mode="observer_ff"))
-    demand = DemandNode(**common, parameter_overrides=_params(
-        lockstep=True, use_sim_time=True, profile="sine", offset=40.0, amplitude=10.0, frequency_hz=1.0))
-    executor = SingleThreadedExecutor(context=context)
-    for node in (plant, controller, demand):
-        executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    probe = Probe(NS)
-    try:
-        probe.wait_for(lambda: controller.driver is not None and controller.driver.last.state == "running",
-                       60.0, "the lockstep loop running")
+    with in_process_lockstep(
+            NS, dict(initial_position_rad=0.4 * 1.0472, start_held=True), dict(mode="observer_ff"),
+            dict(profile="sine", offset=40.0, amplitude=10.0, frequency_hz=1.0),
+            lambda plant, controller: controller.driver is not None and controller.driver.last.state == "running",
+            "the lockstep loop running") as (_, controller, _, probe):
         yield controller, probe
-    finally:
-        probe.close()
-        executor.shutdown(timeout_sec=2.0)
-        for node in (plant, controller, demand):
-            node.destroy_node()
-        rclpy.shutdown(context=context)
-        thread.join(timeout=2.0)
 
 
 def test_a_parameter_change_during_motion_swaps_at_a_period_boundary_and_a_refused_one_changes_nothing(moving):

@@ -17,7 +17,6 @@ ROS-free detail (which law reads what, behaviour changes, bumpless transfer): te
 """
 from __future__ import annotations
 
-import threading
 
 import numpy as np
 import pytest
@@ -26,10 +25,8 @@ pytestmark = [pytest.mark.ros]
 
 rclpy = pytest.importorskip("rclpy")
 
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
 
-from ros_probe import Probe  # noqa: E402
+from ros_probe import in_process_lockstep  # noqa: E402
 
 from fuel_valve_control.core.params import CONTROLLER_SPEC  # noqa: E402
 from fuel_valve_control.core.driver import PRESSURE_INPUT  # noqa: E402
@@ -41,43 +38,14 @@ from test_runtime_params import LAW_KEYS, RUNTIME, changed_value  # noqa: E402
 NS = "/params"
 
 
-def _params(**values):
-    return [Parameter(k, value=v) for k, v in values.items()]
-
-
 @pytest.fixture(scope="module")
 def suite():
-    from fuel_valve_control.ros.controller_node import ControllerNode
-    from fuel_valve_control.ros.demand_node import DemandNode
-    from fuel_valve_plant.ros.plant_node import PlantNode
-
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    common = {"context": context, "namespace": NS}
-    plant = PlantNode(**common, parameter_overrides=_params(
-        lockstep=True, lockstep_participants=2, initial_position_rad=0.3, start_held=True,
-        **{"pressure_sensor.noise_kpa": 0.0}))
-    controller = ControllerNode(**common, parameter_overrides=_params(
-        lockstep=True, use_sim_time=True, initial_current_a=plant._iq))
-    demand = DemandNode(**common, parameter_overrides=_params(
-        lockstep=True, use_sim_time=True, profile="constant", percent=28.65))
-    executor = SingleThreadedExecutor(context=context)
-    for node in (plant, controller, demand):
-        executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    probe = Probe(NS)
-    try:
-        probe.wait_for(lambda: controller.driver.last.state == "running" and controller.driver.pressure_kpa > 0,
-                       60.0, "the lockstep loop running with the measured Δp")
-        yield plant, controller, demand, probe
-    finally:
-        probe.close()
-        executor.shutdown(timeout_sec=2.0)
-        for node in (plant, controller, demand):
-            node.destroy_node()
-        rclpy.shutdown(context=context)
-        thread.join(timeout=2.0)
+    with in_process_lockstep(
+            NS, {"initial_position_rad": 0.3, "start_held": True, "pressure_sensor.noise_kpa": 0.0}, {},
+            dict(profile="constant", percent=28.65),
+            lambda plant, controller: controller.driver.last.state == "running" and controller.driver.pressure_kpa > 0,
+            "the lockstep loop running with the measured Δp") as rig:
+        yield rig
 
 
 def _set(probe, node, name, value):
