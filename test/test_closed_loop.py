@@ -170,10 +170,6 @@ def _corner(**c) -> frozenset:
 
 # hold: where the default mode ends farther from the demand than that plant's own jump + 2 counts
 HOLD_SHORTFALLS = {
-    _corner(friction=0.5, dp=0.0, stiffness=0.1, inertia=0.8):
-        "stops 3.5e-3 rad from the demand (band 2.3e-3) since the planned moves' limits are designed "
-        "from the drive's voltage and current (issue 14, h14c: 1270 rad/s^2 instead of 600): the faster "
-        "arrival on this soft coupling (x0.1, outside the v2 box x0.3...1) sticks farther off; not yet traced",
     _corner(friction=0.5, dp=0.0, inertia=1.2):
         "stops 1.5e-3 rad from the demand (target 1e-3) since the planned moves' limits are designed "
         "from the drive's voltage and current (issue 14, h14c): where the faster arrival sticks inside "
