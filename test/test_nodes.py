@@ -204,8 +204,11 @@ def _assert_fail_safe(probe, t0, fault_words, timeout=3.0):
     probe.wait_for(lambda: probe.get(contract.DRIVE_ENABLE) is not None and not probe.get(contract.DRIVE_ENABLE).data,
                    2.0, "drive_enable false")
     probe.wait_for(lambda: probe.valve_angle() < 0.02 * STROKE, 2.0, "valve closed by the spring")
-    time.sleep(0.05)
-    late = [m.data for m in probe.since(contract.CURRENT_COMMAND, time.monotonic() - 0.04)]
+    # the commands since the valve closed (a count, not a 40 ms window: a starved probe can
+    # receive none in 40 ms; CI saw that once)
+    closed = time.monotonic()
+    probe.wait_for(lambda: len(probe.since(contract.CURRENT_COMMAND, closed)) >= 5, 30.0, "commands after the close")
+    late = [m.data for m in probe.since(contract.CURRENT_COMMAND, closed)]
     assert late and all(c == 0.0 for c in late), late[-5:]
 
 
@@ -282,8 +285,11 @@ def _assert_latched_off(probe, words, timeout):
     assert any(w in st.message for w in words), st.message
     probe.wait_for(lambda: probe.get(contract.DRIVE_ENABLE) is not None and not probe.get(contract.DRIVE_ENABLE).data,
                    2.0, "drive_enable false")
-    time.sleep(0.05)
-    late = [m.data for m in probe.since(contract.CURRENT_COMMAND, time.monotonic() - 0.04)]
+    # the commands since the valve closed (a count, not a 40 ms window: a starved probe can
+    # receive none in 40 ms; CI saw that once)
+    closed = time.monotonic()
+    probe.wait_for(lambda: len(probe.since(contract.CURRENT_COMMAND, closed)) >= 5, 30.0, "commands after the close")
+    late = [m.data for m in probe.since(contract.CURRENT_COMMAND, closed)]
     assert late and all(c == 0.0 for c in late), late[-5:]
 
 

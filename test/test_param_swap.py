@@ -142,9 +142,6 @@ def sweep(t: float) -> float:
     return 20.0
 
 
-@pytest.mark.xfail(strict=True, reason="issue 14 (h14c): observer_ff's planned moves are now designed from the "
-                   "drive's voltage and current (1270 rad/s^2, 11.9 rad/s instead of 600, 11): mode switches spammed "
-                   "during the faster move peak at 39.351 % against 37.35 + 2 (0.001 % over); not yet traced")
 def test_mode_switch_spam_during_a_move_stays_within_demand_plus_2_percent():
     """A request for the next mode every period for 3 s while the valve moves: law
     replacements rate-limited (at most one per ``param_swap_periods``) and held back to the
