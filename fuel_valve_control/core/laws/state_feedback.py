@@ -162,13 +162,14 @@ class StateFeedbackLaw(ControlLaw):
             self.zeta -= net / n / self.fb.ki
         self.reference = ref
         stuck = abs(valve_speed) <= self.integral.stuck_speed
-        nominal_jump = m.friction(pressure_kpa).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
+        friction = m.friction(pressure_kpa)         # once per period: the jump, the drive test, the load learning and the stuck ramp read it
+        nominal_jump = friction.stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
         # the drive's torque on the valve beyond the load it holds, against half the lowest
         # static friction the valve can have (x 0.5 in the robustness box; at the box's edge a
         # genuine breakaway comes right at it, so half of it): less, and the valve was broken
         # loose by something else
         drive_nm = n * self._applied - m.load_torque(thl, pressure_kpa) - self.held_load
-        driven = abs(drive_nm) >= 0.5 * self.integral.load_static_fraction * m.friction(pressure_kpa).valve_static_nm
+        driven = abs(drive_nm) >= 0.5 * self.integral.load_static_fraction * friction.valve_static_nm
         # v2: the jump is read from the tracking error: while the reference follows a ramp the
         # valve's travel is mostly the ramp's (issue 14: read as a jump, it froze the integrator)
         frame = ref.position if self.v2 else 0.0
@@ -196,7 +197,7 @@ class StateFeedbackLaw(ControlLaw):
             moved = meas.valve_rad - pos0
             if abs(moved) > self.integral.min_rad:
                 if moved * (net0 - self.held_load) < 0.0:
-                    self.held_load = self.integral.learn_load(net0, moved, m.friction(pressure_kpa).valve_static_nm)
+                    self.held_load = self.integral.learn_load(net0, moved, friction.valve_static_nm)
                 self._slip = None
         relaxing = False
         if not outside and not ref.moving and stuck and self.integral.relax_time_s > 0.0:
@@ -223,7 +224,7 @@ class StateFeedbackLaw(ControlLaw):
             if stuck:
                 # stuck short of the target: ramp the torque quasi-statically to breakaway
                 # instead of waiting for the slow integrator (the jump is the same either way)
-                rate = m.friction(pressure_kpa).valve_static_nm / self.integral.stuck_ramp_time_s
+                rate = friction.valve_static_nm / self.integral.stuck_ramp_time_s
                 ramp = rate / n * self.period / self.fb.ki
                 self._pending = math.copysign(max(abs(self._pending), ramp), error)
         known_load = m.load_torque(thl, pressure_kpa) - m.spring_rate_nm_per_rad * thl   # preload + flow
