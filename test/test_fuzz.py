@@ -233,13 +233,18 @@ def test_controller_parameter_edge_values_known_to_overshoot(name, value):
     _controller_case(CONTROLLER_NODE_SPEC.params[name], name, value)
 
 
+def _node_setting_case(node_spec, p, name, value):
+    """A start-up-only node setting: refused by the node's schema, or accepted only if finite."""
+    try:
+        node_spec.defaults().replace({name: value})
+    except ValueError:
+        return
+    assert p.kind is not float or math.isfinite(value), (name, value)
+
+
 def _controller_case(p, name, value):
     if name not in CONTROLLER_SPEC.params:      # node settings (rates, lockstep...): start-up only
-        try:
-            CONTROLLER_NODE_SPEC.defaults().replace({name: value})
-        except ValueError:
-            return
-        assert p.kind is not float or math.isfinite(value), (name, value)
+        _node_setting_case(CONTROLLER_NODE_SPEC, p, name, value)
         return
     mode = next((m for m in MODES if name in LAW_KEYS[m]), None)
     target = value if name == "mode" and value in MODES else mode
@@ -356,11 +361,7 @@ def test_the_stability_check_follows_the_electromechanical_pole():
 def _plant_case(p, name, value):
     base = base_params()[1]
     if name not in PLANT_SPEC.params:           # node settings: start-up only
-        try:
-            PLANT_NODE_SPEC.defaults().replace({name: value})
-        except ValueError:
-            return
-        assert p.kind is not float or math.isfinite(value), (name, value)
+        _node_setting_case(PLANT_NODE_SPEC, p, name, value)
         return
     if p.runtime:
         loop = held_loop()
