@@ -15,6 +15,8 @@ setup(
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/scenarios", glob("config/scenarios/*.yaml")),
+        (f"share/{PACKAGE}/config/valve_tests", glob("config/valve_tests/*.yaml")),
+        (f"share/{PACKAGE}/config/sros2", glob("config/sros2/*.xml")),
     ],
     install_requires=["setuptools", "numpy", "scipy", "PyYAML"],
     zip_safe=True,
@@ -33,6 +35,7 @@ setup(
             "fuel_valve_report = fuel_valve_control.tools.report:main",
             "fuel_valve_demo = fuel_valve_control.tools.demo:main",
             "fuel_valve_datasheet = fuel_valve_plant.tools.datasheet:main",
+            "fuel_valve_sros2_policy = fuel_valve_control.tools.sros2_policy:main",
         ],
     },
 )
