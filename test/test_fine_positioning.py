@@ -17,14 +17,19 @@ def test_learned_twists_are_bounded_and_reset():
     lr.set("breakaway", -1, 0, -0.5)
     assert lr.equilibrium[1][3] == 0.01 and lr.breakaway[-1][0] == -0.01
     assert [lr.band(f) for f in (0.0, 0.24, 0.25, 0.99, 1.0, 1.7, -0.2)] == [0, 0, 1, 3, 3, 3, 0]
+    lr.set("min_move", 1, 0, -1e-3)                   # a move size is never negative
+    lr.set("min_move", -1, 2, 0.5)
+    assert lr.min_move[1][0] == 0.0 and lr.min_move[-1][2] == 0.01
     lr.reset()
     assert lr.equilibrium == {1: [0.0] * 4, -1: [0.0] * 4} and lr.pulses == 0
+    assert lr.min_move == {1: [0.0] * 4, -1: [0.0] * 4}
 
 
 def test_learned_twists_survive_a_restart(tmp_path):
     a = FineLearner(4, 0.1)
     a.set("equilibrium", 1, 2, 1.5e-3)
     a.set("breakaway", -1, 1, -2e-3)
+    a.set("min_move", 1, 3, 1.2e-3)
     a.pulses = 17
     path = tmp_path / "valve_friction.json"
     a.save(path)
@@ -41,11 +46,27 @@ def test_learned_twists_survive_a_restart(tmp_path):
     assert b.to_dict() == a.to_dict()
 
 
+def test_a_version_1_file_loads_with_the_move_sizes_unlearned():
+    a = FineLearner(4, 0.1)
+    a.set("breakaway", 1, 1, 3e-3)
+    a.set("min_move", 1, 1, 1e-3)
+    doc = a.to_dict()
+    doc["version"] = 1
+    del doc["min_move"]
+    b = FineLearner(4, 0.1)
+    b.from_dict(doc)
+    assert b.breakaway == a.breakaway and b.min_move == {1: [0.0] * 4, -1: [0.0] * 4}
+    doc["version"] = 3
+    with pytest.raises(ValueError, match="version"):
+        b.from_dict(doc)
+
+
 def test_learned_state_is_on_the_diagnostics():
     drv = ValveDriver(CONTROLLER_SPEC.defaults().replace({"mode": "observer_fp"}))
     values = drv.health().values
     assert values["fine_phase"] == "idle"
     assert json.loads(values["learned_breakaway_rad"]) == {"open": [0.0] * 4, "close": [0.0] * 4}
+    assert json.loads(values["learned_min_move_rad"]) == {"open": [0.0] * 4, "close": [0.0] * 4}
     # other modes learn nothing of this kind
     assert "fine_phase" not in ValveDriver(CONTROLLER_SPEC.defaults()).health().values
 
@@ -80,6 +101,27 @@ def test_stage_stays_out_when_the_learned_twists_do_not_fit_the_model(direction)
         pc.learner.set(table, direction, band, sign * 0.8 * bound)
         fine.reset()
         assert _engages(fine, err, p)
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_stage_does_not_pulse_an_error_its_smallest_move_would_enlarge(direction):
+    """A pulse moves the valve at least the learned smallest move m; for an error e below
+    ``fine.min_move_fraction`` x m (0.5: the move improves e only if m < 2|e|) the stage holds."""
+    from fuel_valve_control.core.position_controller import PositionController
+    pc = PositionController(CONTROLLER_SPEC.defaults().replace({"mode": "observer_fp"}))
+    fine, m = pc.law.fine, pc.model
+    p = m.pressure_max_kpa
+    band = pc.learner.band(m.pressure_fraction(p))
+    frac = fine.cfg.min_move_fraction
+    assert frac > 0.0
+    err = direction * 1e-3
+    pc.learner.set("min_move", direction, band, 1.1 * abs(err) / frac)
+    fine.reset()
+    assert not _engages(fine, err, p)
+    pc.learner.set("min_move", -direction, band, 10 * abs(err))   # the other direction's says nothing here
+    pc.learner.set("min_move", direction, band, 0.9 * abs(err) / frac)
+    fine.reset()
+    assert _engages(fine, err, p)
 
 
 @functools.lru_cache(maxsize=None)

@@ -67,17 +67,22 @@ from pathlib import Path
 from .model import NominalModel
 
 IDLE, PARK, PULSE, OBSERVE, HOLD = "idle", "park", "pulse", "observe", "hold"
+#: fraction of a larger move sample taken into the learned smallest move (smaller ones are taken whole)
+MIN_MOVE_RELAX = 0.1
 
 
 class FineLearner:
-    """Learned twist offsets per direction (+1 opening, -1 closing) and Δp band, rad.
+    """Learned twist offsets and move sizes per direction (+1 opening, -1 closing) and Δp band, rad.
 
     ``equilibrium[d][b]``: offset of the effective swing centre ``φe`` from its nominal value;
-    ``breakaway[d][b]``: offset of the breakaway twist ``φb`` from its nominal value.  Bounded
-    to ``±limit_rad``; :meth:`reset` returns to the nominal model (0).
+    ``breakaway[d][b]``: offset of the breakaway twist ``φb`` from its nominal value (both
+    bounded to ``±limit_rad``); ``min_move[d][b]``: the size of the smallest move a pulse makes,
+    from pulses that moved the valve further than asked (0 = not yet seen; bounded to
+    ``0..limit_rad``).  :meth:`reset` returns to the nominal model (all 0).
     """
 
-    VERSION = 1
+    VERSION = 2
+    TABLES = ("equilibrium", "breakaway", "min_move")
 
     def __init__(self, bands: int, limit_rad: float):
         self.bands = max(int(bands), 1)
@@ -87,35 +92,40 @@ class FineLearner:
     def reset(self) -> None:
         self.equilibrium = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
         self.breakaway = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
+        self.min_move = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
         self.pulses = 0
 
     def band(self, pressure_fraction: float) -> int:
         return min(int(max(pressure_fraction, 0.0) * self.bands), self.bands - 1)
 
-    def _clip(self, x: float) -> float:
-        return min(max(x, -self.limit), self.limit)
+    def _clip(self, table: str, x: float) -> float:
+        return min(max(x, 0.0 if table == "min_move" else -self.limit), self.limit)
 
     def set(self, table: str, direction: int, band: int, value: float) -> None:
-        getattr(self, table)[direction][band] = self._clip(value)
+        getattr(self, table)[direction][band] = self._clip(table, value)
 
     # ---- persistence ---------------------------------------------------------------------
     def to_dict(self) -> dict:
         return {"version": self.VERSION, "bands": self.bands, "limit_rad": self.limit,
-                "equilibrium": {"open": self.equilibrium[1], "close": self.equilibrium[-1]},
-                "breakaway": {"open": self.breakaway[1], "close": self.breakaway[-1]}, "pulses": self.pulses}
+                **{t: {"open": getattr(self, t)[1], "close": getattr(self, t)[-1]} for t in self.TABLES},
+                "pulses": self.pulses}
 
     def from_dict(self, doc: dict) -> None:
-        """Load learned values (validated: shape, finiteness; values are clipped to the bound)."""
-        if doc.get("version") != self.VERSION or int(doc.get("bands", -1)) != self.bands:
+        """Load learned values (validated: shape, finiteness; values are clipped to the bound).
+        A version-1 file (no ``min_move``) loads with the move sizes not yet learned."""
+        if doc.get("version") not in (1, self.VERSION) or int(doc.get("bands", -1)) != self.bands:
             raise ValueError(f"learned friction file: needs version {self.VERSION} with {self.bands} bands")
         new = {}
-        for table in ("equilibrium", "breakaway"):
-            rows = doc[table]
+        for table in self.TABLES:
+            if table == "min_move" and doc.get("version") == 1:
+                rows = {"open": [0.0] * self.bands, "close": [0.0] * self.bands}
+            else:
+                rows = doc[table]
             for key, d in (("open", 1), ("close", -1)):
                 vals = [float(v) for v in rows[key]]
                 if len(vals) != self.bands or not all(math.isfinite(v) for v in vals):
                     raise ValueError(f"learned friction file: {table}.{key} needs {self.bands} finite values")
-                new[(table, d)] = [self._clip(v) for v in vals]
+                new[(table, d)] = [self._clip(table, v) for v in vals]
         for (table, d), vals in new.items():
             getattr(self, table)[d] = vals
         self.pulses = int(doc.get("pulses", 0))
@@ -147,6 +157,8 @@ class FineConfig:
                                   # before the stage holds (its moves are then larger than the error)
     probe_step: float = 0.1       # a pulse that did not move the valve raises the breakaway this
                                   # fraction of the static band beyond the twist it reached
+    min_move_fraction: float = 0.0  # no pulse for an error below this fraction of the learned
+                                    # smallest move (0: pulse whatever the move sizes)
 
 
 class FinePositioner:
@@ -221,7 +233,7 @@ class FinePositioner:
             err = target - thl
             if not holding or self._rest < cfg.engage_periods or self._steady < cfg.engage_periods \
                     or abs(err) <= cfg.tolerance_rad \
-                    or abs(err) > cfg.max_move_rad or self._spent() \
+                    or abs(err) > cfg.max_move_rad or self._spent() or self._below_min_move(err, pressure_kpa) \
                     or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1):
                 if not holding:
                     self.pulses_this_plateau = self.crossings_this_plateau = 0
@@ -331,6 +343,14 @@ class FinePositioner:
         would be hunting)."""
         return self.pulses_this_plateau >= self.cfg.max_pulses or self.crossings_this_plateau >= self.cfg.max_crossings
 
+    def _below_min_move(self, err: float, pressure_kpa: float) -> bool:
+        """Whether the error is so small against the smallest move pulses have made that a
+        pulse would most likely leave the valve further from the target (a move ``m`` improves
+        an error ``e`` only if ``m < 2|e|``)."""
+        d = 1 if err > 0 else -1
+        m = self.learn.min_move[d][self.learn.band(self.m.pressure_fraction(pressure_kpa))]
+        return m > 0.0 and abs(err) < self.cfg.min_move_fraction * m
+
     def _after_move(self, th1, thl, pressure_kpa, pulsed: bool):
         cfg, d, b = self.cfg, self._dir, self._band
         move = thl - self._thl0
@@ -349,6 +369,15 @@ class FinePositioner:
             seen = self._peak_seen if pulsed else self._pre
             new_b = d * min(d * (b0 + curb), d * seen) - d * 0.05 * gap0
             self.learn.set("breakaway", d, b, curb + cfg.learn_gain * ((new_b - b0) - curb))
+            cur = self.learn.min_move[d][b]
+            if pulsed and (abs(move) > 1.5 * abs(self._target - self._thl0) or abs(move) < cur):
+                # it moved well beyond a small request (or less than the smallest move so far):
+                # a sample of the smallest move a pulse makes (a large request that overshot a
+                # little says nothing about it)
+                # smallest seen, relaxing slowly upward: the stopping rule needs the smallest
+                # move (moves spread 1-3e-3 rad with the overdrive the breakaway scatter leaves)
+                m = abs(move)
+                self.learn.set("min_move", d, b, m if cur <= 0.0 or m < cur else cur + MIN_MOVE_RELAX * (m - cur))
         elif pulsed:
             # the pulse did not move it: breakaway lies beyond the peak reached
             new_b = d * max(d * (b0 + curb), d * self._peak_seen) + d * cfg.probe_step * gap0
@@ -357,7 +386,7 @@ class FinePositioner:
         if d * err < 0.0:
             self.crossings_this_plateau += 1
         if abs(err) <= cfg.tolerance_rad or self._spent() or abs(err) > cfg.max_move_rad \
-                or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1):
+                or self._below_min_move(err, pressure_kpa) or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1):
             # close enough, or its moves are larger than the error left, or they do not fit
             # this valve: hold where it is.  (Handing the plateau back to the main law was
             # measured worse: its restart loses the observer's disturbance estimate and the
@@ -372,4 +401,6 @@ class FinePositioner:
                 "learned_equilibrium_rad": {"open": list(self.learn.equilibrium[1]),
                                             "close": list(self.learn.equilibrium[-1])},
                 "learned_breakaway_rad": {"open": list(self.learn.breakaway[1]),
-                                          "close": list(self.learn.breakaway[-1])}}
+                                          "close": list(self.learn.breakaway[-1])},
+                "learned_min_move_rad": {"open": list(self.learn.min_move[1]),
+                                         "close": list(self.learn.min_move[-1])}}

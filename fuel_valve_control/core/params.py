@@ -231,6 +231,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "before the stage holds where it is", 1, 1000, runtime=True),
     Param("fine.probe_step", 0.1, "", "a pulse that did not move the valve raises the learned breakaway this "
           "fraction of the static band beyond the twist it reached", 0.0, 1.0, runtime=True),
+    Param("fine.min_move_fraction", 0.5, "", "no pulse for an error below this fraction of the learned smallest "
+          "move a pulse makes (0.5: a move m improves an error e only if m < 2|e|; 0 = pulse regardless)",
+          0.0, 2.0, runtime=True),
     Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "
