@@ -159,6 +159,13 @@ class FineConfig:
                                   # fraction of the static band beyond the twist it reached
     min_move_fraction: float = 0.0  # no pulse for an error below this fraction of the learned
                                     # smallest move (0: pulse whatever the move sizes)
+    doublet_max_error_rad: float = 0.0  # errors up to this get the torque doublet (0: never)
+    kick_current_a: float = 0.0   # doublet: current added for one period on the preload, A
+    kick_rise_rad: float = 0.0    # doublet: preload this far below the learned breakaway twist
+    doublet_probe_step: float = 0.0  # doublet: as probe_step, for a doublet that did not move it
+    doublet_margin: float = 0.0   # doublet: first apex this fraction of the static band below the
+                                  # learned breakaway after each stop
+    no_move_periods: int = 4      # doublet: periods after which an unmoved valve was not broken loose
 
 
 class FinePositioner:
@@ -184,6 +191,8 @@ class FinePositioner:
         self._steady = 0
         self.pulses_this_plateau = 0
         self.crossings_this_plateau = 0
+        self._stair = None
+        self._servo_torque = 0.0
 
     # ------------------------------------------------------------------ nominal twists
     def _nominal(self, thl: float, pressure_kpa: float, direction: int) -> tuple[float, float]:
@@ -270,6 +279,17 @@ class FinePositioner:
         # preload quasi-statically: a fast unwind would overshoot the servo into breakaway
         self._park_n = max(cfg.park_periods, int(abs(pre - self._phi_start) / (cfg.park_speed * self.period)) + 1)
         self._k = 0
+        self._doublet = abs(err) <= cfg.doublet_max_error_rad and cfg.kick_current_a > 0.0
+        if self._doublet:
+            # the kick rises kick_rise above the preload; the retreat after it is the whole
+            # current, so the valve breaks loose while the gear output is already turning back
+            # ... and starts a staircase ``_stair`` below the learned breakaway: the level is
+            # drawn anew at every stop, and one that breaks while preloading jumps the whole way
+            if self._stair is None:
+                self._stair = cfg.doublet_margin * gap
+            self._pre = phi_b - d * (cfg.kick_rise_rad + max(self._stair, 0.0))
+            self._park_n = max(cfg.park_periods,
+                               int(abs(self._pre - self._phi_start) / (cfg.park_speed * self.period)) + 1)
         self.phase = PARK
         self._peak_seen = th1 - thl
 
@@ -290,7 +310,8 @@ class FinePositioner:
         # the pulse's acceleration is what draws the peak current: capped, the pulse is slower,
         # not wrong (the twist it reached is measured and learned from)
         cap = self.cfg.peak_current_a * m.torque_constant_nm_per_a
-        return min(max(torque, -cap), cap)
+        self._servo_torque = min(max(torque, -cap), cap)
+        return self._servo_torque
 
     @staticmethod
     def _blend(x0: float, x1: float, tau: float, length: float) -> tuple[float, float, float]:
@@ -317,6 +338,15 @@ class FinePositioner:
                 # from a valve still moving)
                 self.phase, self._k, self._final, self._pulsed = OBSERVE, 0, x, False
             return self._servo(base + x, a, th1, w1, thl, v)
+        if self.phase == PULSE and self._doublet:
+            # torque doublet on the hold torque the park ended with: one period of kick, then
+            # the whole current backwards (one period, then half), then the servo to the final
+            # twist (SPEC §6: the retreat must already be at full current when the valve breaks;
+            # through the 60 Hz servo it is not)
+            self._track_peak(th1 - thl)
+            if self._k == 1:
+                self._hold_torque = self._servo_torque
+            return self._doublet_torque()
         if self.phase == PULSE:
             # shaped pulse of the gear output: rise past breakaway, then fall to the final twist
             t = self._k * per
@@ -331,11 +361,29 @@ class FinePositioner:
             return self._servo(base + x, a, th1, w1, thl, v)
         if self.phase == OBSERVE:
             self._track_peak(th1 - thl)
-            if self._k >= cfg.observe_periods and self._rest >= 3:
+            # a doublet that has not moved the valve a count or two a few periods after its
+            # apex did not break it loose (a valve that breaks moves 1.5 counts within ~0.7 ms)
+            unmoved = self._doublet and self._k >= cfg.no_move_periods \
+                and abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad
+            if unmoved or (self._k >= cfg.observe_periods and self._rest >= 3):
                 self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed)
             return self._servo(base + self._final, 0.0, th1, w1, thl)
         # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
+
+    def _doublet_torque(self) -> float:
+        """The doublet's torque in its period ``_k`` (1: kick; 2, 3: retreat), N*m."""
+        cfg, d = self.cfg, self._dir
+        kt = self.m.torque_constant_nm_per_a
+        cap = cfg.peak_current_a * kt
+        if self._k == 1:
+            torque = self._hold_torque + d * cfg.kick_current_a * kt
+        elif self._k == 2:
+            torque = self._hold_torque - d * cap
+        else:
+            torque = self._hold_torque - d * 0.5 * cap
+            self.phase, self._k, self._pulsed = OBSERVE, 0, True
+        return min(max(torque, -cap), cap)
 
     def _spent(self) -> bool:
         """The plateau's pulses are used up, or the valve has crossed the target so often that
@@ -359,6 +407,8 @@ class FinePositioner:
         e0, b0 = self._nominal(self._thl0, pressure_kpa, d)
         gap0 = abs(b0 - e0)
         curb = self.learn.breakaway[d][b]
+        if abs(move) > 0.5 * cfg.tolerance_rad:
+            self._stair = None                 # a new stop: a new breakaway level
         if d * move > 0.5 * cfg.tolerance_rad:
             if pulsed:
                 # it swung about φe from the twist it was left at: φe = φ_final - move / 2
@@ -380,8 +430,12 @@ class FinePositioner:
                 self.learn.set("min_move", d, b, m if cur <= 0.0 or m < cur else cur + MIN_MOVE_RELAX * (m - cur))
         elif pulsed:
             # the pulse did not move it: breakaway lies beyond the peak reached
-            new_b = d * max(d * (b0 + curb), d * self._peak_seen) + d * cfg.probe_step * gap0
-            self.learn.set("breakaway", d, b, new_b - b0)
+            if self._doublet and self._stair is not None and self._stair > 0.0:
+                self._stair -= cfg.doublet_probe_step * gap0      # climb the staircase first
+            else:
+                step = cfg.doublet_probe_step if self._doublet else cfg.probe_step
+                new_b = d * max(d * (b0 + curb), d * self._peak_seen) + d * step * gap0
+                self.learn.set("breakaway", d, b, new_b - b0)
         err = self._target - thl
         if d * err < 0.0:
             self.crossings_this_plateau += 1
