@@ -69,6 +69,8 @@ from .model import NominalModel
 IDLE, PARK, PULSE, OBSERVE, HOLD = "idle", "park", "pulse", "observe", "hold"
 #: fraction of a larger move sample taken into the learned smallest move (smaller ones are taken whole)
 MIN_MOVE_RELAX = 0.1
+#: factors on the doublet's learned staircase margin after a breakaway while preloading / a doublet that landed
+MARGIN_GROW, MARGIN_SHRINK = 1.5, 0.9
 
 
 class FineLearner:
@@ -78,11 +80,16 @@ class FineLearner:
     ``breakaway[d][b]``: offset of the breakaway twist ``φb`` from its nominal value (both
     bounded to ``±limit_rad``); ``min_move[d][b]``: the size of the smallest move a pulse makes,
     from pulses that moved the valve further than asked (0 = not yet seen; bounded to
-    ``0..limit_rad``).  :meth:`reset` returns to the nominal model (all 0).
+    ``0..limit_rad``); ``margin[d][b]``: how far below the learned breakaway the doublet's
+    staircase starts after a stop (0 = ``fine.doublet_margin`` of the static band; grows when
+    a valve breaks loose while preloading, shrinks when doublets land).  :meth:`reset` returns
+    to the nominal model (all 0).
     """
 
     VERSION = 2
-    TABLES = ("equilibrium", "breakaway", "min_move")
+    TABLES = ("equilibrium", "breakaway", "min_move", "margin")
+    #: tables of sizes (never negative) added in version 2
+    SIZES = ("min_move", "margin")
 
     def __init__(self, bands: int, limit_rad: float):
         self.bands = max(int(bands), 1)
@@ -93,13 +100,14 @@ class FineLearner:
         self.equilibrium = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
         self.breakaway = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
         self.min_move = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
+        self.margin = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
         self.pulses = 0
 
     def band(self, pressure_fraction: float) -> int:
         return min(int(max(pressure_fraction, 0.0) * self.bands), self.bands - 1)
 
     def _clip(self, table: str, x: float) -> float:
-        return min(max(x, 0.0 if table == "min_move" else -self.limit), self.limit)
+        return min(max(x, 0.0 if table in self.SIZES else -self.limit), self.limit)
 
     def set(self, table: str, direction: int, band: int, value: float) -> None:
         getattr(self, table)[direction][band] = self._clip(table, value)
@@ -117,7 +125,7 @@ class FineLearner:
             raise ValueError(f"learned friction file: needs version {self.VERSION} with {self.bands} bands")
         new = {}
         for table in self.TABLES:
-            if table == "min_move" and doc.get("version") == 1:
+            if table in self.SIZES and doc.get("version") == 1:
                 rows = {"open": [0.0] * self.bands, "close": [0.0] * self.bands}
             else:
                 rows = doc[table]
@@ -174,6 +182,7 @@ class FinePositioner:
 
     def __init__(self, model: NominalModel, period_s: float, cfg: FineConfig, learner: FineLearner):
         self.m, self.period, self.cfg, self.learn = model, period_s, cfg, learner
+        self._last_engage = None
         w = 2.0 * math.pi * cfg.servo_hz
         j1 = model.j1
         self.kp = j1 * w * w               # N*m/rad at the gear output
@@ -254,6 +263,7 @@ class FinePositioner:
         self._target = target
         self._ff0 = torque_now                 # holds the present twist against load + reaction
         self._phi0 = th1 - thl                 # ... which is this twist
+        self._last_engage = (self._ff0, self._phi0)
         self._integral = 0.0
         self._start_pulse(th1, thl, pressure_kpa)
 
@@ -286,12 +296,23 @@ class FinePositioner:
             # ... and starts a staircase ``_stair`` below the learned breakaway: the level is
             # drawn anew at every stop, and one that breaks while preloading jumps the whole way
             if self._stair is None:
-                self._stair = cfg.doublet_margin * gap
+                self._stair = self.learn.margin[d][band] or cfg.doublet_margin * gap
             self._pre = phi_b - d * (cfg.kick_rise_rad + max(self._stair, 0.0))
             self._park_n = max(cfg.park_periods,
                                int(abs(self._pre - self._phi_start) / (cfg.park_speed * self.period)) + 1)
         self.phase = PARK
         self._peak_seen = th1 - thl
+
+    def hold_torque(self, th1: float, thl: float) -> float | None:
+        """Motor torque (N*m) that holds the present twist ``th1 - thl`` statically (the engage
+        torque plus the nominal coupling-torque change), or ``None`` before the stage engaged.
+        The main law restarts from this, not from the torque last applied: that may be a
+        pulse's kick or retreat at up to the whole current."""
+        if self._last_engage is None:
+            return None
+        ff0, phi0 = self._last_engage
+        m = self.m
+        return ff0 + m.coupling_stiffness_nm_per_rad * ((th1 - thl) - phi0) / m.gear_ratio
 
     def _track_peak(self, phi: float) -> None:
         if self._dir * phi > self._dir * self._peak_seen:
@@ -408,6 +429,11 @@ class FinePositioner:
         gap0 = abs(b0 - e0)
         curb = self.learn.breakaway[d][b]
         if abs(move) > 0.5 * cfg.tolerance_rad:
+            if self._doublet:
+                # the breakaway drawn at the last stop lay below the preload: start further
+                # below next time; a doublet that broke it loose from its staircase: a little closer
+                cur = self.learn.margin[d][b] or cfg.doublet_margin * gap0
+                self.learn.set("margin", d, b, cur * (MARGIN_GROW if not pulsed else MARGIN_SHRINK))
             self._stair = None                 # a new stop: a new breakaway level
         if d * move > 0.5 * cfg.tolerance_rad:
             if pulsed:
@@ -457,4 +483,5 @@ class FinePositioner:
                 "learned_breakaway_rad": {"open": list(self.learn.breakaway[1]),
                                           "close": list(self.learn.breakaway[-1])},
                 "learned_min_move_rad": {"open": list(self.learn.min_move[1]),
-                                         "close": list(self.learn.min_move[-1])}}
+                                         "close": list(self.learn.min_move[-1])},
+                "learned_margin_rad": {"open": list(self.learn.margin[1]), "close": list(self.learn.margin[-1])}}

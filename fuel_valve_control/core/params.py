@@ -234,7 +234,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.min_move_fraction", 0.5, "", "no pulse for an error below this fraction of the learned smallest "
           "move a pulse makes (0.5: a move m improves an error e only if m < 2|e|; 0 = pulse regardless)",
           0.0, 2.0, runtime=True),
-    Param("fine.doublet_max_error_rad", 1.5e-3, "rad", "errors up to this are closed by a torque doublet (one "
+    Param("fine.doublet_max_error_rad", 1.0e-3, "rad", "errors up to this are closed by a torque doublet (one "
           "period of kick on the preload, then the whole current backwards) instead of the servo-blended pulse "
           "(0 = never)", 0.0, 0.02, runtime=True),
     Param("fine.kick_current_a", 4.0, "A", "doublet: current added to the hold for one period", 0.0, 30.0,
