@@ -20,6 +20,8 @@ def test_learned_twists_are_bounded_and_reset():
     lr.set("min_move", 1, 0, -1e-3)                   # a move size is never negative
     lr.set("min_move", -1, 2, 0.5)
     assert lr.min_move[1][0] == 0.0 and lr.min_move[-1][2] == 0.01
+    lr.set("margin", -1, 1, -2e-3)
+    assert lr.margin[-1][1] == 0.0
     lr.reset()
     assert lr.equilibrium == {1: [0.0] * 4, -1: [0.0] * 4} and lr.pulses == 0
     assert lr.min_move == {1: [0.0] * 4, -1: [0.0] * 4}
@@ -55,7 +57,7 @@ def test_a_version_1_file_loads_with_the_move_sizes_unlearned():
     del doc["min_move"]
     b = FineLearner(4, 0.1)
     b.from_dict(doc)
-    assert b.breakaway == a.breakaway and b.min_move == {1: [0.0] * 4, -1: [0.0] * 4}
+    assert b.breakaway == a.breakaway and b.min_move == b.margin == {1: [0.0] * 4, -1: [0.0] * 4}
     doc["version"] = 3
     with pytest.raises(ValueError, match="version"):
         b.from_dict(doc)
@@ -122,6 +124,66 @@ def test_stage_does_not_pulse_an_error_its_smallest_move_would_enlarge(direction
     pc.learner.set("min_move", direction, band, 0.9 * abs(err) / frac)
     fine.reset()
     assert _engages(fine, err, p)
+
+
+def _stage(**changes):
+    from fuel_valve_control.core.position_controller import PositionController
+    pc = PositionController(CONTROLLER_SPEC.defaults().replace({"mode": "observer_fp", **changes}))
+    return pc.law.fine, pc.model
+
+
+def _torques_until_observe(fine, error_rad, pressure_kpa, hold_nm=0.3, periods=200):
+    """Torques the stage commands for a stuck valve ``error_rad`` short of a steady target,
+    until its first pulse is over (phase ``observe``); while it preloads, the gear output is
+    where the preload wants it (a stiff servo)."""
+    thl, th1 = 0.5, 0.5 + 0.01
+    out = []
+    for _ in range(periods):
+        if fine.phase == "park":
+            th1 = thl + fine._pre
+        tq = fine.update(thl + error_rad, th1, thl, True, hold_nm, pressure_kpa)
+        if tq is not None:
+            out.append(tq)
+        if fine.phase == "observe":
+            return out
+    raise AssertionError("the stage never pulsed")
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_small_errors_get_a_torque_doublet_against_the_current_slew(direction):
+    """Up to ``fine.doublet_max_error_rad`` the pulse is a torque doublet on the hold torque
+    the preload ended with: one period of kick toward the target, then the whole current
+    backwards (SPEC §6: the retreat must be at full current when the valve breaks), half the
+    next period; larger errors get the servo-blended pulse, which never reverses that hard."""
+    ps = CONTROLLER_SPEC.defaults()
+    fine, m = _stage()
+    kt = m.torque_constant_nm_per_a
+    cap = ps["fine.peak_current_a"] * kt
+    small = 0.5 * ps["fine.doublet_max_error_rad"]
+    out = _torques_until_observe(fine, direction * small, m.pressure_max_kpa)
+    hold = out[-4]                                    # the last period of the preload
+    assert abs(hold) < cap - ps["fine.kick_current_a"] * kt
+    assert out[-3] == pytest.approx(hold + direction * ps["fine.kick_current_a"] * kt)
+    assert out[-2] == pytest.approx(max(min(hold - direction * cap, cap), -cap))
+    assert out[-1] == pytest.approx(max(min(hold - direction * 0.5 * cap, cap), -cap))
+    fine, m = _stage()
+    large = 2.0 * ps["fine.doublet_max_error_rad"]
+    out = _torques_until_observe(fine, direction * large, m.pressure_max_kpa)
+    assert all(abs(t) <= cap + 1e-12 for t in out)
+    assert out[-2] != pytest.approx(max(min(out[-4] - direction * cap, cap), -cap))
+
+
+def test_the_main_law_restarts_from_the_holding_torque_not_a_pulse():
+    """After a demand change the main law restarts from the torque that holds the present
+    twist (engage torque + K * twist change / N), never from a pulse's torque."""
+    fine, m = _stage()
+    assert fine.hold_torque(0.51, 0.5) is None                     # never engaged
+    out = _torques_until_observe(fine, 0.5e-3, m.pressure_max_kpa, hold_nm=0.3)
+    assert abs(out[-2] - 0.3) > 0.5                                  # mid-doublet: a large torque
+    assert fine.hold_torque(0.5 + 0.01, 0.5) == pytest.approx(0.3)   # the engage twist: the engage torque
+    dphi = 1e-3
+    assert fine.hold_torque(0.5 + 0.01 + dphi, 0.5) == pytest.approx(
+        0.3 + m.coupling_stiffness_nm_per_rad * dphi / m.gear_ratio)
 
 
 @functools.lru_cache(maxsize=None)
