@@ -219,7 +219,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "half swing so the swing is the one planned", 0.001, 0.05, runtime=True),
     Param("fine.learn_gain", 0.7, "", "fraction of each measured correction taken into the learned twists",
           0.0, 1.0, runtime=True),
-    Param("fine.max_pulses", 12, "", "pulses per plateau before the stage holds where it is", 1, 1000,
+    Param("fine.max_pulses", 25, "", "pulses per plateau before the stage holds where it is", 1, 1000,
           runtime=True),
     Param("fine.servo_hz", 60.0, "Hz", "bandwidth of the stiff gear-output hold on the motor resolver",
           1.0, 200.0),
@@ -231,6 +231,21 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "before the stage holds where it is", 1, 1000, runtime=True),
     Param("fine.probe_step", 0.1, "", "a pulse that did not move the valve raises the learned breakaway this "
           "fraction of the static band beyond the twist it reached", 0.0, 1.0, runtime=True),
+    Param("fine.min_move_fraction", 0.5, "", "no pulse for an error below this fraction of the learned smallest "
+          "move a pulse makes (0.5: a move m improves an error e only if m < 2|e|; 0 = pulse regardless)",
+          0.0, 2.0, runtime=True),
+    Param("fine.doublet_max_error_rad", 1.0e-3, "rad", "errors up to this are closed by a torque doublet (one "
+          "period of kick on the preload, then the whole current backwards) instead of the servo-blended pulse "
+          "(0 = never)", 0.0, 0.02, runtime=True),
+    Param("fine.kick_current_a", 4.0, "A", "doublet: current added to the hold for one period", 0.0, 30.0,
+          runtime=True),
+    Param("fine.kick_rise_rad", 1.5e-4, "rad", "doublet: preload this far below the learned breakaway twist "
+          "(about the twist the kick adds)", 0.0, 0.01, runtime=True),
+    Param("fine.doublet_probe_step", 0.03, "", "doublet: as fine.probe_step (small: each 1e-4 rad of "
+          "overdrive adds about 4e-4 rad to the move)", 0.0, 1.0, runtime=True),
+    Param("fine.doublet_margin", 0.3, "", "doublet: after each stop the first apex lies this fraction of the "
+          "static band below the learned breakaway (its level is drawn anew at every stop); the staircase climbs "
+          "from there", 0.0, 2.0, runtime=True),
     Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "

@@ -43,8 +43,11 @@ class FinePositioningLaw(ControlLaw):
             self._main_updated = False
             return torque
         if self._fine_active:
-            # hand back: the main law restarts from the torque the fine stage left applied
-            self.main.reset(meas, self._applied, pressure_kpa)
+            # hand back: the main law restarts from the torque that holds the present twist (the
+            # torque last applied may be a pulse's, up to the whole current: restarted from a
+            # doublet's retreat, the main law drove the valve 2e-2 rad away)
+            hold = self.fine.hold_torque(th1, meas.valve_rad)
+            self.main.reset(meas, self._applied if hold is None else hold, pressure_kpa)
             self._fine_active = False
         torque = self.main.update(t, demand_rad, meas, pressure_kpa)
         self._main_updated = True
