@@ -49,6 +49,9 @@ class Compensator:
 
     #: whether the state observer takes this compensator's friction belief as a known input
     feeds_observer = True
+    #: whether the law gives the breakaway surplus Ts - Tc back when a valve held short of its
+    #: target breaks away (:meth:`StateFeedbackLaw._relieve_breakaway`)
+    relieves_breakaway = False
 
     def reset(self, model: NominalModel, pressure_kpa: float) -> None:
         pass
@@ -105,6 +108,7 @@ class FriedlandPark(Compensator):
     """
 
     feeds_observer = False
+    relieves_breakaway = True
 
     def __init__(self, motor: FrictionObserver, valve: FrictionObserver, fraction: float = 1.0,
                  stuck_speed: float = 0.0):
@@ -131,9 +135,13 @@ class FriedlandPark(Compensator):
         # with it on hunted: observer_fc load_step 9.6e-3 rad, startup 1.0e-2 rad).  Gating it
         # on measured sliding instead came too late: the drive, already at breakaway, got +Tc
         # on top (2 % step overshoot 150 %)
-        engaged = ctx.ref_moving or abs(ctx.ref_velocity) > self.valve.boundary_velocity
-        fv = m.valve_inertia_kgm2 * self.valve.compensation(ctx.wl) if engaged else 0.0
+        fv = m.valve_inertia_kgm2 * self.valve.compensation(ctx.wl) if self.reference_moves(ctx) else 0.0
         return self.fraction * (fm + fv / m.gear_ratio), self.fraction * fm, self.fraction * fv
+
+
+    def reference_moves(self, ctx: Context) -> bool:
+        """A planned move, or a followed demand faster than one valve count per period."""
+        return ctx.ref_moving or abs(ctx.ref_velocity) > self.valve.boundary_velocity
 
 
 class StictionGain(Compensator):
