@@ -246,16 +246,16 @@ class StateFeedbackLaw(ControlLaw):
         Stuck outside the deadband, the stuck ramp winds the drive up to the static friction
         ``Ts``; sliding, the valve needs only the Coulomb level ``Tc``.  Left in the integral
         state, the surplus ``Ts - Tc`` (valve side) keeps pushing the sliding valve until the
-        position feedback has taken it back: with the dissertation's soft position loop
-        (~140 N*m/rad at the valve against the coupling's 480) that is ~8e-3 rad past the
-        breakaway point, and the 2 % step's second breakaway overshot 22-34 % (observer_fc,
+        position feedback has taken it back: with the dissertation's soft position loops
+        (140 / 200 N*m/rad at the valve, pole placement / LQR, against the coupling's 480)
+        that is ~8e-3 rad past the breakaway point, and the 2 % step's second breakaway overshot 22-34 % (observer_fc,
         seeds 0-7).  Read from the valve resolver (three counts the error's way), once per
         breakaway."""
-        if moving:
-            self._stuck_short = None
-        elif stuck and outside:
+        if moving or (stuck and not outside):
+            self._stuck_short = None            # tracking, or at rest where it may stay
+        elif stuck:
             self._stuck_short = (valve_rad, 1.0 if error > 0.0 else -1.0)
-        elif not stuck and self._stuck_short is not None:
+        elif self._stuck_short is not None:
             start, sign = self._stuck_short
             if (valve_rad - start) * sign >= self.jumps.min_jump:
                 surplus = max(friction.valve_static_nm - friction.valve_coulomb_nm, 0.0)
