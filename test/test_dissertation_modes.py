@@ -17,23 +17,70 @@ def _metrics(scenario: str, mode: str) -> dict:
     return sim.run(scenario, mode, seed=0).metrics
 
 
-_OBSERVER_FC_SMALL_STEP = ("observer_fc's 2 % step: the move stops ~8e-3 rad short (the valve sticks as the "
-                           "reference decelerates) and, with the Friedland-Park valve term off while holding "
-                           "(it made the hold hunt), the integrator and the stuck ramp finish it: overshoot "
-                           "22.4/23.5 % (seeds 0/1), settling 0.36 s.  With the term on while holding: 0 % on "
-                           "seed 0 but 9.6e-3 rad hunting in load_step and 1.0e-2 rad in startup")
-_KALMAN_SMALL_STEP = ("kalman_fc's 2 % step: overshoot 0/11.4/0/0 % (seeds 0-3) but it stops 1.4-2.5e-3 rad off "
-                      "(inside its integral deadband, beyond the settling band of 1.75e-3 rad) on 2 of 4 seeds")
+#: resolver-noise seeds of the small-step distributions (issue 14: seeds 0-7)
+SEEDS = range(8)
+
+_KALMAN_SECOND_JUMP = ("kalman_fc seed 1: the move stops 2.68e-3 rad short, just outside the integral deadband "
+                       "(0.55 x the 4.58e-3 rad stick-slip jump), and the breakaway from rest, a jump no shorter "
+                       "than 2 (Ts - Tc)/K, lands 2.3e-3 rad beyond: 10.9 % of the 2 % step; the floor of a "
+                       "quasi-static breakaway, (1 - 0.55) x jump = 9.9-11 % of this step")
+_JUMP_FLOOR = ("the dissertation's modes end a move wherever the last stick-slip jump leaves the valve: a "
+               "breakaway from rest travels at least 2 (Ts - Tc)/K = 4.58e-3 rad at max dp, so the final error "
+               "is spread over +-0.5 jump (+-2.3e-3 rad, the integral deadband) and seed 0 ends 2.4e-3 "
+               "(observer_fc) / 2.5e-3 (kalman_fc) rad short, beyond the 0.1 deg (1.75e-3 rad) settling band; "
+               "sub-jump moves need a pulse before breakaway (observer_fp's fine stage)")
 
 
-@pytest.mark.parametrize("mode", [pytest.param("observer_fc", marks=pytest.mark.xfail(
-    strict=True, reason=_OBSERVER_FC_SMALL_STEP)), pytest.param("kalman_fc", marks=pytest.mark.xfail(
-        strict=True, reason=_KALMAN_SMALL_STEP))])
-def test_small_step_overshoot_and_settling(mode):
-    m = _metrics("step_small", mode)
+@pytest.mark.parametrize("seed", SEEDS)
+def test_observer_fc_small_step_overshoot(seed):
+    """Before the breakaway relief (seeds 0-7): 22/23/33/33/3/24/33/32 %: the move stopped
+    short, the stuck ramp wound the drive up to Ts and the surplus Ts - Tc kept the sliding
+    valve going ~8e-3 rad past the breakaway point; after: 0-2.4 %."""
+    m = sim.run("step_small", "observer_fc", seed=seed).metrics
     assert m["overshoot_pct"] <= 10.0
     assert m["peak_current_a"] <= 30.0
+
+
+@pytest.mark.parametrize("seed", [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=_KALMAN_SECOND_JUMP))
+                                  if s == 1 else s for s in SEEDS])
+def test_kalman_fc_small_step_overshoot(seed):
+    m = sim.run("step_small", "kalman_fc", seed=seed).metrics
+    assert m["overshoot_pct"] <= 10.0
+    assert m["peak_current_a"] <= 30.0
+
+
+@pytest.mark.parametrize("mode", [pytest.param(m, marks=pytest.mark.xfail(strict=True, reason=_JUMP_FLOOR))
+                                  for m in ("observer_fc", "kalman_fc")])
+def test_small_step_settles_in_the_tenth_degree_band(mode):
+    m = _metrics("step_small", mode)
     assert m["settling_time_s"] is not None and m["settling_time_s"] <= 0.2
+
+
+def test_breakaway_relief_gives_back_the_surplus_once():
+    """A held valve stuck short of its target breaks away: the law takes Ts - Tc (valve side)
+    out of the integral state once, when the valve resolver shows three counts toward the
+    target; the modes whose compensator does not ask for it keep their behaviour."""
+    pc = PositionController(CONTROLLER_SPEC.defaults().replace({"mode": "observer_fc"}))
+    law, m = pc.law, pc.model
+    assert law.compensator.relieves_breakaway
+    for mode in ("fc_gain", "observer", "observer_ff", "observer_fp"):
+        assert not pc._compensator(mode, pc.ps).relieves_breakaway
+    assert pc._compensator("kalman_fc", pc.ps).relieves_breakaway
+    f = m.friction(6206.0)
+    law.zeta = 1.0
+    law._stuck_short = None
+    law._relieve_breakaway(0.2, True, True, False, -5e-3, f)       # stuck, target below
+    law._relieve_breakaway(0.2 - 1e-4, False, True, False, -5e-3, f)   # 1 count: noise, not yet
+    assert law.zeta == 1.0
+    law._relieve_breakaway(0.2 - 4e-4, False, True, False, -5e-3, f)   # 4 counts the target's way
+    surplus = (f.valve_static_nm - f.valve_coulomb_nm) / m.gear_ratio / law.fb.ki
+    assert law.zeta == pytest.approx(1.0 + surplus)
+    law._relieve_breakaway(0.2 - 8e-4, False, True, False, -5e-3, f)   # once per breakaway
+    assert law.zeta == pytest.approx(1.0 + surplus)
+    # a slip away from the target is not the ramp's breakaway: nothing given back
+    law._relieve_breakaway(0.3, True, True, False, 5e-3, f)
+    law._relieve_breakaway(0.3 - 4e-4, False, True, False, 5e-3, f)
+    assert law.zeta == pytest.approx(1.0 + surplus)
 
 
 @pytest.mark.parametrize("mode, seed", [("observer_fc", 0), ("observer_fc", 1), ("kalman_fc", 0), ("kalman_fc", 3)])
@@ -98,9 +145,10 @@ def test_friedland_park_estimates_stay_out_of_the_observer_and_learn_only_while_
 
 @pytest.mark.parametrize("scenario, mode", [
     ("load_step", "observer_fc"), ("load_step", "kalman_fc"), ("startup", "observer_fc"),
-    pytest.param("startup", "kalman_fc", marks=pytest.mark.xfail(
-        strict=True, reason="kalman_fc in startup still limit-cycles 2.4e-3 rad (seed 0; was 2.0e-2 rad): "
-        "mechanism not traced yet"))])
+    # kalman_fc startup limit-cycled 2.4e-3 rad (seed 0) until the breakaway relief: each
+    # breakaway from a stuck-ramp hold overshot by the surplus Ts - Tc and the next ramp
+    # pulled it back
+    ("startup", "kalman_fc")])
 def test_dissertation_modes_do_not_hunt_while_holding(scenario, mode):
     """Holding, the valve-velocity estimate of a stuck valve follows the motor through the
     coupling model; the ±Tc term signed by it kept a ~20 Hz motor oscillation that shook the
