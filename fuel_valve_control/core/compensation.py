@@ -38,6 +38,8 @@ class Context:
     ref_moving: bool            # a planned move is under way
     error: float                # demand - valve angle estimate, rad
     outside_deadband: bool      # |error| beyond the friction-sized deadband (hold phase)
+    armed: float = 0.0          # direction of a planned move waiting for breakaway (Reference.armed)
+    broke_away: bool = False    # the valve broke away this period and started that move
 
 
 def _sat(x: float) -> float:
@@ -162,11 +164,34 @@ class ReferenceFeedforward(Compensator):
     slides.  Both levels scale with the ratio ``adapted Coulomb / nominal Coulomb``; the
     adaptation is the Friedland–Park update run on the *measured* valve speed while the valve
     slides in the reference direction, so its sign never comes from noise.
+
+    **Breakaway** (a planned move waiting at its start, ``ctx.armed``; issue 14): the valve
+    feed-forward ramps from ``ramp_start`` x the learned static level upward by one learned
+    static level per ``ramp_time`` seconds until the valve lets go (the move's clock then
+    starts, :class:`~.trajectory.TrajectoryShaper`).  The drive torque at that moment is the
+    static friction met: ``s (N u - load(θL)) - N Tc_motor`` (valve side, ``s`` the direction;
+    read from the applied motor torque, so the coupling stiffness does not enter), and
+    met / scheduled static level becomes the friction scale of both levels (the valve
+    Friedland–Park level is re-seeded with it), so the sliding phase gets the Coulomb level of
+    *this* valve, not the model's, from its first period, and the next move's ramp starts near
+    its breakaway.  The scale is bounded to ``scale_bounds`` and forgotten on :meth:`reset`.
     """
 
     def __init__(self, motor: FrictionObserver, valve: FrictionObserver, velocity_smoothing: float,
-                 stuck_speed: float, static_start: bool = True, fraction: float = 1.0):
+                 stuck_speed: float, static_start: bool = True, fraction: float = 1.0, period_s: float = 1e-3,
+                 ramp_time: float = 0.015, ramp_start: float = 0.4, scale_bounds: tuple[float, float] = (0.25, 4.0),
+                 retreat_periods: int = 0):
         self.motor, self.valve = motor, valve
+        self.ramp_per_period = period_s / ramp_time if ramp_time > 0 else 1.0
+        self.ramp_start = ramp_start
+        self.scale_bounds = scale_bounds
+        self._armed_periods = 0
+        self._armed_dir = 0.0
+        self.retreat_periods = retreat_periods
+        self._retreat_periods = 0
+        self._retreat_nm = 0.0
+        #: static friction met / scheduled at the latest breakaway (None before the first)
+        self.breakaway_ratio: float | None = None
         self.static_start = static_start
         self.v_smooth = velocity_smoothing
         self.stuck_speed = stuck_speed
@@ -176,6 +201,51 @@ class ReferenceFeedforward(Compensator):
     def reset(self, model, pressure_kpa):
         self.model = model
         _seed_levels(self.motor, self.valve, model, pressure_kpa)
+        self._armed_periods = 0
+        self._armed_dir = 0.0
+        self._retreat_periods = 0
+        self.breakaway_ratio = None
+
+    def _breakaway(self, ctx: Context) -> tuple[float, float, float]:
+        """A move waiting for breakaway: the static-level ramp; learn when the valve lets go."""
+        m = self.model
+        n = m.gear_ratio
+        fl = m.friction(ctx.pressure_kpa)
+        sv = self.scale(ctx.pressure_kpa)[1]
+        if ctx.armed:
+            if ctx.armed != self._armed_dir:
+                self._armed_periods, self._armed_dir = 0, ctx.armed
+            self._armed_periods += 1
+            # capped at scale_bounds[1] x the static level at max Δp, not at a multiple of this
+            # Δp's: at Δp 0 the motor's own static friction, reflected through the gear, is as
+            # large as the valve's (friction x3: the ramp stalled at the cap)
+            top = self.scale_bounds[1] * (m.valve_static_nm + m.valve_static_per_dp_nm)
+            # the ramp is on the drivetrain's static level (valve + motor through the gear) and
+            # carried as a valve torque: the coupling has to transmit all of it at breakaway
+            static = fl.valve_static_nm + n * fl.motor_static_nm
+            level = min(sv * (self.ramp_start + self._armed_periods * self.ramp_per_period) * static, top)
+            fv = self.fraction * level * ctx.armed
+            return fv / n, 0.0, fv
+        # the valve let go: the drive torque of the period before is the static friction met
+        # by the whole drivetrain (valve, and the motor's reflected through the gear, which at
+        # Δp 0 is as large as the valve's); one scale for both shafts' levels
+        met = self._armed_dir * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa))
+        static = fl.valve_static_nm + n * fl.motor_static_nm
+        if static > 0.0:
+            ratio = min(max(met / static, self.scale_bounds[0]), self.scale_bounds[1])
+            self.breakaway_ratio = ratio
+            self.valve.reset(ratio * fl.valve_coulomb_nm / m.valve_inertia_kgm2)
+            self.motor.reset(ratio * fl.motor_coulomb_nm / m.motor_inertia_kgm2)
+            # the coupling twist stored at breakaway exceeds what sliding needs by the valve's
+            # static - Coulomb gap: take it back over one period of the valve on the coupling
+            # (the free stick-slip jump takes half of it; over half a period the nominal 2 %
+            # step overshot 6.6 %), or the valve runs that far ahead of the move.  The motor's
+            # own gap is not stored in the coupling (retreating it too: friction x3 at Δp 0
+            # stalled short and overshot 13.6 % on the second breakaway)
+            self._retreat_nm = ratio * max(fl.valve_static_nm - fl.valve_coulomb_nm, 0.0)
+            self._retreat_periods = self.retreat_periods
+        self._armed_periods, self._armed_dir = 0, 0.0
+        return None
 
     def scale(self, pressure_kpa: float) -> tuple[float, float]:
         """Adapted / nominal Coulomb level of (motor, valve)."""
@@ -186,6 +256,12 @@ class ReferenceFeedforward(Compensator):
         return sm, sv
 
     def update(self, ctx):
+        if ctx.armed or (ctx.broke_away and self._armed_dir):
+            out = self._breakaway(ctx)
+            if out is not None:
+                return out
+        elif self._armed_dir:
+            self._armed_periods, self._armed_dir = 0, 0.0    # the wait timed out: nothing learned
         m = self.model
         n = m.gear_ratio
         direction = _sat(ctx.ref_velocity / self.v_smooth) if self.v_smooth > 0 else (
@@ -206,5 +282,8 @@ class ReferenceFeedforward(Compensator):
         sm, sv = self.scale(ctx.pressure_kpa)
         tm = sm * (fl.motor_static_nm if breakaway else fl.motor_coulomb_nm)
         tv = sv * (fl.valve_static_nm if breakaway else fl.valve_coulomb_nm)
+        if self._retreat_periods > 0:
+            self._retreat_periods -= 1
+            tv -= self._retreat_nm
         fm, fv = self.fraction * tm * direction, self.fraction * tv * direction
         return fm + fv / n, fm, fv
