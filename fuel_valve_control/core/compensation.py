@@ -220,17 +220,18 @@ class ReferenceFeedforward(Compensator):
             # Δp's: at Δp 0 the motor's own static friction, reflected through the gear, is as
             # large as the valve's (friction x3: the ramp stalled at the cap)
             top = self.scale_bounds[1] * (m.valve_static_nm + m.valve_static_per_dp_nm)
-            # the ramp is on the drivetrain's static level (valve + motor through the gear) and
-            # carried as a valve torque: the coupling has to transmit all of it at breakaway
-            static = fl.valve_static_nm + n * fl.motor_static_nm
+            # the ramp is on the drivetrain's breakaway level (valve static + the motor's Coulomb
+            # through the gear: the motor already turns while the coupling winds up) and carried
+            # as a valve torque: the coupling has to transmit all of it at breakaway
+            static = fl.valve_static_nm + n * fl.motor_coulomb_nm
             level = min(sv * (self.ramp_start + self._armed_periods * self.ramp_per_period) * static, top)
             fv = self.fraction * level * ctx.armed
             return fv / n, 0.0, fv
-        # the valve let go: the drive torque of the period before is the static friction met
-        # by the whole drivetrain (valve, and the motor's reflected through the gear, which at
-        # Δp 0 is as large as the valve's); one scale for both shafts' levels
+        # the valve let go: the drive torque of the period before is the friction met by the
+        # whole drivetrain (valve static, and the turning motor's Coulomb through the gear, at
+        # Δp 0 as large as the valve's); one scale for both shafts' levels
         met = self._armed_dir * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa))
-        static = fl.valve_static_nm + n * fl.motor_static_nm
+        static = fl.valve_static_nm + n * fl.motor_coulomb_nm
         if static > 0.0:
             ratio = min(max(met / static, self.scale_bounds[0]), self.scale_bounds[1])
             self.breakaway_ratio = ratio
