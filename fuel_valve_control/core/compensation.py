@@ -174,12 +174,17 @@ class ReferenceFeedforward(Compensator):
     met / scheduled static level becomes the friction scale of both levels (the valve
     Friedland–Park level is re-seeded with it), so the sliding phase gets the Coulomb level of
     *this* valve, not the model's, from its first period, and the next move's ramp starts near
-    its breakaway.  The scale is bounded to ``scale_bounds`` and forgotten on :meth:`reset`.
+    its breakaway.  The scale is bounded to ``scale_bounds`` (wide: a wrong Δp reading moves the
+    friction met by up to x11 against the schedule, friction wear x0.5…3 on top) and forgotten
+    on :meth:`reset`.
     """
+
+    #: the breakaway ramp stops at this multiple of the nominal breakaway level at max Δp
+    RAMP_CAP = 4.0
 
     def __init__(self, motor: FrictionObserver, valve: FrictionObserver, velocity_smoothing: float,
                  stuck_speed: float, static_start: bool = True, fraction: float = 1.0, period_s: float = 1e-3,
-                 ramp_time: float = 0.015, ramp_start: float = 0.4, scale_bounds: tuple[float, float] = (0.25, 4.0),
+                 ramp_time: float = 0.05, ramp_start: float = 0.4, scale_bounds: tuple[float, float] = (0.1, 30.0),
                  retreat_periods: int = 0):
         self.motor, self.valve = motor, valve
         self.ramp_per_period = period_s / ramp_time if ramp_time > 0 else 1.0
@@ -216,10 +221,10 @@ class ReferenceFeedforward(Compensator):
             if ctx.armed != self._armed_dir:
                 self._armed_periods, self._armed_dir = 0, ctx.armed
             self._armed_periods += 1
-            # capped at scale_bounds[1] x the static level at max Δp, not at a multiple of this
-            # Δp's: at Δp 0 the motor's own static friction, reflected through the gear, is as
-            # large as the valve's (friction x3: the ramp stalled at the cap)
-            top = self.scale_bounds[1] * (m.valve_static_nm + m.valve_static_per_dp_nm)
+            # capped at RAMP_CAP x the breakaway level at max Δp, not at a multiple of this Δp's:
+            # at Δp 0 the motor's Coulomb friction through the gear is as large as the valve's
+            # static (friction x3: the ramp stalled at the cap), and the Δp reading may be wrong
+            top = self.RAMP_CAP * (m.valve_static_nm + m.valve_static_per_dp_nm + n * m.motor_coulomb_nm)
             # the ramp is on the drivetrain's breakaway level (valve static + the motor's Coulomb
             # through the gear: the motor already turns while the coupling winds up) and carried
             # as a valve torque: the coupling has to transmit all of it at breakaway
