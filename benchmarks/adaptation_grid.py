@@ -16,6 +16,7 @@ has settled) against the allowance ``jump + 2 counts`` (the cell's own stick-sli
 Prints a table, then, as the last line, one JSON object with every cell.
 
     python benchmarks/adaptation_grid.py [--jobs N] [--modes a,b] [--dp-error] [--seed N]
+                                       [--set controller.KEY=VALUE ...]
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ for p in (ROOT, ROOT / "benchmarks"):
 
 from control_quality import (NOMINAL, P_MAX, _fmt, corner_name, corner_overrides,  # noqa: E402
                              hunting_allowance, overshoot_floor_pct)
+from fuel_valve_control.common.paramspec import ConfigError, parse_overrides  # noqa: E402
 from fuel_valve_control.core.params import DEFAULT_MODE, MODES  # noqa: E402
 from fuel_valve_control.tools import metrics, sim  # noqa: E402
 from fuel_valve_control.tools.scenarios import load_scenario  # noqa: E402
@@ -51,11 +53,14 @@ def cells() -> list[dict]:
             for f, j, dp in itertools.product(FRICTION, INERTIA, DP)]
 
 
-def run_cell(mode: str, cell: dict, told_dp_kpa: float | None = None, seed: int | None = None) -> dict:
+def run_cell(mode: str, cell: dict, told_dp_kpa: float | None = None, seed: int | None = None,
+             controller_sets: dict | None = None) -> dict:
     """One ``step_small`` run on the cell's plant; ``told_dp_kpa``: the Δp the controller
-    is told when it differs from the plant's (a wrong transducer reading)."""
+    is told when it differs from the plant's (a wrong transducer reading); ``controller_sets``:
+    controller parameter overrides (e.g. ``pressure.friction_check_ratio``)."""
     sc = load_scenario("step_small")
     plant_over, ctrl_over = corner_overrides(cell)
+    ctrl_over = {**ctrl_over, **(controller_sets or {})}
     if told_dp_kpa is not None:     # the transducer reads told_dp_kpa (a biased reading)
         plant_over = {**plant_over, "pressure_sensor.bias_kpa": told_dp_kpa - cell["dp_kpa"]}
     p, c = sim.build(sc, plant_over, ctrl_over, seed, mode)
@@ -114,16 +119,24 @@ def main(argv=None) -> int:
     ap.add_argument("--dp-error", action="store_true",
                     help="also run every cell with the controller told the opposite Δp (0 <-> max)")
     ap.add_argument("--seed", type=int, default=None, help="resolver-noise seed (default: the scenario's)")
+    ap.add_argument("--set", action="append", default=[], metavar="controller.KEY=VALUE",
+                    help="controller parameter override (repeatable), e.g. "
+                         "controller.pressure.friction_check_ratio=4")
     ap.add_argument("--json", metavar="PATH", help="also write the JSON here")
     args = ap.parse_args(argv)
+    try:
+        sets = parse_overrides(args.set, ("controller",))["controller"]
+    except ConfigError as e:
+        print(f"adaptation_grid: {e}", file=sys.stderr)
+        return 2
     modes = [m for m in args.modes.split(",") if m]
     bad = [m for m in modes if m not in MODES]
     if bad:
         print(f"adaptation_grid: unknown mode {', '.join(bad)}", file=sys.stderr)
         return 2
-    jobs = [(m, c, None, args.seed) for m in modes for c in cells()]
+    jobs = [(m, c, None, args.seed, sets) for m in modes for c in cells()]
     if args.dp_error:
-        jobs += [(m, c, P_MAX - c["dp_kpa"], args.seed) for m in modes for c in cells()]
+        jobs += [(m, c, P_MAX - c["dp_kpa"], args.seed, sets) for m in modes for c in cells()]
     start = time.perf_counter()
     if args.jobs > 1:
         with Pool(args.jobs) as pool:
@@ -140,7 +153,7 @@ def main(argv=None) -> int:
     for k, s in summ.items():
         print(f"\n{k}: {s}")
     print(f"\n_{len(rows)} runs in {wall:.1f} s wall with {args.jobs} job(s): `{command.strip()}`_")
-    doc = {"command": command.strip(), "wall_time_s": round(wall, 2), "jobs": args.jobs,
+    doc = {"command": command.strip(), "wall_time_s": round(wall, 2), "jobs": args.jobs, "controller_sets": sets,
            "summary": summ, "cells": rows}
     if args.json:
         Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")

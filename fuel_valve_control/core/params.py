@@ -180,6 +180,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("trajectory.breakaway_wait_s", 0.25, "s", "observer_ff: a planned move waits at its start, at most "
           "this long, while the friction feed-forward ramps the drive to breakaway; its clock starts when the "
           "valve lets go (0 = start on the clock, as the other modes)", 0.0, 1.0, runtime=True),
+    Param("trajectory.breakaway_max_move_pct", 5.0, "%", "observer_ff: only planned moves up to this (percent "
+          "of stroke) wait for breakaway; longer ones start on the clock and have the time to catch a late "
+          "breakaway up", 0.0, 100.0, runtime=True),
     Param("trajectory.breakaway_counts", 3.0, "counts", "observer_ff: valve travel (valve resolver counts, "
           "the move's way) that counts as breakaway and starts a waiting move", 0.5, 100.0, runtime=True),
     Param("trajectory.velocity_filter_s", 0.005, "s", "observer, observer_fc, kalman_fc, fc_gain: time constant of the "

@@ -162,7 +162,8 @@ class PositionController:
                                   follow_acceleration=not legacy, follow_lead=follow_lead,
                                   # the default mode starts a planned move when the valve breaks away
                                   breakaway_wait=ps["trajectory.breakaway_wait_s"] if mode == "observer_ff" else 0.0,
-                                  breakaway_rad=ps["trajectory.breakaway_counts"] * RESOLVER_COUNT_RAD)
+                                  breakaway_rad=ps["trajectory.breakaway_counts"] * RESOLVER_COUNT_RAD,
+                                  breakaway_max_move=ps["trajectory.breakaway_max_move_pct"] / 100.0 * m.stroke_rad)
         integral = IntegralPolicy(ps["integral.deadband_jump_fraction"], ps["integral.deadband_min_rad"],
                                   ps["ff.stuck_speed_rad_s"], ps["integral.stuck_ramp_time_s"],
                                   ps["integral.relax_time_s"],
