@@ -13,6 +13,9 @@ hunting reading: peak-to-peak of the true valve angle over the last second (afte
 has settled) against the allowance ``jump + 2 counts`` (the cell's own stick-slip jump
 2 (Ts - Tc)/K); ``floor %`` is the overshoot a single quasi-static breakaway cannot avoid.
 
+observer_ff's move started on breakaway is off by default (``trajectory.breakaway_wait_s`` =
+0); ``--set controller.trajectory.breakaway_wait_s=0.25`` runs the grid with it on.
+
 Prints a table, then, as the last line, one JSON object with every cell.
 
     python benchmarks/adaptation_grid.py [--jobs N] [--modes a,b] [--dp-error] [--seed N]
