@@ -25,11 +25,9 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import os
 import sys
 import time
-from multiprocessing import Pool
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,7 +36,7 @@ for p in (ROOT, ROOT / "benchmarks"):
         sys.path.insert(0, str(p))
 
 from control_quality import (NOMINAL, P_MAX, _fmt, corner_name, corner_overrides,  # noqa: E402
-                             hunting_allowance, overshoot_floor_pct)
+                             emit_json, hunting_allowance, overshoot_floor_pct, run_jobs)
 from fuel_valve_control.common.paramspec import ConfigError, parse_overrides  # noqa: E402
 from fuel_valve_control.core.params import DEFAULT_MODE, MODES  # noqa: E402
 from fuel_valve_control.tools import metrics, sim  # noqa: E402
@@ -141,11 +139,7 @@ def main(argv=None) -> int:
     if args.dp_error:
         jobs += [(m, c, P_MAX - c["dp_kpa"], args.seed, sets) for m in modes for c in cells()]
     start = time.perf_counter()
-    if args.jobs > 1:
-        with Pool(args.jobs) as pool:
-            rows = pool.map(_job, jobs, chunksize=1)
-    else:
-        rows = [_job(j) for j in jobs]
+    rows = run_jobs(_job, jobs, args.jobs)
     wall = time.perf_counter() - start
     command = "python benchmarks/adaptation_grid.py " + " ".join(argv if argv is not None else sys.argv[1:])
     print("## 2 % step over friction x inertia x Δp (K nominal, same gains)\n")
@@ -156,11 +150,8 @@ def main(argv=None) -> int:
     for k, s in summ.items():
         print(f"\n{k}: {s}")
     print(f"\n_{len(rows)} runs in {wall:.1f} s wall with {args.jobs} job(s): `{command.strip()}`_")
-    doc = {"command": command.strip(), "wall_time_s": round(wall, 2), "jobs": args.jobs, "controller_sets": sets,
-           "summary": summ, "cells": rows}
-    if args.json:
-        Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
-    print(json.dumps(doc))
+    emit_json({"command": command.strip(), "wall_time_s": round(wall, 2), "jobs": args.jobs,
+               "controller_sets": sets, "summary": summ, "cells": rows}, args.json)
     return 0
 
 
