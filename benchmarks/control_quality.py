@@ -199,6 +199,22 @@ def robustness_table(results: list[dict]) -> str:
     return "\n".join(rows)
 
 
+def run_jobs(fn, jobs: list, workers: int) -> list:
+    """``[fn(j) for j in jobs]``, over a process pool of ``workers`` when more than one."""
+    if workers > 1:
+        with Pool(workers) as pool:
+            return pool.map(fn, jobs, chunksize=1)
+    return [fn(j) for j in jobs]
+
+
+def emit_json(doc: dict, path: str | None) -> None:
+    """Print ``doc`` as the benchmark's last line (and write it to ``path`` when given)."""
+    doc = metrics.jsonable(doc)
+    if path:
+        Path(path).write_text(json.dumps(doc, indent=1) + "\n")
+    print(json.dumps(doc))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: CPUs)")
@@ -223,11 +239,7 @@ def main(argv=None) -> int:
         jobs += [("robustness", m, s, d, c) for m in ROBUST_MODES for c in corners(full=not args.quick)
                  for s, d in (("step_small", None), ("hold", hold))]
     start = time.perf_counter()
-    if args.jobs > 1:
-        with Pool(args.jobs) as pool:
-            results = pool.map(_run, jobs, chunksize=1)
-    else:
-        results = [_run(j) for j in jobs]
+    results = run_jobs(_run, jobs, args.jobs)
     wall = time.perf_counter() - start
     scen = [r for r in results if r["kind"] == "scenario"]
     rob = [r for r in results if r["kind"] == "robustness"]
@@ -240,12 +252,8 @@ def main(argv=None) -> int:
     print(md)
     if args.markdown:
         Path(args.markdown).write_text(md + "\n")
-    doc = {"command": command.strip(), "wall_time_s": round(wall, 2), "jobs": args.jobs, "quick": args.quick,
-           "scenarios": scen, "robustness": rob}
-    doc = metrics.jsonable(doc)
-    if args.json:
-        Path(args.json).write_text(json.dumps(doc, indent=1) + "\n")
-    print(json.dumps(doc))
+    emit_json({"command": command.strip(), "wall_time_s": round(wall, 2), "jobs": args.jobs, "quick": args.quick,
+               "scenarios": scen, "robustness": rob}, args.json)
     return 0
 
 

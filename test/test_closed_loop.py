@@ -243,6 +243,59 @@ def test_robust_small_step_overshoot(c):
     assert m["peak_current_a"] <= 37.0
 
 
+# ===================================================== adaptation grid (issue 14, Deliver 2)
+#: the 2 % step over friction x inertia x Δp at K nominal (benchmarks/adaptation_grid.py) with
+#: observer_ff's move started on breakaway (trajectory.breakaway_wait_s; off by default, see
+#: docs/control_results.md §9): issue 14's target is <= 10 % overshoot, <= 5 % the aim; with
+#: the move on the clock (the default) 7 of these 18 cells miss 10 % (F x0.5 at max Δp 31-37 %,
+#: F x3 at max Δp 43-45 %, J -20 % 23.5 %) and 4 hunt
+ADAPTATION_GRID = [dict(friction=f, dp=dp, inertia=j)
+                   for f in (0.5, 1.0, 3.0) for j in (0.8, 1.0, 1.2) for dp in (0.0, P_MAX)]
+BREAKAWAY_START = (("trajectory.breakaway_wait_s", 0.25),)
+HUNT_WINDOW_S = 1.0    # the last second of step_small (the step is at 0.5 s)
+
+
+GRID_SHORTFALLS = {
+    _corner(friction=3.0, dp=0.0, inertia=1.2):
+        "overshoot 3.8 %, but one late slip in the last second: 1.17x the jump + 2 counts "
+        "(jump 1.25e-3 rad at Δp 0); the integrator's stuck ramp finishing a move that stopped "
+        "8e-4 rad short",
+}
+
+
+def _grid_cases() -> list:
+    return [pytest.param(c, id=_id({k: v for k, v in c.items() if v != NOMINAL[k]}),
+                         marks=[pytest.mark.xfail(strict=True, reason=GRID_SHORTFALLS[_key(c)])]
+                         if _key(c) in GRID_SHORTFALLS else []) for c in ADAPTATION_GRID]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("c", _grid_cases())
+def test_adaptation_grid_small_step_overshoot_without_hunting(c):
+    plant, _ = corner(**c)
+    res, ps = _run("step_small", plant=plant, controller=BREAKAWAY_START)
+    m = res.metrics
+    assert m["overshoot_pct"] <= 10.0        # issue 14's target (measured: <= 5.4 %)
+    assert m["settling_time_s"] is not None and m["settling_time_s"] <= 0.2
+    assert m["peak_current_a"] <= 30.0
+    # no hunting: over the last second the valve moves less than one stick-slip jump of that
+    # plant plus two counts (at rest it does not move at all)
+    jump = friction_levels(ps).stick_slip_jump_rad(ps["coupling.stiffness_nm_per_rad"])
+    t, pos = res.column("t"), res.column("position_rad")
+    tail = pos[t >= t[-1] - HUNT_WINDOW_S]
+    assert tail.max() - tail.min() <= jump + TWO_COUNTS
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="move started on breakaway, coupling K x0.3 (J -20 %, max Δp): 23 % "
+                   "overshoot against 0 % on the clock; the coupling stores the static-Coulomb gap as a "
+                   "3.3x larger twist, and the retreat scaled by the stiffness met in the wind-up does not "
+                   "take it back in time (docs/control_results.md §9)")
+def test_breakaway_start_on_a_soft_coupling():
+    plant, _ = corner(stiffness=0.3, inertia=0.8)
+    assert _metrics("step_small", plant=plant, controller=BREAKAWAY_START)["overshoot_pct"] <= 10.0
+
+
 # ============================================================================ pi baseline
 def test_pi_baseline_shows_the_field_limit_cycle():
     hold = _metrics("hold", mode="pi")

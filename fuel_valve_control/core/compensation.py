@@ -16,6 +16,7 @@ estimate is friction acting toward closed (the shaft moves toward open).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from .friction_observer import FrictionObserver
@@ -38,6 +39,8 @@ class Context:
     ref_moving: bool            # a planned move is under way
     error: float                # demand - valve angle estimate, rad
     outside_deadband: bool      # |error| beyond the friction-sized deadband (hold phase)
+    armed: float = 0.0          # direction of a planned move waiting for breakaway (Reference.armed)
+    broke_away: bool = False    # the valve broke away this period and started that move
 
 
 def _sat(x: float) -> float:
@@ -181,11 +184,45 @@ class ReferenceFeedforward(Compensator):
     slides.  Both levels scale with the ratio ``adapted Coulomb / nominal Coulomb``; the
     adaptation is the Friedland–Park update run on the *measured* valve speed while the valve
     slides in the reference direction, so its sign never comes from noise.
+
+    **Breakaway** (a planned move waiting at its start, ``ctx.armed``; issue 14): the valve
+    feed-forward ramps from ``ramp_start`` x the learned static level upward by one learned
+    static level per ``ramp_time`` seconds until the valve lets go (the move's clock then
+    starts, :class:`~.trajectory.TrajectoryShaper`).  The drive torque at that moment is the
+    static friction met: ``s (N u - load(θL)) - N Tc_motor`` (valve side, ``s`` the direction;
+    read from the applied motor torque, so the coupling stiffness does not enter), and
+    met / scheduled static level becomes the friction scale of both levels (the valve
+    Friedland–Park level is re-seeded with it), so the sliding phase gets the Coulomb level of
+    *this* valve, not the model's, from its first period, and the next move's ramp starts near
+    its breakaway.  The scale is bounded to ``scale_bounds`` (wide: a wrong Δp reading moves the
+    friction met by up to x11 against the schedule, friction wear x0.5…3 on top) and forgotten
+    on :meth:`reset`.
     """
 
+    #: the breakaway ramp stops at this multiple of the nominal breakaway level at max Δp
+    RAMP_CAP = 4.0
+    #: bounds of K_model / K_met read in a wind-up (the SPEC box reaches K x 0.1)
+    SOFT_BOUNDS = (0.5, 20.0)
+
     def __init__(self, motor: FrictionObserver, valve: FrictionObserver, velocity_smoothing: float,
-                 stuck_speed: float, static_start: bool = True, fraction: float = 1.0):
+                 stuck_speed: float, static_start: bool = True, fraction: float = 1.0, period_s: float = 1e-3,
+                 ramp_time: float = 0.05, ramp_start: float = 0.4, scale_bounds: tuple[float, float] = (0.1, 30.0),
+                 retreat_periods: int = 0):
         self.motor, self.valve = motor, valve
+        self.ramp_per_period = period_s / ramp_time if ramp_time > 0 else 1.0
+        self.ramp_start = ramp_start
+        self.scale_bounds = scale_bounds
+        self._armed_periods = 0
+        self._armed_dir = 0.0
+        self.retreat_periods = retreat_periods
+        self._retreat_periods = 0
+        self._retreat_nm = 0.0
+        self._breakaway_move = False     # the levels of the move under way come from its breakaway
+        self._windup0: tuple[float, float] | None = None   # (drive N*m valve side, twist rad) at arming
+        #: K_model / coupling stiffness met in the latest wind-up (1 before the first)
+        self.coupling_softness = 1.0
+        #: static friction met / scheduled at the latest breakaway (None before the first)
+        self.breakaway_ratio: float | None = None
         self.static_start = static_start
         self.v_smooth = velocity_smoothing
         self.stuck_speed = stuck_speed
@@ -195,6 +232,72 @@ class ReferenceFeedforward(Compensator):
     def reset(self, model, pressure_kpa):
         self.model = model
         _seed_levels(self.motor, self.valve, model, pressure_kpa)
+        self._armed_periods = 0
+        self._armed_dir = 0.0
+        self._retreat_periods = 0
+        self._breakaway_move = False
+        self.breakaway_ratio = None
+
+    def _breakaway(self, ctx: Context) -> tuple[float, float, float]:
+        """A move waiting for breakaway: the static-level ramp; learn when the valve lets go."""
+        m = self.model
+        n = m.gear_ratio
+        fl = m.friction(ctx.pressure_kpa)
+        sm, sv = self.scale(ctx.pressure_kpa)
+        if ctx.armed:
+            if ctx.armed != self._armed_dir:
+                self._armed_periods, self._armed_dir = 0, ctx.armed
+                # where the wind-up starts: with the valve stuck, the gear output's travel
+                # against the torque added says how stiff the coupling really is
+                self._windup0 = (n * ctx.applied_torque, ctx.th1 - ctx.thl)
+            self._armed_periods += 1
+            # capped at RAMP_CAP x the breakaway level at max Δp, not at a multiple of this Δp's:
+            # at Δp 0 the motor's Coulomb friction through the gear is as large as the valve's
+            # static (friction x3: the ramp stalled at the cap), and the Δp reading may be wrong
+            top = self.RAMP_CAP * (m.valve_static_nm + m.valve_static_per_dp_nm + n * m.motor_coulomb_nm)
+            # the ramp is on the drivetrain's breakaway level (valve static + the motor's Coulomb
+            # through the gear: the motor already turns while the coupling winds up) and carried
+            # as a valve torque: the coupling has to transmit all of it at breakaway
+            static = fl.valve_static_nm + n * fl.motor_coulomb_nm
+            level = min(sv * (self.ramp_start + self._armed_periods * self.ramp_per_period) * static, top)
+            fv = self.fraction * level * ctx.armed
+            return fv / n, 0.0, fv
+        s = self._armed_dir
+        # the valve let go: the drive torque of the period before is the friction met by the
+        # whole drivetrain (valve static, and the turning motor's Coulomb through the gear, at
+        # Δp 0 as large as the valve's); one scale for both shafts' levels
+        met = s * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa))
+        static = fl.valve_static_nm + n * fl.motor_coulomb_nm
+        if static > 0.0:
+            ratio = min(max(met / static, self.scale_bounds[0]), self.scale_bounds[1])
+            self.breakaway_ratio = ratio
+            self.valve.reset(ratio * fl.valve_coulomb_nm / m.valve_inertia_kgm2)
+            self.motor.reset(ratio * fl.motor_coulomb_nm / m.motor_inertia_kgm2)
+            # the coupling twist stored at breakaway exceeds what sliding needs by the valve's
+            # static - Coulomb gap: take it back over one period of the valve on the coupling
+            # (the free stick-slip jump takes half of it; over half a period the nominal 2 %
+            # step overshot 6.6 %), or the valve runs that far ahead of the move.  The motor's
+            # own gap is not stored in the coupling (retreating it too: friction x3 at Δp 0
+            # stalled short and overshot 13.6 % on the second breakaway)
+            # coupling stiffness met in the wind-up (torque added / twist added; the motor's
+            # Coulomb friction, which set in as the motor started turning, is not twist): a
+            # coupling softer than the model stores the gap as a larger twist, which takes
+            # K_model / K_met times the torque cut and sqrt(K_model / K_met) times as long to
+            # take back (on K x 0.3 the nominal retreat left 48 % overshoot)
+            soft = 1.0
+            if self._windup0 is not None:
+                torque0, twist0 = self._windup0
+                d_twist = s * ((ctx.th1 - ctx.thl) - twist0)
+                d_torque = s * (n * ctx.applied_torque - torque0) - n * sm * fl.motor_coulomb_nm
+                k_model = m.coupling_stiffness_nm_per_rad
+                if d_twist > 0.0 and d_torque > 0.0:
+                    soft = min(max(k_model * d_twist / d_torque, self.SOFT_BOUNDS[0]), self.SOFT_BOUNDS[1])
+            self.coupling_softness = soft
+            self._retreat_nm = soft * ratio * max(fl.valve_static_nm - fl.valve_coulomb_nm, 0.0)
+            self._retreat_periods = int(round(self.retreat_periods * math.sqrt(soft)))
+            self._breakaway_move = True
+        self._armed_periods, self._armed_dir = 0, 0.0
+        return None
 
     def scale(self, pressure_kpa: float) -> tuple[float, float]:
         """Adapted / nominal Coulomb level of (motor, valve)."""
@@ -205,13 +308,25 @@ class ReferenceFeedforward(Compensator):
         return sm, sv
 
     def update(self, ctx):
+        if ctx.armed or (ctx.broke_away and self._armed_dir):
+            out = self._breakaway(ctx)
+            if out is not None:
+                return out
+        elif self._armed_dir:
+            self._armed_periods, self._armed_dir = 0, 0.0    # the wait timed out: nothing learned
         m = self.model
         n = m.gear_ratio
         direction = _sat(ctx.ref_velocity / self.v_smooth) if self.v_smooth > 0 else (
             (ctx.ref_velocity > 0) - (ctx.ref_velocity < 0))
-        # adapt the levels only while the valve really slides the way the reference goes
+        # adapt the levels only while the valve really slides the way the reference goes, and
+        # not in a move whose breakaway set them: the Friedland-Park update reads friction
+        # through the nominal coupling model, the breakaway reading does not (on a coupling of
+        # K x 0.1 the update drove the valve level from the 1.0 N*m met to 7 N*m within one
+        # 2 % step: 60 % overshoot)
+        if not ctx.ref_moving:
+            self._breakaway_move = False
         sliding = abs(ctx.valve_speed_meas) > self.stuck_speed and ctx.valve_speed_meas * ctx.ref_velocity > 0
-        if sliding:
+        if sliding and not self._breakaway_move:
             wm, wv = _non_friction_accels(m, ctx)
             self.motor.update(n * ctx.valve_speed_meas, wm)
             self.valve.update(ctx.valve_speed_meas, wv)
@@ -225,5 +340,8 @@ class ReferenceFeedforward(Compensator):
         sm, sv = self.scale(ctx.pressure_kpa)
         tm = sm * (fl.motor_static_nm if breakaway else fl.motor_coulomb_nm)
         tv = sv * (fl.valve_static_nm if breakaway else fl.valve_coulomb_nm)
+        if self._retreat_periods > 0:
+            self._retreat_periods -= 1
+            tv -= self._retreat_nm
         fm, fv = self.fraction * tm * direction, self.fraction * tv * direction
         return fm + fv / n, fm, fv

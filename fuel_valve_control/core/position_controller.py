@@ -18,6 +18,8 @@ reading another parameter.
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Any, Iterator, Mapping
 
@@ -157,7 +159,11 @@ class PositionController:
         shaper = TrajectoryShaper(period, v_max, a_max, ps["trajectory.step_threshold_rad"],
                                   ps["trajectory.velocity_filter_s" if legacy else "trajectory.follow_filter_s"],
                                   ps["trajectory.min_move_time_s"], ps["trajectory.feedforward_lead_s"],
-                                  follow_acceleration=not legacy, follow_lead=follow_lead)
+                                  follow_acceleration=not legacy, follow_lead=follow_lead,
+                                  # the default mode starts a planned move when the valve breaks away
+                                  breakaway_wait=ps["trajectory.breakaway_wait_s"] if mode == "observer_ff" else 0.0,
+                                  breakaway_rad=ps["trajectory.breakaway_counts"] * RESOLVER_COUNT_RAD,
+                                  breakaway_max_move=ps["trajectory.breakaway_max_move_pct"] / 100.0 * m.stroke_rad)
         integral = IntegralPolicy(ps["integral.deadband_jump_fraction"], ps["integral.deadband_min_rad"],
                                   ps["ff.stuck_speed_rad_s"], ps["integral.stuck_ramp_time_s"],
                                   ps["integral.relax_time_s"],
@@ -212,7 +218,11 @@ class PositionController:
                                 boundary_velocity=v_count))
         if mode in ("observer_ff", "observer_fp"):
             return ReferenceFeedforward(*fps, ps["ff.velocity_smoothing_rad_s"], ps["ff.stuck_speed_rad_s"],
-                                        ps["ff.static_start"], ps["fp.compensation_fraction"])
+                                        ps["ff.static_start"], ps["fp.compensation_fraction"], period,
+                                        ps["ff.breakaway_ramp_s"], ps["ff.breakaway_start_fraction"],
+                                        # the breakaway retreat: one period of the valve on the coupling
+                                        retreat_periods=int(round(2.0 * math.pi * math.sqrt(
+                                            m.valve_inertia_kgm2 / m.coupling_stiffness_nm_per_rad) / period)))
         return FriedlandPark(*fps, ps["fp.compensation_fraction"], ps["ff.stuck_speed_rad_s"])
 
     # ------------------------------------------------------------------ run time

@@ -158,7 +158,7 @@ class StateFeedbackLaw(ControlLaw):
             return self.seating.torque(m, stop, seat, pressure_kpa)
         # ---- reference, deadband
         was_moving = self.reference is not None and self.reference.moving
-        ref = self.shaper.update(target)
+        ref = self.shaper.update(target, meas.valve_rad)
         if ref.moving and not was_moving:
             # a move starts: uncock the drive first (valve torque back to the known load) so the
             # move's feed-forward starts from neutral, not from a drive wound up to breakaway
@@ -184,7 +184,7 @@ class StateFeedbackLaw(ControlLaw):
         outside = abs(target - thl) > self.deadband and not ref.moving
         # ---- friction compensation
         ctx = Context(pressure_kpa, th1, w1, thl, wl, valve_speed, self._applied, ref.velocity, ref.acceleration,
-                      ref.moving, error, outside)
+                      ref.moving, error, outside, ref.armed, ref.broke_away)
         comp, self._fm, self._fl = self.compensator.update(ctx)
         # ---- state feedback around the dynamically consistent reference state
         x_ref, u_ff = m.reference_state(ref.position, ref.velocity, ref.acceleration, pressure_kpa,
