@@ -90,7 +90,7 @@ def trailing_extreme(stamps_ns: np.ndarray, values: np.ndarray, t_ns: np.ndarray
     return out
 
 
-def valve_excess(bag_dir: Path) -> dict:
+def valve_excess(bag_dir: Path, until_ns: int | None = None) -> dict:
     """Largest valve-over-demand excess (percent of stroke) while the controller enabled the
     drive (``drive_enable`` true), and while the drive was really on (its ``drive_status``
     enabled too: not off by its command watchdog, where the spring closes the valve, or
@@ -99,7 +99,11 @@ def valve_excess(bag_dir: Path) -> dict:
     Also the other side, reported only: the valve's largest shortfall under the *smallest*
     demand of the trailing window (a valve still on its way up after a rising demand is lag),
     over every sample (``shortfall_max_pct``) and while the drive was enabled, from the valve's
-    first arrival within 2 % of the demand on (before it: the start-up move).  A drive the
+    first arrival within 2 % of the demand on (before it: the start-up move).
+
+    ``until_ns`` (wall-clock ns, the bag's receive time): samples after it are not judged --
+    the soak's end, when the launcher stops the nodes, demand node first (the controller then
+    latches "no valid demand" and the spring closes the valve: teardown, not the soak).  A drive the
     controller keeps off -- its re-arm after a watchdog trip waiting for the valve, a latched
     fault -- lets the spring close the valve: invisible to the excess, which counts enabled
     samples only, and for a fuel valve a flow dip as real as an excess (the soak's trips once
@@ -110,8 +114,9 @@ def valve_excess(bag_dir: Path) -> dict:
     status = bag.find("drive_status")
     if js is None or dem is None or len(dem) == 0:
         return {"excess_max_pct": None, "samples": 0}
-    t = js.log_ns
-    valve = 100.0 * js[f"{VALVE_JOINT}.position"] / STROKE_RAD
+    keep = slice(None) if until_ns is None else slice(0, int(np.searchsorted(js.log_ns, until_ns, side="right")))
+    t = js.log_ns[keep]
+    valve = 100.0 * js[f"{VALVE_JOINT}.position"][keep] / STROKE_RAD
     dt, dv = dem.log_ns, dem["data"]
     order = np.argsort(dt, kind="stable")
     dt, dv = dt[order], dv[order]
@@ -256,6 +261,7 @@ def main() -> int:
                 break
             time.sleep(min(1.0, args.sample_s))
         wall = time.monotonic() - t0
+        end_ns = time.time_ns()             # the measured window ends here: then the teardown
         if operator is not None:
             operator.close()
         died = [n for n in launcher.failed() if n != "plant" or not args.lockstep]
@@ -265,8 +271,10 @@ def main() -> int:
             h.send_signal(signal.SIGKILL)
             h.wait()
     rec = launcher.recording_losses()          # the one reader of the nodes' published counts
-    excess = valve_excess(launcher.bag)
-    disabled = re.findall(r"drive DISABLED: state \w+(?:, faults: (.*))?", launcher.log("controller"))
+    excess = valve_excess(launcher.bag, end_ns)
+    # drive disablements within the measured window (log lines are stamped with wall-clock s)
+    disabled = [faults for stamp, faults in re.findall(r"\[(\d+\.\d+)\] \[[^]]*\]: drive DISABLED: state \w+(?:, faults: (.*))?",
+                                                       launcher.log("controller")) if float(stamp) * 1e9 <= end_ns]
     from fuel_valve_control.tools.bag_io import read_bag
     diag = read_bag(launcher.bag, ["/diagnostics"]).diagnostics
     plant_diag = next((v for k, v in diag.items() if k.endswith("plant: loop") or "plant" in k), {})
