@@ -90,8 +90,11 @@ def simulate_freezes(freezes: dict[int, int], seconds: float, demand=soak_demand
                 drive_on = False
         else:
             last, _ = sim.exchange_period(drv, plant, t, demand(t))
-            # the drive comes back on an explicit re-enable or an enable edge (plant_node)
-            drive_on = drive_on or last.reenable or (last.enable and not enabled)
+            # the drive comes back on an explicit re-enable or an enable edge (plant_node) and
+            # says so (its state word reaches the driver before the next period)
+            if not drive_on and (last.reenable or (last.enable and not enabled)):
+                drive_on = True
+                drv.drive_status(t, contract.DRIVE_STATE_ENABLED)
             enabled = last.enable
             plant.set_command(last.current_a if drive_on else 0.0, last.enable and drive_on)
         plant.advance(period)

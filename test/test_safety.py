@@ -394,8 +394,12 @@ def _stalls(report: bool, gap_periods: int, demand: float = 47.5, stalls: int = 
         drive_on, enabled = not report, True
         for _ in range(300):
             out, _ = sim.exchange_period(drv, plant, t, demand)
-            # the drive comes back on an explicit re-enable or an enable edge (plant_node)
-            drive_on = drive_on or out.reenable or (out.enable and not enabled)
+            # the drive comes back on an explicit re-enable or an enable edge (plant_node), and
+            # a reporting drive says so
+            if not drive_on and (out.reenable or (out.enable and not enabled)):
+                drive_on = True
+                if report:
+                    drv.drive_status(t, contract.DRIVE_STATE_ENABLED)
             enabled = out.enable
             plant.set_command(out.current_a if drive_on else 0.0, out.enable and drive_on)
             plant.advance(period)
@@ -421,6 +425,36 @@ def test_vcpu_freezes_during_a_moving_demand_re_arm_at_once_and_keep_the_valve_o
     assert r["freezes"] == 6 and drv.stall_rearms == r["freezes"] and not drv.last.faults
     assert drv.last.state == "running"
     assert r["excess_pct"] <= 2.0 and r["shortfall_pct"] <= 2.0, r
+
+
+def test_the_law_is_held_at_its_re_arm_until_the_drive_reports_it_is_back_on():
+    # the soak's 4.4 %: re-armed and re-enabled after a trip, the plant took the re-enable 44 ms
+    # late; meanwhile the law ran on against a drive that applied nothing while the spring
+    # closed the valve, wound up to 37 A, and the valve shot from the stop past its demand.
+    # Until the drive reports it is on, each period re-arms from the measurement: the command
+    # is the torque that holds the valve where it is, never a wound-up one
+    rig = Rig()
+    rig.d.drive_status(rig.t, contract.DRIVE_STATE_ENABLED)
+    rig.healthy()
+    rig.d.drive_status(rig.t, contract.DRIVE_STATE_WATCHDOG)
+    out = rig.run(T)
+    assert out.enable and out.reenable and rig.d.stall_rearms == 1
+    kt = rig.d.controller.model.torque_constant_nm_per_a
+    for _ in range(40):                        # still off: the spring closes the valve, 0.5 rad/s
+        rig.valve -= 0.5 * T
+        out = rig.run(T)
+        holding = rig.d.controller.model.equilibrium(rig.valve, rig.d.pressure_kpa)[1] / kt
+        assert out.enable and not out.reenable and out.current_a == pytest.approx(holding, abs=0.05), \
+            (out.current_a, holding)
+    rig.d.drive_status(rig.t, contract.DRIVE_STATE_ENABLED)      # it has taken the re-enable
+    currents = [rig.run(T).current_a for _ in range(20)]
+    assert max(abs(c - currents[0]) for c in currents) > 0.05 and rig.d.stall_rearms == 1   # the law runs
+    assert not rig.d.last.faults
+    # a drive that never reports back: the hold ends in a latched drive fault, drive off
+    rig.d.drive_status(rig.t, contract.DRIVE_STATE_WATCHDOG)
+    rig.run(D.DRIVE_BACK_TIMEOUT_S - 0.05)
+    assert rig.d.last.enable and not rig.d.last.faults and rig.d.stall_rearms == 2
+    _assert_failsafe(rig.run(0.1), D.DRIVE_FAULT)
 
 
 @pytest.mark.parametrize("direction", [+1.0, -1.0])

@@ -86,6 +86,11 @@ RESET_QUIET_S = 0.1
 #: :data:`PARAM_SWAP_MAX_WAIT_S` after it was first requested
 PARAM_SWAP_SETTLED_RAD = 5e-3
 PARAM_SWAP_MAX_WAIT_S = 1.0
+#: longest wait, s, for a drive re-enabled after its watchdog trip to report it is on again (the
+#: law is held at its re-arm meanwhile); then :data:`DRIVE_FAULT` latches.  Far beyond the
+#: 44 ms a starved plant took in the soak, far below the seconds a valve left to the spring
+#: without supervision would be
+DRIVE_BACK_TIMEOUT_S = 0.5
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
 #: warning code of a measured Δp that disagrees with the valve friction met (friction_check.py)
@@ -151,6 +156,10 @@ class ValveDriver:
         #: the reports, not the loop gap, say when the drive switched itself off)
         self.drive_state: int | None = None
         self._drive_tripped = False                # the drive reported its watchdog off while armed
+        #: re-armed and re-enabled after a watchdog trip, the drive not yet reporting it is back on
+        #: (:meth:`_step`: the law is held at its re-arm meanwhile)
+        self._drive_coming_back = False
+        self._coming_back_since = 0.0
         #: after the drive went off the loop re-arms only once the valve is slow enough for a
         #: law whose observer starts at rest, or closing (:meth:`_valve_at_rest`): re-arming a
         #: valve in full swing (a starved loop tripping the drive every few periods mid-move)
@@ -608,6 +617,8 @@ class ValveDriver:
         if self._armed and self._drive_went_off(t, ps):
             self._armed = False                   # re-arm below from the measurement, holding torque
             self._stalled = reenable = self._rearm_at_rest = True
+            self._drive_coming_back = self.drive_state is not None
+            self._coming_back_since = t
             self.stall_rearms += 1
             # the twist check compared the coupling with a current the drive did not apply
             # while it was off: that time is no evidence of a failed resolver
@@ -643,6 +654,29 @@ class ValveDriver:
             self.last = DriverOutput(0.0, False, "waiting", self._demand_pct, position_pct, {}, dict(self.warnings))
             return self.last
         self._rearm_at_rest = False
+        if self._drive_coming_back:
+            if self.drive_state == DRIVE_STATE_WATCHDOG and self._armed:
+                # re-enabled, but the drive still reports itself off (it has not taken the
+                # re-enable yet): it applies nothing, so a law running on would wind up against
+                # a valve the spring is moving -- in the soak a plant that took the re-enable
+                # 44 ms late met a law asking 37 A, and the valve shot from the stop to 4.4 %
+                # past its demand.  Held at its re-arm instead: again from the measurement,
+                # commanding the torque that holds the valve where it is, until the drive
+                # reports it is on (the supervision checks compare with an applied current:
+                # not run meanwhile).  A drive that does not report back within
+                # DRIVE_BACK_TIMEOUT_S latches DRIVE_FAULT: fail safe, ~/reset re-enables it
+                if t - self._coming_back_since > DRIVE_BACK_TIMEOUT_S:
+                    self._drive_coming_back = False
+                    self._latch(DRIVE_FAULT, f"the drive did not report back on within {DRIVE_BACK_TIMEOUT_S:g} s "
+                                             "of its re-enable after a watchdog trip")
+                    return self._fail_safe_output(position_pct)
+                self.controller.reset(self._meas, pressure, self.controller.model.equilibrium(
+                    self._meas.valve_rad, pressure)[1], keep_limits=True)
+                self.last = DriverOutput(self.controller.last_current, True, "running", self._demand_pct,
+                                         position_pct, {}, dict(self.warnings))
+                return self.last
+            if self.drive_state != DRIVE_STATE_WATCHDOG:
+                self._drive_coming_back = False
         if not self._armed:
             if self._stalled:
                 # after the drive switched itself off: from the torque that holds the valve where
