@@ -68,51 +68,79 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
-def valve_excess(bag_dir: Path) -> dict:
+def trailing_extreme(stamps_ns: np.ndarray, values: np.ndarray, t_ns: np.ndarray, window_ns: int,
+                     extreme=np.maximum) -> np.ndarray:
+    """The largest (``extreme`` np.maximum) or smallest (np.minimum) of ``values`` (sorted by
+    ``stamps_ns``) over the trailing window ``t - window_ns .. t`` of every ``t_ns`` (at least
+    the latest value before ``t``; NaN before the first): a sparse table, O(n log n) (the soak
+    has ~10^5-10^6 samples)."""
+    hi = np.searchsorted(stamps_ns, t_ns, side="right")
+    lo = np.searchsorted(stamps_ns, t_ns - window_ns, side="left")
+    lo = np.minimum(lo, np.maximum(hi - 1, 0))          # at least the latest value before t
+    valid = hi > 0
+    levels = [values]
+    while (1 << len(levels)) <= len(values):
+        prev, step = levels[-1], 1 << (len(levels) - 1)
+        levels.append(extreme(prev[:-step], prev[step:]))
+    k = np.floor(np.log2(np.maximum(hi - lo, 1))).astype(int)
+    out = np.full(len(t_ns), np.nan)
+    for level in np.unique(k[valid]):
+        sel = valid & (k == level)
+        out[sel] = extreme(levels[level][lo[sel]], levels[level][hi[sel] - (1 << level)])
+    return out
+
+
+def valve_excess(bag_dir: Path, until_ns: int | None = None) -> dict:
     """Largest valve-over-demand excess (percent of stroke) while the controller enabled the
     drive (``drive_enable`` true), and while the drive was really on (its ``drive_status``
     enabled too: not off by its command watchdog, where the spring closes the valve, or
-    friction at high Δp holds it where it stopped, so the valve lags a falling demand)."""
+    friction at high Δp holds it where it stopped, so the valve lags a falling demand).
+
+    Also the other side, reported only: the valve's largest shortfall under the *smallest*
+    demand of the trailing window (a valve still on its way up after a rising demand is lag),
+    over every sample (``shortfall_max_pct``) and while the drive was enabled, from the valve's
+    first arrival within 2 % of the demand on (before it: the start-up move).
+
+    ``until_ns`` (wall-clock ns, the bag's receive time): samples after it are not judged --
+    the soak's end, when the launcher stops the nodes, demand node first (the controller then
+    latches "no valid demand" and the spring closes the valve: teardown, not the soak).  A drive the
+    controller keeps off -- its re-arm after a watchdog trip waiting for the valve, a latched
+    fault -- lets the spring close the valve: invisible to the excess, which counts enabled
+    samples only, and for a fuel valve a flow dip as real as an excess (the soak's trips once
+    closed the valve every time, 59 % under a 60 % demand)."""
     from fuel_valve_control.tools.bag_io import read_bag
     bag = read_bag(bag_dir, ["joint_states", "demand", "drive_enable", "drive_status"])
     js, dem, en = bag.find("joint_states"), bag.find("demand"), bag.find("drive_enable")
     status = bag.find("drive_status")
     if js is None or dem is None or len(dem) == 0:
         return {"excess_max_pct": None, "samples": 0}
-    t = js.log_ns
-    valve = 100.0 * js[f"{VALVE_JOINT}.position"] / STROKE_RAD
-    # largest demand in the trailing window: the demand samples between t - window and t
+    keep = slice(None) if until_ns is None else slice(0, int(np.searchsorted(js.log_ns, until_ns, side="right")))
+    t = js.log_ns[keep]
+    valve = 100.0 * js[f"{VALVE_JOINT}.position"][keep] / STROKE_RAD
     dt, dv = dem.log_ns, dem["data"]
     order = np.argsort(dt, kind="stable")
     dt, dv = dt[order], dv[order]
     window = int(EXCESS_WINDOW_S * 1e9)
-    hi = np.searchsorted(dt, t, side="right")
-    lo = np.searchsorted(dt, t - window, side="left")
-    lo = np.minimum(lo, np.maximum(hi - 1, 0))          # at least the latest demand before t
-    valid = hi > 0
-    # sliding maximum by a sparse table (the soak has ~10^5-10^6 samples)
-    levels = [dv]
-    while (1 << len(levels)) <= len(dv):
-        prev, step = levels[-1], 1 << (len(levels) - 1)
-        levels.append(np.maximum(prev[:-step], prev[step:]))
-    n = np.maximum(hi - lo, 1)
-    k = np.floor(np.log2(n)).astype(int)
-    dmax = np.full(len(t), np.nan)
-    for level in np.unique(k[valid]):
-        sel = valid & (k == level)
-        arr = levels[level]
-        a = lo[sel]
-        b = hi[sel] - (1 << level)
-        dmax[sel] = np.maximum(arr[a], arr[b])
+    dmax = trailing_extreme(dt, dv, t, window, np.maximum)
+    dmin = trailing_extreme(dt, dv, t, window, np.minimum)
+    valid = np.isfinite(dmax) & np.isfinite(valve)
     enabled = np.zeros(len(t), dtype=bool)
     if en is not None and len(en):
         idx = np.searchsorted(en.log_ns, t, side="right") - 1
         enabled = (idx >= 0) & (en["data"][np.maximum(idx, 0)] > 0.5)
-    mask = valid & enabled & np.isfinite(valve)
+    mask = valid & enabled
     excess = valve[mask] - dmax[mask]
+    # the shortfall from the valve's first arrival at the demand on (before: the start-up move)
+    arrived = np.flatnonzero(valid & (np.abs(valve - dmax) <= 2.0))
+    after = np.arange(len(t)) >= (arrived[0] if arrived.size else len(t))
+    short_all = (dmin - valve)[valid & after]
+    short_en = (dmin - valve)[mask & after]
     out = {"excess_max_pct": round(float(excess.max()), 3) if excess.size else None,
            "samples": int(mask.sum()), "samples_drive_off": int((valid & ~enabled).sum()),
-           "excess_over_2pct_samples": int((excess > 2.0).sum())}
+           "excess_over_2pct_samples": int((excess > 2.0).sum()),
+           "shortfall_max_pct": round(float(short_all.max()), 3) if short_all.size else None,
+           "shortfall_over_2pct_samples": int((short_all > 2.0).sum()),
+           "shortfall_enabled_max_pct": round(float(short_en.max()), 3) if short_en.size else None}
     if status is not None and len(status):
         idx = np.searchsorted(status.log_ns, t, side="right") - 1
         on = (idx >= 0) & (status["data"][np.maximum(idx, 0)] == DRIVE_STATE_ENABLED)
@@ -233,6 +261,7 @@ def main() -> int:
                 break
             time.sleep(min(1.0, args.sample_s))
         wall = time.monotonic() - t0
+        end_ns = time.time_ns()             # the measured window ends here: then the teardown
         if operator is not None:
             operator.close()
         died = [n for n in launcher.failed() if n != "plant" or not args.lockstep]
@@ -242,8 +271,10 @@ def main() -> int:
             h.send_signal(signal.SIGKILL)
             h.wait()
     rec = launcher.recording_losses()          # the one reader of the nodes' published counts
-    excess = valve_excess(launcher.bag)
-    disabled = re.findall(r"drive DISABLED: state \w+(?:, faults: (.*))?", launcher.log("controller"))
+    excess = valve_excess(launcher.bag, end_ns)
+    # drive disablements within the measured window (log lines are stamped with wall-clock s)
+    disabled = [faults for stamp, faults in re.findall(r"\[(\d+\.\d+)\] \[[^]]*\]: drive DISABLED: state \w+(?:, faults: (.*))?",
+                                                       launcher.log("controller")) if float(stamp) * 1e9 <= end_ns]
     from fuel_valve_control.tools.bag_io import read_bag
     diag = read_bag(launcher.bag, ["/diagnostics"]).diagnostics
     plant_diag = next((v for k, v in diag.items() if k.endswith("plant: loop") or "plant" in k), {})
@@ -284,6 +315,9 @@ def main() -> int:
     print(f"  valve over demand (drive enabled): max {excess['excess_max_pct']} % over {excess['samples']} samples; "
           f"drive really on (drive_status): max {excess.get('drive_on_excess_max_pct')} % over "
           f"{excess.get('drive_on_samples')} samples")
+    print(f"  valve under demand (reported only): max {excess.get('shortfall_max_pct')} % over all samples "
+          f"({excess.get('shortfall_over_2pct_samples')} > 2 %), {excess.get('shortfall_enabled_max_pct')} % "
+          f"with the drive enabled")
     for topic, v in rec["topics"].items():
         print(f"  {topic:<40} published {v['published']:>8}  in bag {v['in_bag']:>8}")
     print(f"  bag: {rec['bag_messages']} messages, lost {rec['lost']} (before the recorder matched: "

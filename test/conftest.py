@@ -61,12 +61,23 @@ def ros_domain(request):
         handle.close()
 
 
-@pytest.fixture(scope="session")
-def robustness_bench():
-    """``benchmarks/robustness.py`` as a module (its case sampling and runner)."""
+def load_benchmark(name: str):
+    """``benchmarks/<name>.py`` as a module (benchmarks are scripts, not a package)."""
     import importlib.util
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "robustness.py"
-    spec = importlib.util.spec_from_file_location("robustness_bench", path)
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"{name}_bench", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+@pytest.fixture(scope="session")
+def robustness_bench():
+    """``benchmarks/robustness.py`` as a module (its case sampling and runner)."""
+    return load_benchmark("robustness")
+
+
+@pytest.fixture(scope="session")
+def freezes_bench():
+    """``benchmarks/vcpu_freezes.py`` as a module (the closed loop with controller freezes)."""
+    return load_benchmark("vcpu_freezes")

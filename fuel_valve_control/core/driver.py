@@ -72,9 +72,8 @@ FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE
 #: the longest loop gap counted as time by the duty counters (NE107 inputs), periods: a stalled
 #: loop's gap is not operating time
 STALL_REARM_PERIODS = 20
-#: a valve slower than this (rad/s, 3 % of stroke per second) over the latest
-#: REST_WINDOW_SAMPLES resolver samples is at rest: a drive-off re-arm waits for it
-REST_SPEED_RAD_S = 0.03
+#: resolver samples over which a drive-off re-arm judges the valve's speed (about the observer's
+#: settling: the re-armed observer starts at rest and learns the real speed within a few periods)
 REST_WINDOW_SAMPLES = 10
 #: a reset is refused until the inputs have been plausible for this long, s: an intermittent
 #: cause (a resolver noise burst, a flickering demand) must not be reset between two bad samples
@@ -87,6 +86,11 @@ RESET_QUIET_S = 0.1
 #: :data:`PARAM_SWAP_MAX_WAIT_S` after it was first requested
 PARAM_SWAP_SETTLED_RAD = 5e-3
 PARAM_SWAP_MAX_WAIT_S = 1.0
+#: longest wait, s, for a drive re-enabled after its watchdog trip to report it is on again (the
+#: law is held at its re-arm meanwhile); then the law runs on as before this rule (a report
+#: that never comes -- over DDS on a loaded machine one was missed, not traced -- must not
+#: freeze the loop).  Beyond the 44 ms a starved plant took in the soak
+DRIVE_BACK_TIMEOUT_S = 0.1
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
 #: warning code of a measured Δp that disagrees with the valve friction met (friction_check.py)
@@ -152,10 +156,25 @@ class ValveDriver:
         #: the reports, not the loop gap, say when the drive switched itself off)
         self.drive_state: int | None = None
         self._drive_tripped = False                # the drive reported its watchdog off while armed
-        #: after the drive went off the loop re-arms only once the valve is at rest: a re-arm
-        #: starts the observer at rest, and re-arming a valve in full swing (a starved loop
-        #: tripping the drive every few periods mid-move) drove it 25 % past its demand
+        #: re-armed and re-enabled after a watchdog trip, the drive not yet reporting it is back on
+        #: (:meth:`_step`: the law is held at its re-arm meanwhile)
+        self._drive_coming_back = False
+        self._coming_back_since = 0.0
+        #: after the drive went off the loop re-arms only once the valve is slow enough for a
+        #: law whose observer starts at rest, or closing (:meth:`_valve_at_rest`): re-arming a
+        #: valve in full swing (a starved loop tripping the drive every few periods mid-move)
+        #: drove it 25 % past its demand.  "Slow enough" (:attr:`rearm_speed_rad_s`) is a valve
+        #: that moves less than the holding band :data:`PARAM_SWAP_SETTLED_RAD` over the
+        #: :data:`REST_WINDOW_SAMPLES` periods the re-armed observer takes to learn its speed: to
+        #: that observer it is a held valve, so the take-over is bumpless.  (At 1 kHz 0.5 rad/s:
+        #: a valve following any demand the suite plays -- the soak's 0.1 Hz ±20 % sine peaks at
+        #: 0.13 rad/s -- re-arms at once.)  The earlier rule, "at rest" = below 0.03 rad/s either
+        #: way, was below a moving demand's speed: every watchdog trip during a move (a 6-9 ms
+        #: freeze of the controller's vCPU on this VM is enough) left the drive off until the
+        #: spring had closed the valve -- 59 % under a 60 % demand, offline and in the soak --
+        #: and then re-acquired the demand from the stop
         self._rearm_at_rest = False
+        self.rearm_speed_rad_s = PARAM_SWAP_SETTLED_RAD / (REST_WINDOW_SAMPLES * self.period)
         self._recent: deque = deque(maxlen=REST_WINDOW_SAMPLES)   # (t, valve rad) of the latest samples
         self._tracking_time = 0.0                  # leaky time beyond the tracking limit, s
         self._twist_time = 0.0                     # leaky time the twist disagreed with the torque, s
@@ -481,7 +500,9 @@ class ValveDriver:
         402 status word).  Off by its own command watchdog while the loop runs the drive
         (:data:`~..common.contract.DRIVE_STATE_WATCHDOG`): the law's state is stale (its
         observer assumed the commanded current acted), so the next period re-arms from the
-        measurement with zero torque and re-enables the drive; the drive stays off until then.
+        measurement with the torque that holds the valve there and re-enables the drive (a
+        valve opening fast is left to slow down first: :meth:`_valve_at_rest`); the drive stays
+        off until then.
         An internal drive fault latches :data:`DRIVE_FAULT`.  Other codes are the echo of the
         loop's own enable.  Once a drive has reported, the loop gap rule
         (``faults.drive_command_timeout_s``) is not used."""
@@ -594,8 +615,10 @@ class ValveDriver:
         ps = self.ps
         reenable = False
         if self._armed and self._drive_went_off(t, ps):
-            self._armed = False                   # re-arm below from the measurement, zero torque
+            self._armed = False                   # re-arm below from the measurement, holding torque
             self._stalled = reenable = self._rearm_at_rest = True
+            self._drive_coming_back = self.drive_state is not None
+            self._coming_back_since = t
             self.stall_rearms += 1
             # the twist check compared the coupling with a current the drive did not apply
             # while it was off: that time is no evidence of a failed resolver
@@ -627,14 +650,40 @@ class ValveDriver:
         if self.valve_test is not None:           # a running valve test owns the demand
             demand_rad = self.valve_test.demand(t, demand_rad)
         if not self._armed and self._rearm_at_rest and not self._valve_at_rest():
-            # the drive is off (it switched itself off): wait, drive off, until the valve rests
+            # the drive is off (it switched itself off): wait, drive off, until the valve is slow
             self.last = DriverOutput(0.0, False, "waiting", self._demand_pct, position_pct, {}, dict(self.warnings))
             return self.last
         self._rearm_at_rest = False
+        if self._drive_coming_back:
+            if self.drive_state == DRIVE_STATE_WATCHDOG and self._armed:
+                # re-enabled, but the drive still reports itself off (it has not taken the
+                # re-enable yet): it applies nothing, so a law running on would wind up against
+                # a valve the spring is moving -- in the soak a plant that took the re-enable
+                # 44 ms late met a law asking 37 A, and the valve shot from the stop to 4.4 %
+                # past its demand.  Held at its re-arm instead: again from the measurement,
+                # commanding the torque that holds the valve where it is, until the drive
+                # reports it is on (the supervision checks compare with an applied current:
+                # not run meanwhile), at most DRIVE_BACK_TIMEOUT_S
+                if t - self._coming_back_since > DRIVE_BACK_TIMEOUT_S:
+                    self._drive_coming_back = False
+                else:
+                    self.controller.reset(self._meas, pressure, self.controller.model.equilibrium(
+                        self._meas.valve_rad, pressure)[1], keep_limits=True)
+                    self.last = DriverOutput(self.controller.last_current, True, "running", self._demand_pct,
+                                             position_pct, {}, dict(self.warnings))
+                    return self.last
+            elif self.drive_state != DRIVE_STATE_WATCHDOG:
+                self._drive_coming_back = False
         if not self._armed:
-            # after a stall from zero torque, what the drive really applied once its watchdog
-            # tripped (resuming the old request drove the valve on: 49 % for a 40 % step); the
-            # I2t budget spent is kept, so a stall cannot refill it
+            if self._stalled:
+                # after the drive switched itself off: from the torque that holds the valve where
+                # it is now (spring and Δp load at the measured angle, the model's equilibrium),
+                # not from the old request (resuming it drove the valve on: 49 % for a 40 % step)
+                # nor from zero torque (the law then had to wind its integrator up to the holding
+                # torque first while the spring pulled the valve down: 58.6 -> 50.8 % for a 58 %
+                # demand after a 2 ms drive-off, offline).  The I2t budget spent is kept, so a
+                # stall cannot refill it
+                self._arm_torque = self.controller.model.equilibrium(self._meas.valve_rad, pressure)[1]
             self.controller.reset(self._meas, pressure, self._arm_torque, keep_limits=self._stalled)
             self._stalled = False
             self._arm_torque = 0.0        # re-arming after a fault starts from zero torque
@@ -680,13 +729,21 @@ class ValveDriver:
         return self.last
 
     def _valve_at_rest(self) -> bool:
-        """The valve moved less than :data:`REST_SPEED_RAD_S` on average over the latest
-        :data:`REST_WINDOW_SAMPLES` resolver samples (a window long enough to average the
-        resolver's one-count noise, 1e-4 rad, below that speed)."""
+        """The valve may be re-armed: over the latest :data:`REST_WINDOW_SAMPLES` resolver
+        samples it moved slower than :attr:`rearm_speed_rad_s` on average (slow enough for a
+        law whose observer starts at rest to take it over; the window also averages the
+        resolver's one-count noise, 1e-4 rad, far below that speed), or it is closing.
+
+        A closing valve is re-armed at any speed: with the drive off the spring closes it, so
+        it comes to rest only on the closed stop -- waiting for that turned a stick-slip slip
+        caught by a watchdog trip (9 rad/s for a millisecond) into a full closure at a 52 %
+        demand in the soak.  Re-armed, the law brakes it and moves it back up like any step;
+        the overshoot a re-armed observer that believes the valve at rest can cause is upward,
+        past the demand, on a valve that was *opening* fast: that one waits."""
         if len(self._recent) < self._recent.maxlen:
             return False
         (t0, v0), (t1, v1) = self._recent[0], self._recent[-1]
-        return t1 > t0 and abs(v1 - v0) / (t1 - t0) <= REST_SPEED_RAD_S
+        return t1 > t0 and (v1 - v0) / (t1 - t0) <= self.rearm_speed_rad_s
 
     def _drive_went_off(self, t: float, ps: ParamSet) -> bool:
         """The drive switched itself off since the last period (the loop ran it): it reported

@@ -296,7 +296,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           0.001, 1.0, runtime=True),
     Param("faults.drive_command_timeout_s", DRIVE_COMMAND_TIMEOUT_S, "s", "command watchdog of a drive that "
           "does not report its state (no drive_status): a loop gap longer than this switched the drive off, so "
-          "the loop re-arms from the measurement with zero torque and re-enables it; 0: the drive has no "
+          "the loop re-arms from the measurement with the torque holding the valve there and re-enables it; 0: the drive has no "
           "command watchdog.  A drive that reports its state is followed instead (driver.py)", 0.0, 1.0),
     Param("faults.i2t_fault_time_s", 2.0, "s", "time the loop may ask for more than the I2t limit allows "
           "(jam / overload) before the fault latches", 0.05, 60.0, runtime=True),

@@ -8,7 +8,8 @@ timer keeps the fault logic running when samples stop, so silence trips the driv
 Topics (SPEC §4): subscribes ``demand`` (percent), ``demand_ma`` (4-20 mA), ``resolver``,
 ``pressure_differential`` (measured Δp, kPa: schedules the friction terms), ``drive_status``
 (the drive's state word: a drive that switched itself off on its command watchdog is re-armed
-from the measurement with zero torque and re-enabled, ``ValveDriver.drive_status``) and,
+from the measurement with the torque that holds the valve there and re-enabled,
+``ValveDriver.drive_status``) and,
 optionally, the plant's ``drive`` telemetry (measured current for the over-current check);
 publishes ``current_command`` (A), ``drive_enable``, ``position`` (percent),
 ``estimate`` and ``/diagnostics``.  Services ``~/trip`` and ``~/reset`` (std_srvs/Trigger); the
@@ -502,7 +503,7 @@ class ControllerNode(LifecycleNode):
             if out.reenable:
                 self.get_logger().warn(f"the drive switched itself off (state "
                                        f"{contract.DRIVE_STATE_NAMES.get(self.driver.drive_state, 'unreported')}): "
-                                       "re-armed from the measurement with zero torque, drive re-enabled",
+                                       "re-armed from the measurement with the holding torque, drive re-enabled",
                                        throttle_duration_sec=1.0)
         self.pub_current.publish(self._float(data=float(out.current_a)))
         self.recorder_gate.count(contract.CURRENT_COMMAND)

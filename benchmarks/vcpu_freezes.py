@@ -1,0 +1,134 @@
+#!/usr/bin/env python3
+"""Controller freezes against the drive's command watchdog, offline: the valve around a
+watchdog trip and the driver's re-arm.
+
+Why: in the real-time soak every plant watchdog trip (10-12 per 3 min) came with a 6-9 ms
+freeze of the controller and of the other processes on the same vCPU (the demand node's
+messages stop too), on a 100 ms wall-clock grid; a SCHED_FIFO 50 probe pinned to each CPU sees
+the same 6.4-6.9 ms freezes, so they are the host descheduling this VM's vCPUs, beyond any
+priority inside it.  The product has to ride through them: the drive (5 ms watchdog) switches
+itself off and reports it, the driver re-arms and re-enables it.
+
+The loop here is the offline simulator's (``fuel_valve_sim``'s exchange), on the soak's demand
+(a 40 ± 20 % sine at 0.1 Hz), with freezes: nobody steps the driver for ``n`` periods, the
+drive holds the last command for its command timeout (``contract.DRIVE_COMMAND_TIMEOUT_S``) and
+is then off, reports ``watchdog`` and stays off until the driver re-enables it (plant_node);
+after the freeze the driver gets the report and the latest sample only (depth-1 topics).
+Measured after the first second: the valve's excess over the highest demand of the trailing
+0.5 s and its shortfall under the lowest (soak.py's window), percent of stroke, re-arms.
+
+    python benchmarks/vcpu_freezes.py [--seconds 20]
+
+Last line: one JSON object.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+import numpy as np
+
+from fuel_valve_control.common import contract
+from fuel_valve_control.common.contract import STROKE_RAD
+from fuel_valve_control.core.driver import ValveDriver
+from fuel_valve_control.core.params import load_controller_params
+from fuel_valve_control.tools import sim
+from fuel_valve_plant.physics.params import load_plant_params
+from fuel_valve_plant.physics.plant import Plant
+
+#: the soak's demand (benchmarks/soak.py DEMAND), percent, from its trough on (t0 = 7.5 s)
+SINE_OFFSET, SINE_AMPLITUDE, SINE_HZ, SINE_T0 = 40.0, 20.0, 0.1, 7.5
+#: judged from this time on, s (the start-up move before it), over this trailing window, s
+START_S, WINDOW_S = 1.0, 0.5
+
+
+def soak_demand(t: float) -> float:
+    return SINE_OFFSET + SINE_AMPLITUDE * math.sin(2.0 * math.pi * SINE_HZ * (SINE_T0 + t))
+
+
+def regular_freezes(freeze_periods: int, every_s: float, seconds: float, period: float) -> dict[int, int]:
+    """{first period: length in periods} of a freeze every ``every_s`` from :data:`START_S` on."""
+    every = int(round(every_s / period))
+    return {k: freeze_periods for k in range(int(round(START_S / period)), int(round(seconds / period)), every)}
+
+
+def random_freezes(low: int, high: int, mean_every_s: float, seconds: float, period: float, seed: int = 0) -> dict[int, int]:
+    """Freezes of ``low``..``high`` periods, exponentially distributed ``mean_every_s`` apart."""
+    rng = np.random.default_rng(seed)
+    out, k, end = {}, int(round(START_S / period)), int(round(seconds / period))
+    while True:
+        k += int(rng.exponential(mean_every_s) / period) + high + 1
+        if k >= end:
+            return out
+        out[k] = int(rng.integers(low, high + 1))
+
+
+def simulate_freezes(freezes: dict[int, int], seconds: float, demand=soak_demand,
+                     controller_overrides: dict | None = None) -> dict:
+    """Closed loop with controller ``freezes`` ({first period: periods}); returns the valve's
+    largest ``excess_pct`` over / ``shortfall_pct`` under the trailing window's demand, the
+    ``freezes``, the driver's ``rearms`` and the ``driver`` itself (its state at the end)."""
+    plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": 0.0}))
+    drv = ValveDriver(load_controller_params(overrides=controller_overrides or {}))
+    drv.drive_status(0.0, contract.DRIVE_STATE_ENABLED)
+    period = drv.period
+    on_periods = int(round(contract.DRIVE_COMMAND_TIMEOUT_S / period))
+    n = int(round(seconds / period))
+    drive_on, enabled, last, left, length = True, False, None, 0, 0
+    valve, dem = np.empty(n), np.empty(n)
+    for k in range(n):
+        t = k * period
+        if k in freezes and last is not None:
+            left = length = freezes[k]
+        if left:                               # frozen: nobody steps the driver
+            held = length - left < on_periods
+            plant.set_command(last.current_a if held else 0.0, last.enable and held)
+            left -= 1
+            if not left and length > on_periods:
+                drv.drive_status(t, contract.DRIVE_STATE_WATCHDOG)
+                drive_on = False
+        else:
+            last, _ = sim.exchange_period(drv, plant, t, demand(t))
+            # the drive comes back on an explicit re-enable or an enable edge (plant_node) and
+            # says so (its state word reaches the driver before the next period)
+            if not drive_on and (last.reenable or (last.enable and not enabled)):
+                drive_on = True
+                drv.drive_status(t, contract.DRIVE_STATE_ENABLED)
+            enabled = last.enable
+            plant.set_command(last.current_a if drive_on else 0.0, last.enable and drive_on)
+        plant.advance(period)
+        valve[k] = 100.0 * plant.truth().valve_angle / STROKE_RAD
+        dem[k] = demand(t + period)
+    start, window = int(round(START_S / period)), int(round(WINDOW_S / period))
+    excess = max(valve[k] - dem[k - window:k + 1].max() for k in range(start, n))
+    shortfall = max(dem[k - window:k + 1].min() - valve[k] for k in range(start, n))
+    return {"excess_pct": float(excess), "shortfall_pct": float(shortfall), "freezes": len(freezes),
+            "rearms": drv.stall_rearms, "faults": sorted(drv.last.faults), "driver": drv}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=20.0)
+    args = parser.parse_args()
+    period = 1.0 / load_controller_params()["loop_rate_hz"]
+    cases = {
+        "none": {},
+        "7 ms every 0.5 s": regular_freezes(7, 0.5, args.seconds, period),
+        "9 ms every 0.5 s": regular_freezes(9, 0.5, args.seconds, period),
+        "2-4 ms, mean every 0.3 s": random_freezes(2, 4, 0.3, args.seconds, period),
+        "1-15 ms, mean every 0.1 s (starved)": random_freezes(1, 15, 0.1, args.seconds, period),
+    }
+    out = {}
+    for name, freezes in cases.items():
+        r = simulate_freezes(freezes, args.seconds)
+        r.pop("driver")
+        out[name] = {k: round(v, 3) if isinstance(v, float) else v for k, v in r.items()}
+        print(f"{name:<38} excess {r['excess_pct']:6.2f} %  shortfall {r['shortfall_pct']:6.2f} %  "
+              f"freezes {r['freezes']:4d}  re-arms {r['rearms']:4d}  faults {r['faults']}", flush=True)
+    print(json.dumps({"seconds": args.seconds, "cases": out}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
