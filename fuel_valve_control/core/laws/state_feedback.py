@@ -197,7 +197,9 @@ class StateFeedbackLaw(ControlLaw):
             moved = meas.valve_rad - pos0
             if abs(moved) > self.integral.min_rad:
                 if moved * (net0 - self.held_load) < 0.0:
-                    self.held_load = self.integral.learn_load(net0, moved, friction.valve_static_nm)
+                    self.held_load = self.integral.learn_load(
+                        net0, moved, friction.valve_static_nm,
+                        m.load_torque(thl, pressure_kpa) if self.v2 else 0.0)
                 self._slip = None
         relaxing = False
         if not outside and not ref.moving and stuck and self.integral.relax_time_s > 0.0:
@@ -234,7 +236,7 @@ class StateFeedbackLaw(ControlLaw):
     def applied(self, torque_nm, saturated):
         self._applied = torque_nm
         self._u_net = torque_nm - (self._fm if self.compensator.feeds_observer else 0.0)
-        if not saturated:
+        if self.integral.accepts(self._pending, torque_nm, saturated) if self.v2 else not saturated:
             self.zeta += self._pending
 
     def estimate(self):
