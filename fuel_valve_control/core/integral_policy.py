@@ -110,6 +110,17 @@ class JumpLearner:
     until the valve has rested within the deadband again (the return from the displacement is a
     recovery, not stick-slip) or a new move starts.  :meth:`reset` (a fault reset) returns to the nominal
     ratio, so nothing learned before a fault outlives it.
+
+    Resolver noise and small followed steps are no breakaways (campaign, h14r: 7 of the 9
+    hunting runs among seeds 1000-1099 had ~1 count rms valve noise).  With single samples, a
+    "stuck -> sliding -> stuck" flicker of the speed estimate read 4 counts of noise as a
+    0.38 mrad jump, and a followed 1.9 mrad demand step moved the tracking-error frame by
+    1.9 mrad while the valve stood still; each such reading pulled the ratio halfway toward
+    0.1, the deadband fell below the real jump (16 mrad on a K x 0.41 coupling) and the
+    integrator hunted across it (seed 1084: ratio 4.2 -> 2.3 -> 1.2, 3 reversals of 15-21 mrad on
+    the final hold).  So the caller may hand ``travel``, the valve's own angle averaged over the
+    speed window (rad): a breakaway is learned only if the valve itself travelled at least
+    ``min_jump`` by that reading (the average of n samples has 1/sqrt(n) of the noise).
     """
 
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4):
@@ -123,29 +134,36 @@ class JumpLearner:
         self.ratio = 1.0
         self._stuck_at: float | None = None
         self._start: float | None = None
+        self._stuck_travel: float | None = None   # the filtered valve angle at _stuck_at / _start
+        self._start_travel: float | None = None
         self.disturbed = False            # displaced by something else: learning paused
         self._driven = True               # the breakaway in progress was the drive's
         self.rejected = 0                 # breakaways not learned as implausible (diagnostics)
 
     def update(self, valve: float, stuck: bool, holding: bool, nominal_jump: float,
-               target: float | None = None, band: float = 0.0, driven: bool = True) -> None:
+               target: float | None = None, band: float = 0.0, driven: bool = True,
+               travel: float | None = None) -> None:
         """One period: ``valve`` the angle the jump is read from (rad: the valve angle, or the
         tracking error valve − reference, see the class docstring), at rest or not, holding (no
         planned move), the nominal jump (rad); ``driven``: the drive's torque could have broken
         the valve loose (read when it does), ``target`` (in the same frame as ``valve``) and
-        ``band`` (rad): the target and the deadband in force, for the end of a displacement."""
+        ``band`` (rad): the target and the deadband in force, for the end of a displacement;
+        ``travel`` (rad, optional): the valve's own noise-filtered angle, which must have moved
+        by ``min_jump`` for a breakaway to count (None: no such check)."""
         if not holding:
             self._start = None
             self.disturbed = False
         elif not stuck and self._stuck_at is not None and self._start is None:
             self._start = self._stuck_at                      # broke away while holding
+            self._start_travel = self._stuck_travel
             self._driven = driven
         elif stuck and self._start is not None:
             moved = valve - self._start
             if (not self._driven and target is not None
                     and abs(target - valve) > abs(target - self._start) + band):
                 self.disturbed = True                         # displaced off the target, not by the drive
-            if abs(moved) >= self.min_jump:
+            real = travel is None or self._start_travel is None or abs(travel - self._start_travel) >= self.min_jump
+            if abs(moved) >= self.min_jump and real:
                 if not self.disturbed:
                     self.ratio += self.gain * (abs(moved) / nominal_jump - self.ratio)
                 else:
@@ -155,4 +173,5 @@ class JumpLearner:
         if stuck and self.disturbed and self._start is None and target is not None and abs(target - valve) <= band:
             self.disturbed = False                            # at rest within the deadband again
         self._stuck_at = valve if stuck else None
+        self._stuck_travel = travel if stuck else None
 

@@ -173,8 +173,12 @@ class StateFeedbackLaw(ControlLaw):
         # v2: the jump is read from the tracking error: while the reference follows a ramp the
         # valve's travel is mostly the ramp's (issue 14: read as a jump, it froze the integrator)
         frame = ref.position if self.v2 else 0.0
-        self.jumps.update(meas.valve_rad - frame, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad),
-                          target - frame, self.deadband, driven)
+        # v2: the breakaway and slip readings use the valve angle averaged over the speed
+        # window: single samples read ~1 count rms resolver noise as 3-4 count "jumps" and
+        # "slips" that collapsed the deadband and flipped the learned load (IntegralPolicy, h14r)
+        valve = sum(hist) / len(hist) if self.v2 else meas.valve_rad
+        self.jumps.update(valve - frame, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad),
+                          target - frame, self.deadband, driven, valve if self.v2 else None)
         self.deadband = self.integral.deadband(m, pressure_kpa, self.jumps.ratio)
         error = ref.position - thl
         outside = abs(target - thl) > self.deadband and not ref.moving
@@ -194,7 +198,7 @@ class StateFeedbackLaw(ControlLaw):
             # the resolver's noise, the way the relaxing drive let it go (the relax takes support
             # away from the side the load pushes): a steady load beyond the known one
             net0, pos0 = self._slip
-            moved = meas.valve_rad - pos0
+            moved = valve - pos0
             if abs(moved) > self.integral.min_rad:
                 if moved * (net0 - self.held_load) < 0.0:
                     self.held_load = self.integral.learn_load(
@@ -212,7 +216,7 @@ class StateFeedbackLaw(ControlLaw):
             relaxing = True
             self._relax_periods += 1
             if self._relax_periods * self.period >= self.integral.settle_time_s:
-                self._slip = (net, meas.valve_rad)      # where and with what drive it had settled
+                self._slip = (net, valve)               # where and with what drive it had settled
             self._pending = -(net - self.held_load) / n * self.period / self.integral.relax_time_s / self.fb.ki
         if (outside or ref.moving) if self.v2 else not relaxing:
             # a settled valve stays settled through a period the speed estimate calls moving:
