@@ -179,7 +179,9 @@ class StateFeedbackLaw(ControlLaw):
         valve = sum(hist) / len(hist) if self.v2 else meas.valve_rad
         self.jumps.update(valve - frame, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad),
                           target - frame, self.deadband, driven, valve if self.v2 else None)
-        self.deadband = self.integral.deadband(m, pressure_kpa, self.jumps.ratio)
+        # v2: sized by the jump the valve makes toward the target (the jumps differ by direction)
+        ratio = self.jumps.ratio_toward(target - thl) if self.v2 else self.jumps.ratio
+        self.deadband = self.integral.deadband(m, pressure_kpa, ratio)
         error = ref.position - thl
         outside = abs(target - thl) > self.deadband and not ref.moving
         # ---- friction compensation
