@@ -45,3 +45,85 @@ def test_a_held_heavy_load_does_not_latch_the_i2t_jam_fault(robustness_bench):
     r = _run(robustness_bench, 1019)
     assert not r["fault"]
     assert r["peak_current_a"] < 30.0
+
+
+def _slide(learner, start, end, nominal, target=0.0, band=0.0, travel=True, rest=1):
+    """Hold at ``start``, slide, then rest at ``end`` (valve angles, rad) for ``rest`` periods."""
+    tr = (lambda v: v) if travel else (lambda v: None)
+    learner.update(start, True, True, nominal, target, band, True, tr(start))
+    learner.update(0.5 * (start + end), False, True, nominal, target, band, True, tr(0.5 * (start + end)))
+    for _ in range(rest):
+        learner.update(end, True, True, nominal, target, band, True, tr(end))
+
+
+def test_noise_and_frame_steps_are_not_learned_as_breakaways():
+    """A 4-count "jump" of the tracking error with the valve's own (filtered) angle still:
+    before, each such reading pulled the ratio halfway toward 0.1 (seed 1084)."""
+    from fuel_valve_control.core.integral_policy import JumpLearner
+    jl = JumpLearner()
+    _slide(jl, 0.0, -0.0182, 4.54e-3)                        # a real 18 mrad jump: ratio 4
+    learned = jl.ratio
+    assert learned > 2.0
+    # the error frame moves 1.9 mrad (a followed step), the valve stays: no breakaway
+    jl.update(0.0, True, True, 4.54e-3, 0.0, 0.0, True, 0.1)
+    jl.update(0.0, False, True, 4.54e-3, 0.0, 0.0, True, 0.1)
+    jl.update(-0.0019, True, True, 4.54e-3, 0.0, 0.0, True, 0.1 + 5e-5)
+    assert jl.ratio == learned
+    # without the travel check (the other modes) the same reading is learned
+    old = JumpLearner()
+    _slide(old, 0.0, -0.0182, 4.54e-3, travel=False)
+    old.update(0.0, True, True, 4.54e-3)
+    old.update(0.0, False, True, 4.54e-3)
+    old.update(-0.0019, True, True, 4.54e-3)
+    assert old.ratio < 0.75 * learned
+
+
+def test_jumps_are_learned_per_direction():
+    from fuel_valve_control.core.integral_policy import JumpLearner
+    jl = JumpLearner()
+    assert jl.ratio_toward(1.0) == jl.ratio_toward(-1.0) == 1.0       # nominal until met
+    _slide(jl, 0.0, 0.0100, 4.58e-3)                                   # opening jumps ~10 mrad
+    _slide(jl, 0.0100, 0.0070, 4.58e-3)                                # closing ~3 mrad
+    assert jl.ratio_toward(1.0) == pytest.approx(0.0100 / 4.58e-3)
+    assert jl.ratio_toward(-1.0) == pytest.approx(0.0030 / 4.58e-3)
+    assert jl.ratio_toward(-1.0) < jl.ratio < jl.ratio_toward(1.0)
+    jl.reset()
+    assert jl.ratio_toward(1.0) == 1.0 and not jl.directed
+
+
+def test_a_slow_slide_is_one_breakaway_and_a_crossing_widens_both_directions():
+    from fuel_valve_control.core.integral_policy import JumpLearner
+    nominal = 4.58e-3
+    jl = JumpLearner(rest_periods=5, cross_hold=True)
+    # a 6 mrad slide that reads "stuck" for two periods halfway is one breakaway
+    jl.update(0.0, True, True, nominal, 0.003, 0.0013, True, 0.0)
+    for v, stuck in ((0.001, False), (0.003, True), (0.003, True), (0.004, False), (0.006, False)):
+        jl.update(v, stuck, True, nominal, 0.003, 0.0013, True, v)
+    for _ in range(5):
+        jl.update(0.006, True, True, nominal, 0.003, 0.0013, True, 0.006)
+    # ... and it crossed the target (3 mrad) to land 3 mrad beyond, outside the 1.3 mrad band
+    assert jl.ratio_toward(1.0) == pytest.approx(0.006 / nominal)
+    assert jl.ratio_toward(-1.0) == pytest.approx(0.006 / nominal)
+    assert jl.crossings == 1
+    one = JumpLearner()                                     # the other modes: read in pieces
+    one.update(0.0, True, True, nominal, 0.003, 0.0013, True)
+    for v, stuck in ((0.001, False), (0.003, True), (0.003, True), (0.004, False), (0.006, False), (0.006, True)):
+        one.update(v, stuck, True, nominal, 0.003, 0.0013, True)
+    assert one.ratio < 0.006 / nominal
+
+
+def test_resolver_noise_does_not_collapse_the_deadband_into_hunting(robustness_bench):
+    """Seed 1084: friction x 1.45, K x 0.41 (18-20 mrad jumps), 0.97 count rms valve noise,
+    1.9 mrad backlash.  Before: 4-count noise "jumps" and a followed 1.9 mrad step dragged the
+    jump ratio 4.2 -> 1.2, the deadband fell to 3 mrad and the final hold hunted (3 reversals of
+    15-21 mrad)."""
+    r = _run(robustness_bench, 1084)
+    assert not r["hunts"] and not r["fault"]
+
+
+def test_direction_dependent_jumps_do_not_hunt(robustness_bench):
+    """Seed 1189: Stribeck friction x 0.55, 6.5 N*m unknown load, 1.5 mrad backlash: opening
+    jumps 9-12 mrad, closing 3-5 mrad.  Before: one deadband from their mean (2.3-3.8 mrad),
+    plateau 6 hunted 4.4 mrad."""
+    r = _run(robustness_bench, 1189)
+    assert not r["hunts"] and not r["fault"]
