@@ -127,3 +127,32 @@ def test_direction_dependent_jumps_do_not_hunt(robustness_bench):
     plateau 6 hunted 4.4 mrad."""
     r = _run(robustness_bench, 1189)
     assert not r["hunts"] and not r["fault"]
+
+
+def test_a_fault_on_a_plant_beyond_the_continuous_rating_is_the_overload_it_deserves(robustness_bench):
+    """Seed 1043: friction x 1.87 (LuGre) at max Δp and a 10.4 N*m unknown load: an opening
+    breakaway needs ~33 N*m (~20 A) against the 24.9 N*m continuous torque.  The first opening
+    breakaway spends the I2t budget, the next stalls at the 15 A clamp and the jam fault
+    latches -- a real overload, which the campaign now counts apart."""
+    r = _run(robustness_bench, 1043)
+    assert r["fault"] and r["beyond_rating"]
+    case = robustness_bench.sample_case(1043)
+    assert robustness_bench.breakaway_torque_nm(case, 0.6) > robustness_bench.CONTINUOUS_TORQUE_NM
+
+
+#: full-box seeds that still hunt after h14r (full campaign, 200 runs: 3 of 200), with what was measured
+STILL_HUNTING = {
+    1096: "Stribeck friction x 0.52 at 1.5 MPa with the Δp reading missing (friction scheduled for max Δp), "
+          "9.4 N*m load, K x 0.60, 1.2 mrad backlash: 13 reversals of 3.7 mrad at ~6 Hz on the final hold (16 "
+          "before); creeping 5 mrad slides against many small slips keep the learned jump ~2 mrad",
+    1115: "stick-slip x 0.59 at 2.1 MPa, -2.7 N*m load, K x 0.62, 1.9 mrad backlash: 2.1 mrad half p-p (not traced)",
+    1157: "stick-slip x 0.76 at 4.1 MPa, 3.2 N*m load, 0.88 count valve noise: 3 reversals of 4.3 mrad on the "
+          "final hold, slow relax -> slip -> correction cycles while the learned load settles (hunted with "
+          "the limit-cycle breaker, not without it)",
+}
+
+
+@pytest.mark.parametrize("seed", sorted(STILL_HUNTING))
+def test_remaining_campaign_hunters(robustness_bench, seed, request):
+    request.applymarker(pytest.mark.xfail(strict=True, reason=STILL_HUNTING[seed]))
+    assert not _run(robustness_bench, seed)["hunts"]
