@@ -143,12 +143,10 @@ def test_a_fault_on_a_plant_beyond_the_continuous_rating_is_the_overload_it_dese
 #: full-box seeds that still hunt after h14r (full campaign, 200 runs: 3 of 200), with what was measured
 STILL_HUNTING = {
     1096: "Stribeck friction x 0.52 at 1.5 MPa with the Δp reading missing (friction scheduled for max Δp), "
-          "9.4 N*m load, K x 0.60, 1.2 mrad backlash: 13 reversals of 3.7 mrad at ~6 Hz on the final hold (16 "
-          "before); creeping 5 mrad slides against many small slips keep the learned jump ~2 mrad",
-    1115: "stick-slip x 0.59 at 2.1 MPa, -2.7 N*m load, K x 0.62, 1.9 mrad backlash: 2.1 mrad half p-p (not traced)",
-    1157: "stick-slip x 0.76 at 4.1 MPa, 3.2 N*m load, 0.88 count valve noise: 3 reversals of 4.3 mrad on the "
-          "final hold, slow relax -> slip -> correction cycles while the learned load settles (hunted with "
-          "the limit-cycle breaker, not without it)",
+          "9.4 N*m load, K x 0.60, 1.2 mrad backlash: 16 reversals of 3.4 mrad at ~6 Hz on the final hold; "
+          "creeping 5-6 mrad slides are learned in 2-4 mrad pieces, so the deadband stays 1.3-1.8 mrad",
+    1110: "LuGre friction x 1.59 at 3.2 MPa, 8.7 N*m load, K x 0.53: 6.3 mrad half p-p (not traced)",
+    1133: "LuGre friction x 2.36 at 5.1 MPa, K x 0.30, 1 mrad backlash: 18.8 mrad half p-p (not traced)",
 }
 
 

@@ -175,10 +175,6 @@ HOLD_SHORTFALLS = {
         "from the drive's voltage and current (issue 14, h14c): where the faster arrival sticks inside "
         "the integrator deadband is a coin flip of the stick-slip (the F x0.5 J x0.8 corner at max Δp, "
         "3.1e-3 rad before, now passes); no hunting",
-    _corner(friction=3.0, dp=0.0, inertia=1.2):
-        "stops 1.93e-3 rad from the demand (band 1.44e-3) since the integrator deadband is sized by the "
-        "jump toward the target, learned per direction from whole slides (issue 14, h14r: it ended the "
-        "campaign's direction-dependent hunting); no hunting",
 }
 
 _FF_LOW = ("the friction feed-forward is scheduled on the nominal friction and a 2 % step is too short "
