@@ -54,11 +54,28 @@ class IntegralPolicy:
         return max(self.min_rad, self.jump_fraction * jump * jump_ratio)
 
 
-    def learn_load(self, net_at_slip: float, direction: float, static_nm: float) -> float:
+    def learn_load(self, net_at_slip: float, direction: float, static_nm: float, known_nm: float = 0.0) -> float:
         """Steady unknown valve load (N*m, positive = the drive must push toward open) from a
-        slip of a relaxing, settled valve in ``direction`` (sign of its speed)."""
+        slip of a relaxing, settled valve in ``direction`` (sign of its speed).
+
+        Bounded so that the whole load the relax holds, ``known_nm`` (the known load at the
+        valve, N*m, + toward closed) plus the learned one, stays within ``load_limit_nm`` (the
+        continuous torque): a relax aimed beyond it asks for more than the continuous current
+        for ever, the I2t limit clamps the drive there and the jam fault latches although the
+        valve is held (campaign seed 1019: learned 18.2 N*m on a 9.3 N*m load, 15 A clamped
+        for 2 s, ``overcurrent_i2t``)."""
         load = net_at_slip - math.copysign(self.load_static_fraction * static_nm, direction)
-        return min(max(load, -self.load_limit_nm), self.load_limit_nm)
+        return min(max(load, -self.load_limit_nm - known_nm), self.load_limit_nm - known_nm)
+
+    @staticmethod
+    def accepts(pending: float, applied_nm: float, saturated: bool) -> bool:
+        """Whether an integrator change ``pending`` (same sign as the torque it adds) may be
+        taken with the drive at ``applied_nm`` (N*m, the clamped torque): always while the
+        current is not limited, and while it is, only a change that takes the request back
+        toward the limit (conditional integration).  Freezing it outright also froze the relax
+        of a settled valve held at the continuous-current clamp: the request stayed above the
+        continuous current and the I2t jam fault latched on a valve that was held."""
+        return not saturated or pending * applied_nm < 0.0
 
 
 class JumpLearner:
@@ -93,10 +110,31 @@ class JumpLearner:
     until the valve has rested within the deadband again (the return from the displacement is a
     recovery, not stick-slip) or a new move starts.  :meth:`reset` (a fault reset) returns to the nominal
     ratio, so nothing learned before a fault outlives it.
+
+    Resolver noise and small followed steps are no breakaways (campaign, h14r: 7 of the 9
+    hunting runs among seeds 1000-1099 had ~1 count rms valve noise).  With single samples, a
+    "stuck -> sliding -> stuck" flicker of the speed estimate read 4 counts of noise as a
+    0.38 mrad jump, and a followed 1.9 mrad demand step moved the tracking-error frame by
+    1.9 mrad while the valve stood still; each such reading pulled the ratio halfway toward
+    0.1, the deadband fell below the real jump (16 mrad on a K x 0.41 coupling) and the
+    integrator hunted across it (seed 1084: ratio 4.2 -> 2.3 -> 1.2, 3 reversals of 15-21 mrad on
+    the final hold).  So the caller may hand ``travel``, the valve's own angle averaged over the
+    speed window (rad): a breakaway is learned only if the valve itself travelled at least
+    ``min_jump`` by that reading (the average of n samples has 1/sqrt(n) of the noise).
     """
 
-    def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4):
+    def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4,
+                 rest_periods: int = 1, cross_hold: bool = False):
         self.gain = gain
+        #: a breakaway across the target that lands beyond the deadband sets both directions'
+        #: ratios to at least its own (:meth:`ratio_toward`; v2).  Averaged with the small slips
+        #: of a creeping valve, the 5-6 mrad crossings of seed 1096 kept a 1.3-1.8 mrad band
+        self.cross_hold = cross_hold
+        #: periods in a row at rest that end a slide.  A slow (Stribeck) slide reads "stuck" for
+        #: a period now and then; ended there it was learned in pieces: seed 1096 (friction
+        #: x 0.52, Δp told max instead of 1.5 MPa) swung 5-6 mrad each way at ~6 Hz while the
+        #: learner read 2.3-3.8 mrad pieces, so the deadband stayed at 1.3-1.8 mrad
+        self.rest_periods = max(int(rest_periods), 1)
         self.min_jump = min_jump          # rad: smaller "jumps" are resolver noise, not breakaways
         self.limits = limits
         self.reset()
@@ -105,32 +143,70 @@ class JumpLearner:
         """Forget the learned ratio (nominal jumps) and any breakaway in progress."""
         self.ratio = 1.0
         self._stuck_at: float | None = None
+        self._rest = 0                        # periods at rest in a row
         self._start: float | None = None
+        self._stuck_travel: float | None = None   # the filtered valve angle at _stuck_at / _start
+        self._start_travel: float | None = None
         self.disturbed = False            # displaced by something else: learning paused
         self._driven = True               # the breakaway in progress was the drive's
         self.rejected = 0                 # breakaways not learned as implausible (diagnostics)
+        #: the ratio learned from the jumps in each direction alone (+1 opening, -1 closing; a
+        #: direction not met yet is absent): :meth:`ratio_toward`
+        self.directed: dict[int, float] = {}
+        self.crossings = 0                # breakaways across the target beyond the band (diagnostics)
+
+    def ratio_toward(self, direction: float) -> float:
+        """The measured/nominal jump ratio of breakaways in ``direction`` (sign: + opening),
+        once one has been met in it; the ratio of both directions until then.
+
+        The jumps need not be alike both ways (campaign seed 1189, Stribeck friction x 0.55,
+        6.5 N*m unknown load, 1.5 mrad backlash: opening jumps 8.6-12.2 mrad, closing 2.8-5.0):
+        a deadband sized from their mean (2.3-3.8 mrad) lets the integrator push a valve
+        3-5 mrad short into an opening jump that lands as far beyond, and back: a hunt of
+        4.4 mrad.  The deadband toward the side the integrator would push is sized by that
+        side's own jump."""
+        return self.directed.get(1 if direction > 0.0 else -1, self.ratio)
 
     def update(self, valve: float, stuck: bool, holding: bool, nominal_jump: float,
-               target: float | None = None, band: float = 0.0, driven: bool = True) -> None:
+               target: float | None = None, band: float = 0.0, driven: bool = True,
+               travel: float | None = None) -> None:
         """One period: ``valve`` the angle the jump is read from (rad: the valve angle, or the
         tracking error valve − reference, see the class docstring), at rest or not, holding (no
         planned move), the nominal jump (rad); ``driven``: the drive's torque could have broken
         the valve loose (read when it does), ``target`` (in the same frame as ``valve``) and
-        ``band`` (rad): the target and the deadband in force, for the end of a displacement."""
+        ``band`` (rad): the target and the deadband in force, for the end of a displacement;
+        ``travel`` (rad, optional): the valve's own noise-filtered angle, which must have moved
+        by ``min_jump`` for a breakaway to count (None: no such check)."""
         if not holding:
             self._start = None
             self.disturbed = False
         elif not stuck and self._stuck_at is not None and self._start is None:
             self._start = self._stuck_at                      # broke away while holding
+            self._start_travel = self._stuck_travel
             self._driven = driven
-        elif stuck and self._start is not None:
+        elif stuck and self._start is not None and self._rest + 1 >= self.rest_periods:
             moved = valve - self._start
             if (not self._driven and target is not None
                     and abs(target - valve) > abs(target - self._start) + band):
                 self.disturbed = True                         # displaced off the target, not by the drive
-            if abs(moved) >= self.min_jump:
+            real = travel is None or self._start_travel is None or abs(travel - self._start_travel) >= self.min_jump
+            if abs(moved) >= self.min_jump and real:
                 if not self.disturbed:
                     self.ratio += self.gain * (abs(moved) / nominal_jump - self.ratio)
+                    way = 1 if moved > 0.0 else -1
+                    seen = abs(moved) / nominal_jump
+                    own = self.directed.get(way)
+                    own = seen if own is None else own + self.gain * (seen - own)
+                    self.directed[way] = min(max(own, self.limits[0]), self.limits[1])
+                    if (self.cross_hold and target is not None and (target - self._start) * (target - valve) < 0.0
+                            and abs(target - valve) > band):
+                        # the breakaway carried the valve across the target and beyond the
+                        # deadband: the integrator would push it back by a jump of that size
+                        # and hunt.  Both directions expect at least this jump (limit-cycle
+                        # breaker: the band widens to the jump that was really made)
+                        for w in (1, -1):
+                            self.directed[w] = min(max(self.directed.get(w, self.ratio), seen), self.limits[1])
+                        self.crossings += 1
                 else:
                     self.rejected += 1
             self.ratio = min(max(self.ratio, self.limits[0]), self.limits[1])
@@ -138,4 +214,6 @@ class JumpLearner:
         if stuck and self.disturbed and self._start is None and target is not None and abs(target - valve) <= band:
             self.disturbed = False                            # at rest within the deadband again
         self._stuck_at = valve if stuck else None
+        self._rest = self._rest + 1 if stuck else 0
+        self._stuck_travel = travel if stuck else None
 
