@@ -53,9 +53,11 @@ def _hold(probe, pct, timeout=30.0):
 
 @pytest.fixture
 def realtime(tmp_path):
-    """Plant and controller processes in real time (resolver timeout 1 s: a starved process
-    must not trip the controller here), the probe as the demand supervisor."""
-    plan = plan_run(None, REAL_TIME, controller_overrides={"faults.resolver_timeout_s": 1.0,
+    """Plant and controller processes in real time (resolver timeout 1 s, demand timeout 5 s:
+    a starved process -- the plant, or the probe that sends the demand -- must not trip the
+    controller here; seen: "no valid demand for 0.61 s" at load average 16), the probe as the
+    demand supervisor."""
+    plan = plan_run(None, REAL_TIME, controller_overrides={"faults.resolver_timeout_s": 1.0, "demand_timeout_s": 5.0,
                                                            "diagnostics_rate_hz": 10.0})
     s = Launcher(plan, "/wd", tmp_path)
     s.start(("plant", "controller"))
