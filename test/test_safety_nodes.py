@@ -51,6 +51,10 @@ def _hold(probe, pct, timeout=30.0):
     probe.wait_for(ready, timeout, f"holding {pct} %")
 
 
+#: the first wait of a fixture includes its node processes' start (imports under load)
+START_S = 120.0
+
+
 @pytest.fixture
 def realtime(tmp_path):
     """Plant and controller processes in real time (resolver timeout 1 s, demand timeout 5 s:
@@ -63,6 +67,9 @@ def realtime(tmp_path):
     s.start(("plant", "controller"))
     probe = Probe("/wd", keep_all=(contract.JOINT_STATES, contract.DRIVE_STATUS))
     try:
+        # the processes' start (imports) first, with its own generous wait: the tests' 30 s
+        # waits for a hold were used up by it at load average 17 (driver status still None)
+        probe.wait_for(lambda: probe.driver_level() is not None, START_S, "the controller's status")
         yield s, probe
     finally:
         probe.close()
