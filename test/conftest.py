@@ -8,6 +8,17 @@ Markers (``--strict-markers`` is on, see setup.cfg):
 Every module marked ``ros`` runs in a DDS domain of its own, taken from
 :func:`allocate_domain`: an exclusive file lock per domain ID, so two test modules, two
 pytest processes or a test and a benchmark on the same machine never share a domain.
+
+With pytest-xdist (``-n 2``, as scripts/test.sh runs it) the tests go to the workers in whole
+work units, in collection order (:func:`pytest_xdist_make_scheduler`): every ``ros`` module in
+one unit (one DDS module at a time, as in a serial run: the real-time tests never share the
+machine with another module's nodes, only with the other worker's offline work), every other
+module as a unit of its own (its module fixtures and result caches are built once).
+
+``--cpu-durations=N`` prints the N tests that used the most CPU time (set-up, call and
+tear-down; this process's threads and the node processes it waited for), beside their wall
+time: on a machine shared with other work, wall time says more about the neighbours than
+about the test.
 """
 from __future__ import annotations
 
@@ -39,6 +50,98 @@ def allocate_domain():
             continue
         return domain, handle
     raise RuntimeError(f"no free ROS domain ID in {DOMAIN_RANGE}")
+
+
+#: the pytest-xdist work unit of every module marked ``ros``
+ROS_GROUP = "ros"
+_ROS_MODULES: dict[str, bool] = {}
+
+
+def is_ros_module(path) -> bool:
+    """Whether the test module at ``path`` marks tests ``ros`` (read from its source: the
+    pytest-xdist controller sees test ids, not the collected items and their markers)."""
+    key = str(path)
+    if key not in _ROS_MODULES:
+        try:
+            _ROS_MODULES[key] = "pytest.mark.ros" in Path(path).read_text()
+        except OSError:
+            _ROS_MODULES[key] = False
+    return _ROS_MODULES[key]
+
+
+def work_unit(nodeid: str, rootdir: Path) -> str:
+    """The pytest-xdist work unit of a test: :data:`ROS_GROUP` for the ``ros`` modules, else
+    its module."""
+    module = nodeid.split("::", 1)[0]
+    return ROS_GROUP if is_ros_module(rootdir / module) else module
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``-n N``: whole work units (:func:`work_unit`) per worker, in collection order."""
+    if config.getvalue("dist") == "each":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class WorkUnitScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return work_unit(nodeid, config.rootpath)
+
+    config.option.loadscopereorder = False     # collection order: the DDS unit starts early
+    return WorkUnitScheduling(config, log)
+
+
+def pytest_collection_modifyitems(config, items):
+    # the source check of is_ros_module must agree with the markers pytest collected
+    for item in items:
+        if item.get_closest_marker("ros") is not None and not is_ros_module(item.path):
+            raise pytest.UsageError(f"{item.nodeid} is marked ros but its module's source has no 'pytest.mark.ros' "
+                                    "(conftest.work_unit would run it beside other DDS tests)")
+
+
+def pytest_addoption(parser):
+    parser.addoption("--cpu-durations", type=int, default=None, metavar="N",
+                     help="print the N tests with the most CPU time (own + waited-for children), with wall time")
+
+
+_CPU_START: dict[str, os.times_result] = {}     # nodeid -> os.times() at its set-up
+_CPU_TIMES: dict[str, tuple[float, float, float]] = {}      # nodeid -> (wall, own CPU, children CPU), s
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    if item.config.getoption("--cpu-durations") is not None:
+        _CPU_START[item.nodeid] = os.times()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    t0 = _CPU_START.pop(item.nodeid, None) if call.when == "teardown" else None
+    if t0 is not None:
+        # on the report, so that it reaches the main process from a pytest-xdist worker too
+        t1 = os.times()
+        outcome.get_result().user_properties.append(("cpu_times", (
+            t1.elapsed - t0.elapsed, t1.user + t1.system - t0.user - t0.system,
+            t1.children_user + t1.children_system - t0.children_user - t0.children_system)))
+
+
+def pytest_runtest_logreport(report):
+    for key, value in report.user_properties:
+        if key == "cpu_times":
+            _CPU_TIMES[report.nodeid] = tuple(value)
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    n = config.getoption("--cpu-durations")
+    if n is None or not _CPU_TIMES:
+        return
+    rows = sorted(_CPU_TIMES.items(), key=lambda kv: -(kv[1][1] + kv[1][2]))
+    wall, own, kids = (sum(v[i] for v in _CPU_TIMES.values()) for i in range(3))
+    terminalreporter.write_sep("=", f"cpu durations (top {n}): wall / own CPU / children CPU, s")
+    for nodeid, (w, o, c) in rows[:n] if n > 0 else rows:
+        terminalreporter.write_line(f"{w:8.2f} {o:8.2f} {c:8.2f}  {nodeid}")
+    terminalreporter.write_line(f"{wall:8.2f} {own:8.2f} {kids:8.2f}  total over {len(_CPU_TIMES)} tests")
 
 
 @pytest.fixture(scope="module", autouse=True)

@@ -137,8 +137,11 @@ def test_stop_escalates_to_sigterm_for_a_process_ignoring_sigint(tmp_path):
            "time.sleep(60)"
     la.procs["stubborn"] = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE)
     assert la.procs["stubborn"].stdout.readline().strip() == b"up"
-    polite = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], stderr=subprocess.DEVNULL)
+    # up before the SIGINT: an interpreter still starting (slow beside a busy CPU) can outlast the grace
+    polite = subprocess.Popen([sys.executable, "-c", "import time; print('up', flush=True); time.sleep(60)"],
+                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
     la.procs["polite"] = polite
+    assert polite.stdout.readline().strip() == b"up"
     codes = la.stop(grace_s=0.5)
     assert codes == {"stubborn": -signal.SIGTERM, "polite": -signal.SIGINT}
     assert la.failed() == ["stubborn", "polite"]

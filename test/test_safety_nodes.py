@@ -51,16 +51,25 @@ def _hold(probe, pct, timeout=30.0):
     probe.wait_for(ready, timeout, f"holding {pct} %")
 
 
+#: the first wait of a fixture includes its node processes' start (imports under load)
+START_S = 120.0
+
+
 @pytest.fixture
 def realtime(tmp_path):
-    """Plant and controller processes in real time (resolver timeout 1 s: a starved process
-    must not trip the controller here), the probe as the demand supervisor."""
-    plan = plan_run(None, REAL_TIME, controller_overrides={"faults.resolver_timeout_s": 1.0,
+    """Plant and controller processes in real time (resolver timeout 1 s, demand timeout 5 s:
+    a starved process -- the plant, or the probe that sends the demand -- must not trip the
+    controller here; seen: "no valid demand for 0.61 s" at load average 16), the probe as the
+    demand supervisor."""
+    plan = plan_run(None, REAL_TIME, controller_overrides={"faults.resolver_timeout_s": 1.0, "demand_timeout_s": 5.0,
                                                            "diagnostics_rate_hz": 10.0})
     s = Launcher(plan, "/wd", tmp_path)
     s.start(("plant", "controller"))
     probe = Probe("/wd", keep_all=(contract.JOINT_STATES, contract.DRIVE_STATUS))
     try:
+        # the processes' start (imports) first, with its own generous wait: the tests' 30 s
+        # waits for a hold were used up by it at load average 17 (driver status still None)
+        probe.wait_for(lambda: probe.driver_level() is not None, START_S, "the controller's status")
         yield s, probe
     finally:
         probe.close()
