@@ -9,7 +9,7 @@ Every module marked ``ros`` runs in a DDS domain of its own, taken from
 :func:`allocate_domain`: an exclusive file lock per domain ID, so two test modules, two
 pytest processes or a test and a benchmark on the same machine never share a domain.
 
-With pytest-xdist (``-n 2``, as scripts/test.sh runs it) the tests go to the workers in whole
+With pytest-xdist (``-n 2``, opt-in: ``bash scripts/test.sh -n 2``) the tests go to the workers in whole
 work units, in collection order (:func:`pytest_xdist_make_scheduler`): every ``ros`` module in
 one unit (one DDS module at a time, as in a serial run: the real-time tests never share the
 machine with another module's nodes, only with the other worker's offline work), every other
@@ -76,7 +76,7 @@ def work_unit(nodeid: str, rootdir: Path) -> str:
     return ROS_GROUP if is_ros_module(rootdir / module) else module
 
 
-@pytest.hookimpl(tryfirst=True)
+@pytest.hookimpl(tryfirst=True, optionalhook=True)     # a hook of pytest-xdist: without it, unused
 def pytest_xdist_make_scheduler(config, log):
     """``-n N``: whole work units (:func:`work_unit`) per worker, in collection order."""
     if config.getvalue("dist") == "each":
