@@ -667,8 +667,7 @@ class ValveDriver:
                 if t - self._coming_back_since > DRIVE_BACK_TIMEOUT_S:
                     self._drive_coming_back = False
                 else:
-                    self.controller.reset(self._meas, pressure, self.controller.model.equilibrium(
-                        self._meas.valve_rad, pressure)[1], keep_limits=True)
+                    self.controller.reset(self._meas, pressure, self._holding_torque(pressure), keep_limits=True)
                     self.last = DriverOutput(self.controller.last_current, True, "running", self._demand_pct,
                                              position_pct, {}, dict(self.warnings))
                     return self.last
@@ -683,7 +682,7 @@ class ValveDriver:
                 # torque first while the spring pulled the valve down: 58.6 -> 50.8 % for a 58 %
                 # demand after a 2 ms drive-off, offline).  The I2t budget spent is kept, so a
                 # stall cannot refill it
-                self._arm_torque = self.controller.model.equilibrium(self._meas.valve_rad, pressure)[1]
+                self._arm_torque = self._holding_torque(pressure)
             self.controller.reset(self._meas, pressure, self._arm_torque, keep_limits=self._stalled)
             self._stalled = False
             self._arm_torque = 0.0        # re-arming after a fault starts from zero torque
@@ -744,6 +743,11 @@ class ValveDriver:
             return False
         (t0, v0), (t1, v1) = self._recent[0], self._recent[-1]
         return t1 > t0 and (v1 - v0) / (t1 - t0) <= self.rearm_speed_rad_s
+
+    def _holding_torque(self, pressure_kpa: float) -> float:
+        """Motor torque (N*m) that holds the valve at its measured angle against the spring and
+        the Δp load (the nominal model's equilibrium, no friction): where a re-armed law starts."""
+        return self.controller.model.equilibrium(self._meas.valve_rad, pressure_kpa)[1]
 
     def _drive_went_off(self, t: float, ps: ParamSet) -> bool:
         """The drive switched itself off since the last period (the loop ran it): it reported

@@ -159,12 +159,13 @@ class StateFeedbackLaw(ControlLaw):
             self._d = m.load_torque(stop, pressure_kpa) - m.spring_rate_nm_per_rad * stop
             return self.seating.torque(m, stop, seat, pressure_kpa)
         # ---- reference, deadband
+        load_nm = m.load_torque(thl, pressure_kpa)   # the known valve load (spring, preload, flow), once per period
         was_moving = self.reference is not None and self.reference.moving
         ref = self.shaper.update(target, meas.valve_rad)
         if ref.moving and not was_moving:
             # a move starts: uncock the drive first (valve torque back to the known load) so the
             # move's feed-forward starts from neutral, not from a drive wound up to breakaway
-            net = n * self._applied - m.load_torque(thl, pressure_kpa) - self.held_load
+            net = n * self._applied - load_nm - self.held_load
             self.zeta -= net / n / self.fb.ki
         self.reference = ref
         stuck = abs(valve_speed) <= self.integral.stuck_speed
@@ -174,7 +175,7 @@ class StateFeedbackLaw(ControlLaw):
         # static friction the valve can have (x 0.5 in the robustness box; at the box's edge a
         # genuine breakaway comes right at it, so half of it): less, and the valve was broken
         # loose by something else
-        drive_nm = n * self._applied - m.load_torque(thl, pressure_kpa) - self.held_load
+        drive_nm = n * self._applied - load_nm - self.held_load
         driven = abs(drive_nm) >= 0.5 * self.integral.load_static_fraction * friction.valve_static_nm
         # v2: the jump is read from the tracking error: while the reference follows a ramp the
         # valve's travel is mostly the ramp's (issue 14: read as a jump, it froze the integrator)
@@ -211,7 +212,7 @@ class StateFeedbackLaw(ControlLaw):
                 if moved * (net0 - self.held_load) < 0.0:
                     self.held_load = self.integral.learn_load(
                         net0, moved, friction.valve_static_nm,
-                        m.load_torque(thl, pressure_kpa) if self.v2 else 0.0)
+                        load_nm if self.v2 else 0.0)
                 self._slip = None
         relaxing = False
         if not outside and not ref.moving and stuck and self.integral.relax_time_s > 0.0:
@@ -220,7 +221,7 @@ class StateFeedbackLaw(ControlLaw):
             # coupling stiffness, which may be far from nominal); shrinking it cannot break the
             # valve loose, and the next move starts from a neutral drive, not a cocked one.
             # The middle of the band includes the steady load learned from earlier slips.
-            net = n * self._applied - m.load_torque(thl, pressure_kpa)
+            net = n * self._applied - load_nm
             relaxing = True
             self._relax_periods += 1
             if self._relax_periods * self.period >= self.integral.settle_time_s:
@@ -244,7 +245,7 @@ class StateFeedbackLaw(ControlLaw):
                 rate = friction.valve_static_nm / self.integral.stuck_ramp_time_s
                 ramp = rate / n * self.period / self.fb.ki
                 self._pending = math.copysign(max(abs(self._pending), ramp), error)
-        known_load = m.load_torque(thl, pressure_kpa) - m.spring_rate_nm_per_rad * thl   # preload + flow
+        known_load = load_nm - m.spring_rate_nm_per_rad * thl   # preload + flow
         self._d = known_load + (self._fl if self.compensator.feeds_observer else 0.0)
         return u
 
