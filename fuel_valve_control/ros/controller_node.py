@@ -49,6 +49,7 @@ import time
 from rclpy.lifecycle import Node as LifecycleNode, State, TransitionCallbackReturn
 
 from ..common import contract
+from ..common.timebase import stamp_seconds, to_stamp
 from . import interface as ri
 from .node_runner import run_node
 from .valve_test_services import ValveTestInterface
@@ -56,6 +57,7 @@ from ..common.paramspec import ConfigError
 
 from ..core.params import CONTROLLER_NODE_SPEC, CONTROLLER_SPEC, load_controller_params
 from ..core.driver import Health, ValveDriver
+from ..core.period_inputs import PeriodInputs
 from ..core.health import NE107_DIAGNOSTIC_LEVEL, FUNCTION_CHECK, load_state, save_state
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
@@ -197,6 +199,9 @@ class ControllerNode(LifecycleNode):
 
     def _reset_loop_state(self) -> None:
         self._fresh_demand = False
+        #: lockstep: the demand and Δp that came for the next period, handed to the driver at
+        #: that period's time (the offline simulator's exchange: core/period_inputs.py)
+        self._inputs = PeriodInputs()
         self._pending_sample = None
         self._last_sample_stamp = None
         self._command_matched = False
@@ -366,14 +371,20 @@ class ControllerNode(LifecycleNode):
     def on_demand(self, msg) -> None:
         if self.driver is None:
             return
-        self.driver.demand_percent(self.now_s(), msg.data)
+        if self.lockstep:
+            self._inputs.demand_percent(msg.data)
+        else:
+            self.driver.demand_percent(self.now_s(), msg.data)
         self._demand_arrived()
 
     @locked
     def on_demand_ma(self, msg) -> None:
         if self.driver is None:
             return
-        self.driver.demand_ma(self.now_s(), msg.data)
+        if self.lockstep:
+            self._inputs.demand_ma(msg.data)
+        else:
+            self.driver.demand_ma(self.now_s(), msg.data)
         self._demand_arrived()
 
     def _demand_arrived(self) -> None:
@@ -404,7 +415,10 @@ class ControllerNode(LifecycleNode):
     def on_pressure(self, msg) -> None:
         if self.driver is None:
             return
-        self.driver.pressure_differential(self.now_s(), msg.data)
+        if self.lockstep:
+            self._inputs.pressure_differential(msg.data)
+        else:
+            self.driver.pressure_differential(self.now_s(), msg.data)
 
     @locked
     def on_drive(self, msg) -> None:
@@ -430,7 +444,9 @@ class ControllerNode(LifecycleNode):
             self.get_logger().warn(f"resolver message without {contract.MOTOR_JOINT}/{contract.VALVE_JOINT} positions ignored",
                                    throttle_duration_sec=1.0)
             return
-        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        # lockstep: the period's time exactly as the offline simulator has it (common/timebase.py)
+        stamp = stamp_seconds(msg.header.stamp.sec, msg.header.stamp.nanosec,
+                              self.driver.period if self.lockstep else None)
         clock = self.get_clock().now().nanoseconds * 1e-9       # sim time in lockstep (/clock)
         if stamp - clock > self.driver.ps["faults.stamp_future_tolerance_s"]:
             # never the loop's time or the jump reference; the driver latches it as implausible
@@ -454,8 +470,11 @@ class ControllerNode(LifecycleNode):
         stamp, motor, valve, clock = sample
         self._fresh_demand = False
         self._last_sample_stamp = stamp
-        self.driver.resolver(stamp, motor, valve, now=clock)
-        self.publish_step(stamp if self.lockstep else self.now_s())
+        if self.lockstep:
+            self.publish_step(stamp, self._inputs.run(self.driver, stamp, motor, valve, now=clock))
+        else:
+            self.driver.resolver(stamp, motor, valve, now=clock)
+            self.publish_step(self.now_s())
         self._compute.add(time.perf_counter() - t0)
 
     @locked
@@ -492,9 +511,11 @@ class ControllerNode(LifecycleNode):
         except Exception:                   # noqa: BLE001 - context gone: the plant's watchdog acts
             pass
 
-    def publish_step(self, t: float) -> None:
-        """One driver period: the command first (the plant is waiting for it), then the rest."""
-        out = self.driver.step(t)
+    def publish_step(self, t: float, out=None) -> None:
+        """One driver period at ``t`` (s): the command first (the plant is waiting for it), then
+        the rest.  ``out``: the period's ``DriverOutput`` when the driver has stepped already."""
+        if out is None:
+            out = self.driver.step(t)
         # latched topic: publish changes only, and a re-enable of a drive that switched itself
         # off (out.reenable); before the command it applies to
         if out.enable != self._last_enable or (out.enable and out.reenable):
@@ -513,9 +534,11 @@ class ControllerNode(LifecycleNode):
                 self.pub_position.publish(self._float(data=float(out.position_pct)))
                 self.recorder_gate.count(contract.POSITION)
             est = self.driver.controller.estimate()
-            sec = int(t)
-            stamp = self._time(sec=sec, nanosec=int((t - sec) * 1e9)) if self.lockstep \
-                else self.get_clock().now().to_msg()
+            if self.lockstep:
+                sec, nanosec = to_stamp(t)
+                stamp = self._time(sec=sec, nanosec=nanosec)
+            else:
+                stamp = self.get_clock().now().to_msg()
             self.pub_estimate.publish(ri.joint_state(
                 stamp, (est.motor_angle, est.valve_angle), (est.motor_velocity, est.valve_velocity),
                 (est.motor_friction_nm, est.valve_friction_nm)))

@@ -16,6 +16,7 @@ import time
 from rclpy.node import Node
 
 from ..common import contract
+from ..common.timebase import stamp_seconds
 from . import interface as ri
 from .node_runner import run_node
 
@@ -26,17 +27,6 @@ from ..tools.profiles import DEMAND_NODE_SPEC, ProfileError, profile_from_params
 #: loop's controller has; after it the demand goes out anyway (a graph entry that never matches,
 #: e.g. a vanished node, must not stall)
 MATCH_WAIT_S = 2.0
-
-
-def tick_time(sec: int, nanosec: int, period: float) -> float:
-    """A lockstep ``/clock`` stamp as the time the profile is evaluated at, s: ``k * period``
-    when the stamp is k periods (within 0.1 us), exactly the float the offline simulator uses
-    (``sec + 1e-9 * nanosec`` differs from it in the last bit on some ticks: two runs then
-    agree with each other but not with the simulator, 4.7e-7 rad after a breakaway); any
-    other stamp as it is."""
-    t = sec + 1e-9 * nanosec
-    k = round(t / period)
-    return k * period if abs(t - k * period) < 1e-7 else t
 
 
 class DemandNode(Node):
@@ -88,7 +78,8 @@ class DemandNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def on_clock(self, msg) -> None:
-        t = tick_time(msg.clock.sec, msg.clock.nanosec, self.ps["tick_period_s"])
+        # the tick as the offline simulator has it: k * period (common/timebase.py)
+        t = stamp_seconds(msg.clock.sec, msg.clock.nanosec, self.ps["tick_period_s"])
         latest = self._pending_tick if self._pending_tick is not None else self._answered_tick
         if latest is not None and t <= latest:
             # a re-published tick (see plant_node): answered once.  Simulated time only moves

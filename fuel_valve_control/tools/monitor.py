@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import time
 
+from ..common.timebase import stamp_seconds
 from .scenarios import TRIGGER_ACTIONS
 
 #: time between two takes of the monitor's subscriptions, s (events due meanwhile are sent at
@@ -96,12 +97,12 @@ class Monitor:
 
     def _on_clock(self, msg):
         self._taken += 1
-        self.sim_time = msg.clock.sec + 1e-9 * msg.clock.nanosec
+        self.sim_time = stamp_seconds(msg.clock.sec, msg.clock.nanosec)
 
     def _on_truth(self, msg):
         self._taken += 1
         st = msg.header.stamp
-        t = st.sec + 1e-9 * st.nanosec
+        t = stamp_seconds(st.sec, st.nanosec)
         if not self.truth or t > self.truth[-1][0]:          # lockstep may re-send a sample
             self.truth.append((t, msg.position[1], msg.velocity[1]))
 

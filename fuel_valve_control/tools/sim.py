@@ -30,6 +30,7 @@ from fuel_valve_plant.physics.plant import Plant
 
 from ..common.paramspec import ConfigError, ParamSet, parse_overrides
 from ..core.driver import ValveDriver
+from ..core.period_inputs import PeriodInputs
 from ..core.params import MODES
 from ..core.valve_tests import ValveTests, load_baselines
 from . import metrics as M
@@ -106,20 +107,22 @@ def simulate(scenario: Scenario, plant_ps: ParamSet, controller_ps: ParamSet) ->
 
 
 def exchange_period(driver, plant, t: float, demand_pct: float):
-    """One control period's exchange at time ``t`` (s), in the order the nodes exchange it:
-    the demand (percent), the Δp transducer (at its own rate), the resolver sample (when the
-    plant gives one), then the driver's step.  Returns ``(DriverOutput, resolver sample or
-    None)``; applying the command and advancing the plant is the caller's (it may log the
-    state in between).  The one loop body of the offline simulator and of the tests that close
-    the loop around a driver."""
-    driver.demand_percent(t, demand_pct)
+    """One control period's exchange at time ``t`` (s), as the lockstep nodes exchange it
+    (:class:`~fuel_valve_control.core.period_inputs.PeriodInputs`): the demand (percent), the
+    Δp transducer (at its own rate), the resolver sample (when the plant gives one; stamped
+    ``t`` like the plant node's), then the driver's step.  Returns ``(DriverOutput, resolver
+    sample or None)``; applying the command and advancing the plant is the caller's (it may
+    log the state in between).  The one loop body of the offline simulator and of the tests
+    that close the loop around a driver."""
+    inputs = PeriodInputs()
+    inputs.demand_percent(demand_pct)
     dp = plant.pressure_sample()
     if dp is not None:
-        driver.pressure_differential(t, dp)
+        inputs.pressure_differential(dp)
     sample = plant.resolver()
-    if sample is not None:
-        driver.resolver(sample.stamp_s, sample.motor_rad, sample.valve_rad)
-    return driver.step(t), sample
+    if sample is None:
+        return inputs.run(driver, t), sample
+    return inputs.run(driver, t, sample.motor_rad, sample.valve_rad), sample
 
 
 def simulate_plan(plan: RunPlan, baselines: list[dict] = ()) -> SimResult:

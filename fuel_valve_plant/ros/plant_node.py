@@ -64,6 +64,7 @@ import time
 from rclpy.node import Node
 
 from fuel_valve_control.common import contract
+from fuel_valve_control.common.timebase import to_stamp
 from fuel_valve_control.ros import interface as ri
 from fuel_valve_control.ros.node_runner import run_node, set_timer_slack
 from fuel_valve_control.common.paramspec import ConfigError
@@ -450,8 +451,8 @@ class PlantNode(Node):
     def publish_outputs(self, stamp=None) -> None:
         t = self.plant.time
         if self.lockstep:
-            sec = int(t)
-            stamp = self._time_msg(sec=sec, nanosec=int(round((t - sec) * 1e9)))
+            sec, nanosec = to_stamp(t)
+            stamp = self._time_msg(sec=sec, nanosec=nanosec)
             clock = self._clock_msg(clock=stamp)
             self.pub_clock.publish(clock)
             self.recorder_gate.count(self._clock_topic)
