@@ -46,7 +46,7 @@ Drive faults (the drive's own protection, independent of the controller; reporte
 ``drive_status``: latched std_msgs/UInt8, published on change, ``contract.DRIVE_STATE_*``):
 
 * command watchdog (real time): a resolver sample left unanswered for ``command_timeout_s``
-  (default 5 ms, five periods) disables the drive, so a dead or stalled controller cannot leave
+  of plant time (default 5 ms, five periods) disables the drive, so a dead or stalled controller cannot leave
   the last current applied; the spring closes the valve.  Like a real drive it does not
   re-enable by itself when commands resume (the controller's law state is stale by then: its
   observer assumed the commanded current acted, and resuming its command drove a soak's valve
@@ -217,7 +217,7 @@ class PlantNode(Node):
         self._last_publish_mono = None
         # drive protection (module docstring): watchdog and internal-error latch
         self._command_timeout = node_ps["command_timeout_s"]
-        self._awaiting_since: float | None = None   # first sample published since the last command
+        self._awaiting_since: float | None = None   # plant time of the first sample published since the last command
         self._watchdog_off = False
         self._watchdog_trips = 0
         self._fault: str | None = None
@@ -306,13 +306,18 @@ class PlantNode(Node):
                 self.pub_status.publish(self._uint8(data=state))
                 self.recorder_gate.count(contract.DRIVE_STATUS, latched=True)
 
-    def _check_watchdog(self, now: float) -> None:
-        """Real time, each tick: disable the drive when a sample stays unanswered too long."""
-        if (not self._watchdog_off and self._awaiting_since is not None
-                and now - self._awaiting_since > self._command_timeout):
+    def _check_watchdog(self, elapsed: float) -> None:
+        """Real time, each tick about to advance the physics by ``elapsed`` s: disable the drive
+        when a sample stays unanswered too long.  Counted in the plant's own time (sample time
+        to the end of this tick's step), not the wall clock: a simulator frozen for a second
+        (starved of CPU) advances only :data:`MAX_STEP_PERIODS` over it, and its drive must
+        not trip for a silence of the controller that only the frozen simulator caused (the
+        controller had answered; the simulator had not published since)."""
+        unanswered = None if self._awaiting_since is None else self.plant.time + elapsed - self._awaiting_since
+        if not self._watchdog_off and unanswered is not None and unanswered > self._command_timeout:
             self._watchdog_off = True
             self._watchdog_trips += 1
-            self.get_logger().error(f"drive watchdog: no current command for {(now - self._awaiting_since) * 1e3:.1f} "
+            self.get_logger().error(f"drive watchdog: no current command for {unanswered * 1e3:.1f} "
                                     f"ms (limit {self._command_timeout * 1e3:g} ms): drive disabled until the "
                                     "controller re-enables it", throttle_duration_sec=1.0)
             self.report_state()
@@ -396,11 +401,15 @@ class PlantNode(Node):
                     self.stats.missed += skipped        # every tick would be "missed"
                     if not self._got_command:
                         self.stats.missed += 1
-                    self._check_watchdog(now)
+                    self._check_watchdog(elapsed)
                 try:
-                    self.step_and_publish(elapsed, stamp)
                     if self._awaiting_since is None:
-                        self._awaiting_since = time.monotonic()
+                        # the sample about to be published (plant time): marked before the
+                        # publish, so an answer that arrives at once clears it (marked after
+                        # the publish, a fast answer was overwritten and the sample counted
+                        # as unanswered)
+                        self._awaiting_since = self.plant.time + elapsed
+                    self.step_and_publish(elapsed, stamp)
                 except Exception as exc:                # noqa: BLE001
                     if not self.context.ok():           # context shut down under us: the end
                         return
