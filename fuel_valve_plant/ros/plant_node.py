@@ -297,11 +297,13 @@ class PlantNode(Node):
             return contract.DRIVE_STATE_WATCHDOG
         return contract.DRIVE_STATE_ENABLED if self._enable else contract.DRIVE_STATE_DISABLED
 
-    def report_state(self) -> None:
-        """Publish the drive's state word when it has changed (latched: a late joiner learns it)."""
+    def report_state(self, always: bool = False) -> None:
+        """Publish the drive's state word when it has changed (latched: a late joiner learns it),
+        or ``always`` (the answer to an enable: a controller that re-sends one after a lost
+        report learns the state again)."""
         with self._state_lock:
             state = self.drive_state()
-            if state != self._state_reported:
+            if always or state != self._state_reported:
                 self._state_reported = state
                 self.pub_status.publish(self._uint8(data=state))
                 self.recorder_gate.count(contract.DRIVE_STATUS, latched=True)
@@ -364,7 +366,7 @@ class PlantNode(Node):
             self._iq = 0.0
             self.get_logger().info("drive watchdog: re-enabled by the controller")
         self._enable = enable
-        self.report_state()
+        self.report_state(always=True)
 
     def _apply_command(self) -> None:
         enabled = (self._enable and not self._command_rejected and not self._watchdog_off
