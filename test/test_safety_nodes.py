@@ -39,7 +39,10 @@ def _level(st):
     return None if st is None else (st.level[0] if isinstance(st.level, bytes) else int(st.level))
 
 
-def _hold(probe, pct, timeout=30.0):
+def _hold(probe, pct, timeout=30.0, settle_s=0.0):
+    """Demand ``pct`` % and wait until the valve is within 1 % of stroke of it (and, with
+    ``settle_s`` > 0, has also moved less than :data:`SETTLED_RAD` over the last ``settle_s``
+    s of ground truth: at rest, not still approaching)."""
     probe.set_demand(pct)
 
     def ready():
@@ -47,8 +50,20 @@ def _hold(probe, pct, timeout=30.0):
             probe.trigger("controller/reset")
             time.sleep(0.2)
         a = probe.valve_angle()
-        return probe.driver_level() in (0, 1) and a is not None and abs(a - pct / 100 * STROKE_RAD) < 0.01 * STROKE_RAD
-    probe.wait_for(ready, timeout, f"holding {pct} %")
+        near = probe.driver_level() in (0, 1) and a is not None and abs(a - pct / 100 * STROKE_RAD) < 0.01 * STROKE_RAD
+        if not near or settle_s <= 0.0:
+            return near
+        recent = probe.since(contract.JOINT_STATES, time.monotonic() - settle_s)
+        if len(recent) < 10:            # the fixture keeps ground truth (keep_all)
+            return False
+        angles = [m.position[1] for m in recent]
+        return max(angles) - min(angles) < SETTLED_RAD
+    probe.wait_for(ready, timeout, f"holding {pct} %" + (f" (at rest for {settle_s:g} s)" if settle_s else ""))
+
+
+#: "at rest" for :func:`_hold`: the valve moved less than this over its settle time, rad
+#: (about 10 resolver counts; a valve still approaching its demand moves 0.2-0.3 rad/s)
+SETTLED_RAD = 1e-3
 
 
 #: the first wait of a fixture includes its node processes' start (imports under load)
@@ -145,7 +160,9 @@ def test_short_controller_stalls_at_a_hold_the_drive_reports_and_the_controller_
     # until the controller, re-armed from the measurement with zero torque, re-enables it.
     s, probe = realtime
     demand = 47.5
-    _hold(probe, demand)
+    # at rest first: a stall during the approach (the valve still creeping up at 0.2-0.3 rad/s,
+    # the law's command still changing) is another test's case (stalled_controller_does_not_run...)
+    _hold(probe, demand, settle_s=0.3)
     pid = s.procs["controller"].pid
     mono = time.monotonic()
     trips = 0

@@ -199,3 +199,20 @@ def test_duration_histogram_quantiles_match_sorted_samples():
         exact = ordered[min(int(q * len(ordered)), len(ordered) - 1)]
         assert exact - 1e-12 <= h.quantile(q) <= max(exact, 0.0) + h.resolution_s + 1e-12, q
     assert h.max == 0.5 and h.n == len(samples) and h.quantile(1.0) == 0.5
+
+
+def test_a_starved_plant_tick_starts_a_new_grid_and_slows_its_time_down():
+    # the stall test's excursion under load (issue 13): a plant thread starved for 4-6 ms
+    # stepped the whole gap on one held command and then fired the missed ticks back to back
+    # (samples 40 us apart), and the 1 kHz loop fell into a limit cycle 9 % past its demand
+    from fuel_valve_plant.ros.plant_node import MAX_STEP_PERIODS, next_tick_after
+    period = 1e-3
+    # on time (a little sleep overshoot): the grid is kept, the physics follows the wall clock
+    elapsed, nxt, skipped = next_tick_after(now=10.0012, last=10.0002, next_tick=10.001, period=period)
+    assert (elapsed, nxt, skipped) == (pytest.approx(1e-3), pytest.approx(10.002), 0)
+    # 6 ms late: no catch-up burst (the next tick a whole period later), five ticks skipped,
+    # and at most MAX_STEP_PERIODS of simulated time for the 7 ms of wall time
+    elapsed, nxt, skipped = next_tick_after(now=10.008, last=10.001, next_tick=10.002, period=period)
+    assert nxt == pytest.approx(10.009)
+    assert skipped == 6
+    assert elapsed == pytest.approx(MAX_STEP_PERIODS * period) and MAX_STEP_PERIODS <= 2.0

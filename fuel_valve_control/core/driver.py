@@ -45,7 +45,7 @@ import threading
 from collections import deque
 from dataclasses import dataclass, field, replace
 
-from ..common.contract import (DRIVE_STATE_FAULT, DRIVE_STATE_NAMES, DRIVE_STATE_WATCHDOG, NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_HIGH_MA, NE43_USABLE_LOW_MA,
+from ..common.contract import (DRIVE_STATE_ENABLED, DRIVE_STATE_FAULT, DRIVE_STATE_NAMES, DRIVE_STATE_WATCHDOG, NE43_FAIL_HIGH_MA, NE43_FAIL_LOW_MA, NE43_USABLE_HIGH_MA, NE43_USABLE_LOW_MA,
                                 PERCENT_FAIL_MARGIN, PRESSURE_MAX_KPA, RESOLVER_COUNT_RAD, ma_to_percent)
 from ..common.paramspec import ParamSet
 
@@ -87,10 +87,16 @@ RESET_QUIET_S = 0.1
 PARAM_SWAP_SETTLED_RAD = 5e-3
 PARAM_SWAP_MAX_WAIT_S = 1.0
 #: longest wait, s, for a drive re-enabled after its watchdog trip to report it is on again (the
-#: law is held at its re-arm meanwhile); then the law runs on as before this rule (a report
-#: that never comes -- over DDS on a loaded machine one was missed, not traced -- must not
-#: freeze the loop).  Beyond the 44 ms a starved plant took in the soak
+#: law is held at its re-arm meanwhile); then the re-enable is sent again (a drive answers
+#: every enable with its state word, so a lost report is not mistaken for a drive that stays
+#: off).  Beyond the 44 ms a starved plant took in the soak
 DRIVE_BACK_TIMEOUT_S = 0.1
+#: re-enables sent after one watchdog trip before the loop gives up and latches
+#: :data:`DRIVE_FAULT` (the drive does not take them).  Until this rule the law ran on after
+#: the first timeout against a drive that still reported itself off: under CPU load (load
+#: average 10) it commanded 15 A into a switched-off drive while the spring closed the valve,
+#: and the twist check then latched "a resolver has failed" -- safe, but a false diagnosis
+DRIVE_BACK_ATTEMPTS = 5
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
 #: warning code of a measured Δp that disagrees with the valve friction met (friction_check.py)
@@ -160,6 +166,7 @@ class ValveDriver:
         #: (:meth:`_step`: the law is held at its re-arm meanwhile)
         self._drive_coming_back = False
         self._coming_back_since = 0.0
+        self._reenables = 0                         # re-enables sent since the last trip
         #: after the drive went off the loop re-arms only once the valve is slow enough for a
         #: law whose observer starts at rest, or closing (:meth:`_valve_at_rest`): re-arming a
         #: valve in full swing (a starved loop tripping the drive every few periods mid-move)
@@ -619,6 +626,7 @@ class ValveDriver:
             self._stalled = reenable = self._rearm_at_rest = True
             self._drive_coming_back = self.drive_state is not None
             self._coming_back_since = t
+            self._reenables = 1
             self.stall_rearms += 1
             # the twist check compared the coupling with a current the drive did not apply
             # while it was off: that time is no evidence of a failed resolver
@@ -663,14 +671,20 @@ class ValveDriver:
                 # past its demand.  Held at its re-arm instead: again from the measurement,
                 # commanding the torque that holds the valve where it is, until the drive
                 # reports it is on (the supervision checks compare with an applied current:
-                # not run meanwhile), at most DRIVE_BACK_TIMEOUT_S
-                if t - self._coming_back_since > DRIVE_BACK_TIMEOUT_S:
-                    self._drive_coming_back = False
-                else:
-                    self.controller.reset(self._meas, pressure, self._holding_torque(pressure), keep_limits=True)
-                    self.last = DriverOutput(self.controller.last_current, True, "running", self._demand_pct,
-                                             position_pct, {}, dict(self.warnings))
-                    return self.last
+                # not run meanwhile).  No report within DRIVE_BACK_TIMEOUT_S: the re-enable
+                # is sent again, at most DRIVE_BACK_ATTEMPTS times, then a drive fault
+                again = t - self._coming_back_since > DRIVE_BACK_TIMEOUT_S
+                if again and self._reenables >= DRIVE_BACK_ATTEMPTS:
+                    self._latch(DRIVE_FAULT, f"the drive still reports its command watchdog trip after {self._reenables} "
+                                             f"re-enables {DRIVE_BACK_TIMEOUT_S * 1e3:.0f} ms apart")
+                    return self._fail_safe_output(position_pct)
+                if again:
+                    self._coming_back_since = t
+                    self._reenables += 1
+                self.controller.reset(self._meas, pressure, self._holding_torque(pressure), keep_limits=True)
+                self.last = DriverOutput(self.controller.last_current, True, "running", self._demand_pct,
+                                         position_pct, {}, dict(self.warnings), reenable=again)
+                return self.last
             elif self.drive_state != DRIVE_STATE_WATCHDOG:
                 self._drive_coming_back = False
         if not self._armed:
@@ -704,7 +718,10 @@ class ValveDriver:
         low, high, _ = self.twist_limits(applied)
         twist = self._meas.motor_rad / self.n - self._meas.valve_rad
         off = not low <= twist <= high
-        self._twist_time = max(self._twist_time + (dt if off else -dt), 0.0)
+        if self.drive_state is None or self.drive_state == DRIVE_STATE_ENABLED:
+            self._twist_time = max(self._twist_time + (dt if off else -dt), 0.0)
+        # else: the drive reports itself off, so the commanded current is not the applied one
+        # and the twist is no evidence about the resolvers (the count is held)
         if self._twist_time > ps["faults.resolver_disagreement_time_s"]:
             self._latch(RESOLVER_IMPLAUSIBLE, f"motor/valve resolver disagreement {twist:.4f} rad not explained by "
                                               f"the applied {applied:.1f} A ({low:.4f}..{high:.4f} rad) for "

@@ -12,8 +12,11 @@ Two timing modes:
 * real time (default): a dedicated loop thread ticks at ``publish_rate_hz`` (a precise
   sleep-until schedule; an rclpy timer at 1 kHz costs a large share of a core in executor
   overhead); each tick integrates the time elapsed since the previous tick (whole physics
-  steps) with the latest command, then publishes.  The executor thread only receives
-  commands.  The round trip (resolver published -> command received) and the ticks that
+  steps) with the latest command, then publishes.  A tick more than a period late (the
+  simulator starved of CPU) starts a new tick grid and advances at most
+  :data:`MAX_STEP_PERIODS`: a starved simulator slows its time down rather than coasting the
+  valve over a gap on one held command (skipped ticks count as missed periods).  The
+  executor thread only receives commands.  The round trip (resolver published -> command received) and the ticks that
   found no new command (missed control periods) are measured and reported.
 * lockstep (``lockstep:=true``): the plant owns ``/clock``.  It waits until the loop's
   participants are connected, then publishes ``/clock`` and a resolver sample, and advances
@@ -43,7 +46,7 @@ Drive faults (the drive's own protection, independent of the controller; reporte
 ``drive_status``: latched std_msgs/UInt8, published on change, ``contract.DRIVE_STATE_*``):
 
 * command watchdog (real time): a resolver sample left unanswered for ``command_timeout_s``
-  (default 5 ms, five periods) disables the drive, so a dead or stalled controller cannot leave
+  of plant time (default 5 ms, five periods) disables the drive, so a dead or stalled controller cannot leave
   the last current applied; the spring closes the valve.  Like a real drive it does not
   re-enable by itself when commands resume (the controller's law state is stale by then: its
   observer assumed the commanded current acted, and resuming its command drove a soak's valve
@@ -78,6 +81,35 @@ LOCKSTEP_SETTLE_S = 0.5
 #: (longer than the worst scheduling gap measured on the loaded 2-core machine, 0.62 s: a
 #: re-published tick is harmless, but it costs the loop's participants a duplicate to drop)
 LOCKSTEP_RESEND_S = 1.0
+#: real time: most simulated time one tick advances, in periods (see ``realtime_loop``: a
+#: starved simulator slows its time down instead of coasting the valve over the gap)
+MAX_STEP_PERIODS = 2.0
+
+
+def next_tick_after(now: float, last: float, next_tick: float, period: float) -> tuple[float, float, int]:
+    """Real-time tick schedule: a tick woke at ``now`` (s, monotonic), the previous one at
+    ``last``, scheduled for ``next_tick``.  Returns (simulated time to advance, s; the next
+    tick's time, s; ticks skipped).
+
+    A tick more than a period late (this thread was not scheduled: a starved or frozen
+    simulator) starts a new tick grid at ``now`` instead of firing the missed ticks back to
+    back -- samples microseconds apart made the controller run a law period (1 ms of its
+    time) for each, then nothing for the next gap -- and reports the missed ones as skipped.
+
+    The physics advances by the wall time since the last tick, but by at most
+    :data:`MAX_STEP_PERIODS`: a real valve is sampled every period, and the controller would
+    have answered each sample, while a starved simulator's valve would coast the whole gap on
+    one held command -- a sample-and-hold of 4-6 ms that the 1 kHz loop was never designed
+    for (under CPU load it drove the valve into a limit cycle 9 % past a held demand).  So a
+    starved simulator slows its simulated time down (a real-time simulator whose real-time
+    factor drops below 1) rather than integrating the valve over a gap the controller could
+    not see.  A stalled *controller* (the case the drive watchdog is for) is unaffected: the
+    plant keeps ticking every period with the held command."""
+    skipped = 0
+    if now - next_tick > period:
+        skipped = int((now - next_tick) / period + 1e-6)      # grid points passed meanwhile
+        next_tick = now
+    return min(now - last, MAX_STEP_PERIODS * period), next_tick + period, skipped
 
 
 def guarded(method):
@@ -186,7 +218,7 @@ class PlantNode(Node):
         self._last_publish_mono = None
         # drive protection (module docstring): watchdog and internal-error latch
         self._command_timeout = node_ps["command_timeout_s"]
-        self._awaiting_since: float | None = None   # first sample published since the last command
+        self._awaiting_since: float | None = None   # plant time of the first sample published since the last command
         self._watchdog_off = False
         self._watchdog_trips = 0
         self._fault: str | None = None
@@ -266,22 +298,29 @@ class PlantNode(Node):
             return contract.DRIVE_STATE_WATCHDOG
         return contract.DRIVE_STATE_ENABLED if self._enable else contract.DRIVE_STATE_DISABLED
 
-    def report_state(self) -> None:
-        """Publish the drive's state word when it has changed (latched: a late joiner learns it)."""
+    def report_state(self, always: bool = False) -> None:
+        """Publish the drive's state word when it has changed (latched: a late joiner learns it),
+        or ``always`` (the answer to an enable: a controller that re-sends one after a lost
+        report learns the state again)."""
         with self._state_lock:
             state = self.drive_state()
-            if state != self._state_reported:
+            if always or state != self._state_reported:
                 self._state_reported = state
                 self.pub_status.publish(self._uint8(data=state))
                 self.recorder_gate.count(contract.DRIVE_STATUS, latched=True)
 
-    def _check_watchdog(self, now: float) -> None:
-        """Real time, each tick: disable the drive when a sample stays unanswered too long."""
-        if (not self._watchdog_off and self._awaiting_since is not None
-                and now - self._awaiting_since > self._command_timeout):
+    def _check_watchdog(self, elapsed: float) -> None:
+        """Real time, each tick about to advance the physics by ``elapsed`` s: disable the drive
+        when a sample stays unanswered too long.  Counted in the plant's own time (sample time
+        to the end of this tick's step), not the wall clock: a simulator frozen for a second
+        (starved of CPU) advances only :data:`MAX_STEP_PERIODS` over it, and its drive must
+        not trip for a silence of the controller that only the frozen simulator caused (the
+        controller had answered; the simulator had not published since)."""
+        unanswered = None if self._awaiting_since is None else self.plant.time + elapsed - self._awaiting_since
+        if not self._watchdog_off and unanswered is not None and unanswered > self._command_timeout:
             self._watchdog_off = True
             self._watchdog_trips += 1
-            self.get_logger().error(f"drive watchdog: no current command for {(now - self._awaiting_since) * 1e3:.1f} "
+            self.get_logger().error(f"drive watchdog: no current command for {unanswered * 1e3:.1f} "
                                     f"ms (limit {self._command_timeout * 1e3:g} ms): drive disabled until the "
                                     "controller re-enables it", throttle_duration_sec=1.0)
             self.report_state()
@@ -328,7 +367,7 @@ class PlantNode(Node):
             self._iq = 0.0
             self.get_logger().info("drive watchdog: re-enabled by the controller")
         self._enable = enable
-        self.report_state()
+        self.report_state(always=True)
 
     def _apply_command(self) -> None:
         enabled = (self._enable and not self._command_rejected and not self._watchdog_off
@@ -351,25 +390,29 @@ class PlantNode(Node):
             now = time.monotonic()
             self.stats.add_late(now - next_tick)
             # the sample instant: the state published this tick is the state at this time, so
-            # consecutive stamps differ by the simulated elapsed time even when the thread is
-            # pre-empted between here and the publish (a stamp taken at publish time made a
-            # starved plant look like a 65 rad/s resolver jump to the controller)
+            # consecutive stamps differ by the wall time the tick covers even when the thread
+            # is pre-empted between here and the publish (a stamp taken at publish time made a
+            # starved plant look like a 65 rad/s resolver jump to the controller); a starved
+            # tick advances less simulated time than that (next_tick_after), which only makes
+            # the valve look slower
             stamp = self.get_clock().now().to_msg()
-            if now - next_tick > 10 * self.period:      # fell far behind (stall): resynchronise
-                next_tick = now
-            next_tick += self.period
-            elapsed = min(now - last, 10.0 * self.period)
+            elapsed, next_tick, skipped = next_tick_after(now, last, next_tick, self.period)
             last = now
             with self._lock:
                 if self.stats.commands:         # the loop is closed (a controller answers): count
-                    self.stats.ticks += 1       # its periods; before, every tick would be "missed"
+                    self.stats.ticks += 1 + skipped     # its periods (those skipped: missed); before,
+                    self.stats.missed += skipped        # every tick would be "missed"
                     if not self._got_command:
                         self.stats.missed += 1
-                    self._check_watchdog(now)
+                    self._check_watchdog(elapsed)
                 try:
-                    self.step_and_publish(elapsed, stamp)
                     if self._awaiting_since is None:
-                        self._awaiting_since = time.monotonic()
+                        # the sample about to be published (plant time): marked before the
+                        # publish, so an answer that arrives at once clears it (marked after
+                        # the publish, a fast answer was overwritten and the sample counted
+                        # as unanswered)
+                        self._awaiting_since = self.plant.time + elapsed
+                    self.step_and_publish(elapsed, stamp)
                 except Exception as exc:                # noqa: BLE001
                     if not self.context.ok():           # context shut down under us: the end
                         return
