@@ -489,6 +489,10 @@ def test_two_valves_in_one_launch_stop_on_one_ctrl_c(env, tmp_path, launches):
     la.assert_clean_exit(la.ctrl_c(), valves=2)
 
 
+#: simulated time, s, both lockstep valves must have run past before they are compared
+RUN_PAST_S = 9
+
+
 @pytest.mark.parametrize("launched", ["one launch", "two launches"])
 def test_two_valves_in_lockstep_each_deterministic(env, tmp_path, launches, launched):
     """Two valves, same configuration, lockstep, at once (``valves:=lock_a,lock_b`` in one
@@ -515,8 +519,18 @@ def test_two_valves_in_lockstep_each_deterministic(env, tmp_path, launches, laun
         launches += list(runs.values())
     for ns, la in runs.items():
         la.wait_for(rf"\[{ns}\.plant\]: lockstep: participants connected, starting")
-    # let both run a while of simulated time (as fast as the loops go: a few seconds of wall time)
-    time.sleep(8.0)
+    # let both run past RUN_PAST_S of simulated time (as fast as the loops go: a few seconds of
+    # wall time).  Not a fixed sleep: the stop-11 time-base regression first showed at 8.013 s of
+    # the start-up profile, and runs that had not got that far passed
+    end = time.monotonic() + 120.0
+    for ns in valves:
+        while True:
+            out = ros2(env, "topic", "echo", "--once", f"/{ns}/clock", "--field", "clock.sec", timeout=60.0, check=False)
+            secs = [int(w) for w in out.split() if w.isdigit()]
+            if (secs and secs[0] >= RUN_PAST_S) or time.monotonic() > end:
+                break
+            time.sleep(1.0)
+        assert secs and secs[0] >= RUN_PAST_S, (ns, out)
     for la in dict.fromkeys(runs.values()):
         la.assert_clean_exit(la.ctrl_c(), NODES + ("recorder",), valves=len(valves) if launched == "one launch" else 1)
     truth, demands = {}, {}
