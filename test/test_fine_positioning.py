@@ -73,9 +73,16 @@ def test_learned_state_is_on_the_diagnostics():
     assert "fine_phase" not in ValveDriver(CONTROLLER_SPEC.defaults()).health().values
 
 
-def _engages(fine, error_rad: float, pressure_kpa: float) -> bool:
-    """Whether the stage takes over a settled valve ``error_rad`` short of a steady target."""
-    thl, th1 = 0.5, 0.5 + 0.01
+def _rest_twist(fine, thl: float, pressure_kpa: float) -> float:
+    """The twist (rad) holding a nominal valve at rest at ``thl``: the nominal load's."""
+    return fine.m.load_torque(thl, pressure_kpa) / fine.m.coupling_stiffness_nm_per_rad
+
+
+def _engages(fine, error_rad: float, pressure_kpa: float, twist_rad: float | None = None) -> bool:
+    """Whether the stage takes over a settled valve ``error_rad`` short of a steady target,
+    held at rest by ``twist_rad`` (default: the nominal load's twist)."""
+    thl = 0.5
+    th1 = thl + (_rest_twist(fine, thl, pressure_kpa) if twist_rad is None else twist_rad)
     for _ in range(5 * fine.cfg.engage_periods):
         if fine.update(thl + error_rad, th1, thl, True, 0.3, pressure_kpa) is not None:
             return True
@@ -126,6 +133,49 @@ def test_stage_does_not_pulse_an_error_its_smallest_move_would_enlarge(direction
     assert _engages(fine, err, p)
 
 
+@pytest.mark.parametrize("side", [1, -1])
+def test_stage_stays_out_of_a_valve_whose_twist_at_rest_the_model_cannot_explain(side):
+    """A stuck valve's twist lies inside its static band (load +- T_s(Δp)) / K.  Held beyond the
+    nominal band (an unknown load, a softer coupling, a wrong Δp: quick campaign runs whose
+    preload unloaded the coupling and let the valve slide 7e-3 rad away, three times a plateau)
+    the stage leaves the plateau to the main law; inside it (scatter and ripple) it engages."""
+    fine, m = _stage()
+    p = m.pressure_max_kpa
+    static = m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
+    centre = _rest_twist(fine, 0.5, p)
+    widened = static * (1.0 + fine.cfg.fit_margin)
+    for err in (1e-3, -1e-3):
+        fine.reset()
+        assert _engages(fine, err, p, centre + side * 0.95 * widened)
+        fine.reset()
+        assert not _engages(fine, err, p, centre + side * 1.05 * widened)
+        assert not _engages(fine, err, p, centre)        # ... nor later on the same demand
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_valve_sliding_away_while_preloading_is_handed_back_for_the_plateau(direction):
+    """While the twist moves to its preload the valve may only move toward the target; one that
+    slides away shows the planned twists do not hold it: the stage returns control to the main
+    law at once (``None``) and stays out until the demand changes."""
+    fine, m = _stage()
+    p = m.pressure_max_kpa
+    thl = 0.5
+    phi = _rest_twist(fine, thl, p)
+    target = thl + direction * 1e-3
+    for _ in range(5 * fine.cfg.engage_periods):
+        if fine.update(target, thl + phi, thl, True, 0.3, p) is not None:
+            break
+    assert fine.phase == "park"
+    thl -= direction * 3.0 * fine.cfg.tolerance_rad          # it slides the wrong way
+    assert fine.update(target, thl + phi, thl, True, 0.3, p) is None
+    assert fine.phase == "idle"
+    for _ in range(5 * fine.cfg.engage_periods):             # settled again: not on this demand
+        assert fine.update(target, thl + phi, thl, True, 0.3, p) is None
+    target = thl + direction * 1e-3                           # a new demand: the stage may try again
+    assert any(fine.update(target, thl + phi, thl, True, 0.3, p) is not None
+               for _ in range(5 * fine.cfg.engage_periods))
+
+
 def _stage(**changes):
     from fuel_valve_control.core.position_controller import PositionController
     pc = PositionController(CONTROLLER_SPEC.defaults().replace({"mode": "observer_fp", **changes}))
@@ -136,7 +186,8 @@ def _torques_until_observe(fine, error_rad, pressure_kpa, hold_nm=0.3, periods=2
     """Torques the stage commands for a stuck valve ``error_rad`` short of a steady target,
     until its first pulse is over (phase ``observe``); while it preloads, the gear output is
     where the preload wants it (a stiff servo)."""
-    thl, th1 = 0.5, 0.5 + 0.01
+    thl = 0.5
+    th1 = thl + _rest_twist(fine, thl, pressure_kpa)
     out = []
     for _ in range(periods):
         if fine.phase == "park":
@@ -180,9 +231,10 @@ def test_the_main_law_restarts_from_the_holding_torque_not_a_pulse():
     assert fine.hold_torque(0.51, 0.5) is None                     # never engaged
     out = _torques_until_observe(fine, 0.5e-3, m.pressure_max_kpa, hold_nm=0.3)
     assert abs(out[-2] - 0.3) > 0.5                                  # mid-doublet: a large torque
-    assert fine.hold_torque(0.5 + 0.01, 0.5) == pytest.approx(0.3)   # the engage twist: the engage torque
+    phi0 = _rest_twist(fine, 0.5, m.pressure_max_kpa)
+    assert fine.hold_torque(0.5 + phi0, 0.5) == pytest.approx(0.3)   # the engage twist: the engage torque
     dphi = 1e-3
-    assert fine.hold_torque(0.5 + 0.01 + dphi, 0.5) == pytest.approx(
+    assert fine.hold_torque(0.5 + phi0 + dphi, 0.5) == pytest.approx(
         0.3 + m.coupling_stiffness_nm_per_rad * dphi / m.gear_ratio)
 
 

@@ -205,6 +205,8 @@ class FineConfig:
     doublet_margin: float = 0.0   # doublet: first apex this fraction of the static band below the
                                   # learned breakaway after each stop
     no_move_periods: int = 4      # doublet: periods after which an unmoved valve was not broken loose
+    fit_margin: float = math.inf  # the twist holding the valve at rest must lie inside the nominal static
+                                  # band widened by this fraction of T_s(Δp)/K, else the stage stays out
 
 
 class FinePositioner:
@@ -227,10 +229,11 @@ class FinePositioner:
         self._rest = 0
         self._last_valve = None
         self._last_th1 = None
-        self._last_target = None
+        self._last_target = self._target_now = None
         self._steady = 0
         self.pulses_this_plateau = 0
         self.crossings_this_plateau = 0
+        self._unfit_target = None     # the demand on which the valve showed the model does not fit it
         self._stair = None
         self._servo_torque = 0.0
 
@@ -274,7 +277,7 @@ class FinePositioner:
         # a demand that keeps changing (ramps, sweeps, noise) is followed by the main law
         same = self._last_target is not None and abs(target - self._last_target) <= 1e-12
         self._steady = self._steady + 1 if same else 0
-        self._last_target = target
+        self._last_target = self._target_now = target
         if self.phase != IDLE and (self._target is None or abs(target - self._target) > 1e-9):
             self.reset()                               # a new demand: the main law moves
             return None
@@ -286,6 +289,9 @@ class FinePositioner:
                     or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1):
                 if not holding:
                     self.pulses_this_plateau = self.crossings_this_plateau = 0
+                return None
+            if not self._twist_fits(th1 - thl, thl, pressure_kpa):
+                self._unfit_target = target
                 return None
             self._engage(target, th1, thl, torque_now, pressure_kpa)
         return self._run(th1, w1, thl, pressure_kpa)
@@ -384,6 +390,10 @@ class FinePositioner:
             x, v, a = self._blend(self._phi_start, self._pre, self._k * per, self._park_n * per)
             if self._k >= self._park_n + 2:
                 self.phase, self._k = PULSE, 0
+            if self._dir * (thl - self._thl0) < -2.0 * cfg.tolerance_rad:
+                # it slides *away* from the target while the twist moves toward it: the twists
+                # the model planned do not hold this valve -- the main law takes it back at once
+                return self._hand_back()
             if abs(thl - self._thl0) > 2.0 * cfg.tolerance_rad:
                 # broke away while preloading: hold the gear output where it is and judge the
                 # move once the valve has stopped (judged mid-swing, the next pulse would start
@@ -419,6 +429,8 @@ class FinePositioner:
                 and abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad
             if unmoved or (self._k >= cfg.observe_periods and self._rest >= 3):
                 self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed)
+                if self.phase == IDLE:
+                    return None
             return self._servo(base + self._final, 0.0, th1, w1, thl)
         # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
@@ -440,8 +452,22 @@ class FinePositioner:
     def _spent(self) -> bool:
         """The plateau's pulses are used up, or the valve has crossed the target so often that
         the moves the stage can make are evidently larger than the error left (pulsing on
-        would be hunting)."""
-        return self.pulses_this_plateau >= self.cfg.max_pulses or self.crossings_this_plateau >= self.cfg.max_crossings
+        would be hunting), or the valve has shown on this plateau that the model does not fit it."""
+        return (self.pulses_this_plateau >= self.cfg.max_pulses or self.crossings_this_plateau >= self.cfg.max_crossings
+                or self._unfit_target == self._target_now)
+
+    def _twist_fits(self, phi: float, thl: float, pressure_kpa: float) -> bool:
+        """Whether a valve held at rest by the twist ``phi`` (rad) fits the nominal model: a stuck
+        valve's twist lies inside its static band ``(load(θ) ± T_s(Δp)) / K``; beyond the nominal
+        band (widened by ``fine.fit_margin`` x T_s/K for the breakaway scatter and ripple) the
+        valve carries a load the model does not know, its coupling is softer, its friction
+        higher or its Δp reading wrong -- every twist the stage would plan from the model is then
+        off by more than the band it aims into, and the main law's integral hold does better."""
+        m = self.m
+        k = m.coupling_stiffness_nm_per_rad
+        static = m.friction(pressure_kpa).valve_static_nm / k
+        centre = m.load_torque(thl, pressure_kpa) / k
+        return abs(phi - centre) <= static * (1.0 + self.cfg.fit_margin)
 
     def _below_min_move(self, err: float, pressure_kpa: float) -> bool:
         """Whether the error is so small against the smallest move pulses have made that a
@@ -496,16 +522,28 @@ class FinePositioner:
         err = self._target - thl
         if d * err < 0.0:
             self.crossings_this_plateau += 1
-        if abs(err) <= cfg.tolerance_rad or self._spent() or abs(err) > cfg.max_move_rad \
-                or self._below_min_move(err, pressure_kpa) or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1):
-            # close enough, or its moves are larger than the error left, or they do not fit
-            # this valve: hold where it is.  (Handing the plateau back to the main law was
-            # measured worse: its restart loses the observer's disturbance estimate and the
-            # learned load, and on the quick campaign 16 of 30 runs hunted at 1-2e-2 rad.)
+        if d * move < -2.0 * cfg.tolerance_rad or abs(err) > cfg.max_move_rad \
+                or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1) \
+                or not self._twist_fits(th1 - thl, thl, pressure_kpa):
+            # it moved away from the target, or further than the stage handles, or what it
+            # learned does not fit the model: the model does not describe this valve
+            self._hand_back()
+            return
+        if abs(err) <= cfg.tolerance_rad or self._spent() or self._below_min_move(err, pressure_kpa):
+            # close enough, or its moves are larger than the error left: hold where it is
             self.phase = HOLD
             self._hold_ref = th1
             return
         self._start_pulse(th1, thl, pressure_kpa)
+
+    def _hand_back(self) -> None:
+        """Leave the plateau to the main law (which restarts from :meth:`hold_torque`): the
+        valve has shown that the model's twists do not fit it; no more pulses until the demand
+        changes."""
+        self._unfit_target = self._target
+        self.phase = IDLE
+        self._target = None
+        self._stair = None
 
     def health(self) -> dict:
         return {"fine_phase": self.phase, "fine_pulses_total": self.learn.pulses,

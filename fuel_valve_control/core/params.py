@@ -261,6 +261,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.doublet_margin", 0.3, "", "doublet: after each stop the first apex lies this fraction of the "
           "static band below the learned breakaway (its level is drawn anew at every stop); the staircase climbs "
           "from there", 0.0, 2.0, runtime=True),
+    Param("fine.fit_margin", 0.3, "", "the stage engages only on a valve whose twist at rest lies inside the "
+          "nominal static band (load +- T_s(dp)) / K widened by this fraction of T_s / K (breakaway scatter and "
+          "ripple); beyond it the model does not describe the valve and the main law's integral hold keeps it",
+          0.0, 10.0, runtime=True),
     Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "

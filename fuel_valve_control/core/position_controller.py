@@ -197,7 +197,8 @@ class PositionController:
                           ps["fine.servo_hz"], ps["fine.max_move_rad"], ps["fine.peak_current_a"],
                           ps["fine.max_crossings"], ps["fine.probe_step"], ps["fine.min_move_fraction"],
                           ps["fine.doublet_max_error_rad"], ps["fine.kick_current_a"], ps["fine.kick_rise_rad"],
-                          ps["fine.doublet_probe_step"], ps["fine.doublet_margin"])
+                          ps["fine.doublet_probe_step"], ps["fine.doublet_margin"],
+                          fit_margin=ps["fine.fit_margin"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
