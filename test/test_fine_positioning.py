@@ -58,7 +58,7 @@ def test_a_version_1_file_loads_with_the_move_sizes_unlearned():
     b = FineLearner(4, 0.1)
     b.from_dict(doc)
     assert b.breakaway == a.breakaway and b.min_move == b.margin == {1: [0.0] * 4, -1: [0.0] * 4}
-    doc["version"] = 3
+    doc["version"] = FineLearner.VERSION + 1
     with pytest.raises(ValueError, match="version"):
         b.from_dict(doc)
 

@@ -102,6 +102,14 @@ IDLE, PARK, PULSE, OBSERVE, HOLD = "idle", "park", "pulse", "observe", "hold"
 MIN_MOVE_RELAX = 0.1
 #: factors on the doublet's learned staircase margin after a breakaway while preloading / a doublet that landed
 MARGIN_GROW, MARGIN_SHRINK = 1.5, 0.9
+#: servo limit-cycle watch: feedback torques beyond this fraction of the stage's cap that reverse
+#: sign count one, the count leaks by this factor per period
+OSC_TORQUE_FRACTION, OSC_LEAK = 0.3, 0.95
+#: ... and at this count the servo limit-cycles: the stage hands the plateau back.  Measured
+#: (quick campaign, per-run maximum while observing after a pulse or holding): 0 on all 12
+#: nominal-box runs and on 9 of 11 full-box runs, 1.0 on two, 4.6 on the run whose 60 Hz hold
+#: limit-cycled at +-30 A (resolver delay 0.89 ms, 18.4 V supply)
+OSC_LIMIT = 2.0
 
 
 class FineLearner:
@@ -113,14 +121,18 @@ class FineLearner:
     from pulses that moved the valve further than asked (0 = not yet seen; bounded to
     ``0..limit_rad``); ``margin[d][b]``: how far below the learned breakaway the doublet's
     staircase starts after a stop (0 = ``fine.doublet_margin`` of the static band; grows when
-    a valve breaks loose while preloading, shrinks when doublets land).  :meth:`reset` returns
-    to the nominal model (all 0).
+    a valve breaks loose while preloading, shrinks when doublets land); ``misfit[d][b]``: the
+    stage's recent record on this valve, 0..1 (an exponentially weighted fraction of its
+    engagements that failed: handed back, or left the valve further off than it found it;
+    above ``fine.misfit_limit`` the stage stays out, decaying per plateau it stays out of).
+    :meth:`reset` returns to the nominal model (all 0).
     """
 
-    VERSION = 2
-    TABLES = ("equilibrium", "breakaway", "min_move", "margin")
-    #: tables of sizes (never negative) added in version 2
-    SIZES = ("min_move", "margin")
+    VERSION = 3
+    TABLES = ("equilibrium", "breakaway", "min_move", "margin", "misfit")
+    #: tables of sizes (never negative) added in version 2 / 3, and the version each came with
+    SIZES = ("min_move", "margin", "misfit")
+    SINCE = {"min_move": 2, "margin": 2, "misfit": 3}
 
     def __init__(self, bands: int, limit_rad: float):
         self.bands = max(int(bands), 1)
@@ -132,13 +144,14 @@ class FineLearner:
         self.breakaway = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
         self.min_move = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
         self.margin = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
+        self.misfit = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
         self.pulses = 0
 
     def band(self, pressure_fraction: float) -> int:
         return min(int(max(pressure_fraction, 0.0) * self.bands), self.bands - 1)
 
     def _clip(self, table: str, x: float) -> float:
-        return min(max(x, 0.0 if table in self.SIZES else -self.limit), self.limit)
+        return min(max(x, 0.0 if table in self.SIZES else -self.limit), 1.0 if table == "misfit" else self.limit)
 
     def set(self, table: str, direction: int, band: int, value: float) -> None:
         getattr(self, table)[direction][band] = self._clip(table, value)
@@ -151,12 +164,13 @@ class FineLearner:
 
     def from_dict(self, doc: dict) -> None:
         """Load learned values (validated: shape, finiteness; values are clipped to the bound).
-        A version-1 file (no ``min_move``) loads with the move sizes not yet learned."""
-        if doc.get("version") not in (1, self.VERSION) or int(doc.get("bands", -1)) != self.bands:
+        An older file loads with the tables it lacks not yet learned (version 1: no move sizes,
+        versions 1-2: no misfit record)."""
+        if doc.get("version") not in (1, 2, self.VERSION) or int(doc.get("bands", -1)) != self.bands:
             raise ValueError(f"learned friction file: needs version {self.VERSION} with {self.bands} bands")
         new = {}
         for table in self.TABLES:
-            if table in self.SIZES and doc.get("version") == 1:
+            if doc.get("version") < self.SINCE.get(table, 1):
                 rows = {"open": [0.0] * self.bands, "close": [0.0] * self.bands}
             else:
                 rows = doc[table]
@@ -205,6 +219,11 @@ class FineConfig:
     doublet_margin: float = 0.0   # doublet: first apex this fraction of the static band below the
                                   # learned breakaway after each stop
     no_move_periods: int = 4      # doublet: periods after which an unmoved valve was not broken loose
+    max_worse_moves: int = 1000   # moves that left the valve further off than before, per plateau,
+                                  # before the stage hands the plateau back to the main law
+    misfit_weight: float = 0.0    # weight of each engagement's outcome in the learned misfit record
+    misfit_limit: float = 1.0     # above this record the stage stays out of a direction / Δp band
+    misfit_decay: float = 1.0     # ... and the record decays by this factor per plateau it stays out of
     fit_margin: float = math.inf  # the twist holding the valve at rest must lie inside the nominal static
                                   # band widened by this fraction of T_s(Δp)/K, else the stage stays out
 
@@ -229,13 +248,21 @@ class FinePositioner:
         self._rest = 0
         self._last_valve = None
         self._last_th1 = None
-        self._last_target = self._target_now = None
+        self._last_target = None
+        self._plateau = None          # the demand this plateau started with (shifts within the tolerance
+                                      # -- a conditioned noisy demand -- are the same plateau)
         self._steady = 0
+        self._new_plateau()
+        self._stair = None
+        self._judged = None           # (direction, band) of an engagement whose outcome is not yet judged
+        self._osc, self._osc_sign = 0.0, 0   # the servo's limit-cycle watch (leaky count of reversals)
+        self._servo_torque = 0.0
+
+    def _new_plateau(self) -> None:
         self.pulses_this_plateau = 0
         self.crossings_this_plateau = 0
-        self._unfit_target = None     # the demand on which the valve showed the model does not fit it
-        self._stair = None
-        self._servo_torque = 0.0
+        self.worse_this_plateau = 0   # moves that left the valve further from the target than before
+        self._unfit = False           # the valve showed on this plateau that the model does not fit it
 
     # ------------------------------------------------------------------ nominal twists
     def _nominal(self, thl: float, pressure_kpa: float, direction: int) -> tuple[float, float]:
@@ -277,26 +304,56 @@ class FinePositioner:
         # a demand that keeps changing (ramps, sweeps, noise) is followed by the main law
         same = self._last_target is not None and abs(target - self._last_target) <= 1e-12
         self._steady = self._steady + 1 if same else 0
-        self._last_target = self._target_now = target
-        if self.phase != IDLE and (self._target is None or abs(target - self._target) > 1e-9):
+        self._last_target = target
+        new_plateau = self._plateau is None or abs(target - self._plateau) > cfg.tolerance_rad
+        if self.phase != IDLE and (self._target is None or new_plateau):
             self.reset()                               # a new demand: the main law moves
             return None
+        if new_plateau:
+            self._plateau = target
+            self._new_plateau()
+        if self.phase != IDLE:
+            # a demand shifted within the tolerance (a noisy analog demand, conditioned) is the same
+            # plateau: it was reset at every shift and re-engaged with a fresh budget of pulses, so
+            # 2 of 30 quick-campaign runs hunted at 1-7e-3 rad through a stream of new engagements
+            self._target = target
         if self.phase == IDLE:
             err = target - thl
             if not holding or self._rest < cfg.engage_periods or self._steady < cfg.engage_periods \
                     or abs(err) <= cfg.tolerance_rad \
                     or abs(err) > cfg.max_move_rad or self._spent() or self._below_min_move(err, pressure_kpa) \
                     or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1):
-                if not holding:
-                    self.pulses_this_plateau = self.crossings_this_plateau = 0
                 return None
-            if not self._twist_fits(th1 - thl, thl, pressure_kpa):
-                self._unfit_target = target
+            if not self._twist_fits(th1 - thl, thl, pressure_kpa) or self._record_bad(err, pressure_kpa):
+                self._unfit = True
                 return None
             self._engage(target, th1, thl, torque_now, pressure_kpa)
         return self._run(th1, w1, thl, pressure_kpa)
 
+    def _record_bad(self, err: float, pressure_kpa: float) -> bool:
+        """Whether the stage's recent record on this valve (direction of ``err``, this Δp band)
+        is too poor to engage; staying out of a plateau lets the record decay, so the stage
+        tries again after a few plateaus (friction that changes back is found again)."""
+        d = 1 if err > 0 else -1
+        b = self.learn.band(self.m.pressure_fraction(pressure_kpa))
+        rec = self.learn.misfit[d][b]
+        if rec <= self.cfg.misfit_limit:
+            return False
+        self.learn.set("misfit", d, b, rec * self.cfg.misfit_decay)
+        return True
+
+    def _judge(self, failed: bool) -> None:
+        """Enter the outcome of this engagement into the misfit record (once per engagement)."""
+        if self._judged is None:
+            return
+        d, b = self._judged
+        self._judged = None
+        w = self.cfg.misfit_weight
+        self.learn.set("misfit", d, b, (1.0 - w) * self.learn.misfit[d][b] + w * (1.0 if failed else 0.0))
+
     def _engage(self, target, th1, thl, torque_now, pressure_kpa):
+        self._err0 = abs(target - thl)
+        self._judged = (1 if target > thl else -1, self.learn.band(self.m.pressure_fraction(pressure_kpa)))
         self._target = target
         self._ff0 = torque_now                 # holds the present twist against load + reaction
         self._phi0 = th1 - thl                 # ... which is this twist
@@ -369,6 +426,15 @@ class FinePositioner:
         # not wrong (the twist it reached is measured and learned from)
         cap = self.cfg.peak_current_a * m.torque_constant_nm_per_a
         self._servo_torque = min(max(torque, -cap), cap)
+        # limit-cycle watch: large feedback torques that keep reversing (a leaky count)
+        fb = self._servo_torque - ff
+        self._osc *= OSC_LEAK
+        settled = self.phase == HOLD or (self.phase == OBSERVE and 2 * self._k >= self.cfg.observe_periods)
+        if settled and abs(fb) > OSC_TORQUE_FRACTION * cap:
+            sign = 1 if fb > 0 else -1
+            if sign == -self._osc_sign:
+                self._osc += 1.0
+            self._osc_sign = sign
         return self._servo_torque
 
     @staticmethod
@@ -384,6 +450,11 @@ class FinePositioner:
 
     def _run(self, th1, w1, thl, pressure_kpa):
         cfg, per = self.cfg, self.period
+        if self._osc >= OSC_LIMIT:
+            # its stiff hold limit-cycles on this plant (a resolver delay, a slow current
+            # slew at low supply): shaking the valve is worse than the main law's hold
+            self._hand_back()
+            return None
         self._k += 1
         base = self._thl0
         if self.phase == PARK:
@@ -454,7 +525,7 @@ class FinePositioner:
         the moves the stage can make are evidently larger than the error left (pulsing on
         would be hunting), or the valve has shown on this plateau that the model does not fit it."""
         return (self.pulses_this_plateau >= self.cfg.max_pulses or self.crossings_this_plateau >= self.cfg.max_crossings
-                or self._unfit_target == self._target_now)
+                or self._unfit)
 
     def _twist_fits(self, phi: float, thl: float, pressure_kpa: float) -> bool:
         """Whether a valve held at rest by the twist ``phi`` (rad) fits the nominal model: a stuck
@@ -522,7 +593,10 @@ class FinePositioner:
         err = self._target - thl
         if d * err < 0.0:
             self.crossings_this_plateau += 1
+        if abs(err) > abs(self._target - self._thl0) + cfg.tolerance_rad:
+            self.worse_this_plateau += 1
         if d * move < -2.0 * cfg.tolerance_rad or abs(err) > cfg.max_move_rad \
+                or self.worse_this_plateau >= cfg.max_worse_moves \
                 or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1) \
                 or not self._twist_fits(th1 - thl, thl, pressure_kpa):
             # it moved away from the target, or further than the stage handles, or what it
@@ -531,6 +605,7 @@ class FinePositioner:
             return
         if abs(err) <= cfg.tolerance_rad or self._spent() or self._below_min_move(err, pressure_kpa):
             # close enough, or its moves are larger than the error left: hold where it is
+            self._judge(failed=abs(err) > self._err0 + cfg.tolerance_rad)
             self.phase = HOLD
             self._hold_ref = th1
             return
@@ -540,7 +615,9 @@ class FinePositioner:
         """Leave the plateau to the main law (which restarts from :meth:`hold_torque`): the
         valve has shown that the model's twists do not fit it; no more pulses until the demand
         changes."""
-        self._unfit_target = self._target
+        self._judge(failed=True)
+        self._unfit = True
+        self._osc, self._osc_sign = 0.0, 0
         self.phase = IDLE
         self._target = None
         self._stair = None
@@ -553,4 +630,5 @@ class FinePositioner:
                                           "close": list(self.learn.breakaway[-1])},
                 "learned_min_move_rad": {"open": list(self.learn.min_move[1]),
                                          "close": list(self.learn.min_move[-1])},
-                "learned_margin_rad": {"open": list(self.learn.margin[1]), "close": list(self.learn.margin[-1])}}
+                "learned_margin_rad": {"open": list(self.learn.margin[1]), "close": list(self.learn.margin[-1])},
+                "learned_misfit": {"open": list(self.learn.misfit[1]), "close": list(self.learn.misfit[-1])}}
