@@ -1,6 +1,7 @@
 """Fine positioning (mode ``observer_fp``, issue 14): the learned friction twists (bounded,
 reset, visible, saved and loaded) and what the stage does in closed loop."""
 import functools
+import math
 import json
 
 import numpy as np
@@ -78,12 +79,35 @@ def _rest_twist(fine, thl: float, pressure_kpa: float) -> float:
     return fine.m.load_torque(thl, pressure_kpa) / fine.m.coupling_stiffness_nm_per_rad
 
 
+def _break_loose(fine, thl: float, pressure_kpa: float, offset: float = 0.0) -> None:
+    """Let the stage watch the main law break a valve at rest at ``thl`` loose toward open, at
+    the nominal breakaway twist plus ``offset`` x T_s/K (the evidence it engages on)."""
+    m = fine.m
+    k = m.coupling_stiffness_nm_per_rad
+    static = m.friction(pressure_kpa).valve_static_nm / k
+    phi = m.load_torque(thl, pressure_kpa) / k + static * (1.0 + offset)
+    far = thl + 2.0 * fine.cfg.max_move_rad              # a demand the stage leaves to the main law
+    for _ in range(fine.cfg.engage_periods + 2):
+        fine.update(far, thl + phi, thl, False, 0.3, pressure_kpa)
+    moved = thl + 3.0 * fine.cfg.tolerance_rad
+    fine.update(far, moved + phi, moved, False, 0.3, pressure_kpa)
+
+
+#: periods within which a settled stage that has seen a breakaway engages (it waits up to
+#: FRESH_WAIT engage times for one on the plateau itself)
+def _patience(fine) -> int:
+    from fuel_valve_control.core.fine_positioning import FRESH_WAIT
+    return (FRESH_WAIT + 3) * fine.cfg.engage_periods
+
+
 def _engages(fine, error_rad: float, pressure_kpa: float, twist_rad: float | None = None) -> bool:
     """Whether the stage takes over a settled valve ``error_rad`` short of a steady target,
     held at rest by ``twist_rad`` (default: the nominal load's twist)."""
     thl = 0.5
     th1 = thl + (_rest_twist(fine, thl, pressure_kpa) if twist_rad is None else twist_rad)
-    for _ in range(5 * fine.cfg.engage_periods):
+    if fine._breakaway_seen is None:
+        _break_loose(fine, thl, pressure_kpa)
+    for _ in range(_patience(fine)):
         if fine.update(thl + error_rad, th1, thl, True, 0.3, pressure_kpa) is not None:
             return True
     return False
@@ -162,18 +186,21 @@ def test_a_valve_sliding_away_while_preloading_is_handed_back_for_the_plateau(di
     thl = 0.5
     phi = _rest_twist(fine, thl, p)
     target = thl + direction * 1e-3
-    for _ in range(5 * fine.cfg.engage_periods):
+    _break_loose(fine, thl, p)
+    for _ in range(_patience(fine)):
         if fine.update(target, thl + phi, thl, True, 0.3, p) is not None:
             break
     assert fine.phase == "park"
     thl -= direction * 3.0 * fine.cfg.tolerance_rad          # it slides the wrong way
     assert fine.update(target, thl + phi, thl, True, 0.3, p) is None
     assert fine.phase == "idle"
-    for _ in range(5 * fine.cfg.engage_periods):             # settled again: not on this demand
+    for _ in range(_patience(fine)):                          # settled again: not on this demand
         assert fine.update(target, thl + phi, thl, True, 0.3, p) is None
+    _break_loose(fine, thl, p)          # the main law moves it on: a breakaway that fits the model
+    thl += 3.0 * fine.cfg.tolerance_rad
     target = thl + direction * 1e-3                           # a new demand: the stage may try again
     assert any(fine.update(target, thl + phi, thl, True, 0.3, p) is not None
-               for _ in range(5 * fine.cfg.engage_periods))
+               for _ in range(_patience(fine)))
 
 
 def _stage(**changes):
@@ -182,12 +209,13 @@ def _stage(**changes):
     return pc.law.fine, pc.model
 
 
-def _torques_until_observe(fine, error_rad, pressure_kpa, hold_nm=0.3, periods=200):
+def _torques_until_observe(fine, error_rad, pressure_kpa, hold_nm=0.3, periods=400):
     """Torques the stage commands for a stuck valve ``error_rad`` short of a steady target,
     until its first pulse is over (phase ``observe``); while it preloads, the gear output is
     where the preload wants it (a stiff servo)."""
     thl = 0.5
     th1 = thl + _rest_twist(fine, thl, pressure_kpa)
+    _break_loose(fine, thl, pressure_kpa)
     out = []
     for _ in range(periods):
         if fine.phase == "park":
@@ -272,3 +300,47 @@ def test_fine_positioning_pulses_stay_within_their_current_cap(robustness_bench)
 def test_fine_positioning_meets_the_issue_targets(robustness_bench):
     fp = [pl["final_error_rad"] for r in _campaign(robustness_bench, "observer_fp") for pl in r["plateaus"]]
     assert np.percentile(fp, 95) <= 5e-4 and max(fp) <= 8e-4
+
+
+@pytest.mark.parametrize("offset", [-0.6, 0.6])
+def test_stage_stays_out_when_the_main_laws_breakaway_twist_does_not_fit_the_model(offset):
+    """The twist at which the main law broke the valve loose is the evidence the model fits:
+    within ``fine.breakaway_fit`` x T_s/K of the nominal breakaway twist the stage engages;
+    0.5-2.7 T_s/K off (measured on the quick-campaign valves it hunted on) it leaves the
+    plateau to the main law."""
+    fine, m = _stage()
+    p = m.pressure_max_kpa
+    assert 0.1 < fine.cfg.breakaway_fit < abs(offset)
+    _break_loose(fine, 0.5, p, offset=0.1 * math.copysign(1.0, offset))
+    assert _engages(fine, 1e-3, p)
+    fine.reset()
+    _break_loose(fine, 0.5, p, offset=offset)
+    assert not _engages(fine, 1e-3, p)
+
+
+def test_a_poor_record_keeps_the_stage_out_and_decays_per_plateau(tmp_path):
+    """Engagements that failed (handed back, or left the valve further off) enter the learned
+    misfit record per direction and Δp band; above ``fine.misfit_limit`` the stage stays out of
+    that direction and band, the record decaying by ``fine.misfit_decay`` per plateau it stays
+    out of, so it tries again later.  The record is saved with the learned twists."""
+    from fuel_valve_control.core.position_controller import PositionController
+    pc = PositionController(CONTROLLER_SPEC.defaults().replace({"mode": "observer_fp"}))
+    fine, m = pc.law.fine, pc.model
+    p = m.pressure_max_kpa
+    band = pc.learner.band(m.pressure_fraction(p))
+    cfg = fine.cfg
+    pc.learner.set("misfit", 1, band, 0.9)
+    assert pc.learner.misfit[1][band] == 0.9
+    fine.reset()
+    assert not _engages(fine, 1e-3, p)
+    assert pc.learner.misfit[1][band] == pytest.approx(0.9 * cfg.misfit_decay)   # once per plateau
+    assert _engages(fine, -1e-3, p)                  # the other direction's record is clean
+    path = tmp_path / "learned.json"
+    pc.learner.save(path)
+    other = FineLearner(pc.learner.bands, pc.learner.limit)
+    other.load(path)
+    assert other.misfit[1][band] == pytest.approx(0.9 * cfg.misfit_decay)
+    pc.learner.set("misfit", 1, band, 3.0)           # a record is a fraction
+    assert pc.learner.misfit[1][band] == 1.0
+    pc.learner.reset()
+    assert pc.learner.misfit == {1: [0.0] * 4, -1: [0.0] * 4}

@@ -198,9 +198,9 @@ class PositionController:
                           ps["fine.max_crossings"], ps["fine.probe_step"], ps["fine.min_move_fraction"],
                           ps["fine.doublet_max_error_rad"], ps["fine.kick_current_a"], ps["fine.kick_rise_rad"],
                           ps["fine.doublet_probe_step"], ps["fine.doublet_margin"],
-                          max_worse_moves=ps["fine.max_worse_moves"], misfit_weight=ps["fine.misfit_weight"],
+                          misfit_weight=ps["fine.misfit_weight"],
                           misfit_limit=ps["fine.misfit_limit"], misfit_decay=ps["fine.misfit_decay"],
-                          fit_margin=ps["fine.fit_margin"])
+                          breakaway_fit=ps["fine.breakaway_fit"], fit_margin=ps["fine.fit_margin"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
