@@ -261,6 +261,21 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.doublet_margin", 0.3, "", "doublet: after each stop the first apex lies this fraction of the "
           "static band below the learned breakaway (its level is drawn anew at every stop); the staircase climbs "
           "from there", 0.0, 2.0, runtime=True),
+    Param("fine.fit_margin", 0.3, "", "the stage engages only on a valve whose twist at rest lies inside the "
+          "nominal static band (load +- T_s(dp)) / K widened by this fraction of T_s / K (breakaway scatter and "
+          "ripple); beyond it the model does not describe the valve and the main law's integral hold keeps it",
+          0.0, 10.0, runtime=True),
+    Param("fine.misfit_weight", 0.5, "", "weight of each engagement's outcome (failed: handed back, or the valve "
+          "left further off than found) in the learned misfit record per direction and dp band (0 = never learn)",
+          0.0, 1.0, runtime=True),
+    Param("fine.misfit_limit", 0.5, "", "above this misfit record the stage stays out of that direction and dp "
+          "band (0.5 with weight 0.5: after two failures in a row)", 0.0, 1.0, runtime=True),
+    Param("fine.misfit_decay", 0.9, "", "the misfit record decays by this factor per plateau the stage stays "
+          "out of (0.9: it tries again after ~4 plateaus)", 0.0, 1.0, runtime=True),
+    Param("fine.breakaway_fit", 0.3, "", "the stage engages only when the twist at which the main law last broke "
+          "the valve loose lies within this fraction of T_s(dp)/K of the nominal breakaway twist (load +- T_s) / K "
+          "(measured: within 0.15 on the nominal plant with friction scatter, 0.5-2.7 off on valves the model does "
+          "not describe)", 0.0, 10.0, runtime=True),
     Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "

@@ -197,7 +197,10 @@ class PositionController:
                           ps["fine.servo_hz"], ps["fine.max_move_rad"], ps["fine.peak_current_a"],
                           ps["fine.max_crossings"], ps["fine.probe_step"], ps["fine.min_move_fraction"],
                           ps["fine.doublet_max_error_rad"], ps["fine.kick_current_a"], ps["fine.kick_rise_rad"],
-                          ps["fine.doublet_probe_step"], ps["fine.doublet_margin"])
+                          ps["fine.doublet_probe_step"], ps["fine.doublet_margin"],
+                          misfit_weight=ps["fine.misfit_weight"],
+                          misfit_limit=ps["fine.misfit_limit"], misfit_decay=ps["fine.misfit_decay"],
+                          breakaway_fit=ps["fine.breakaway_fit"], fit_margin=ps["fine.fit_margin"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
