@@ -13,7 +13,7 @@ import numpy as np
 
 from ..compensation import Compensator, Context
 from ..design import StateFeedback
-from ..integral_policy import IntegralPolicy, JumpLearner
+from ..integral_policy import IntegralPolicy, JumpLearner, SlipEdges
 from ..model import NominalModel
 from ..seating import Seating
 from ..signals import Estimate
@@ -80,6 +80,8 @@ class StateFeedbackLaw(ControlLaw):
         #: steady valve load beyond the known one (N*m, + = drive pushes toward open) learned from
         #: slips of a relaxing drive (:meth:`IntegralPolicy.learn_load`); kept across moves
         self.held_load = 0.0
+        #: the slips that taught it, per direction (v2: both edges of the band give the load)
+        self.slip_edges = SlipEdges()
         #: (valve torque beyond the known load, valve angle) of the latest settled relaxing period
         self._slip: tuple[float, float] | None = None
         self._relax_periods = 0                 # periods relaxed in a row
@@ -124,6 +126,7 @@ class StateFeedbackLaw(ControlLaw):
         self.zeta = (torque_nm - u_ff + float(self.fb.k @ (self.xo[:4] - x_ref))) / self.fb.ki
         self._applied = self._u_net = torque_nm
         self.held_load = 0.0
+        self.slip_edges.reset()
         self._slip = None
         self._relax_periods = 0
         self._stuck_short = None
@@ -212,7 +215,8 @@ class StateFeedbackLaw(ControlLaw):
                 if moved * (net0 - self.held_load) < 0.0:
                     self.held_load = self.integral.learn_load(
                         net0, moved, friction.valve_static_nm,
-                        load_nm if self.v2 else 0.0)
+                        load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.v2 else None)
+                    self.slip_edges.met(net0, moved)
                 self._slip = None
         relaxing = False
         if not outside and not ref.moving and stuck and self.integral.relax_time_s > 0.0:
