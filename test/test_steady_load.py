@@ -23,10 +23,9 @@ def _room(pct: float) -> float:
 
 @pytest.mark.parametrize("pct,fraction", [
     (30.0, 0.95), (60.0, 0.95),
-    pytest.param(60.0, 0.5, marks=pytest.mark.xfail(strict=True, reason=(
-        "ends 6.3e-3 rad from the demand (limit 3e-3), no hunting, since the integrator deadband is sized "
-        "per direction (h14r, JumpLearner.ratio_toward): passes with one deadband for both directions; "
-        "not traced (time)"))),
+    # was a strict xfail (ended 6.3e-3 rad short): the move's catch-up slide under the unknown load
+    # was learned as a 4.2x opening jump (JumpLearner catch_up, h16w)
+    (60.0, 0.5),
     (40.0, -0.2)])
 def test_steady_load_is_held_without_a_limit_cycle(pct, fraction):
     load = fraction * _room(pct)

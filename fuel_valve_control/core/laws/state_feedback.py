@@ -62,7 +62,9 @@ class StateFeedbackLaw(ControlLaw):
         self.seating = seating
         # (JumpLearner's rest_periods / cross_hold, measured on the campaign by h14r: 3 runs hunting
         # either way, median error 7 % worse and test_safety's stall control case changed: off)
-        self.jumps = JumpLearner()
+        self.jumps = JumpLearner(catch_up=v2)
+        #: static valve friction of the nominal model at Δp 0 (N*m): the least the schedule knows
+        self._static_floor = model.friction(0.0).valve_static_nm
         self.xo = np.zeros(6)      # observer state [θ1, ω1, θL, ωL, d1, dL] at the sample's time
         self.x_now = self.xo       # ... predicted forward over the resolver delay (= xo without one)
         #: (motor torque net of friction N*m, known valve load N*m) of the last delay_periods + 1
@@ -179,7 +181,11 @@ class StateFeedbackLaw(ControlLaw):
         # genuine breakaway comes right at it, so half of it): less, and the valve was broken
         # loose by something else
         drive_nm = n * self._applied - load_nm - self.held_load
-        driven = abs(drive_nm) >= 0.5 * self.integral.load_static_fraction * friction.valve_static_nm
+        # v2: on the friction the hold has met, the schedule's only the prior (a wrong Δp)
+        static = (self.integral.hold_static_nm(friction.valve_static_nm, self.slip_edges.static_nm,
+                                               self.integral.load_static_fraction * self._static_floor)
+                  if self.v2 else friction.valve_static_nm)
+        driven = abs(drive_nm) >= 0.5 * self.integral.load_static_fraction * static
         # v2: the jump is read from the tracking error: while the reference follows a ramp the
         # valve's travel is mostly the ramp's (issue 14: read as a jump, it froze the integrator)
         frame = ref.position if self.v2 else 0.0
@@ -246,7 +252,7 @@ class StateFeedbackLaw(ControlLaw):
             if stuck:
                 # stuck short of the target: ramp the torque quasi-statically to breakaway
                 # instead of waiting for the slow integrator (the jump is the same either way)
-                rate = friction.valve_static_nm / self.integral.stuck_ramp_time_s
+                rate = static / self.integral.stuck_ramp_time_s
                 ramp = rate / n * self.period / self.fb.ki
                 self._pending = math.copysign(max(abs(self._pending), ramp), error)
         known_load = load_nm - m.spring_rate_nm_per_rad * thl   # preload + flow
