@@ -186,17 +186,8 @@ class JumpLearner:
     """
 
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4,
-                 rest_periods: int = 1, cross_hold: bool = False, catch_up: bool = False):
+                 rest_periods: int = 1, cross_hold: bool = False):
         self.gain = gain
-        #: a slide that started beyond the deadband and came to rest inside it without crossing
-        #: the target went where the loop took it: a catch-up, whose length is the distance it
-        #: had to go, not the jump; it may lower the learned jump, never raise it (v2).  (A slide
-        #: that stops short outside the band, or crosses the target, is a jump: friction x 3
-        #: jumps 13.8 mrad from 21 mrad short and lands 7 mrad short.)  A valve left stuck far short at a move's end (a steady load the move's
-        #: feed-forward does not know: 6.2 N*m at 60 %, max Δp) slid 19 mrad to its target once
-        #: the drive had wound up; read as a 4.2x jump, the opening deadband grew to 10.6 mrad
-        #: and a later closing slip left the valve 6.3 mrad short inside it (test_steady_load)
-        self.catch_up = catch_up
         #: a breakaway across the target that lands beyond the deadband sets both directions'
         #: ratios to at least its own (:meth:`ratio_toward`; v2).  Averaged with the small slips
         #: of a creeping valve, the 5-6 mrad crossings of seed 1096 kept a 1.3-1.8 mrad band
@@ -263,12 +254,9 @@ class JumpLearner:
             real = travel is None or self._start_travel is None or abs(travel - self._start_travel) >= self.min_jump
             if abs(moved) >= self.min_jump and real:
                 if not self.disturbed:
+                    self.ratio += self.gain * (abs(moved) / nominal_jump - self.ratio)
                     way = 1 if moved > 0.0 else -1
                     seen = abs(moved) / nominal_jump
-                    if (self.catch_up and target is not None and abs(target - self._start) > band
-                            and abs(target - valve) <= band and (target - self._start) * (target - valve) >= 0.0):
-                        seen = min(seen, self.directed.get(way, self.ratio))
-                    self.ratio += self.gain * (seen - self.ratio)
                     own = self.directed.get(way)
                     own = seen if own is None else own + self.gain * (seen - own)
                     self.directed[way] = min(max(own, self.limits[0]), self.limits[1])
