@@ -45,12 +45,17 @@ class StateFeedbackLaw(ControlLaw):
     def __init__(self, name: str, model: NominalModel, period_s: float, feedback: StateFeedback,
                  observer_gain: np.ndarray, shaper: TrajectoryShaper, integral: IntegralPolicy,
                  compensator: Compensator, seating: Seating, speed_window: int = 4, delay_periods: int = 0,
-                 v2: bool = False):
+                 v2: bool = False, hold_on_friction_met: bool = False):
         self.name = name
         #: issue 14 (h14c) behaviour of the v2 modes (observer_ff, observer_fp): breakaway jumps
         #: read from the tracking error, a settled relax not reset by speed-estimate flicker;
         #: the dissertation's modes and fc_gain keep what they were measured with
         self.v2 = v2
+        #: issue 14 (h16w), the default mode: the hold scheduled on the friction it meets, the Δp
+        #: reading only the prior (the held load from both edges of the static band, the drive
+        #: test and stuck ramp on the friction met, the limit-cycle breaker); observer_fp, whose
+        #: fine stage is tuned on the hold as it was, keeps it (v2 alone)
+        self.met_hold = v2 and hold_on_friction_met
         self.model = model
         self.period = period_s
         self.fb = feedback
@@ -60,11 +65,11 @@ class StateFeedbackLaw(ControlLaw):
         self.integral = integral
         self.compensator = compensator
         self.seating = seating
-        # v2: the limit-cycle breaker (cross_hold) on.  With the hold scheduled on the friction met
-        # (h16w) the full campaign hunted in 3 of 200 runs without it (1052, 1096, 1133: 35-38 mrad
-        # jumps across the target on K x 0.3) and in 1 with it; it costs ~6 % of the median plateau
-        # error (the band widens to the jump made).  rest_periods stays 1 (h14r: no gain)
-        self.jumps = JumpLearner(cross_hold=v2)
+        # default mode: the limit-cycle breaker (cross_hold) on.  With the hold scheduled on the
+        # friction met (h16w) the full campaign hunted in 3 of 200 runs without it (1052, 1096, 1133:
+        # 35-38 mrad jumps across the target on K x 0.3) and in 1 with it; it costs ~6 % of the
+        # median plateau error (the band widens to the jump made).  rest_periods stays 1 (h14r)
+        self.jumps = JumpLearner(cross_hold=self.met_hold)
         #: static valve friction of the nominal model at Δp 0 (N*m): the least the schedule knows
         self._static_floor = model.friction(0.0).valve_static_nm
         self.xo = np.zeros(6)      # observer state [θ1, ω1, θL, ωL, d1, dL] at the sample's time
@@ -84,7 +89,7 @@ class StateFeedbackLaw(ControlLaw):
         #: steady valve load beyond the known one (N*m, + = drive pushes toward open) learned from
         #: slips of a relaxing drive (:meth:`IntegralPolicy.learn_load`); kept across moves
         self.held_load = 0.0
-        #: the slips that taught it, per direction (v2: both edges of the band give the load)
+        #: the slips that taught it, per direction (default mode: both edges of the band give the load)
         self.slip_edges = SlipEdges()
         #: (valve torque beyond the known load, valve angle) of the latest settled relaxing period
         self._slip: tuple[float, float] | None = None
@@ -183,10 +188,10 @@ class StateFeedbackLaw(ControlLaw):
         # genuine breakaway comes right at it, so half of it): less, and the valve was broken
         # loose by something else
         drive_nm = n * self._applied - load_nm - self.held_load
-        # v2: on the friction the hold has met, the schedule's only the prior (a wrong Δp)
+        # default mode: on the friction the hold has met, the schedule only the prior (a wrong Δp)
         static = (self.integral.hold_static_nm(friction.valve_static_nm, self.slip_edges.static_nm,
                                                self.integral.load_static_fraction * self._static_floor)
-                  if self.v2 else friction.valve_static_nm)
+                  if self.met_hold else friction.valve_static_nm)
         driven = abs(drive_nm) >= 0.5 * self.integral.load_static_fraction * static
         # v2: the jump is read from the tracking error: while the reference follows a ramp the
         # valve's travel is mostly the ramp's (issue 14: read as a jump, it froze the integrator)
@@ -223,7 +228,7 @@ class StateFeedbackLaw(ControlLaw):
                 if moved * (net0 - self.held_load) < 0.0:
                     self.held_load = self.integral.learn_load(
                         net0, moved, friction.valve_static_nm,
-                        load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.v2 else None)
+                        load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.met_hold else None)
                     self.slip_edges.met(net0, moved)
                 self._slip = None
         relaxing = False
