@@ -111,6 +111,11 @@ class StateFeedbackLaw(ControlLaw):
         # the jump ratio was learned against the old schedule's nominal jump (told 0 on a valve
         # at Δp max: ratio ~11, which on the max schedule made a 16 mrad deadband)
         self.jumps.reset()
+        # the slip edges and the held load are torques net of the old schedule's known load (its
+        # flow torque): kept, the relax aimed at a load that is not there (default mode)
+        self.slip_edges.reset()
+        if self.met_hold:
+            self.held_load = 0.0
 
     def reset(self, meas, torque_nm, pressure_kpa):
         m = self.model
