@@ -175,6 +175,10 @@ HOLD_SHORTFALLS = {
         "from the drive's voltage and current (issue 14, h14c): where the faster arrival sticks inside "
         "the integrator deadband is a coin flip of the stick-slip (the F x0.5 J x0.8 corner at max Δp, "
         "3.1e-3 rad before, now passes); no hunting",
+    _corner(friction=3.0, dp=0.0, inertia=1.2):
+        "stops 1.9e-3 rad from the demand (band: jump + 2 counts = 1.4e-3), no hunting, since the default mode's "
+        "limit-cycle breaker is on (h16w, JumpLearner(cross_hold)): a breakaway across the target widens both "
+        "directions' deadband to its own jump and the valve may stop anywhere inside it (5.4e-4 rad without it)",
 }
 
 _FF_LOW = ("the friction feed-forward is scheduled on the nominal friction and a 2 % step is too short "

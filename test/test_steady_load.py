@@ -24,9 +24,13 @@ def _room(pct: float) -> float:
 @pytest.mark.parametrize("pct,fraction", [
     (30.0, 0.95), (60.0, 0.95),
     pytest.param(60.0, 0.5, marks=pytest.mark.xfail(strict=True, reason=(
-        "ends 6.3e-3 rad from the demand (limit 3e-3), no hunting, since the integrator deadband is sized "
-        "per direction (h14r, JumpLearner.ratio_toward): passes with one deadband for both directions; "
-        "not traced (time)"))),
+        "ends 6.3e-3 rad short (limit 3e-3), no hunting.  Traced (h16w): the valve is left stuck 20 mrad "
+        "short at the move's end under the 6.2 N*m unknown load and slides 19 mrad to the target once the "
+        "drive has wound up; JumpLearner reads that catch-up as a 4.2x opening jump (opening deadband "
+        "10.6 mrad), so after the relax lets the load slip the valve 6.3 mrad back (load then learned) the "
+        "integrator does not pull it back.  Not learning such catch-ups (a slide from beyond 2 bands that "
+        "comes to rest inside the band without crossing) cures it, but on the full campaign 1070, 1097, "
+        "1157 and 1188 then hunted: their catch-up readings are what sized their deadbands"))),
     (40.0, -0.2)])
 def test_steady_load_is_held_without_a_limit_cycle(pct, fraction):
     load = fraction * _room(pct)

@@ -54,9 +54,22 @@ class IntegralPolicy:
         return max(self.min_rad, self.jump_fraction * jump * jump_ratio)
 
 
-    def learn_load(self, net_at_slip: float, direction: float, static_nm: float, known_nm: float = 0.0) -> float:
+    def learn_load(self, net_at_slip: float, direction: float, static_nm: float, known_nm: float = 0.0,
+                   opposite_edge_nm: float | None = None) -> float:
         """Steady unknown valve load (N*m, positive = the drive must push toward open) from a
         slip of a relaxing, settled valve in ``direction`` (sign of its speed).
+
+        ``opposite_edge_nm``: the drive torque beyond the known load (N*m, valve side) at the
+        latest such slip the other way, if any (:class:`SlipEdges`).  The two slips are the two
+        edges of the static band, ``L + Ts`` and ``L − Ts``: their mean is the load whatever the
+        friction, so the scheduled ``static_nm`` is then not used at all.  With one edge only, the
+        load is put ``load_static_fraction`` of the scheduled static level inside it -- a prior
+        that a wrong Δp reading makes wrong: told max on a valve at Δp 0 (Ts 0.5 instead of
+        5.5 N*m) it put the load 2.3 N*m beyond the band, the relax then slipped the valve the
+        other way, and the two readings alternated (adaptation grid, Δp 0 told 6206 kPa: the
+        learned load flipped −3.2 / +0.5 / −3.0 / +0.7 N*m and the hold hunted 5-8 mrad).  An
+        opposite edge that lies beyond this one (``(net − opposite) * direction <= 0``: the band
+        has moved since) is not used.
 
         Bounded so that the whole load the relax holds, ``known_nm`` (the known load at the
         valve, N*m, + toward closed) plus the learned one, stays within ``load_limit_nm`` (the
@@ -64,8 +77,27 @@ class IntegralPolicy:
         for ever, the I2t limit clamps the drive there and the jam fault latches although the
         valve is held (campaign seed 1019: learned 18.2 N*m on a 9.3 N*m load, 15 A clamped
         for 2 s, ``overcurrent_i2t``)."""
-        load = net_at_slip - math.copysign(self.load_static_fraction * static_nm, direction)
+        if opposite_edge_nm is not None and (net_at_slip - opposite_edge_nm) * direction > 0.0:
+            load = 0.5 * (net_at_slip + opposite_edge_nm)
+        else:
+            load = net_at_slip - math.copysign(self.load_static_fraction * static_nm, direction)
         return min(max(load, -self.load_limit_nm - known_nm), self.load_limit_nm - known_nm)
+
+    def hold_static_nm(self, scheduled_nm: float, met_nm: float | None, floor_nm: float) -> float:
+        """Static valve friction (N*m) the hold's drive test and stuck ramp are scheduled on: the
+        friction the Δp schedule predicts (``scheduled_nm``), lowered to the friction the hold
+        has met (``met_nm``, :attr:`SlipEdges.static_nm`; None: not met yet) but not below
+        ``floor_nm`` (the lowest the valve can have) -- the told Δp is only the prior.
+
+        Told max on a valve at Δp 0 (Ts 0.5 instead of 5.5 N*m), the drive test judged every
+        breakaway of the hold (at ~0.5 N*m) as "not the drive's" and learned no jump, and the
+        stuck ramp (5.5 N*m per ``stuck_ramp_time_s``) broke the valve loose 11x faster than
+        quasi-static: it slid 4.5 mrad across the 1.3 mrad deadband each way, a hunt the learner
+        never saw (adaptation grid, Δp 0 told 6206 kPa).  Never raised above the schedule: a
+        reading above it would only make the ramp more violent."""
+        if met_nm is None:
+            return scheduled_nm
+        return min(max(met_nm, floor_nm), scheduled_nm)
 
     @staticmethod
     def accepts(pending: float, applied_nm: float, saturated: bool) -> bool:
@@ -76,6 +108,36 @@ class IntegralPolicy:
         of a settled valve held at the continuous-current clamp: the request stayed above the
         continuous current and the I2t jam fault latched on a valve that was held."""
         return not saturated or pending * applied_nm < 0.0
+
+
+class SlipEdges:
+    """The edges of the static-friction band a settled, relaxing drive has met: per slip
+    direction (+1 opening, -1 closing), the drive torque beyond the known load (N*m, valve
+    side) at the latest slip that way.  Both edges give the steady unknown load (their mean)
+    and the static friction really met (half their difference) without the Δp schedule
+    (:meth:`IntegralPolicy.learn_load`).  Forgotten with the controller (reset) and when the
+    friction schedule changes (the known load the torques are net of changes with Δp)."""
+
+    def __init__(self) -> None:
+        self.edges: dict[int, float] = {}
+
+    def reset(self) -> None:
+        self.edges.clear()
+
+    def opposite(self, direction: float) -> float | None:
+        """The edge met the other way from ``direction``, if any."""
+        return self.edges.get(-1 if direction > 0.0 else 1)
+
+    def met(self, net_nm: float, direction: float) -> None:
+        """A slip in ``direction`` at drive torque ``net_nm`` beyond the known load."""
+        self.edges[1 if direction > 0.0 else -1] = net_nm
+
+    @property
+    def static_nm(self) -> float | None:
+        """Static friction met (half the band's width, N*m; None before both edges)."""
+        if len(self.edges) < 2:
+            return None
+        return max(0.5 * (self.edges[1] - self.edges[-1]), 0.0)
 
 
 class JumpLearner:

@@ -179,7 +179,8 @@ class PositionController:
                           ps["seat.torque_nm"], m.stroke_rad)
         main = StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode, ps),
                                 seating, speed_window=ps["ff.speed_window_periods"],
-                                delay_periods=int(round(ps["resolver_delay_s"] / period)), v2=not legacy)
+                                delay_periods=int(round(ps["resolver_delay_s"] / period)), v2=not legacy,
+                                hold_on_friction_met=mode == "observer_ff")
         if mode != "observer_fp":
             return main
         return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner))
