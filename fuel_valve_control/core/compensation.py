@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ..common.contract import RESOLVER_COUNT_RAD
 from .friction_observer import FrictionObserver
 from .model import NominalModel
 
@@ -176,6 +177,74 @@ class StictionGain(Compensator):
         return self.gain * ts / self.model.gear_ratio * _sat(ctx.error / self.error_scale), 0.0, 0.0
 
 
+class CouplingStiffness:
+    """The coupling's stiffness read in breakaway wind-ups, as ``softness`` = K_model / K.
+
+    While a move waits for breakaway the valve is stuck and the drive winds the coupling up:
+    every period gives a pair (twist θ1 - θL, rad; drive torque N u, N*m valve side, the
+    move's way).  The least-squares slope of torque over twist is the stiffness met: a slope,
+    so the constant part of the drive that is not twist (the turning motor's Coulomb friction,
+    a cocked hold's offset) does not enter.  Pairs count only once the twist has grown
+    ``start_rad`` past its value at arming (before that the motor's own static friction takes
+    the torque and the twist does not move).  A wind-up is *plausible* when it spans at least
+    ``min_span_rad`` of twist over ``min_points`` pairs, the slope is positive and the pairs lie
+    on a line (r² >= ``min_r2``); only plausible wind-ups update the estimate (a valve held
+    cocked near breakaway lets go within a few periods: its 1-2 count wind-up read K x 2-20
+    and gave the retreat a tenth of what it needed, campaign seed 1017).  The coupling does
+    not change from move to move, so the estimate persists and each plausible reading moves
+    its logarithm halfway (one noisy reading cannot throw it); bounded to ``bounds``,
+    forgotten on :meth:`reset` (then 1: the model's coupling).
+    """
+
+    def __init__(self, start_rad: float, min_span_rad: float, min_points: int = 8, min_r2: float = 0.5,
+                 bounds: tuple[float, float] = (0.5, 20.0)):
+        self.start_rad, self.min_span_rad = start_rad, min_span_rad
+        self.min_points, self.min_r2, self.bounds = min_points, min_r2, bounds
+        #: K_model / K, the persistent estimate (1 before the first plausible wind-up)
+        self.softness = 1.0
+        #: plausible wind-ups read since the last reset
+        self.readings = 0
+        #: the latest wind-up's reading (K_model / K), None when it was not plausible
+        self.last: float | None = None
+        self._twist0: float | None = None
+        self._sums = [0.0] * 6          # n, Σx, Σy, Σxx, Σxy, Σyy (x twist rad, y torque N*m)
+
+    def reset(self) -> None:
+        self.softness, self.readings, self.last = 1.0, 0, None
+        self._twist0 = None
+
+    def begin(self, twist_rad: float) -> None:
+        """A wind-up starts (twist signed the move's way)."""
+        self._twist0 = twist_rad
+        self._sums = [0.0] * 6
+
+    def add(self, twist_rad: float, drive_nm: float) -> None:
+        """One wind-up period: twist (rad) and drive torque (N*m, valve side), both signed the
+        move's way."""
+        if self._twist0 is None or twist_rad - self._twist0 < self.start_rad:
+            return
+        x, y = twist_rad, drive_nm
+        for i, v in enumerate((1.0, x, y, x * x, x * y, y * y)):
+            self._sums[i] += v
+
+    def finish(self, k_model: float) -> float | None:
+        """The wind-up ended in breakaway: update the estimate from it if it is plausible;
+        returns the reading (K_model / K) or None."""
+        n, sx, sy, sxx, sxy, syy = self._sums
+        self._twist0, self.last = None, None
+        if n < self.min_points:
+            return None
+        vxx, vxy, vyy = sxx - sx * sx / n, sxy - sx * sy / n, syy - sy * sy / n
+        if vxx < (self.min_span_rad ** 2) * n / 12.0 or vxy <= 0.0 or vyy <= 0.0 \
+                or vxy * vxy < self.min_r2 * vxx * vyy:
+            return None          # too little twist (a uniform spread of min_span has variance span²/12), or no line
+        reading = min(max(k_model * vxx / vxy, self.bounds[0]), self.bounds[1])
+        self.softness = reading if self.readings == 0 else math.sqrt(self.softness * reading)
+        self.readings += 1
+        self.last = reading
+        return reading
+
+
 class ReferenceFeedforward(Compensator):
     """Friction feed-forward in the reference's direction, Δp-scheduled and adapted.
 
@@ -203,12 +272,19 @@ class ReferenceFeedforward(Compensator):
     RAMP_CAP = 4.0
     #: bounds of K_model / K_met read in a wind-up (the SPEC box reaches K x 0.1)
     SOFT_BOUNDS = (0.5, 20.0)
+    #: a wind-up reads the stiffness once the twist has grown this many valve resolver counts,
+    #: and only if it spans at least WINDUP_MIN_COUNTS (plausibility, :class:`CouplingStiffness`)
+    WINDUP_START_COUNTS = 2.0
+    WINDUP_MIN_COUNTS = 6.0
 
     def __init__(self, motor: FrictionObserver, valve: FrictionObserver, velocity_smoothing: float,
                  stuck_speed: float, static_start: bool = True, fraction: float = 1.0, period_s: float = 1e-3,
                  ramp_time: float = 0.05, ramp_start: float = 0.4, scale_bounds: tuple[float, float] = (0.1, 30.0),
-                 retreat_periods: int = 0):
+                 retreat_periods: int = 0, count_rad: float = RESOLVER_COUNT_RAD):
         self.motor, self.valve = motor, valve
+        #: the coupling stiffness met in the wind-ups (K_model / K; persistent, plausibility-checked)
+        self.coupling = CouplingStiffness(self.WINDUP_START_COUNTS * count_rad, self.WINDUP_MIN_COUNTS * count_rad,
+                                          bounds=self.SOFT_BOUNDS)
         self.ramp_per_period = period_s / ramp_time if ramp_time > 0 else 1.0
         self.ramp_start = ramp_start
         self.scale_bounds = scale_bounds
@@ -218,9 +294,6 @@ class ReferenceFeedforward(Compensator):
         self._retreat_periods = 0
         self._retreat_nm = 0.0
         self._breakaway_move = False     # the levels of the move under way come from its breakaway
-        self._windup0: tuple[float, float] | None = None   # (drive N*m valve side, twist rad) at arming
-        #: K_model / coupling stiffness met in the latest wind-up (1 before the first)
-        self.coupling_softness = 1.0
         #: static friction met / scheduled at the latest breakaway (None before the first)
         self.breakaway_ratio: float | None = None
         self.static_start = static_start
@@ -237,6 +310,12 @@ class ReferenceFeedforward(Compensator):
         self._retreat_periods = 0
         self._breakaway_move = False
         self.breakaway_ratio = None
+        self.coupling.reset()
+
+    @property
+    def coupling_softness(self) -> float:
+        """K_model / K of the coupling as read in the wind-ups so far (1: the model's)."""
+        return self.coupling.softness
 
     def _breakaway(self, ctx: Context) -> tuple[float, float, float]:
         """A move waiting for breakaway: the static-level ramp; learn when the valve lets go."""
@@ -249,8 +328,9 @@ class ReferenceFeedforward(Compensator):
                 self._armed_periods, self._armed_dir = 0, ctx.armed
                 # where the wind-up starts: with the valve stuck, the gear output's travel
                 # against the torque added says how stiff the coupling really is
-                self._windup0 = (n * ctx.applied_torque, ctx.th1 - ctx.thl)
+                self.coupling.begin(ctx.armed * (ctx.th1 - ctx.thl))
             self._armed_periods += 1
+            self.coupling.add(ctx.armed * (ctx.th1 - ctx.thl), ctx.armed * n * ctx.applied_torque)
             # capped at RAMP_CAP x the breakaway level at max Δp, not at a multiple of this Δp's:
             # at Δp 0 the motor's Coulomb friction through the gear is as large as the valve's
             # static (friction x3: the ramp stalled at the cap), and the Δp reading may be wrong
@@ -279,20 +359,12 @@ class ReferenceFeedforward(Compensator):
             # step overshot 6.6 %), or the valve runs that far ahead of the move.  The motor's
             # own gap is not stored in the coupling (retreating it too: friction x3 at Δp 0
             # stalled short and overshot 13.6 % on the second breakaway)
-            # coupling stiffness met in the wind-up (torque added / twist added; the motor's
-            # Coulomb friction, which set in as the motor started turning, is not twist): a
-            # coupling softer than the model stores the gap as a larger twist, which takes
+            # coupling stiffness met in the wind-ups (:class:`CouplingStiffness`): a coupling
+            # softer than the model stores the gap as a larger twist, which takes
             # K_model / K_met times the torque cut and sqrt(K_model / K_met) times as long to
             # take back (on K x 0.3 the nominal retreat left 48 % overshoot)
-            soft = 1.0
-            if self._windup0 is not None:
-                torque0, twist0 = self._windup0
-                d_twist = s * ((ctx.th1 - ctx.thl) - twist0)
-                d_torque = s * (n * ctx.applied_torque - torque0) - n * sm * fl.motor_coulomb_nm
-                k_model = m.coupling_stiffness_nm_per_rad
-                if d_twist > 0.0 and d_torque > 0.0:
-                    soft = min(max(k_model * d_twist / d_torque, self.SOFT_BOUNDS[0]), self.SOFT_BOUNDS[1])
-            self.coupling_softness = soft
+            self.coupling.finish(m.coupling_stiffness_nm_per_rad)
+            soft = self.coupling.softness
             self._retreat_nm = soft * ratio * max(fl.valve_static_nm - fl.valve_coulomb_nm, 0.0)
             self._retreat_periods = int(round(self.retreat_periods * math.sqrt(soft)))
             self._breakaway_move = True
