@@ -42,6 +42,7 @@ class Context:
     outside_deadband: bool      # |error| beyond the friction-sized deadband (hold phase)
     armed: float = 0.0          # direction of a planned move waiting for breakaway (Reference.armed)
     broke_away: bool = False    # the valve broke away this period and started that move
+    held_load: float = 0.0      # steady valve load beyond the known one the law holds, N*m (+ toward open)
 
 
 def _sat(x: float) -> float:
@@ -72,6 +73,11 @@ class Compensator:
     def reference_moves(self, ctx: Context) -> bool:
         """Whether the reference counts as moving (else the law holds)."""
         return ctx.ref_moving
+
+    def jump_ratio(self) -> float | None:
+        """The stick-slip jump this compensator expects, over the model's (friction and
+        coupling it has met), or None when it has met nothing."""
+        return None
 
 
 def _non_friction_accels(model: NominalModel, ctx: Context) -> tuple[float, float]:
@@ -276,6 +282,12 @@ class ReferenceFeedforward(Compensator):
     #: and only if it spans at least WINDUP_MIN_COUNTS (plausibility, :class:`CouplingStiffness`)
     WINDUP_START_COUNTS = 2.0
     WINDUP_MIN_COUNTS = 6.0
+    #: the friction scale is read at a breakaway only if the ramp had risen this fraction of
+    #: the breakaway level (5 periods at the default 50 ms ramp)
+    MIN_RISE = 0.1
+    #: the breakaway ramp's slope is at least this multiple of the scheduled level per ramp time
+    #: (the lowest friction scale the SPEC box holds)
+    RAMP_MIN_SCALE = 0.5
 
     def __init__(self, motor: FrictionObserver, valve: FrictionObserver, velocity_smoothing: float,
                  stuck_speed: float, static_start: bool = True, fraction: float = 1.0, period_s: float = 1e-3,
@@ -290,6 +302,9 @@ class ReferenceFeedforward(Compensator):
         self.scale_bounds = scale_bounds
         self._armed_periods = 0
         self._armed_dir = 0.0
+        self._ramp0 = 0.0                # N*m (valve side), the ramp's level at arming
+        #: latest breakaway reading per direction (met / scheduled; +1 opening, -1 closing)
+        self._met = {1.0: None, -1.0: None}
         self.retreat_periods = retreat_periods
         self._retreat_periods = 0
         self._retreat_nm = 0.0
@@ -310,6 +325,7 @@ class ReferenceFeedforward(Compensator):
         self._retreat_periods = 0
         self._breakaway_move = False
         self.breakaway_ratio = None
+        self._met = {1.0: None, -1.0: None}
         self.coupling.reset()
 
     @property
@@ -329,6 +345,14 @@ class ReferenceFeedforward(Compensator):
                 # where the wind-up starts: with the valve stuck, the gear output's travel
                 # against the torque added says how stiff the coupling really is
                 self.coupling.begin(ctx.armed * (ctx.th1 - ctx.thl))
+                # the ramp starts where the hold left the drive when it already presses the
+                # move's way (the law uncocks the drive to the known + held load as the move
+                # arms): starting at ramp_start on top of a hold cocked to near breakaway
+                # stepped the drive ~4 N*m past it and the valve ran 3x the move (campaign
+                # seed 1017: 181 % overshoot and hunting)
+                pressed = ctx.armed * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa)
+                                       - ctx.held_load)
+                self._ramp0 = max(pressed, sv * self.ramp_start * (fl.valve_static_nm + n * fl.motor_coulomb_nm))
             self._armed_periods += 1
             self.coupling.add(ctx.armed * (ctx.th1 - ctx.thl), ctx.armed * n * ctx.applied_torque)
             # capped at RAMP_CAP x the breakaway level at max Δp, not at a multiple of this Δp's:
@@ -339,7 +363,11 @@ class ReferenceFeedforward(Compensator):
             # through the gear: the motor already turns while the coupling winds up) and carried
             # as a valve torque: the coupling has to transmit all of it at breakaway
             static = fl.valve_static_nm + n * fl.motor_coulomb_nm
-            level = min(sv * (self.ramp_start + self._armed_periods * self.ramp_per_period) * static, top)
+            # the ramp rises at no less than RAMP_MIN_SCALE x the scheduled level per ramp time:
+            # a scale learned too low (a load the model does not know helping one direction's
+            # breakaway read 0.1 x, campaign seed 1006) must not leave the ramp short of the valve
+            rise = max(sv, self.RAMP_MIN_SCALE) * self._armed_periods * self.ramp_per_period * static
+            level = min(self._ramp0 + rise, top)
             fv = self.fraction * level * ctx.armed
             return fv / n, 0.0, fv
         s = self._armed_dir
@@ -349,10 +377,25 @@ class ReferenceFeedforward(Compensator):
         met = s * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa))
         static = fl.valve_static_nm + n * fl.motor_coulomb_nm
         if static > 0.0:
-            ratio = min(max(met / static, self.scale_bounds[0]), self.scale_bounds[1])
-            self.breakaway_ratio = ratio
-            self.valve.reset(ratio * fl.valve_coulomb_nm / m.valve_inertia_kgm2)
-            self.motor.reset(ratio * fl.motor_coulomb_nm / m.motor_inertia_kgm2)
+            # learned only from a valve that let go while the ramp rose (MIN_RISE of the level
+            # above its start): one that lets go within a few periods of arming was at
+            # breakaway already (a cocked hold, LuGre presliding), and the torque then is not
+            # the friction's (campaign seeds 1017, 1010: 0.2-0.35 x read on plants of 0.6-0.9 x)
+            if self._armed_periods * self.ramp_per_period >= self.MIN_RISE or self.breakaway_ratio is None:
+                # a steady load the model does not know adds to the drive at one direction's
+                # breakaway and subtracts at the other's: the mean of the latest reading each
+                # way is the friction's alone (campaign seed 1006, 4.5 N*m toward closed: every
+                # closing breakaway read 0.1 x, the next ramps stalled and a 4.4e-2 rad move
+                # ended 4.8e-2 rad off)
+                self._met[s] = met / static
+                other = self._met[-s]
+                raw = self._met[s] if other is None else 0.5 * (self._met[s] + other)
+                ratio = min(max(raw, self.scale_bounds[0]), self.scale_bounds[1])
+                self.breakaway_ratio = ratio
+                self.valve.reset(ratio * fl.valve_coulomb_nm / m.valve_inertia_kgm2)
+                self.motor.reset(ratio * fl.motor_coulomb_nm / m.motor_inertia_kgm2)
+            else:
+                ratio = sv
             # the coupling twist stored at breakaway exceeds what sliding needs by the valve's
             # static - Coulomb gap: take it back over one period of the valve on the coupling
             # (the free stick-slip jump takes half of it; over half a period the nominal 2 %
@@ -370,6 +413,17 @@ class ReferenceFeedforward(Compensator):
             self._breakaway_move = True
         self._armed_periods, self._armed_dir = 0, 0.0
         return None
+
+    def jump_ratio(self) -> float | None:
+        """Friction met at breakaway x K_model / K met in the wind-ups: the jump
+        ``2 (Ts - Tc) / K`` of this valve over the model's.  A move started on breakaway does
+        not jump, so the hold's jump learner (:class:`~.integral_policy.JumpLearner`) never sees
+        how far this valve jumps and the deadband stayed the model's: a move ending 2 mrad
+        past a target, just outside a 1.9 mrad deadband, was driven back by a 6.7 mrad jump and
+        hunted for the whole 4 s hold (campaign seed 1026, friction x 2, K x 0.85)."""
+        if self.breakaway_ratio is None:
+            return None
+        return self.breakaway_ratio * self.coupling.softness
 
     def scale(self, pressure_kpa: float) -> tuple[float, float]:
         """Adapted / nominal Coulomb level of (motor, valve)."""
