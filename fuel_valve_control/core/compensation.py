@@ -202,7 +202,7 @@ class CouplingStiffness:
     forgotten on :meth:`reset` (then 1: the model's coupling).
     """
 
-    def __init__(self, start_rad: float, min_span_rad: float, min_points: int = 8, min_r2: float = 0.8,
+    def __init__(self, start_rad: float, min_span_rad: float, min_points: int = 8, min_r2: float = 0.25,
                  bounds: tuple[float, float] = (0.5, 20.0)):
         self.start_rad, self.min_span_rad = start_rad, min_span_rad
         self.min_points, self.min_r2, self.bounds = min_points, min_r2, bounds
@@ -290,6 +290,9 @@ class ReferenceFeedforward(Compensator):
     RAMP_MIN_SCALE = 0.5
     #: the coupling-snap feed-forward acts on K_model / K - 1 beyond this (:meth:`_coupling_snap`)
     SNAP_TOLERANCE = 0.25
+    #: periods over which the wind-up reads the gear output's acceleration (a one-period
+    #: difference of the velocity estimate scattered the small wind-ups at Δp 0: r² 0.25)
+    ACCEL_WINDOW = 4
 
     def __init__(self, motor: FrictionObserver, valve: FrictionObserver, velocity_smoothing: float,
                  stuck_speed: float, static_start: bool = True, fraction: float = 1.0, period_s: float = 1e-3,
@@ -300,7 +303,7 @@ class ReferenceFeedforward(Compensator):
         self.coupling = CouplingStiffness(self.WINDUP_START_COUNTS * count_rad, self.WINDUP_MIN_COUNTS * count_rad,
                                           bounds=self.SOFT_BOUNDS)
         self.period = period_s
-        self._w1 = 0.0                   # rad/s, gear-output velocity estimate of the last wind-up period
+        self._w1: list[float] = []       # rad/s, gear-output velocity estimates of the last wind-up periods
         self._acc: list[float] = []      # the reference accelerations of the last periods of a move, rad/s²
         self.ramp_per_period = period_s / ramp_time if ramp_time > 0 else 1.0
         self.ramp_start = ramp_start
@@ -350,6 +353,7 @@ class ReferenceFeedforward(Compensator):
                 # where the wind-up starts: with the valve stuck, the gear output's travel
                 # against the torque added says how stiff the coupling really is
                 self.coupling.begin(ctx.armed * (ctx.th1 - ctx.thl))
+                self._w1 = []
                 # the ramp starts where the hold left the drive when it already presses the
                 # move's way (the law uncocks the drive to the known + held load as the move
                 # arms): starting at ramp_start on top of a hold cocked to near breakaway
@@ -362,8 +366,8 @@ class ReferenceFeedforward(Compensator):
             # the drive less what accelerates the gear output (J1 dω1/dt; the ramp is quick
             # against the drivetrain: left in, 15-period wind-ups read the model's coupling as
             # K x 0.5) is what the coupling carries
-            accel = (ctx.w1 - self._w1) / self.period if self._armed_periods > 1 else 0.0
-            self._w1 = ctx.w1
+            self._w1 = (self._w1 + [ctx.w1])[-self.ACCEL_WINDOW - 1:]
+            accel = (self._w1[-1] - self._w1[0]) / (self.period * (len(self._w1) - 1)) if len(self._w1) > 1 else 0.0
             self.coupling.add(ctx.armed * (ctx.th1 - ctx.thl), ctx.armed * (n * ctx.applied_torque - m.j1 * accel))
             # capped at RAMP_CAP x the breakaway level at max Δp, not at a multiple of this Δp's:
             # at Δp 0 the motor's Coulomb friction through the gear is as large as the valve's
