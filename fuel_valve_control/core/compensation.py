@@ -271,7 +271,15 @@ class ReferenceFeedforward(Compensator):
     *this* valve, not the model's, from its first period, and the next move's ramp starts near
     its breakaway.  The scale is bounded to ``scale_bounds`` (wide: a wrong Δp reading moves the
     friction met by up to x11 against the schedule, friction wear x0.5…3 on top) and forgotten
-    on :meth:`reset`.
+    on :meth:`reset`.  It is the mean of the latest reading each way (a steady load the model
+    does not know cancels) and is read only from a valve that let go while the ramp rose; the
+    ramp starts where a hold pressing the move's way left the drive.
+
+    **Coupling** (h16g): every wind-up also reads the coupling stiffness
+    (:class:`CouplingStiffness`, ``coupling_softness`` = K_model / K); it sizes the take-back
+    of the stored static-Coulomb twist, the hold's deadband (:meth:`jump_ratio`) and, on a
+    coupling measurably softer than the model, the snap feed-forward of planned moves
+    (:meth:`_coupling_snap`).
     """
 
     #: the breakaway ramp stops at this multiple of the nominal breakaway level at max Δp
