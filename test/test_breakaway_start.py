@@ -14,7 +14,7 @@ import math
 import pytest
 
 from fuel_valve_control.common.contract import RESOLVER_COUNT_RAD
-from fuel_valve_control.core.compensation import Context, ReferenceFeedforward
+from fuel_valve_control.core.compensation import Context, CouplingStiffness, ReferenceFeedforward
 from fuel_valve_control.core.friction_observer import FrictionObserver
 from fuel_valve_control.core.model import NominalModel
 from fuel_valve_control.core.params import CONTROLLER_SPEC
@@ -126,3 +126,135 @@ def test_learned_scale_is_bounded_and_forgotten_on_reset():
     c.update(_ctx((load - 1e4) / n, 0.0, broke=True))
     assert c.breakaway_ratio == c.scale_bounds[0]
     assert math.isfinite(c.update(_ctx(0.0, 0.0, ref_velocity=1.0))[0])
+
+
+# ------------------------------------------- coupling stiffness read in the wind-up (h16g)
+COUNT = RESOLVER_COUNT_RAD
+
+
+def _windup(est, k_true, span_counts, points=30, offset_nm=1.3, noise=None):
+    """Feed a synthetic wind-up: twist rising over ``span_counts`` counts, the drive
+    ``k_true x twist + offset`` (the offset: the turning motor's Coulomb friction)."""
+    est.begin(0.05)
+    for i in range(points):
+        twist = 0.05 + (2.0 * COUNT + span_counts * COUNT) * i / (points - 1)
+        est.add(twist, k_true * twist + offset_nm + (noise[i] if noise is not None else 0.0))
+    return est.finish(MODEL.coupling_stiffness_nm_per_rad)
+
+
+def _estimator():
+    return CouplingStiffness(2.0 * COUNT, 6.0 * COUNT, bounds=(0.5, 20.0))
+
+
+@pytest.mark.parametrize("scale", [0.3, 1.0, 1.5])
+def test_wind_up_reads_the_coupling_stiffness_from_the_slope(scale):
+    est = _estimator()
+    k0 = MODEL.coupling_stiffness_nm_per_rad
+    reading = _windup(est, scale * k0, 40)
+    assert reading == pytest.approx(1.0 / scale, rel=0.02) and est.softness == reading and est.readings == 1
+    # persistent: a second reading moves its logarithm halfway
+    second = _windup(est, k0, 40)
+    assert est.softness == pytest.approx(math.sqrt(reading * second), rel=1e-9)
+
+
+def test_an_implausible_wind_up_leaves_the_estimate_alone():
+    est = _estimator()
+    k0 = MODEL.coupling_stiffness_nm_per_rad
+    _windup(est, 0.3 * k0, 40)
+    before = est.softness
+    assert _windup(est, 5.0 * k0, 3) is None                    # a 1-2 count wind-up: a cocked hold
+    assert _windup(est, 5.0 * k0, 40, points=4) is None          # too few periods
+    assert _windup(est, -k0, 40) is None                         # no positive slope
+    rng = [(-1) ** i * 3.0 for i in range(30)]                   # pairs that lie on no line
+    assert _windup(est, 0.01 * k0, 40, noise=rng) is None
+    assert est.softness == before and est.readings == 1
+    assert _windup(est, 0.001 * k0, 40) == est.bounds[1]         # bounded
+    est.reset()
+    assert est.softness == 1.0 and est.readings == 0
+
+
+def _windup_ctx(applied_motor_nm, armed, twist, broke=False, held=0.0):
+    return Context(P_MAX, START + twist, 0.0, START, 0.0, 0.0, applied_motor_nm, 0.0, 0.0, True, 0.0, False,
+                   armed, broke, held)
+
+
+def test_compensator_reads_the_stiffness_in_the_ramp_and_forgets_it_on_reset():
+    """A closed-form wind-up: the stuck valve, the drive ramping, the twist = torque / K."""
+    c = _comp()
+    n = MODEL.gear_ratio
+    load = MODEL.load_torque(START, P_MAX)
+    k = 0.3 * MODEL.coupling_stiffness_nm_per_rad
+    fv = 0.0
+    for _ in range(40):
+        fv = c.update(_windup_ctx((load + fv) / n, 1.0, (load + fv) / k))[2]
+    c.update(_windup_ctx((load + fv) / n, 0.0, (load + fv) / k, broke=True))
+    assert c.coupling_softness == pytest.approx(1.0 / 0.3, rel=0.05)
+    assert c.jump_ratio() == pytest.approx(c.breakaway_ratio * c.coupling_softness)
+    c.reset(MODEL, P_MAX)
+    assert c.coupling_softness == 1.0 and c.jump_ratio() is None
+
+
+def _comp_at_start():
+    """(compensator, gear ratio, known load N*m, nominal drivetrain breakaway level N*m valve
+    side) at START, max Δp."""
+    n = MODEL.gear_ratio
+    fl = MODEL.friction(P_MAX)
+    return _comp(), n, MODEL.load_torque(START, P_MAX), fl.valve_static_nm + n * fl.motor_coulomb_nm
+
+
+def test_the_ramp_starts_where_a_cocked_hold_left_the_drive():
+    c, n, load, breakaway = _comp_at_start()
+    pressed = 0.9 * breakaway               # the hold presses 0.9 x breakaway the move's way
+    first = c.update(_ctx((load + pressed) / n, 1.0))[2]
+    assert first == pytest.approx(pressed + T / 0.05 * breakaway, rel=1e-6)     # no step past it
+    # (a hold pressing the other way: the ramp starts at ramp_start as before)
+    c2 = _comp()
+    assert c2.update(_ctx((load - pressed) / n, 1.0))[2] == pytest.approx((0.4 + T / 0.05) * breakaway, rel=1e-6)
+
+
+def test_a_valve_that_lets_go_at_once_does_not_teach_the_scale():
+    """Broken loose within a few periods of arming, the valve was at breakaway already (a
+    cocked hold, presliding): the torque then is not its friction."""
+    c, n, load, breakaway = _comp_at_start()
+    for _ in range(20):                                               # a proper ramp: learned
+        c.update(_ctx(load / n, 1.0))
+    c.update(_ctx((load + 2.0 * breakaway) / n, 0.0, broke=True, ref_velocity=0.05))
+    assert c.breakaway_ratio == pytest.approx(2.0, rel=1e-6)
+    c.update(_ctx(load / n, 1.0))                                     # one period, and it goes
+    c.update(_ctx((load + 0.3 * breakaway) / n, 0.0, broke=True, ref_velocity=0.05))
+    assert c.breakaway_ratio == pytest.approx(2.0, rel=1e-6)
+
+
+def test_an_unknown_steady_load_cancels_between_the_directions():
+    """Opening reads friction + load, closing friction - load: the scale is their mean."""
+    c, n, load, breakaway = _comp_at_start()
+    extra = 0.6 * breakaway                 # a steady load toward closed the model does not know
+
+    def breakaway_at(direction, met):
+        for _ in range(20):
+            c.update(_ctx(load / n, direction))
+        c.update(_ctx((load + direction * met) / n, 0.0, broke=True, ref_velocity=0.05 * direction))
+
+    breakaway_at(1.0, breakaway + extra)
+    assert c.breakaway_ratio == pytest.approx(1.6, rel=1e-6)       # one direction: biased
+    breakaway_at(-1.0, breakaway - extra)
+    assert c.breakaway_ratio == pytest.approx(1.0, rel=1e-6)       # both: the friction's own
+
+
+def test_coupling_snap_feed_forward_only_on_a_measurably_soft_coupling():
+    c = _comp()
+    accs = [0.0, 100.0, 300.0, 400.0]
+    moving = [_ctx(0.0, 0.0, ref_velocity=0.5) for _ in accs]
+    for ctx, a in zip(moving, accs):
+        ctx.ref_acceleration = a
+    nominal = [c._coupling_snap(ctx) for ctx in moving]
+    assert nominal == [0.0] * 4                                    # the model's coupling: nothing
+    c.coupling.softness = 1.2                                      # within the reading's scatter
+    assert [c._coupling_snap(ctx) for ctx in moving][-1] == 0.0
+    c.coupling.softness = 1.0 / 0.3
+    out = [c._coupling_snap(ctx) for ctx in moving]
+    m = MODEL
+    snap = (400.0 - 2 * 300.0 + 100.0) / T ** 2
+    expect = m.j1 * m.valve_inertia_kgm2 * (1.0 / 0.3 - 1.0 - 0.25) / m.coupling_stiffness_nm_per_rad * snap / m.gear_ratio
+    assert out[-1] == pytest.approx(expect, rel=1e-9) and out[-1] < 0.0   # the acceleration falls
+    assert c._coupling_snap(_ctx(0.0, 1.0)) == 0.0                 # waiting for breakaway: nothing

@@ -259,16 +259,32 @@ HUNT_WINDOW_S = 1.0    # the last second of step_small (the step is at 0.5 s)
 
 GRID_SHORTFALLS = {
     _corner(friction=3.0, dp=0.0, inertia=1.2):
-        "overshoot 3.8 %, but one late slip in the last second: 1.17x the jump + 2 counts "
+        "overshoot 1.6 %, but one late slip in the last second: 1.2x the jump + 2 counts "
         "(jump 1.25e-3 rad at Δp 0); the integrator's stuck ramp finishing a move that stopped "
-        "8e-4 rad short",
+        "short",
+    _corner(friction=1.0, dp=0.0, inertia=1.0):
+        "overshoot 2.6 %, but the move ends 5e-4 rad short and the hold's stuck ramp corrects it by "
+        "slips of 5.6e-4 rad past and back: tail 1.6x the jump + 2 counts (jump 4.6e-4 rad at Δp 0); "
+        "the hold's small Δp-0 deadband, not the move (h16g: the end point moved with the wind-up's "
+        "stiffness reading)",
+}
+#: the same grid on a coupling K x 0.3 (issue 14 Deliver 2: the same default must hold on
+#: stiffness x 0.3...1): overshoot only (the friction x 3 cells at Δp 0 slip in the tail, within
+#: their own jump's scale)
+SOFT_GRID = [dict(c, stiffness=0.3) for c in ADAPTATION_GRID]
+SOFT_GRID_SHORTFALLS = {
+    _corner(friction=3.0, dp=P_MAX, inertia=j, stiffness=0.3):
+        "91 % overshoot: at friction x 3, max Δp on K x 0.3 the stick-slip jump 2 (Ts - Tc)/K is "
+        "4.6e-2 rad, 2.2x the 2 % step; the retreat over one valve period does not take that back "
+        "(119 % for a quasi-static breakaway; 130 % on the clock)"
+    for j in (0.8, 1.0, 1.2)
 }
 
 
-def _grid_cases() -> list:
+def _grid_cases(grid=ADAPTATION_GRID, shortfalls=GRID_SHORTFALLS) -> list:
     return [pytest.param(c, id=_id({k: v for k, v in c.items() if v != NOMINAL[k]}),
-                         marks=[pytest.mark.xfail(strict=True, reason=GRID_SHORTFALLS[_key(c)])]
-                         if _key(c) in GRID_SHORTFALLS else []) for c in ADAPTATION_GRID]
+                         marks=[pytest.mark.xfail(strict=True, reason=shortfalls[_key(c)])]
+                         if _key(c) in shortfalls else []) for c in grid]
 
 
 @pytest.mark.slow
@@ -289,13 +305,14 @@ def test_adaptation_grid_small_step_overshoot_without_hunting(c):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="move started on breakaway, coupling K x0.3 (J -20 %, max Δp): 23 % "
-                   "overshoot against 0 % on the clock; the coupling stores the static-Coulomb gap as a "
-                   "3.3x larger twist, and the retreat scaled by the stiffness met in the wind-up does not "
-                   "take it back in time (docs/control_results.md §9)")
-def test_breakaway_start_on_a_soft_coupling():
-    plant, _ = corner(stiffness=0.3, inertia=0.8)
-    assert _metrics("step_small", plant=plant, controller=BREAKAWAY_START)["overshoot_pct"] <= 10.0
+@pytest.mark.parametrize("c", _grid_cases(SOFT_GRID, SOFT_GRID_SHORTFALLS))
+def test_breakaway_start_on_a_soft_coupling(c):
+    """K x 0.3: the wind-up reads the coupling (K_model / K ~ 3.3), the retreat and the
+    coupling-snap feed-forward are sized by it (before h16g: 17-30 % in 15 of these cells)."""
+    plant, _ = corner(**c)
+    m = _metrics("step_small", plant=plant, controller=BREAKAWAY_START)
+    assert m["overshoot_pct"] <= 10.0
+    assert m["peak_current_a"] <= 30.0
 
 
 # ============================================================================ pi baseline

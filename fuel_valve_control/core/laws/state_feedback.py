@@ -209,12 +209,15 @@ class StateFeedbackLaw(ControlLaw):
                           target - frame, self.deadband, driven, valve if self.v2 else None)
         # v2: sized by the jump the valve makes toward the target (the jumps differ by direction)
         ratio = self.jumps.ratio_toward(target - thl) if self.v2 else self.jumps.ratio
+        met = self.compensator.jump_ratio()     # the jump the friction met at breakaway implies
+        if met is not None:
+            ratio = max(ratio, met)
         self.deadband = self.integral.deadband(m, pressure_kpa, ratio)
         error = ref.position - thl
         outside = abs(target - thl) > self.deadband and not ref.moving
         # ---- friction compensation
         ctx = Context(pressure_kpa, th1, w1, thl, wl, valve_speed, self._applied, ref.velocity, ref.acceleration,
-                      ref.moving, error, outside, ref.armed, ref.broke_away)
+                      ref.moving, error, outside, ref.armed, ref.broke_away, self.held_load)
         comp, self._fm, self._fl = self.compensator.update(ctx)
         # ---- state feedback around the dynamically consistent reference state
         x_ref, u_ff = m.reference_state(ref.position, ref.velocity, ref.acceleration, pressure_kpa,
