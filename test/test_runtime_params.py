@@ -5,7 +5,6 @@ the ones the schemas generate.  The same through the ROS parameter services: ``t
 """
 from __future__ import annotations
 
-import copy
 import functools
 from typing import Any, Iterator, Mapping
 
@@ -22,6 +21,7 @@ from fuel_valve_control.core.position_controller import PositionController
 from fuel_valve_control.tools.sim import exchange_period
 from fuel_valve_plant.physics.params import load_plant_params
 from fuel_valve_plant.physics.plant import Plant
+from snapshots import Snapshots
 
 #: run-time parameters that can change from their defaults (demand_timeout_action's default,
 #: trip, is its tightest choice: it only changes at start-up)
@@ -95,28 +95,28 @@ def _fresh_held_loop(mode: str):
     return drv, plant
 
 
-_HELD: dict[str, tuple[ValveDriver, Plant]] = {}
+_HELD = Snapshots(_fresh_held_loop)
 
 
 def held_loop(mode: str):
     """A driver in ``mode`` holding the valve at 30 % for 0.6 s (closed loop, real plant): a
-    deep copy of one run per mode (the run is deterministic, and a copy continues bit for bit as
-    a fresh run would: :func:`test_a_copied_held_loop_continues_as_a_fresh_run`), so the
-    hundreds of cases below pay 0.6 s of simulated loop once per mode, not once or twice each."""
-    if mode not in _HELD:
-        _HELD[mode] = _fresh_held_loop(mode)
-    return copy.deepcopy(_HELD[mode])
+    copy of one run per mode (snapshots.py; a copy continues bit for bit as a fresh run would:
+    :func:`test_a_copied_held_loop_continues_as_a_fresh_run`), so the hundreds of cases below
+    pay 0.6 s of simulated loop once per mode, not once or twice each."""
+    return _HELD[mode]
 
 
 def test_a_copied_held_loop_continues_as_a_fresh_run():
-    """The premise of :func:`held_loop`'s cache: the copy and a new run give the same commands
-    after the same change and the same move (every mode)."""
+    """The premise of :func:`held_loop`'s cache (and test_fuzz's): two copies, the first run
+    before the second is taken (nothing it does may reach the cache), and a new run give the
+    same commands after the same change and the same move (every mode)."""
+    def change_and_move(drv, plant):
+        drv.set_params({"limits.peak_current_a": CONTROLLER_SPEC.params["limits.peak_current_a"].default * 0.9})
+        return closed_loop(drv, plant, 0.6, 100, 34.0)
+
     for mode in MODES:
-        runs = [held_loop(mode), held_loop(mode), _fresh_held_loop(mode)]
-        for drv, _ in runs:
-            drv.set_params({"limits.peak_current_a": CONTROLLER_SPEC.params["limits.peak_current_a"].default * 0.9})
-        currents = [closed_loop(drv, plant, 0.6, 100, 34.0) for drv, plant in runs]
-        assert currents[0] == currents[1] == currents[2], mode
+        first = change_and_move(*held_loop(mode))
+        assert change_and_move(*held_loop(mode)) == first == change_and_move(*_fresh_held_loop(mode)), mode
 
 
 # ------------------------------------------------------------------ coverage
