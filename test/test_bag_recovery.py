@@ -75,6 +75,22 @@ def wait_until(condition, timeout_s: float, what: str, launcher: Launcher) -> No
     raise AssertionError(f"no {what} within {timeout_s} s")
 
 
+def kill_recorder_and_stop(la: Launcher) -> None:
+    """SIGKILL the recorder, then SIGINT to every other node at once; the caller checks the
+    bag meanwhile and calls the launcher's stop at the end (it waits for each node, escalating
+    as it does).  At exit every publishing node waits up to ``RecorderGate.DRAIN_S`` (5 s) for
+    the recorder to acknowledge what it sent, and a SIGKILLed recorder never does (its DDS
+    participant stays matched until its lease ends): stopped one after another, as the
+    launcher's order has it, that was 5 s per node, 15 s per lockstep test before the bag was
+    even looked at; now the waits overlap each other and the reindexing (nothing writes the
+    bag once the recorder is dead)."""
+    la.procs["recorder"].send_signal(signal.SIGKILL)
+    la.procs["recorder"].wait(timeout=30)
+    for proc in la.procs.values():
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+
+
 def reindex_cli(bag: Path, *extra: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "fuel_valve_control.tools.recorder", "--reindex", str(bag), *extra],
                           capture_output=True, text=True, timeout=120)
@@ -110,25 +126,25 @@ def test_sigkilled_recorder_in_lockstep_the_bag_is_reindexed_and_reads_back(tmp_
         wait_until(lambda: on_disk(bag, storage) > 2000, 120.0, "messages on the disk", la)
         seen = on_disk(bag, storage)
         wait_until(lambda: on_disk(bag, storage) > seen, 60.0, "more messages on the disk", la)
-        la.procs["recorder"].send_signal(signal.SIGKILL)
-        la.procs["recorder"].wait(timeout=30)
+        kill_recorder_and_stop(la)
         assert "stop_after_s reached" not in la.log("plant")        # it was mid-run
+        # the bag is checked while the nodes finish their exit (see kill_recorder_and_stop)
+        assert not (bag / "metadata.yaml").exists()                    # what a SIGKILL leaves
+        with pytest.raises(Exception):
+            with AnyReader([bag], default_typestore=TS):
+                pass
+        present = on_disk(bag, storage)
+        out = reindex_cli(bag)
+        assert out.returncode == 0, out.stderr
+        counts, read = read_back(bag)
+        assert {t: n for t, n in counts.items() if n} == read
+        assert sum(read.values()) >= present > 2000
+        assert any(t.endswith("/joint_states") for t in read) and any(t.endswith("/current_command") for t in read)
+        # a second reindex refuses: the bag has its metadata now
+        again = reindex_cli(bag)
+        assert again.returncode == 2 and "exists" in again.stderr
     finally:
         la.stop()
-    assert not (bag / "metadata.yaml").exists()                    # what a SIGKILL leaves
-    with pytest.raises(Exception):
-        with AnyReader([bag], default_typestore=TS):
-            pass
-    present = on_disk(bag, storage)
-    out = reindex_cli(bag)
-    assert out.returncode == 0, out.stderr
-    counts, read = read_back(bag)
-    assert {t: n for t, n in counts.items() if n} == read
-    assert sum(read.values()) >= present > 2000
-    assert any(t.endswith("/joint_states") for t in read) and any(t.endswith("/current_command") for t in read)
-    # a second reindex refuses: the bag has its metadata now
-    again = reindex_cli(bag)
-    assert again.returncode == 2 and "exists" in again.stderr
 
 
 def test_sqlite3_commits_at_least_every_second_in_real_time(tmp_path):
@@ -148,15 +164,14 @@ def test_sqlite3_commits_at_least_every_second_in_real_time(tmp_path):
         wait_until(lambda: time.monotonic() - first_seen > 3.0 and on_disk(bag, "sqlite3") > 3000, 120.0,
                    "three seconds of committed messages", la)
         kill_ns = time.time_ns()
-        la.procs["recorder"].send_signal(signal.SIGKILL)
-        la.procs["recorder"].wait(timeout=30)
+        kill_recorder_and_stop(la)
+        assert reindex_cli(bag).returncode == 0
+        meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        newest_ns = meta["starting_time"]["nanoseconds_since_epoch"] + meta["duration"]["nanoseconds"]
+        assert kill_ns - newest_ns <= 1_000_000_000, f"newest committed message {(kill_ns - newest_ns) / 1e9:.2f} s old"
+        read_back(bag)
     finally:
         la.stop()
-    assert reindex_cli(bag).returncode == 0
-    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    newest_ns = meta["starting_time"]["nanoseconds_since_epoch"] + meta["duration"]["nanoseconds"]
-    assert kill_ns - newest_ns <= 1_000_000_000, f"newest committed message {(kill_ns - newest_ns) / 1e9:.2f} s old"
-    read_back(bag)
 
 
 def test_reindex_refuses_what_it_cannot_recover(tmp_path):

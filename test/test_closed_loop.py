@@ -31,9 +31,15 @@ P_MAX = 6206.0
 _D = PLANT_SPEC.defaults()
 
 
-@functools.lru_cache(maxsize=None)
 def _run(scenario: str, mode: str = DEFAULT_MODE, plant: tuple = (), controller: tuple = (), seed=None):
     """Simulate a built-in scenario; overrides as sorted item tuples (hashable, cached)."""
+    # every argument passed positionally: lru_cache keys ``_run("hold")`` and
+    # ``_run("hold", seed=None)`` apart, and the same 30 s hold was simulated twice
+    return _simulated(scenario, mode, plant, controller, seed)
+
+
+@functools.lru_cache(maxsize=None)
+def _simulated(scenario: str, mode: str, plant: tuple, controller: tuple, seed):
     sc = load_scenario(scenario)
     p, c = sim.build(sc, dict(plant), dict(controller), seed, mode)
     return sim.simulate(sc, p, c), p

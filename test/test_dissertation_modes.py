@@ -13,8 +13,13 @@ from fuel_valve_control.tools.metrics import RESOLVER_COUNT_RAD
 
 
 @functools.lru_cache(maxsize=None)
+def _result(scenario: str, mode: str, seed: int):
+    """One simulation per (scenario, mode, seed) in this module (arguments positional: one cache key)."""
+    return sim.run(scenario, mode, seed=seed)
+
+
 def _metrics(scenario: str, mode: str) -> dict:
-    return sim.run(scenario, mode, seed=0).metrics
+    return _result(scenario, mode, 0).metrics
 
 
 #: resolver-noise seeds of the small-step distributions (issue 14: seeds 0-7)
@@ -36,7 +41,7 @@ def test_observer_fc_small_step_overshoot(seed):
     """Before the breakaway relief (seeds 0-7): 22/23/33/33/3/24/33/32 %: the move stopped
     short, the stuck ramp wound the drive up to Ts and the surplus Ts - Tc kept the sliding
     valve going ~8e-3 rad past the breakaway point; after: 0-2.4 %."""
-    m = sim.run("step_small", "observer_fc", seed=seed).metrics
+    m = _result("step_small", "observer_fc", seed).metrics
     assert m["overshoot_pct"] <= 10.0
     assert m["peak_current_a"] <= 30.0
 
@@ -44,7 +49,7 @@ def test_observer_fc_small_step_overshoot(seed):
 @pytest.mark.parametrize("seed", [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=_KALMAN_SECOND_JUMP))
                                   if s == 1 else s for s in SEEDS])
 def test_kalman_fc_small_step_overshoot(seed):
-    m = sim.run("step_small", "kalman_fc", seed=seed).metrics
+    m = _result("step_small", "kalman_fc", seed).metrics
     assert m["overshoot_pct"] <= 10.0
     assert m["peak_current_a"] <= 30.0
 
@@ -87,7 +92,7 @@ def test_breakaway_relief_gives_back_the_surplus_once():
 def test_bandwidth_at_least_10_hz(mode, seed):
     # kalman_fc before the LQR/Kalman redesign: 1.9-20 Hz over seeds 0-3 (a coin flip); seed 3
     # read 7.9 Hz until the observers started with the valve in equilibrium, 20 Hz since
-    m = sim.run("sine_sweep", mode, seed=seed).metrics
+    m = _result("sine_sweep", mode, seed).metrics
     assert m["bandwidth_hz"] >= 10.0
     assert m["peak_current_a"] <= 30.0
 
@@ -104,7 +109,7 @@ def test_kalman_fc_stays_off_the_current_limit():
 @pytest.mark.parametrize("seed", [0, 3])
 def test_kalman_fc_large_step_overshoot(seed):
     # seeds 0-7 after the redesign: 0.7-0.95 %; before: 0-2.94 % (a coin flip)
-    assert sim.run("large_step", "kalman_fc", seed=seed).metrics["overshoot_pct"] <= 1.0
+    assert _result("large_step", "kalman_fc", seed).metrics["overshoot_pct"] <= 1.0
 
 
 @pytest.mark.parametrize("mode", ["observer", "observer_fc", "fc_gain", "observer_ff"])
@@ -120,7 +125,7 @@ def test_kalman_fc_peak_current_on_a_soft_coupling(seed):
     """flexible_worst (K x 0.1): the Friedland-Park valve term signed by the estimated velocity
     of a stuck valve (which follows the motor through the nominal coupling model) drove a
     300 rad/s motor oscillation at 31-37 A; it is now off while the reference stands still."""
-    assert sim.run("flexible_worst", "kalman_fc", seed=seed).metrics["peak_current_a"] <= 30.0
+    assert _result("flexible_worst", "kalman_fc", seed).metrics["peak_current_a"] <= 30.0
 
 
 def test_friedland_park_estimates_stay_out_of_the_observer_and_learn_only_while_sliding():

@@ -27,7 +27,7 @@ The DDS side (every subscription and parameter of the real node objects, the ser
 """
 from __future__ import annotations
 
-import copy
+import collections
 import math
 
 import pytest
@@ -41,6 +41,7 @@ from fuel_valve_control.core.position_controller import PositionController
 from fuel_valve_control.tools.profiles import DEMAND_NODE_SPEC, ProfileError, profile_from_params
 from fuel_valve_plant.physics.params import PLANT_NODE_SPEC, PLANT_SPEC, check_consistency, load_plant_params
 from fuel_valve_plant.physics.plant import Plant
+from snapshots import Snapshots
 
 N = 48.019
 HOLD_PCT = 30.0
@@ -61,7 +62,8 @@ class Loop:
             overrides={"pressure_sensor.noise_kpa": 0.0}))
         self.drv = ValveDriver(controller_ps if controller_ps is not None else load_controller_params())
         self.t = 0.0
-        self.demands: list[tuple[float, float]] = []
+        #: the demands of the last RECENT_S, % (what check_safe compares the valve with)
+        self.recent = collections.deque(maxlen=int(RECENT_S / self.drv.period))
         self.margin = MARGIN_PCT
         self.worst_excess = -math.inf          # largest valve - recent demand outside a fault, %
 
@@ -70,7 +72,7 @@ class Loop:
         if inject is not None:
             inject(self)
         drv.demand_percent(t, demand_pct)
-        self.demands.append((t, demand_pct))
+        self.recent.append(demand_pct)
         dp = plant.pressure_sample()
         if dp is not None:
             drv.pressure_differential(t, dp)
@@ -95,12 +97,11 @@ def check_safe(loop: Loop, out) -> None:
         return
     assert math.isfinite(out.current_a)
     valve = 100.0 * loop.plant.truth().valve_angle / c.STROKE_RAD
-    recent = max(d for t, d in loop.demands[-int(RECENT_S / loop.drv.period):])
+    recent = max(loop.recent)
     loop.worst_excess = max(loop.worst_excess, valve - recent)
     assert valve <= recent + loop.margin, f"valve {valve:.2f} % beyond demand {recent:.2f} % + {loop.margin:.2f} %"
 
 
-_HELD: dict = {}
 _BASE: dict = {}
 
 
@@ -113,16 +114,19 @@ def base_params(mode: str | None = None):
     return _BASE[key]
 
 
-def held_loop(mode: str | None = None, plant_ps=None) -> Loop:
-    """A loop holding the valve at 30 % (built once per mode and plant set, then copied)."""
-    key = (mode, id(plant_ps) if plant_ps is not None else None)
-    if key not in _HELD:
-        cps, pps = base_params(mode)
-        loop = Loop(cps, plant_ps if plant_ps is not None else pps)
-        loop.run(0.3)
-        assert not loop.drv.last.faults and loop.drv.last.enable
-        _HELD[key] = loop
-    return copy.deepcopy(_HELD[key])
+def _hold(mode: str | None) -> Loop:
+    loop = Loop(*base_params(mode))
+    loop.run(0.3)
+    assert not loop.drv.last.faults and loop.drv.last.enable
+    return loop
+
+
+_HELD = Snapshots(_hold)
+
+
+def held_loop(mode: str | None = None) -> Loop:
+    """A loop holding the valve at 30 % (built once per mode, then deep-copied: snapshots.py)."""
+    return _HELD[mode]
 
 
 # ------------------------------------------------------------------ inputs of the controller
