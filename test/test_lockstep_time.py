@@ -132,3 +132,11 @@ def test_the_start_up_run_tells_a_one_period_early_demand_apart():
     differs = np.nonzero(current != offline[:, LOG_COLUMNS.index("current_cmd_a")])[0]
     assert len(differs) > 0
     assert np.max(np.abs(position - offline[:, LOG_COLUMNS.index("position_rad")])) > 0.0
+
+
+def test_the_plant_re_publishes_a_tick_only_after_the_demand_node_may_have_held_it_back():
+    # the start handshake's flake: the plant re-published tick 0 after 1 s while the demand
+    # node was still allowed (up to 2 s) to wait for a late-matching subscriber of the demand
+    from fuel_valve_control.ros.demand_node import MATCH_WAIT_S
+    from fuel_valve_plant.ros.plant_node import LOCKSTEP_RESEND_S
+    assert LOCKSTEP_RESEND_S > MATCH_WAIT_S

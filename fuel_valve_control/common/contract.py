@@ -67,6 +67,12 @@ DRIVE_STATE_NAMES = {DRIVE_STATE_DISABLED: "disabled", DRIVE_STATE_ENABLED: "ena
 #: ``command_timeout_s`` and the controller's ``faults.drive_command_timeout_s`` (what it
 #: assumes of a drive that does not report its state) both default to it
 DRIVE_COMMAND_TIMEOUT_S = 0.005
+#: lockstep: longest wall time the demand node holds a tick's demand back for its subscribers
+#: to match once the loop's controller has subscribed (then it goes out anyway: a graph entry
+#: that never matches must not stall the run), s.  The plant's re-publication of an unanswered
+#: tick waits longer than this (``plant_node.LOCKSTEP_RESEND_S``): a tick the demand node is
+#: still allowed to hold back is not a lost one
+LOCKSTEP_MATCH_WAIT_S = 2.0
 
 MOTOR_JOINT = "motor_shaft"
 VALVE_JOINT = "valve_shaft"

@@ -26,7 +26,7 @@ from ..tools.profiles import DEMAND_NODE_SPEC, ProfileError, profile_from_params
 #: lockstep: longest wall time a tick waits for the demand's other subscribers to match once the
 #: loop's controller has; after it the demand goes out anyway (a graph entry that never matches,
 #: e.g. a vanished node, must not stall)
-MATCH_WAIT_S = 2.0
+MATCH_WAIT_S = contract.LOCKSTEP_MATCH_WAIT_S
 
 
 class DemandNode(Node):

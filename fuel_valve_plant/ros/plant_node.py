@@ -79,8 +79,12 @@ from ..physics.params import PLANT_NODE_SPEC, PLANT_SPEC, check_consistency
 LOCKSTEP_SETTLE_S = 0.5
 #: lockstep: wall time without a command after which the current tick is re-published, s
 #: (longer than the worst scheduling gap measured on the loaded 2-core machine, 0.62 s: a
-#: re-published tick is harmless, but it costs the loop's participants a duplicate to drop)
-LOCKSTEP_RESEND_S = 1.0
+#: re-published tick is harmless, but it costs the loop's participants a duplicate to drop;
+#: and longer than the demand node may hold a tick's demand back for its subscribers to match,
+#: ``contract.LOCKSTEP_MATCH_WAIT_S`` 2 s: at 1 s, a loaded run whose monitor matched late had
+#: tick 0 re-published while the demand node was still allowed to wait -- the start handshake
+#: test's flake)
+LOCKSTEP_RESEND_S = contract.LOCKSTEP_MATCH_WAIT_S + 0.5
 #: real time: most simulated time one tick advances, in periods (see ``realtime_loop``: a
 #: starved simulator slows its time down instead of coasting the valve over the gap)
 MAX_STEP_PERIODS = 2.0
