@@ -545,8 +545,9 @@ def test_two_valves_in_lockstep_each_deterministic(env, tmp_path, launches, laun
     for ns, (n_demand, n_clock) in demands.items():
         # one demand per tick of its own clock (a shared clock: about one per tick of either
         # plant, +30 % and more); the last ticks may be cut off by the Ctrl-C, which reaches the
-        # demand node, the plant and the recorder at slightly different ticks
-        assert abs(n_demand - n_clock) <= max(5, 0.002 * n_clock), (ns, n_demand, n_clock)
+        # demand node, the plant and the recorder at slightly different ticks: tens of ticks at
+        # the loop's ~2 kHz (40 of 19 335 in a run of 19 s of simulated time), so 1 %
+        assert abs(n_demand - n_clock) <= max(5, 0.01 * n_clock), (ns, n_demand, n_clock)
     a, b = truth["lock_a"], truth["lock_b"]
     common, ia, ib = np.intersect1d(a[:, 0], b[:, 0], return_indices=True)
     assert len(common) > 500
