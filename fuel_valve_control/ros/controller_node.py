@@ -138,7 +138,10 @@ class ControllerNode(LifecycleNode):
         self._bad_messages = 0
         self._prepared = None          # (changes, ParamChange) validated in on-set, queued in post-set
         self._last_enable = None
-        self._level = 0
+        # level of the last status logged; None so that the first one is always logged (with a
+        # recorder in the run /diagnostics waits for its match, and a loop already running OK by
+        # then never said "status OK": the CLI tests waited 60 s for it)
+        self._level = None
         self._loop_timers = []
         self._sample_seen = False       # a resolver sample has arrived (lockstep: the plant started)
         self._hello_sent = not self.lockstep        # lockstep start handshake (_say_hello)
