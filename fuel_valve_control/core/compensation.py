@@ -79,6 +79,10 @@ class Compensator:
         coupling it has met), or None when it has met nothing."""
         return None
 
+    def wait_over(self) -> bool:
+        """Whether a move waiting for breakaway should start on its clock now."""
+        return False
+
 
 def _non_friction_accels(model: NominalModel, ctx: Context) -> tuple[float, float]:
     """Accelerations from every torque but friction: (motor shaft, rad/s² motor units; valve)."""
@@ -298,6 +302,11 @@ class ReferenceFeedforward(Compensator):
     RAMP_MIN_SCALE = 0.5
     #: the coupling-snap feed-forward acts on K_model / K - 1 beyond this (:meth:`_coupling_snap`)
     SNAP_TOLERANCE = 0.25
+    #: a waiting move starts on its clock once the drive, the move's way beyond the known load,
+    #: exceeds WAIT_OVERRUN x the breakaway this valve has shown plus WAIT_MARGIN x the scheduled
+    #: level (:meth:`wait_over`)
+    WAIT_OVERRUN = 1.5
+    WAIT_MARGIN = 0.25
     #: periods over which the wind-up reads the gear output's acceleration (a one-period
     #: difference of the velocity estimate scattered the small wind-ups at Δp 0: r² 0.25)
     ACCEL_WINDOW = 4
@@ -319,6 +328,7 @@ class ReferenceFeedforward(Compensator):
         self._armed_periods = 0
         self._armed_dir = 0.0
         self._ramp0 = 0.0                # N*m (valve side), the ramp's level at arming
+        self._wait_over = False          # the armed drive passed the breakaway this valve has shown
         #: latest breakaway reading per direction (met / scheduled; +1 opening, -1 closing)
         self._met = {1.0: None, -1.0: None}
         self.retreat_periods = retreat_periods
@@ -338,6 +348,7 @@ class ReferenceFeedforward(Compensator):
         _seed_levels(self.motor, self.valve, model, pressure_kpa)
         self._armed_periods = 0
         self._armed_dir = 0.0
+        self._wait_over = False
         self._retreat_periods = 0
         self._breakaway_move = False
         self.breakaway_ratio = None
@@ -371,6 +382,8 @@ class ReferenceFeedforward(Compensator):
                                        - ctx.held_load)
                 self._ramp0 = max(pressed, sv * self.ramp_start * (fl.valve_static_nm + n * fl.motor_coulomb_nm))
             self._armed_periods += 1
+            self._wait_over = self._overrun(ctx.armed * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa)),
+                                            fl.valve_static_nm + n * fl.motor_coulomb_nm)
             # the drive less what accelerates the gear output (J1 dω1/dt; the ramp is quick
             # against the drivetrain: left in, 15-period wind-ups read the model's coupling as
             # K x 0.5) is what the coupling carries
@@ -433,8 +446,26 @@ class ReferenceFeedforward(Compensator):
             self._retreat_nm = soft * ratio * max(fl.valve_static_nm - fl.valve_coulomb_nm, 0.0)
             self._retreat_periods = int(round(self.retreat_periods * math.sqrt(soft)))
             self._breakaway_move = True
-        self._armed_periods, self._armed_dir = 0, 0.0
+        self._armed_periods, self._armed_dir, self._wait_over = 0, 0.0, False
         return None
+
+    def _overrun(self, pressed_nm: float, static_nm: float) -> bool:
+        """Whether the drive, ``pressed_nm`` (valve side, the armed move's way beyond the known
+        load), has passed WAIT_OVERRUN x the breakaway this valve has shown (the latest reading
+        this way or the two ways' mean, whichever is larger; ``static_nm`` the scheduled level)
+        plus WAIT_MARGIN x the scheduled level.  Before any reading the wait runs its full time
+        (a valve three times the model's needs the whole ramp).  A valve that has not let go by
+        then is held by something the readings do not know (campaign seed 1006: a 4.5 N*m load
+        the model does not know, 1.7 mrad of backlash on a K x 0.31 coupling: the ramp never
+        reached breakaway and the 0.25 s wait ate the whole 0.31 s plateau of a 44 mrad move,
+        which then ended 46 mrad short); the clocked move's position feedback then takes it."""
+        seen = [r for r in (self._met[self._armed_dir], self.breakaway_ratio) if r is not None]
+        if not seen:
+            return False
+        return pressed_nm > (self.WAIT_OVERRUN * max(seen) + self.WAIT_MARGIN) * static_nm
+
+    def wait_over(self) -> bool:
+        return self._wait_over
 
     def jump_ratio(self) -> float | None:
         """Friction met at breakaway x K_model / K met in the wind-ups: the jump
@@ -461,7 +492,8 @@ class ReferenceFeedforward(Compensator):
             if out is not None:
                 return out
         elif self._armed_dir:
-            self._armed_periods, self._armed_dir = 0, 0.0    # the wait timed out: nothing learned
+            # the wait timed out (or was ended, :meth:`wait_over`): nothing learned
+            self._armed_periods, self._armed_dir, self._wait_over = 0, 0.0, False
         m = self.model
         n = m.gear_ratio
         direction = _sat(ctx.ref_velocity / self.v_smooth) if self.v_smooth > 0 else (

@@ -143,6 +143,16 @@ class TrajectoryShaper:
         self._move = None
         self._anchor = None
 
+    def start_clock(self) -> None:
+        """End the wait of a move armed for breakaway: its clock starts on the next period
+        (the friction compensation judged that the valve will not let go where it expected)."""
+        if self._move is not None and self._tau == 0.0:
+            self._wait = max(self._wait, self.breakaway_wait)
+
+    def _waits(self, distance: float) -> bool:
+        """Whether a planned move of ``distance`` (rad) waits at its start for breakaway."""
+        return self.breakaway_wait > 0.0 and abs(distance) <= self.breakaway_max_move
+
     @property
     def moving(self) -> bool:
         return self._move is not None
@@ -161,13 +171,27 @@ class TrajectoryShaper:
         if self._p is None:
             self.reset(demand)
         if self._move is None and abs(demand - self._p) > self.threshold:
-            self._move = Move.plan(self._p, demand, self.v_max, self.a_max, self.min_move_time)
+            start = self._p
+            if self._waits(demand - self._p) and valve_rad is not None:
+                # a move that waits for breakaway starts where the valve *is*: a valve held
+                # anywhere inside the hold's deadband of the old target (up to half a jump off)
+                # would otherwise start its move that far from the planned start, and the hold's
+                # uncock absorbs the offset, so the move ended the offset past its target
+                # (campaign seed 1004: 6 mrad short of the old plateau, the 24 mrad closing move
+                # ran 15 mrad past), or even armed the wrong way (seed 1006: stuck 46 mrad short
+                # of an opening plateau, the next small closing step waited for a closing breakaway)
+                start = valve_rad
+                if abs(demand - start) <= self.threshold:
+                    # no move is left to plan from where the valve is: the demand is the hold's
+                    # (its deadband and stuck ramp), as for a step below the threshold
+                    self._p, self._v, self._a, self._slopes = demand, 0.0, 0.0, []
+                    return Reference(demand, 0.0, 0.0, False)
+            self._move = Move.plan(start, demand, self.v_max, self.a_max, self.min_move_time)
             self._tau = 0.0
             self._wait = 0.0
             self._anchor = valve_rad          # where the valve was when the move was planned
         broke = False
-        if self._move is not None and self._tau == 0.0 and self.breakaway_wait > 0.0 \
-                and abs(self._move.distance) <= self.breakaway_max_move \
+        if self._move is not None and self._tau == 0.0 and self._waits(self._move.distance) \
                 and self._anchor is not None and valve_rad is not None:
             sgn = 1.0 if self._move.distance >= 0 else -1.0
             broke = sgn * (valve_rad - self._anchor) > self.breakaway_rad

@@ -219,6 +219,8 @@ class StateFeedbackLaw(ControlLaw):
         ctx = Context(pressure_kpa, th1, w1, thl, wl, valve_speed, self._applied, ref.velocity, ref.acceleration,
                       ref.moving, error, outside, ref.armed, ref.broke_away, self.held_load)
         comp, self._fm, self._fl = self.compensator.update(ctx)
+        if ref.armed and self.compensator.wait_over():
+            self.shaper.start_clock()           # the valve did not let go where expected (h17b)
         # ---- state feedback around the dynamically consistent reference state
         x_ref, u_ff = m.reference_state(ref.position, ref.velocity, ref.acceleration, pressure_kpa,
                                         0.0, self._fl)
