@@ -408,8 +408,12 @@ class ReferenceFeedforward(Compensator):
         s = self._armed_dir
         # the valve let go: the drive torque of the period before is the friction met by the
         # whole drivetrain (valve static, and the turning motor's Coulomb through the gear, at
-        # Δp 0 as large as the valve's); one scale for both shafts' levels
-        met = s * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa))
+        # Δp 0 as large as the valve's); one scale for both shafts' levels.  Net of the steady
+        # load the hold has learned (``held_load``): with one direction read so far, a load the
+        # model does not know read as friction (toward the load: negative, the scale at its
+        # 0.1 bound and the move's feed-forward a tenth of the friction; campaign seeds 1029,
+        # 3019, 4-6 N*m); the two directions' mean cancels what is left of it
+        met = s * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa) - ctx.held_load)
         static = fl.valve_static_nm + n * fl.motor_coulomb_nm
         if static > 0.0:
             # learned only from a valve that let go while the ramp rose (MIN_RISE of the level

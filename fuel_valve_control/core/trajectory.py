@@ -35,6 +35,7 @@ full feed-forward (36 %).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 
@@ -109,6 +110,11 @@ class Move:
 
 
 class TrajectoryShaper:
+    #: a waiting move's valve counts as broken away only once it has moved ``breakaway_rad`` the
+    #: move's way within this many periods (a slide, not a creep): 0.29 mrad in 5 ms is 0.06 rad/s,
+    #: twice the stuck-speed threshold
+    BREAKAWAY_WINDOW = 5
+
     def __init__(self, period_s: float, max_velocity: float, max_acceleration: float, step_threshold: float,
                  velocity_filter: float = 0.0, min_move_time: float = 0.0, lead: float = 0.0,
                  follow_acceleration: bool = False, follow_lead: float = 0.0, breakaway_wait: float = 0.0,
@@ -119,6 +125,11 @@ class TrajectoryShaper:
         self.breakaway_max_move = breakaway_max_move
         self._wait = 0.0           # s a planned move has waited at its start for breakaway
         self._anchor: float | None = None   # valve angle when the waiting move was planned, rad
+        #: rad, the hold's deadband (set by the law each period): a move that would wait for
+        #: breakaway from a valve this close to its demand is left to the hold
+        self.hold_band = 0.0
+        #: valve angles of the latest periods of a wait (rad), oldest first
+        self._recent: deque = deque(maxlen=self.BREAKAWAY_WINDOW + 1)
         self.lead = lead
         self.follow_acceleration = follow_acceleration
         self.follow_lead = follow_lead
@@ -181,20 +192,30 @@ class TrajectoryShaper:
                 # ran 15 mrad past), or even armed the wrong way (seed 1006: stuck 46 mrad short
                 # of an opening plateau, the next small closing step waited for a closing breakaway)
                 start = valve_rad
-                if abs(demand - start) <= self.threshold:
-                    # no move is left to plan from where the valve is: the demand is the hold's
-                    # (its deadband and stuck ramp), as for a step below the threshold
+                if abs(demand - start) <= max(self.threshold, self.hold_band):
+                    # no move is left to plan from where the valve is (or the valve already sits
+                    # within the hold's deadband of the demand, where a breakaway would carry
+                    # it a whole jump): the demand is the hold's, as for a step below the threshold
                     self._p, self._v, self._a, self._slopes = demand, 0.0, 0.0, []
                     return Reference(demand, 0.0, 0.0, False)
             self._move = Move.plan(start, demand, self.v_max, self.a_max, self.min_move_time)
             self._tau = 0.0
             self._wait = 0.0
             self._anchor = valve_rad          # where the valve was when the move was planned
+            self._recent.clear()
+            self._recent.append(valve_rad)
         broke = False
         if self._move is not None and self._tau == 0.0 and self._waits(self._move.distance) \
                 and self._anchor is not None and valve_rad is not None:
             sgn = 1.0 if self._move.distance >= 0 else -1.0
-            broke = sgn * (valve_rad - self._anchor) > self.breakaway_rad
+            # breakaway: beyond breakaway_rad from the start *and* within the last
+            # BREAKAWAY_WINDOW periods (the valve slides).  A creep of a valve pressed toward
+            # breakaway (LuGre presliding) crosses the first alone: read as breakaway it started
+            # the move's clock and the retreat on a valve still stuck, which stayed 26 mrad short
+            # of a 0.4 s plateau (campaign seed 1018)
+            self._recent.append(valve_rad)
+            broke = sgn * (valve_rad - self._anchor) > self.breakaway_rad \
+                and sgn * (valve_rad - self._recent[0]) > self.breakaway_rad
             if not broke and self._wait < self.breakaway_wait:
                 self._wait += self.period
                 return Reference(self._move.start, 0.0, 0.0, True, armed=sgn)

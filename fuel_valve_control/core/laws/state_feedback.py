@@ -178,6 +178,7 @@ class StateFeedbackLaw(ControlLaw):
         # ---- reference, deadband
         load_nm = m.load_torque(thl, pressure_kpa)   # the known valve load (spring, preload, flow), once per period
         was_moving = self.reference is not None and self.reference.moving
+        self.shaper.hold_band = self.deadband     # (the previous period's)
         ref = self.shaper.update(target, meas.valve_rad)
         if ref.moving and not was_moving:
             # a move starts: uncock the drive first (valve torque back to the known load) so the
