@@ -109,7 +109,9 @@ def test_breakaway_ramp_and_learned_friction_scale(scale):
     # the stored static-Coulomb twist is taken back for one period of the valve on the
     # coupling, then the sliding feed-forward is the learned Coulomb level
     gap = scale * (fl.valve_static_nm - fl.valve_coulomb_nm)
-    fv = [c.update(_ctx(0.0, 0.0, ref_velocity=1.0))[2] for _ in range(13)]
+    sliding = _ctx(0.0, 0.0, ref_velocity=1.0)
+    sliding.valve_speed_meas = 0.05        # sliding the move's way (the retreat acts on a sliding valve only)
+    fv = [c.update(sliding)[2] for _ in range(13)]
     assert fv[0] == pytest.approx(scale * fl.valve_coulomb_nm - gap, rel=1e-3)
     assert fv[-1] == pytest.approx(scale * fl.valve_coulomb_nm, rel=1e-3)
 
@@ -333,3 +335,65 @@ def test_the_wait_ends_once_the_drive_passes_the_breakaway_this_valve_has_shown(
     c.update(_ctx((load - 2.0 * breakaway) / n, 0.0, broke=True, ref_velocity=-0.05))
     c.update(_ctx((load + 1.01 * limit) / n, 1.0))
     assert not c.wait_over()                              # mean 1.5: the limit is higher now
+
+
+def test_a_creep_is_not_a_breakaway_a_slide_is():
+    """A valve pressed toward breakaway that creeps (LuGre presliding, 0.01 rad/s) past
+    ``breakaway_rad`` from its start has not broken away (read as one, it started the clock
+    and the retreat on a stuck valve: seed 1018); a slide of the same size is one."""
+    sh = _shaper(wait=1.0)
+    sh.reset(START)
+    creep = 0.01 * T                                               # rad per period
+    valve = START
+    for _ in range(100):
+        valve += creep
+        ref = sh.update(TARGET, valve)
+        assert ref.armed == 1.0 and not ref.broke_away
+    assert valve - START > 3 * RESOLVER_COUNT_RAD                  # well past the old criterion
+    ref = sh.update(TARGET, valve + 3 * RESOLVER_COUNT_RAD)        # it lets go: a slide
+    assert ref.broke_away and ref.armed == 0.0
+
+
+def test_a_move_from_a_valve_within_the_hold_band_is_the_holds():
+    """A valve already within the hold's deadband of the new demand (here 8 mrad of a 12 mrad
+    step from the old reference): a breakaway would carry it a whole jump, so no move."""
+    sh = _shaper()
+    sh.reset(START)
+    sh.hold_band = 0.009
+    ref = sh.update(START + 0.012, START + 0.004)
+    assert not ref.moving and ref.armed == 0.0 and ref.position == START + 0.012
+    sh.reset(START)
+    sh.hold_band = 0.007                                           # beyond the band: it waits
+    assert sh.update(START + 0.012, START + 0.004).armed == 1.0
+
+
+def test_the_breakaway_reading_is_net_of_the_held_load():
+    """With one direction read, a steady load the hold has learned is not read as friction
+    (before: a 0.6 x breakaway load toward closed read a closing breakaway of 0.4 x, now 1 x)."""
+    c, n, load, breakaway = _comp_at_start()
+    held = -0.6 * breakaway                 # the hold learned a load toward closed (drive pushes less)
+    for _ in range(20):
+        c.update(_windup_ctx(load / n, -1.0, 0.0, held=held))
+    # the valve lets go closing with the drive at friction below known + held load
+    c.update(_windup_ctx((load + held - breakaway) / n, 0.0, 0.0, broke=True, held=held))
+    assert c.breakaway_ratio == pytest.approx(1.0, rel=1e-6)
+
+
+def test_the_retreat_acts_only_on_a_valve_that_slides():
+    c, n, load, breakaway = _comp_at_start()
+    fl = MODEL.friction(P_MAX)
+    for _ in range(20):
+        c.update(_ctx(load / n, 1.0))
+    c.update(_ctx((load + breakaway) / n, 0.0, broke=True, ref_velocity=0.05))
+    stuck = _ctx(0.0, 0.0, ref_velocity=1.0)                       # valve_speed_meas 0: at rest
+    sliding = _ctx(0.0, 0.0, ref_velocity=1.0)
+    sliding.valve_speed_meas = 0.5
+    full = c.update(stuck)[2]
+    assert full == pytest.approx(fl.valve_coulomb_nm, rel=1e-3)    # no cut while it is stuck
+    cut = c.update(sliding)[2]
+    assert cut == pytest.approx(fl.valve_coulomb_nm - (fl.valve_static_nm - fl.valve_coulomb_nm), rel=1e-3)
+    ended = _ctx(0.0, 0.0)
+    ended.ref_moving = False
+    c.update(ended)                                                # the move ended: the rest lapses
+    gap = fl.valve_static_nm - fl.valve_coulomb_nm
+    assert c.update(sliding)[2] > fl.valve_coulomb_nm - 0.1 * gap

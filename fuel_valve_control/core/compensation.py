@@ -509,6 +509,7 @@ class ReferenceFeedforward(Compensator):
         # 2 % step: 60 % overshoot)
         if not ctx.ref_moving:
             self._breakaway_move = False
+            self._retreat_periods = 0          # a retreat the valve never slid into lapses with its move
         sliding = abs(ctx.valve_speed_meas) > self.stuck_speed and ctx.valve_speed_meas * ctx.ref_velocity > 0
         if sliding and not self._breakaway_move:
             wm, wv = _non_friction_accels(m, ctx)
@@ -525,7 +526,10 @@ class ReferenceFeedforward(Compensator):
         sm, sv = self.scale(ctx.pressure_kpa)
         tm = sm * (fl.motor_static_nm if breakaway else fl.motor_coulomb_nm)
         tv = sv * (fl.valve_static_nm if breakaway else fl.valve_coulomb_nm)
-        if self._retreat_periods > 0:
+        if self._retreat_periods > 0 and not at_rest:
+            # only from a valve that slides: a "breakaway" that was a creep (LuGre presliding
+            # read through resolver noise) left the valve stuck with the drive cut by the
+            # retreat, 26 mrad short of a 0.4 s plateau (campaign seed 1018)
             self._retreat_periods -= 1
             tv -= self._retreat_nm
         fm, fv = self.fraction * tm * direction, self.fraction * tv * direction

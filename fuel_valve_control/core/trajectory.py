@@ -110,10 +110,13 @@ class Move:
 
 
 class TrajectoryShaper:
-    #: a waiting move's valve counts as broken away only once it has moved ``breakaway_rad`` the
-    #: move's way within this many periods (a slide, not a creep): 0.29 mrad in 5 ms is 0.06 rad/s,
-    #: twice the stuck-speed threshold
+    #: a waiting move's valve counts as broken away only once it has also moved BREAKAWAY_SLIDE x
+    #: ``breakaway_rad`` the move's way within BREAKAWAY_WINDOW periods (a slide, not a creep:
+    #: 0.19 mrad in 5 ms is 0.04 rad/s).  A whole ``breakaway_rad`` in the window detected a real
+    #: breakaway a period late (the 2 % step at friction x 0.5 overshot 6.9 %, not 1.1 %); half of
+    #: it let resolver noise on a creep through again (seed 1018)
     BREAKAWAY_WINDOW = 5
+    BREAKAWAY_SLIDE = 2.0 / 3.0
 
     def __init__(self, period_s: float, max_velocity: float, max_acceleration: float, step_threshold: float,
                  velocity_filter: float = 0.0, min_move_time: float = 0.0, lead: float = 0.0,
@@ -208,14 +211,14 @@ class TrajectoryShaper:
         if self._move is not None and self._tau == 0.0 and self._waits(self._move.distance) \
                 and self._anchor is not None and valve_rad is not None:
             sgn = 1.0 if self._move.distance >= 0 else -1.0
-            # breakaway: beyond breakaway_rad from the start *and* within the last
-            # BREAKAWAY_WINDOW periods (the valve slides).  A creep of a valve pressed toward
+            # breakaway: beyond breakaway_rad from the start *and* BREAKAWAY_SLIDE of it within
+            # the last BREAKAWAY_WINDOW periods (the valve slides).  A creep of a valve pressed toward
             # breakaway (LuGre presliding) crosses the first alone: read as breakaway it started
             # the move's clock and the retreat on a valve still stuck, which stayed 26 mrad short
             # of a 0.4 s plateau (campaign seed 1018)
             self._recent.append(valve_rad)
             broke = sgn * (valve_rad - self._anchor) > self.breakaway_rad \
-                and sgn * (valve_rad - self._recent[0]) > self.breakaway_rad
+                and sgn * (valve_rad - self._recent[0]) > self.BREAKAWAY_SLIDE * self.breakaway_rad
             if not broke and self._wait < self.breakaway_wait:
                 self._wait += self.period
                 return Reference(self._move.start, 0.0, 0.0, True, armed=sgn)
