@@ -279,6 +279,11 @@ class ReferenceFeedforward(Compensator):
     does not know cancels) and is read only from a valve that let go while the ramp rose; the
     ramp starts where a hold pressing the move's way left the drive.
 
+    **h17b**: the breakaway reading is net of the steady load the hold has learned
+    (``ctx.held_load``); a wait ends on the clock (:meth:`wait_over`) once the drive passes
+    ``WAIT_OVERRUN`` x the breakaway this valve has shown plus ``WAIT_MARGIN`` x the scheduled
+    level; the retreat acts only while the valve is measured sliding and lapses with its move.
+
     **Coupling** (h16g): every wind-up also reads the coupling stiffness
     (:class:`CouplingStiffness`, ``coupling_softness`` = K_model / K); it sizes the take-back
     of the stored static-Coulomb twist, the hold's deadband (:meth:`jump_ratio`) and, on a

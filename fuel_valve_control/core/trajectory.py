@@ -31,6 +31,15 @@ ran away from a valve whose friction differs from the model: stuck 6e-3 rad behi
 (friction x3, or a 20 % lighter drivetrain) it stalled short and a second full stick-slip jump
 finished it (43-45 %, 23 % overshoot); with half the friction it broke loose early under the
 full feed-forward (36 %).
+
+A waiting move is planned from the valve's measured angle, not from the old reference (a valve
+rests anywhere inside the hold's deadband); when that leaves nothing beyond the step threshold or
+the hold's deadband (``hold_band``, set by the law), the demand is the hold's and no move is
+planned.  Breakaway is a *slide*: ``breakaway_rad`` from the start and 2/3 of it within the last
+:attr:`TrajectoryShaper.BREAKAWAY_WINDOW` periods (a presliding creep is not one).  The law ends
+a wait early with :meth:`TrajectoryShaper.start_clock` when the friction compensation sees the
+drive well past the breakaway this valve has shown
+(:meth:`~.compensation.ReferenceFeedforward.wait_over`).
 """
 from __future__ import annotations
 
