@@ -87,9 +87,8 @@ class FrictionCheck:
         self.keep = keep
         self.stop_margin = stop_margin_rad
         self.quasi_static = quasi_static
-        self.window = window
-        # (valve-side directionless drive torque net of the known load N*m, gear output rad,
-        # valve rad) of the latest samples
+        # the latest samples: valve-side drive torque net of the known load (N*m, + opening),
+        # gear output angle and valve angle (rad)
         self._torques: deque = deque(maxlen=window)
         self._gear: deque = deque(maxlen=max(window, 3))
         self._valve: deque = deque(maxlen=window)
