@@ -125,6 +125,21 @@ def test_a_resolver_noise_spike_is_not_a_breakaway():
     assert check.breakaways == 0
 
 
+def test_two_noise_samples_while_the_drive_winds_fast_are_not_a_breakaway():
+    """Campaign seed 1073 (~1 count rms valve noise, the drive winding closing at ~0.7 counts per
+    period): a rest place taken from one noise peak and two samples 4-5 counts below it read as a
+    closing breakaway at -7.5 N*m on a valve whose closing level is -2.5, and with one reading
+    each way a right reading was rescheduled.  The rest place is the mean at rest; a breakaway
+    needs three samples beyond it and the coupling unwinding."""
+    check = FrictionCheck(MODEL, PERIOD, COUNT)
+    v = Valve(check, 3413.0, unknown_load_nm=5.8)
+    offsets = iter([0.0, 1.0, -1.0, 0.5, -0.5] * 6 + [2.0, -3.2, -3.5] + [0.0, 1.0, -1.0, 0.5, -0.5] * 12)
+    v.noise = lambda: next(offsets) * COUNT
+    v.net = 8.0
+    v.wind(-1, -1.0, periods=60)       # closing fast from 8 to 6.8 N*m of drive, the valve held
+    assert check.breakaways == 0
+
+
 def test_a_slip_back_as_the_drive_lets_go_is_not_read():
     """The drive relaxes (the gear output turns back) and a load slips the valve with it: the
     motor's friction then helps, its sign is not the wind-up's; not a reading."""

@@ -8,12 +8,14 @@ hunts.  :class:`FrictionCheck` reads the static friction at every breakaway it c
 asks whether the Δp reading can explain it at all:
 
 * **breakaway** (:meth:`FrictionCheck.update`): the valve resolver at rest (within
-  ``band_counts`` of where it came to rest) for ``rest_periods``, then leaving that place, is a
-  *candidate*.  It is read only if the wind-up before it was quasi-static and went the way the
+  ``band_counts`` of where it came to rest, the mean of the samples at rest) for
+  ``rest_periods``, then leaving that place, is a *candidate*.  It is read only if the wind-up before it was quasi-static and went the way the
   valve then moved (the gear output turned that way over the window: the motor's Coulomb
   friction then opposed the wind-up and its sign is known; a valve slipping back as the drive
   is taken away is not a wind-up), and it counts only once **confirmed** within
-  ``confirm_periods``: the valve has outrun the gear output by ``drop_counts`` — the coupling
+  ``confirm_periods``: ``confirm_samples`` samples in a row beyond the band (resolver noise
+  does that a few times a million) and the valve, their mean, has outrun the gear output by
+  ``drop_counts`` since the rest — the coupling
   *unwinds* at a stick-slip breakaway (the valve jumps, the drive cannot follow in a few
   periods), whereas under LuGre pre-sliding (bristle creep, a few counts at a rising drive) or
   a dithering hold the valve only follows the drive and the twist keeps its size.  An
@@ -68,7 +70,7 @@ class FrictionCheck:
     def __init__(self, model: NominalModel, period_s: float, count_rad: float,
                  scale_range: tuple[float, float] = (0.5, 3.0), margin: float = 1.3,
                  rest_periods: int = 10, band_counts: float = 3.0, window: int = 5, confirm_periods: int = 8,
-                 drop_counts: float = 1.5, min_per_direction: int = 1, keep: int = 5,
+                 drop_counts: float = 1.0, confirm_samples: int = 3, min_per_direction: int = 1, keep: int = 5,
                  stop_margin_rad: float = 0.01, quasi_static: float = 0.5):
         lo, hi = scale_range
         if not 0.0 < lo <= hi:
@@ -83,6 +85,7 @@ class FrictionCheck:
         self.margin = margin
         self.rest_periods = rest_periods
         self.confirm_periods = confirm_periods
+        self.confirm_samples = confirm_samples
         self.min_per_direction = min_per_direction
         self.keep = keep
         self.stop_margin = stop_margin_rad
@@ -91,7 +94,7 @@ class FrictionCheck:
         # gear output angle and valve angle (rad)
         self._torques: deque = deque(maxlen=window)
         self._gear: deque = deque(maxlen=max(window, 3))
-        self._valve: deque = deque(maxlen=window)
+        self._valve: deque = deque(maxlen=max(window, confirm_samples))
         self.reset()
 
     def reset(self) -> None:
@@ -101,6 +104,7 @@ class FrictionCheck:
         self._valve.clear()
         self._anchor: float | None = None
         self._rest = 0
+        self._rest_sum = 0.0
         #: a candidate breakaway waiting for its confirmation: (direction, friction met N*m,
         #: twist before it rad, periods waited)
         self._candidate: list | None = None
@@ -130,11 +134,15 @@ class FrictionCheck:
             self._confirm(theta, gear[-1])
             return
         if self._anchor is None:
-            self._anchor, self._rest = theta, 0
+            self._rest_at(theta)
             return
         moved = theta - self._anchor
         if abs(moved) <= self.band_rad:
+            # the rest place: the mean of the samples at rest (a single sample carries the
+            # resolver's ~1 count rms noise, and a band around a noise peak is left by noise)
             self._rest += 1
+            self._rest_sum += theta
+            self._anchor = self._rest_sum / (self._rest + 1)
             return
         inside = self.stop_margin < self._anchor < m.stroke_rad - self.stop_margin
         if self._rest >= self.rest_periods and inside and len(self._torques) >= 3:
@@ -157,7 +165,10 @@ class FrictionCheck:
                 twist = gears[-1] - float(np.mean(valves))
                 self._candidate = [s, met, twist, 0]
                 return
-        self._anchor, self._rest = theta, 0
+        self._rest_at(theta)
+
+    def _rest_at(self, theta: float) -> None:
+        self._anchor, self._rest, self._rest_sum = theta, 0, theta
 
     def _confirm(self, theta: float, gear: float) -> None:
         """A candidate: confirmed once the valve has outrun the gear output by ``drop_counts``
@@ -165,20 +176,24 @@ class FrictionCheck:
         s, met, twist0, waited = self._candidate
         waited += 1
         self._candidate[3] = waited
-        valves = list(self._valve)[-2:]
-        twist = gear - float(np.mean(valves))     # the valve over the last two samples (noise)
-        beyond = all(s * (v - self._anchor) > self.band_rad for v in valves)
+        # the valve over the last confirm_samples samples: two noise samples 4-5 counts off
+        # with the drive winding up fast read as a 2.2-count unwinding (campaign seed 1073,
+        # ~1 count rms: a -7.5 N*m closing "breakaway" on a valve whose closing level is -2.5)
+        valves = list(self._valve)[-self.confirm_samples:]
+        twist = gear - float(np.mean(valves))
+        beyond = waited + 1 >= self.confirm_samples and all(s * (v - self._anchor) > self.band_rad for v in valves)
         if beyond and s * (twist0 - twist) >= self.drop_rad:
             self.static_met[s].append(met)     # may read below 0 by a load error: the mean cancels it
             self.breakaways += 1
             self._candidate = None
-            self._anchor, self._rest = theta, 0
+            self._rest_at(theta)
         elif waited >= self.confirm_periods or s * (theta - self._anchor) < 0.0:
             # creep (the valve followed the drive) or a noise sample: no breakaway.  The valve
             # is still held by its friction: the rest place moves with it, the rest goes on
             self.rejected += 1
             self._candidate = None
-            self._anchor = theta
+            self._anchor = float(np.mean(self._valve))       # the recent samples: not a noise peak
+            self._rest_sum = self._anchor * (self._rest + 1)
 
     # ------------------------------------------------------------------ what was met
     @property
