@@ -232,10 +232,11 @@ def test_friction_check_reads_the_static_friction_of_a_quasi_static_breakaway():
     assert check.friction_pressure_kpa() == pytest.approx((ts - 0.5) / 5.0 * PRESSURE_MAX_KPA, rel=0.1)
 
 
-def _hold_and_small_steps(mode, true_kpa, told_kpa, check=True):
+def _hold_and_small_steps(mode, true_kpa, told_kpa, check=None):
     """9 s offline at 20 %: a 1.5 s hold (the check needs breakaways both ways: observer_fc,
-    told max on a valve at Δp 0, is caught at 1.24 s), +-0.5 % and +1 % steps, a 3 s final hold, with the Δp transducer
-    biased so that it reads ``told_kpa`` while the valve is at ``true_kpa``."""
+    told max on a valve at Δp 0, is caught at 0.46 s), +-0.5 % and +1 % steps, a 3 s final hold, with the Δp transducer
+    biased so that it reads ``told_kpa`` while the valve is at ``true_kpa``; ``check``: pressure.friction_check
+    (None: the default)."""
     from fuel_valve_control.tools import metrics as M
     from fuel_valve_control.tools import sim
     from fuel_valve_control.tools.scenarios import parse_scenario
@@ -244,7 +245,7 @@ def _hold_and_small_steps(mode, true_kpa, told_kpa, check=True):
     sc = parse_scenario({"name": "dp_wrong", "duration_s": 9.0, "initial_percent": 20,
                          "pressure_differential_kpa": true_kpa,
                          "demand": {"type": "points", "points": points, "interpolation": "previous"}})
-    ctrl = {"pressure.friction_check": check}
+    ctrl = {} if check is None else {"pressure.friction_check": check}     # None: the default (on)
     p, c = sim.build(sc, {"pressure_sensor.bias_kpa": told_kpa - true_kpa}, ctrl, 0, mode)
     res = sim.simulate(sc, p, c)
     log = res.log

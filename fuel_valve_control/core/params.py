@@ -71,11 +71,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("pressure.max_rate_kpa_s", 5.0e5, "kPa/s", "a change between two readings faster than this is "
           "implausible (full scale in ~12 ms: faster than any fuel-system hydraulic transient)",
           1.0, 1e8, low_open=True, runtime=True),
-    Param("pressure.friction_check", False, "", "cross-check of the Δp schedule against the static valve "
+    Param("pressure.friction_check", True, "", "cross-check of the Δp schedule against the static valve "
           "friction met at confirmed breakaways (core/friction_check.py): where no friction scale within "
           "friction_scale_min..max (widened by friction_check_margin) explains the friction met at the Δp read, "
           "the reading is implausible (warning) and the friction terms are scheduled for the Δp the friction "
-          "met says", runtime=True),
+          "met says (on by default: quick campaigns seeds 1000 and 3000 no more hunting or faults than off, "
+          "the 4 warnings in their 60 runs all on wrong or missing readings)", runtime=True),
     Param("pressure.friction_scale_min", 0.5, "", "lowest valve friction the check allows for, as a multiple of "
           "the nominal schedule (wear, temperature; the laws adapt within this range themselves)",
           0.01, 1.0, runtime=True),
