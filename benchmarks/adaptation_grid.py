@@ -60,7 +60,7 @@ def run_cell(mode: str, cell: dict, told_dp_kpa: float | None = None, seed: int 
              controller_sets: dict | None = None) -> dict:
     """One ``step_small`` run on the cell's plant; ``told_dp_kpa``: the Δp the controller
     is told when it differs from the plant's (a wrong transducer reading); ``controller_sets``:
-    controller parameter overrides (e.g. ``pressure.friction_check_ratio``)."""
+    controller parameter overrides (e.g. ``pressure.friction_check``)."""
     sc = load_scenario("step_small")
     plant_over, ctrl_over = corner_overrides(cell)
     ctrl_over = {**ctrl_over, **(controller_sets or {})}
@@ -124,7 +124,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=None, help="resolver-noise seed (default: the scenario's)")
     ap.add_argument("--set", action="append", default=[], metavar="controller.KEY=VALUE",
                     help="controller parameter override (repeatable), e.g. "
-                         "controller.pressure.friction_check_ratio=4")
+                         "controller.pressure.friction_check=true")
     ap.add_argument("--stiffness", type=float, default=1.0, metavar="X",
                     help="plant coupling stiffness x the model's (default 1; e.g. 0.3)")
     ap.add_argument("--json", metavar="PATH", help="also write the JSON here")

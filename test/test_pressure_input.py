@@ -209,7 +209,7 @@ def test_friction_check_reads_the_static_friction_of_a_quasi_static_breakaway():
     from fuel_valve_control.common.contract import RESOLVER_COUNT_RAD
     ps = load_controller_params()
     m = NominalModel.from_params(ps)
-    check = FrictionCheck(m, PERIOD, RESOLVER_COUNT_RAD, 4.0)
+    check = FrictionCheck(m, PERIOD, RESOLVER_COUNT_RAD)
     ts = 1.2                                   # N*m: the valve's static friction (Δp ~ 0.14 max)
     k = m.coupling_stiffness_nm_per_rad
     valve = VALVE
@@ -222,19 +222,21 @@ def test_friction_check_reads_the_static_friction_of_a_quasi_static_breakaway():
             motor = (valve + torque_valve / k) * m.gear_ratio
             motor_torque = (torque_valve + direction * m.gear_ratio * m.motor_coulomb_nm) / m.gear_ratio
             check.update(Measurement(motor, valve), motor_torque, 0.0)
-        valve += direction * 2e-3
-        check.update(Measurement(motor, valve), motor_torque, 0.0)
+        valve += direction * 2e-3          # the slip: the valve outruns the drive (the coupling unwinds)
+        for _ in range(3):
+            check.update(Measurement(motor, valve), motor_torque, 0.0)
     assert check.breakaways == 4
     assert check.met_static_nm == pytest.approx(ts, rel=0.05)
-    assert check.plausible(0.0)                                 # Ts(0) = 0.5 N*m: ratio 2.4
+    assert check.plausible(0.0)                                 # Ts(0) = 0.5 N*m: ratio 2.4 (x0.5..3)
     assert not check.plausible(PRESSURE_MAX_KPA)                # Ts(max) = 5.5 N*m: ratio 0.22
     assert check.friction_pressure_kpa() == pytest.approx((ts - 0.5) / 5.0 * PRESSURE_MAX_KPA, rel=0.1)
 
 
-def _hold_and_small_steps(mode, true_kpa, told_kpa, check_ratio=4.0):
+def _hold_and_small_steps(mode, true_kpa, told_kpa, check=None):
     """9 s offline at 20 %: a 1.5 s hold (the check needs breakaways both ways: observer_fc,
-    told max on a valve at Δp 0, is caught at 1.24 s), +-0.5 % and +1 % steps, a 3 s final hold, with the Δp transducer
-    biased so that it reads ``told_kpa`` while the valve is at ``true_kpa``."""
+    told max on a valve at Δp 0, is caught at 0.46 s), +-0.5 % and +1 % steps, a 3 s final hold, with the Δp transducer
+    biased so that it reads ``told_kpa`` while the valve is at ``true_kpa``; ``check``: pressure.friction_check
+    (None: the default)."""
     from fuel_valve_control.tools import metrics as M
     from fuel_valve_control.tools import sim
     from fuel_valve_control.tools.scenarios import parse_scenario
@@ -243,7 +245,7 @@ def _hold_and_small_steps(mode, true_kpa, told_kpa, check_ratio=4.0):
     sc = parse_scenario({"name": "dp_wrong", "duration_s": 9.0, "initial_percent": 20,
                          "pressure_differential_kpa": true_kpa,
                          "demand": {"type": "points", "points": points, "interpolation": "previous"}})
-    ctrl = {"pressure.friction_check_ratio": check_ratio}
+    ctrl = {} if check is None else {"pressure.friction_check": check}     # None: the default (on)
     p, c = sim.build(sc, {"pressure_sensor.bias_kpa": told_kpa - true_kpa}, ctrl, 0, mode)
     res = sim.simulate(sc, p, c)
     log = res.log
@@ -275,7 +277,7 @@ def test_without_the_friction_check_a_wrong_reading_does_not_hunt(true_kpa, told
     max on a valve at Δp 0 hunted on all 4 plateaus (26 counts): the held load learned from
     the schedule's static level flipped sign slip after slip, the drive test rejected every
     real breakaway and the stuck ramp ran 11x too fast."""
-    plateaus, res = _hold_and_small_steps("observer_ff", true_kpa, told_kpa, check_ratio=0.0)
+    plateaus, res = _hold_and_small_steps("observer_ff", true_kpa, told_kpa, check=False)
     assert len(plateaus) == 4
     assert not any(pl["hunts"] for pl in plateaus), [(pl["hunting_amplitude_rad"], pl["hunting_reversals"])
                                                      for pl in plateaus]

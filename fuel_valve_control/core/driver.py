@@ -19,12 +19,13 @@ real Δp 6206 kPa -> no limit cycle).  Valid samples are used again as soon as t
 warning stays latched until :meth:`ValveDriver.reset`.
 
 A reading can be plausible as a signal and still wrong (a biased transducer, a gain error):
-:class:`~.friction_check.FrictionCheck` compares the static friction the valve shows at every
-breakaway with the friction the Δp schedule predicts.  Beyond ``pressure.friction_check_ratio``
-either way the :data:`PRESSURE_FRICTION` warning latches and the friction terms are scheduled
-for the Δp the friction met says instead (until the reading agrees with the friction again):
-measured with ``fuel_valve_sim``, told Δp max on a valve at Δp 0 hunted; see
-test_pressure_input.py for the figures.
+:class:`~.friction_check.FrictionCheck` (``pressure.friction_check``) compares the static
+friction the valve shows at its confirmed breakaways with the friction the Δp schedule
+predicts.  Where no friction scale within ``pressure.friction_scale_min..max`` (widened by
+``pressure.friction_check_margin``) explains it, the :data:`PRESSURE_FRICTION` warning latches
+and the friction terms are scheduled for the Δp the friction met says instead (until the
+reading agrees with the friction again): measured with ``fuel_valve_sim``, told Δp max on a
+valve at Δp 0 hunted; see test_pressure_input.py for the figures.
 
 Faults latch until :meth:`reset` and all react the same way: drive enable false and zero
 current, so the return spring closes the valve (fail safe).  A stale demand with
@@ -194,7 +195,8 @@ class ValveDriver:
         self._scheduled_kpa = self.pressure_kpa                  # Δp of the reading (or fallback)
         #: static friction met at breakaways vs the Δp schedule (None: check off)
         self.friction_check = self._make_friction_check(self.ps)
-        self._friction_override = False    # the law is scheduled for the friction met, not the reading
+        #: Δp (kPa) the law is scheduled for from the friction met instead of the reading (None: the reading)
+        self._friction_override: float | None = None
         self.last = DriverOutput(0.0, False, "waiting", None, None)
         #: drive inhibited (the managed node outside ``active``): enable false, 0 A; a reset
         #: does not lift it, only :meth:`set_inhibited` does (the node's ``activate``)
@@ -454,38 +456,45 @@ class ValveDriver:
         self._dp, self._dp_t = min(max(kpa, 0.0), PRESSURE_MAX_KPA), t
 
     def _make_friction_check(self, ps: ParamSet) -> FrictionCheck | None:
-        ratio = ps["pressure.friction_check_ratio"]
-        return FrictionCheck(self.controller.model, self.period, RESOLVER_COUNT_RAD, ratio) if ratio > 0.0 else None
+        if not ps["pressure.friction_check"]:
+            return None
+        return FrictionCheck(self.controller.model, self.period, RESOLVER_COUNT_RAD, self._friction_scale_range(ps),
+                             ps["pressure.friction_check_margin"])
+
+    @staticmethod
+    def _friction_scale_range(ps: ParamSet) -> tuple[float, float]:
+        return ps["pressure.friction_scale_min"], ps["pressure.friction_scale_max"]
 
     def _friction_checked(self, scheduled_kpa: float) -> float:
         """The Δp for the law after the cross-check with the friction met this period (kPa):
-        ``scheduled_kpa`` while they agree, else the Δp the friction met says (and the
-        :data:`PRESSURE_FRICTION` warning latched)."""
-        ratio = self.ps["pressure.friction_check_ratio"]       # run time: read every period
-        if ratio <= 0.0:
+        ``scheduled_kpa`` while the friction met allows it, else the Δp the friction met says
+        (and the :data:`PRESSURE_FRICTION` warning latched)."""
+        if not self.ps["pressure.friction_check"]:              # run time: read every period
             self.friction_check = None
-            if self._friction_override:
-                self._friction_override = False
+            if self._friction_override is not None:
+                self._friction_override = None
                 self.controller.law.friction_rescheduled(scheduled_kpa)
             return scheduled_kpa
         check = self.friction_check
         if check is None:
             check = self.friction_check = self._make_friction_check(self.ps)
-        check.ratio_band = ratio                                # what was met so far stays
+        check.scale_range = self._friction_scale_range(self.ps)    # what was met so far stays
+        check.margin = self.ps["pressure.friction_check_margin"]
         check.update(self._meas, self.controller.last_torque, scheduled_kpa)
-        override = not check.plausible(scheduled_kpa)
+        kpa = check.schedule(scheduled_kpa)
+        override = check.override_kpa
         if override != self._friction_override:
             self._friction_override = override
-            self.controller.law.friction_rescheduled(check.friction_pressure_kpa() if override else scheduled_kpa)
-        if not override:
+            self.controller.law.friction_rescheduled(kpa)
+        if override is None:
             return scheduled_kpa
-        met_kpa = check.friction_pressure_kpa()
         source = "measured" if self._dp is not None else "fallback"
+        lo, hi = check.scale_range
         self.warnings.setdefault(PRESSURE_FRICTION, (
             f"{source} pressure differential {scheduled_kpa:.0f} kPa implausible: the valve broke away at "
             f"{check.met_static_nm:.2f} N*m static friction, {check.ratio(scheduled_kpa):.2f} x what that Δp "
-            f"predicts; friction scheduled for {met_kpa:.0f} kPa from the friction met"))
-        return met_kpa
+            f"predicts (x{lo:g}..{hi:g} allowed); friction scheduled for {kpa:.0f} kPa from the friction met"))
+        return kpa
 
     def _warn_pressure(self, why: str) -> None:
         self.warnings.setdefault(PRESSURE_INPUT, why + f"; friction scheduled for the fallback "
@@ -703,7 +712,7 @@ class ValveDriver:
             self._armed = True
             if self.friction_check is not None:
                 self.friction_check.reset()   # the valve moved with the drive off: not friction
-            self._friction_override = False  # the law was reset for the reading's Δp
+            self._friction_override = None   # the law was reset for the reading's Δp
         pressure = self.pressure_kpa = self._friction_checked(pressure)
         applied = self.controller.last_current     # what the drive applied since the sample before
         current = self.controller.update(t, demand_rad, self._meas, pressure)
@@ -830,7 +839,7 @@ class ValveDriver:
             "friction_trend": law.friction_trend(),
             "deadband_rad": law.deadband_rad(),
             "pressure_differential_kpa": self.pressure_kpa,
-            "pressure_source": ("friction_met" if self._friction_override else
+            "pressure_source": ("friction_met" if self._friction_override is not None else
                                 "fallback" if self._dp is None else "measured"),
             "friction_met_ratio": (None if self.friction_check is None
                                    else self.friction_check.ratio(self._scheduled_kpa)),

@@ -217,6 +217,15 @@ class JumpLearner:
         self.directed: dict[int, float] = {}
         self.crossings = 0                # breakaways across the target beyond the band (diagnostics)
 
+    def rescale(self, factor: float) -> None:
+        """The nominal jump changed by 1/``factor`` (the friction terms were rescheduled for
+        another Δp): keep the jumps measured, i.e. multiply every learned ratio by ``factor``
+        (within the limits), and drop a breakaway in progress."""
+        lo, hi = self.limits
+        self.ratio = min(max(self.ratio * factor, lo), hi)
+        self.directed = {w: min(max(r * factor, lo), hi) for w, r in self.directed.items()}
+        self._start = None
+
     def ratio_toward(self, direction: float) -> float:
         """The measured/nominal jump ratio of breakaways in ``direction`` (sign: + opening),
         once one has been met in it; the ratio of both directions until then.
