@@ -140,6 +140,67 @@ class SlipEdges:
         return max(0.5 * (self.edges[1] - self.edges[-1]), 0.0)
 
 
+class SlipWatch:
+    """Whether a settled, relaxing valve has left the place where it settled: a slip, read by
+    :meth:`IntegralPolicy.learn_load` as an edge of the static band.
+
+    ``anchored`` (default mode): the place is where the valve settled, kept while it stays there,
+    and a slip is the valve's (noise-filtered) angle *drifting* from it by more than
+    ``threshold`` (rad), however slowly; the drive torque of the slip is the one of the latest
+    period the valve was still within half the threshold of that place (where it began to give
+    way).  A slip read from one period to the next (``anchored=False``, the other modes: the
+    place is re-taken every settled period) sees only a jump: a valve that *creeps* under a
+    drive beyond its static band slower than the stuck-speed threshold (0.03 rad/s, set by the
+    resolver noise) went unseen -- adaptation grid, friction x 0.5 at Δp 0 told max: the relax
+    pushed the valve toward open 1.1 N*m beyond its band, it crept 19 mrad/s for 0.45 s to the
+    8 mrad deadband's edge, the integrator pulled it back and the relax sent it off again
+    (~1 Hz, 7-8 mrad, never learned).
+
+    The place is forgotten (:meth:`reset`) when a planned move starts, and in the default mode
+    also when the reference shifts by more than the threshold (a followed demand step: the
+    feedback, not the relax, moves the valve -- campaign seed 1052 read the 6.3 mrad jump after
+    a followed 2.9 mrad step as a slip) and while the integrator pulls a valve stuck outside the
+    deadband (its breakaway is the drive's pull, not the relax's: 1052 read a pull-back 1.3 s
+    after the valve had settled as a slip with the drive torque of then, learned 8.2 N*m on a
+    4.1 N*m load and hunted)."""
+
+    def __init__(self, threshold: float, anchored: bool = True):
+        self.threshold = threshold
+        self.anchored = anchored
+        self.reset()
+
+    def reset(self) -> None:
+        self.place: float | None = None       # rad, the valve angle where it settled
+        self.edge_nm: float | None = None     # N*m, drive torque beyond the known load while there
+        self.reference: float | None = None   # rad, the reference position when it settled
+
+    def settled(self, net_nm: float, valve: float, reference: float | None = None) -> None:
+        """A settled, relaxing period: drive torque ``net_nm`` beyond the known load (valve side,
+        N*m), the valve's filtered angle ``valve`` and the reference position (rad)."""
+        if not self.anchored:
+            self.place, self.edge_nm = valve, net_nm
+            return
+        if self.place is not None and reference is not None and self.reference is not None \
+                and abs(reference - self.reference) > self.threshold:
+            self.reset()
+        if self.place is None:
+            self.place, self.reference = valve, reference
+        if abs(valve - self.place) <= 0.5 * self.threshold:
+            self.edge_nm = net_nm
+
+    def left(self, valve: float) -> tuple[float, float] | None:
+        """``(drive torque of the slip N*m, distance moved rad)`` once the valve has left its
+        place by more than the threshold (and the place is forgotten), else None."""
+        if self.place is None or self.edge_nm is None:
+            return None
+        moved = valve - self.place
+        if abs(moved) <= self.threshold:
+            return None
+        slip = (self.edge_nm, moved)
+        self.reset()
+        return slip
+
+
 class JumpLearner:
     """Measures the breakaway jumps the valve actually makes while holding.
 
