@@ -159,20 +159,26 @@ class SlipWatch:
     The place is forgotten (:meth:`reset`) when a planned move starts, and in the default mode
     also when the reference shifts by more than the threshold (a followed demand step: the
     feedback, not the relax, moves the valve -- campaign seed 1052 read the 6.3 mrad jump after
-    a followed 2.9 mrad step as a slip) and while the integrator pulls a valve stuck outside the
+    a followed 2.9 mrad step as a slip; the new place is where the valve then rests for
+    ``confirm_periods`` settled periods) and while the integrator pulls a valve stuck outside the
     deadband (its breakaway is the drive's pull, not the relax's: 1052 read a pull-back 1.3 s
     after the valve had settled as a slip with the drive torque of then, learned 8.2 N*m on a
     4.1 N*m load and hunted)."""
 
-    def __init__(self, threshold: float, anchored: bool = True):
+    def __init__(self, threshold: float, anchored: bool = True, confirm_periods: int = 1):
         self.threshold = threshold
         self.anchored = anchored
+        #: settled periods the valve must rest within half the threshold of one spot after a
+        #: reference shift before that spot is its place (the feedback is still moving it)
+        self.confirm_periods = max(int(confirm_periods), 1)
         self.reset()
 
     def reset(self) -> None:
         self.place: float | None = None       # rad, the valve angle where it settled
         self.edge_nm: float | None = None     # N*m, drive torque beyond the known load while there
         self.reference: float | None = None   # rad, the reference position when it settled
+        self._candidate: float | None = None  # rad, where it rests after a reference shift
+        self._count = 0                       # settled periods it has rested there
 
     def settled(self, net_nm: float, valve: float, reference: float | None = None) -> None:
         """A settled, relaxing period: drive torque ``net_nm`` beyond the known load (valve side,
@@ -180,11 +186,21 @@ class SlipWatch:
         if not self.anchored:
             self.place, self.edge_nm = valve, net_nm
             return
-        if self.place is not None and reference is not None and self.reference is not None \
-                and abs(reference - self.reference) > self.threshold:
+        if self.reference is not None and reference is not None and abs(reference - self.reference) > self.threshold:
             self.reset()
+            self.reference, self._candidate = reference, valve
+        if self._candidate is not None:
+            if abs(valve - self._candidate) <= 0.5 * self.threshold:
+                self._count += 1
+            else:
+                self._candidate, self._count = valve, 1
+            if self._count < self.confirm_periods:
+                return
+            self._candidate = None
         if self.place is None:
-            self.place, self.reference = valve, reference
+            self.place = valve
+            if self.reference is None:
+                self.reference = reference
         if abs(valve - self.place) <= 0.5 * self.threshold:
             self.edge_nm = net_nm
 

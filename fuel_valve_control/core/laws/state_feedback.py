@@ -93,7 +93,8 @@ class StateFeedbackLaw(ControlLaw):
         self.slip_edges = SlipEdges()
         #: where a settled, relaxing valve rests and with what drive (default mode: a slow creep
         #: away from there is a slip too; the other v2 mode reads period-to-period jumps only)
-        self.slip_watch = SlipWatch(integral.min_rad, anchored=self.met_hold)
+        self.slip_watch = SlipWatch(integral.min_rad, anchored=self.met_hold,
+                                    confirm_periods=round(integral.settle_time_s / period_s))
         self._relax_periods = 0                 # periods relaxed in a row
         #: (valve angle rad, direction ±1 to the target) where a held valve stuck short of its
         #: target, until it breaks away (modes whose compensator relieves the breakaway)
