@@ -154,11 +154,10 @@ FORMER_HUNTERS = {
           "jumps); cured by JumpLearner(cross_hold) in the default mode",
     1052: "Stribeck friction x 0.50 at max Δp, 4.1 N*m load, K x 0.43, 1 mrad backlash (h16w's last hunter): on "
           "the final hold the 6.3 mrad jump after a followed 2.9 mrad demand step was read as a relax slip "
-          "(learned load 4.0 N*m), then the integrator's pull-back of the valve, stuck just outside the 5.5 mrad "
-          "deadband for 1.3 s, as another with the drive torque of 1.3 s before: learned load 8.2 N*m, the relax "
-          "slipped it open beyond the band, 2 reversals of 3.3 mrad.  Holds since a slip is read from where the "
-          "valve settled (SlipWatch): re-taken after a reference shift once it rests, dropped while the "
-          "integrator pulls a stuck valve",
+          "(edge 4.7 N*m), then the integrator's pull-back of the valve, stuck just outside the 5.5 mrad deadband "
+          "for 1.3 s, as another with the drive torque of 1.3 s before: learned load 8.2 N*m, the relax slipped "
+          "it open beyond the band, 2 reversals of 3.3 mrad.  Holds since, after a followed reference shift, "
+          "the relax's place is re-taken only where the valve rests again (SlipWatch.confirm_periods)",
 }
 
 
@@ -166,3 +165,19 @@ FORMER_HUNTERS = {
 def test_former_campaign_hunters_hold_without_hunting(robustness_bench, seed):
     r = _run(robustness_bench, seed)
     assert not r["hunts"] and not r["fault"], FORMER_HUNTERS[seed]
+
+
+#: full-box seeds that hunt after h17w (1 of 200), with what was traced
+STILL_HUNTING = {
+    1022: "LuGre friction x 0.64 at 3.7 MPa (told 3.5), 10.2 N*m load, K x 0.80, demand noise 0.078 % rms: on the "
+          "final hold pull-backs across the target inside a 0.8-1.8 mrad deadband (learned jump ratios "
+          "0.54-1.17), 2 reversals of 2.0 mrad; the learned load is unchanged through it (9.3 N*m), no relax "
+          "slip is involved.  Appeared with SlipWatch's re-take after a reference shift (an earlier plateau's "
+          "history differs; without it the run holds but 1052 hunts)",
+}
+
+
+@pytest.mark.parametrize("seed", sorted(STILL_HUNTING))
+def test_remaining_campaign_hunters(robustness_bench, seed, request):
+    request.applymarker(pytest.mark.xfail(strict=True, reason=STILL_HUNTING[seed]))
+    assert not _run(robustness_bench, seed)["hunts"]

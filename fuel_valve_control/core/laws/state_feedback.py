@@ -91,10 +91,11 @@ class StateFeedbackLaw(ControlLaw):
         self.held_load = 0.0
         #: the slips that taught it, per direction (default mode: both edges of the band give the load)
         self.slip_edges = SlipEdges()
-        #: where a settled, relaxing valve rests and with what drive (default mode: a slow creep
-        #: away from there is a slip too; the other v2 mode reads period-to-period jumps only)
-        self.slip_watch = SlipWatch(integral.min_rad, anchored=self.met_hold,
-                                    confirm_periods=round(integral.settle_time_s / period_s))
+        #: the settled place of a relaxing valve and the drive there: its slips (jumps, and in the
+        #: default mode creeps beyond 3x the jump threshold) are edges of the static band; default
+        #: mode: a followed reference shift re-takes the place once the valve rests a settle time
+        self.slip_watch = SlipWatch(integral.min_rad, 3.0 * integral.min_rad if self.met_hold else 0.0,
+                                    round(integral.settle_time_s / period_s) if self.met_hold else 0)
         self._relax_periods = 0                 # periods relaxed in a row
         #: (valve angle rad, direction ±1 to the target) where a held valve stuck short of its
         #: target, until it breaks away (modes whose compensator relieves the breakaway)
@@ -270,8 +271,6 @@ class StateFeedbackLaw(ControlLaw):
                 rate = static / self.integral.stuck_ramp_time_s
                 ramp = rate / n * self.period / self.fb.ki
                 self._pending = math.copysign(max(abs(self._pending), ramp), error)
-                if self.met_hold:
-                    self.slip_watch.reset()     # the integrator's pull breaks it loose, not the relax
         known_load = load_nm - m.spring_rate_nm_per_rad * thl   # preload + flow
         self._d = known_load + (self._fl if self.compensator.feeds_observer else 0.0)
         return u
