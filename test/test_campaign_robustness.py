@@ -140,8 +140,7 @@ def test_a_fault_on_a_plant_beyond_the_continuous_rating_is_the_overload_it_dese
     assert robustness_bench.breakaway_torque_nm(case, 0.6) > robustness_bench.CONTINUOUS_TORQUE_NM
 
 
-#: full-box seeds that hunted after h14r (3 of 200) and no longer do (h16w), and h16w's last one (h17w),
-#: with what was traced
+#: full-box seeds that hunted after h14r (3 of 200) and no longer do (h16w), with what was traced
 FORMER_HUNTERS = {
     1096: "Stribeck friction x 0.52 at 1.5 MPa with the Δp reading missing (friction scheduled for max Δp), "
           "9.4 N*m load, K x 0.60, 1.2 mrad backlash: 16 reversals of 3.4 mrad at ~6 Hz.  Holds with the hold "
@@ -152,12 +151,6 @@ FORMER_HUNTERS = {
     1133: "LuGre friction x 2.36 at 5.1 MPa, K x 0.30, 1 mrad backlash: 35-38 mrad jumps across the target "
           "landing 15-20 mrad beyond it while the other direction's band was 12 mrad (learned from smaller "
           "jumps); cured by JumpLearner(cross_hold) in the default mode",
-    1052: "Stribeck friction x 0.50 at max Δp, 4.1 N*m load, K x 0.43, 1 mrad backlash (h16w's last hunter): on "
-          "the final hold the 6.3 mrad jump after a followed 2.9 mrad demand step was read as a relax slip "
-          "(edge 4.7 N*m), then the integrator's pull-back of the valve, stuck just outside the 5.5 mrad deadband "
-          "for 1.3 s, as another with the drive torque of 1.3 s before: learned load 8.2 N*m, the relax slipped "
-          "it open beyond the band, 2 reversals of 3.3 mrad.  Holds since, after a followed reference shift, "
-          "the relax's place is re-taken only where the valve rests again (SlipWatch.confirm_periods)",
 }
 
 
@@ -167,13 +160,16 @@ def test_former_campaign_hunters_hold_without_hunting(robustness_bench, seed):
     assert not r["hunts"] and not r["fault"], FORMER_HUNTERS[seed]
 
 
-#: full-box seeds that hunt after h17w (1 of 200), with what was traced
+#: full-box seeds that still hunt after h17w (1 of 200), with what was traced
 STILL_HUNTING = {
-    1022: "LuGre friction x 0.64 at 3.7 MPa (told 3.5), 10.2 N*m load, K x 0.80, demand noise 0.078 % rms: on the "
-          "final hold pull-backs across the target inside a 0.8-1.8 mrad deadband (learned jump ratios "
-          "0.54-1.17), 2 reversals of 2.0 mrad; the learned load is unchanged through it (9.3 N*m), no relax "
-          "slip is involved.  Appeared with SlipWatch's re-take after a reference shift (an earlier plateau's "
-          "history differs; without it the run holds but 1052 hunts)",
+    1052: "Stribeck friction x 0.50 at max Δp, 4.1 N*m load, K x 0.43, 1 mrad backlash: 2 reversals of 3.3 mrad on "
+          "the final hold.  Traced (h17w): the 6.3 mrad jump after a followed 2.9 mrad demand step was read as a "
+          "relax slip (edge 4.7 N*m), then the integrator's pull-back of the valve, stuck just outside the 5.5 mrad "
+          "deadband for 1.3 s, as another with the drive torque of 1.3 s before: learned load 8.2 N*m, the relax "
+          "slipped it open beyond the band.  Re-taking the relax's place after a reference shift only where the "
+          "valve rests again (SlipWatch.confirm_periods) cures it, but on the full campaign 1022 then hunted and "
+          "1095 latched a fault (with the place also dropped while the integrator pulls: 1022, 1043, 1177 "
+          "hunted) -- not kept",
 }
 
 
