@@ -2,6 +2,7 @@
 Δp reading is only the prior of what the hold schedules on."""
 import pytest
 
+from fuel_valve_control.common.contract import PRESSURE_MAX_KPA
 from fuel_valve_control.core.integral_policy import IntegralPolicy, SlipEdges
 
 LIMIT_NM = 24.9
@@ -45,3 +46,102 @@ def test_the_learned_load_stays_within_the_continuous_torque_with_both_edges():
 @pytest.mark.parametrize("met, expected", [(None, TOLD_STATIC), (STATIC, STATIC), (0.01, 0.25), (9.0, TOLD_STATIC)])
 def test_the_hold_schedules_on_the_friction_met_within_the_schedule_and_a_floor(met, expected):
     assert POLICY.hold_static_nm(TOLD_STATIC, met, 0.25) == pytest.approx(expected)
+
+
+# ------------------------------------------------------------------ slips read as drift (h17w)
+THRESHOLD = 2.9e-4          # rad, the integral policy's min_rad (3 valve resolver counts): a jump
+CREEP = 3 * THRESHOLD       # rad, the default mode's creep threshold
+RATE = 1.9e-5               # rad per 1 ms period: the 19 mrad/s creep of the grid's F x0.5 Δp 0 told-max cell
+
+
+def _creep(watch, periods, net0=-1.4, dnet=0.002, rate=RATE, still=20):
+    """``still`` settled periods at 0, then the valve creeps at ``rate`` per period while the
+    relax keeps raising the drive by ``dnet`` per period; returns the first slip and its period."""
+    net = net0
+    for k in range(still + periods):
+        valve = max(k - still, 0) * rate
+        slip = watch.left(valve)
+        if slip is not None:
+            return slip, k
+        watch.settled(net, valve, 0.0)
+        net += dnet
+    return None, None
+
+
+def test_a_creep_slower_than_the_stuck_speed_is_a_slip_with_the_drive_where_it_began():
+    from fuel_valve_control.core.integral_policy import SlipWatch
+    slip, k = _creep(SlipWatch(THRESHOLD, CREEP), 500)
+    assert slip is not None
+    net, moved = slip
+    assert moved > CREEP and k <= 20 + CREEP / RATE + 1              # seen within ~46 ms of creeping
+    # the drive torque of the slip is the one while the valve was still near its place (half the
+    # creep threshold: ~23 periods of creep), not the one the relax had reached since
+    assert net == pytest.approx(-1.4 + 0.002 * (20 + 0.5 * CREEP / RATE), abs=0.002 * 2)
+    # read period to period only (the other modes) the same creep is never a slip
+    assert _creep(SlipWatch(THRESHOLD), 2000)[0] is None
+    # a jump is read period to period as before, with the drive of the period before
+    watch = SlipWatch(THRESHOLD, CREEP)
+    watch.settled(1.0, 0.0, 0.0)
+    watch.settled(1.1, 0.0, 0.0)
+    assert watch.left(4e-4) == (1.1, pytest.approx(4e-4))
+
+
+def test_a_valve_at_rest_with_resolver_noise_does_not_slip():
+    import numpy as np
+    from fuel_valve_control.common.contract import RESOLVER_COUNT_RAD
+    from fuel_valve_control.core.integral_policy import SlipWatch
+    rng = np.random.default_rng(0)
+    # 1.2 counts rms (the campaign's noisiest valve resolver), averaged over the speed window
+    noise = rng.normal(0.0, 1.2 * RESOLVER_COUNT_RAD, 20_000 + 4)
+    filtered = np.convolve(noise, np.ones(5) / 5, mode="valid")
+    watch = SlipWatch(THRESHOLD, CREEP)
+    for v in filtered:
+        assert watch.left(float(v)) is None
+        watch.settled(0.0, float(v), 0.0)
+
+
+def test_a_reference_shift_takes_the_place_where_the_valve_rests_again():
+    from fuel_valve_control.core.integral_policy import SlipWatch
+    watch = SlipWatch(THRESHOLD, CREEP, confirm_periods=30)
+    watch.settled(1.0, 0.0, 0.0)
+    # a followed 2.9 mrad demand step (seed 1052): the feedback moves the valve 6.3 mrad
+    watch.settled(1.0, 0.0, 2.9e-3)
+    assert watch.left(6.3e-3) is None                  # the jump is no slip
+    for _ in range(29):
+        watch.settled(1.2, 6.3e-3, 2.9e-3)
+        assert watch.left(6.3e-3) is None              # resting, not yet confirmed
+    watch.settled(1.2, 6.3e-3, 2.9e-3)
+    assert watch.place == 6.3e-3
+    assert watch.left(6.3e-3 - 5e-4) == (1.2, pytest.approx(-5e-4))   # a slip from the new place
+    # without the confirmation (the other modes) the same jump is read as a slip
+    old = SlipWatch(THRESHOLD)
+    old.settled(1.0, 0.0, 0.0)
+    old.settled(1.0, 0.0, 2.9e-3)
+    assert old.left(6.3e-3) == (1.0, pytest.approx(6.3e-3))
+    # a shift within the threshold (demand noise through the conditioning) keeps the place
+    watch.settled(1.0, 0.0, 0.0)
+    for _ in range(30):
+        watch.settled(1.0, 0.0, 0.0)
+    watch.settled(1.0, 0.0, 1e-4)
+    assert watch.left(5e-4) == (1.0, pytest.approx(5e-4))
+    # a reset (a planned move) forgets it
+    watch.settled(1.0, 0.0, 1e-4)
+    watch.reset()
+    assert watch.left(5e-4) is None
+
+
+@pytest.mark.parametrize("inertia", [0.8, 1.0, 1.2])
+def test_a_valve_creeping_under_a_wrong_dp_reading_is_held_without_hunting(inertia):
+    """Adaptation grid (``benchmarks/adaptation_grid.py --dp-error``), friction x 0.5 at Δp 0 told
+    max: the fake flow torque (~2.2 N*m) is ~9x the valve's static friction, and the relax drove
+    it beyond its band the way the drive pushes: it crept 19 mrad/s, below the stuck speed, to
+    the 8 mrad deadband's edge, the integrator pulled it back and the relax sent it off again
+    (tail peak-to-peak 7.4-8.4 mrad against an allowance of 0.4 mrad, ~1 Hz).  Read as drift from
+    where it settled (:class:`SlipWatch`) the creep is a slip: the band's edges, so the load, are
+    learned and the relax stops short of them."""
+    from conftest import load_benchmark
+    grid = load_benchmark("adaptation_grid")
+    cell = {**grid.NOMINAL, "friction": 0.5, "inertia": inertia, "dp_kpa": 0.0, "stiffness": 1.0}
+    r = grid.run_cell("observer_ff", cell, told_dp_kpa=PRESSURE_MAX_KPA)
+    assert not r["fault"]
+    assert r["tail_pp_rad"] <= r["hunting_allowance_rad"], r

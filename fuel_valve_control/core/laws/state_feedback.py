@@ -13,7 +13,7 @@ import numpy as np
 
 from ..compensation import Compensator, Context
 from ..design import StateFeedback
-from ..integral_policy import IntegralPolicy, JumpLearner, SlipEdges
+from ..integral_policy import IntegralPolicy, JumpLearner, SlipEdges, SlipWatch
 from ..model import NominalModel
 from ..seating import Seating
 from ..signals import Estimate
@@ -91,8 +91,11 @@ class StateFeedbackLaw(ControlLaw):
         self.held_load = 0.0
         #: the slips that taught it, per direction (default mode: both edges of the band give the load)
         self.slip_edges = SlipEdges()
-        #: (valve torque beyond the known load, valve angle) of the latest settled relaxing period
-        self._slip: tuple[float, float] | None = None
+        #: the settled place of a relaxing valve and the drive there: its slips (jumps, and in the
+        #: default mode creeps beyond 3x the jump threshold) are edges of the static band.  The
+        #: re-take after a reference shift (SlipWatch.confirm_periods) is left off: on the full
+        #: campaign it cured seed 1052 but 1022 hunted and 1095 latched a fault instead (h17w)
+        self.slip_watch = SlipWatch(integral.min_rad, 3.0 * integral.min_rad if self.met_hold else 0.0)
         self._relax_periods = 0                 # periods relaxed in a row
         #: (valve angle rad, direction ±1 to the target) where a held valve stuck short of its
         #: target, until it breaks away (modes whose compensator relieves the breakaway)
@@ -163,7 +166,7 @@ class StateFeedbackLaw(ControlLaw):
         self._applied = self._u_net = torque_nm
         self.held_load = 0.0
         self.slip_edges.reset()
-        self._slip = None
+        self.slip_watch.reset()
         self._relax_periods = 0
         self._stuck_short = None
         self._d = m.load_torque(meas.valve_rad, pressure_kpa) - m.spring_rate_nm_per_rad * meas.valve_rad
@@ -249,21 +252,19 @@ class StateFeedbackLaw(ControlLaw):
                                         0.0, self._fl)
         u = u_ff + (comp - self._fl / n) - float(self.fb.k @ (x_now[:4] - x_ref)) + self.fb.ki * self.zeta
         self._pending = 0.0
+        slip = None if ref.moving else self.slip_watch.left(valve)
         if ref.moving:
-            self._slip = None
-        elif self._slip is not None:
+            self.slip_watch.reset()
+        elif slip is not None:
             # a valve that had settled (relaxing for settle_time) left its place by more than
             # the resolver's noise, the way the relaxing drive let it go (the relax takes support
             # away from the side the load pushes): a steady load beyond the known one
-            net0, pos0 = self._slip
-            moved = valve - pos0
-            if abs(moved) > self.integral.min_rad:
-                if moved * (net0 - self.held_load) < 0.0:
-                    self.held_load = self.integral.learn_load(
-                        net0, moved, friction.valve_static_nm,
-                        load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.met_hold else None)
-                    self.slip_edges.met(net0, moved)
-                self._slip = None
+            net0, moved = slip
+            if moved * (net0 - self.held_load) < 0.0:
+                self.held_load = self.integral.learn_load(
+                    net0, moved, friction.valve_static_nm,
+                    load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.met_hold else None)
+                self.slip_edges.met(net0, moved)
         relaxing = False
         if not outside and not ref.moving and stuck and self.integral.relax_time_s > 0.0:
             # settled: relax the drive to the middle of the static-friction band.  The valve
@@ -275,7 +276,7 @@ class StateFeedbackLaw(ControlLaw):
             relaxing = True
             self._relax_periods += 1
             if self._relax_periods * self.period >= self.integral.settle_time_s:
-                self._slip = (net, valve)               # where and with what drive it had settled
+                self.slip_watch.settled(net, valve, ref.position)   # where and with what drive it had settled
             self._pending = -(net - self.held_load) / n * self.period / self.integral.relax_time_s / self.fb.ki
         if (outside or ref.moving) if self.v2 else not relaxing:
             # a settled valve stays settled through a period the speed estimate calls moving:
