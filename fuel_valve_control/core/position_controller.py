@@ -180,7 +180,7 @@ class PositionController:
         main = StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode, ps),
                                 seating, speed_window=ps["ff.speed_window_periods"],
                                 delay_periods=int(round(ps["resolver_delay_s"] / period)), v2=not legacy,
-                                hold_on_friction_met=mode == "observer_ff")
+                                hold_on_friction_met=mode in V2_MODES)
         if mode != "observer_fp":
             return main
         return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner))
@@ -199,6 +199,10 @@ class PositionController:
                           ps["fine.max_crossings"], ps["fine.probe_step"], ps["fine.min_move_fraction"],
                           ps["fine.doublet_max_error_rad"], ps["fine.kick_current_a"], ps["fine.kick_rise_rad"],
                           ps["fine.doublet_probe_step"], ps["fine.doublet_margin"],
+                          park_approach_rad=ps["fine.park_approach_rad"],
+                          park_approach_speed=ps["fine.park_approach_speed_rad_s"],
+                          doublet_sigmas=ps["fine.doublet_sigmas"],
+                          approach_short_rad=ps["fine.approach_short_rad"], scatter_gain=ps["fine.scatter_gain"],
                           misfit_weight=ps["fine.misfit_weight"],
                           misfit_limit=ps["fine.misfit_limit"], misfit_decay=ps["fine.misfit_decay"],
                           breakaway_fit=ps["fine.breakaway_fit"], fit_margin=ps["fine.fit_margin"])
