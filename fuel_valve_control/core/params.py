@@ -266,9 +266,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.doublet_margin", 0.3, "", "doublet: after each stop the first apex lies this fraction of the "
           "static band below the learned breakaway (its level is drawn anew at every stop); the staircase climbs "
           "from there, until the breakaway scatter is learned", 0.0, 2.0, runtime=True),
-    Param("fine.approach_short_rad", 5e-4, "rad", "a servo-blended pulse (errors beyond fine.doublet_max_error_rad) "
-          "aims this far short of the target, so that the doublet finishes the move from the same side", 0.0, 0.01,
-          runtime=True),
+    Param("fine.min_move_prior", 0.19, "", "the smallest move a doublet makes before one is learned, fraction of "
+          "the nominal stick-slip jump 2 (T_s - T_c(dp)) / K (benchmarks/fine_doublet.py: 0.86e-3 of 4.6e-3 rad at "
+          "max dp)", 0.0, 1.0, runtime=True),
+    Param("fine.approach_short", 0.2, "", "a servo-blended pulse (errors beyond fine.doublet_max_error_rad) "
+          "aims this fraction of the static band (T_s - T_c(dp)) / K short of the target (0.2: 4.6e-4 rad at max dp), "
+          "so that the doublet finishes the move from the same side", 0.0, 2.0, runtime=True),
     Param("fine.doublet_sigmas", 2.0, "", "doublet: after each stop the first apex lies this many learned rms "
           "scatters of the breakaway twist below the learned breakaway", 0.0, 10.0, runtime=True),
     Param("fine.scatter_gain", 0.2, "", "weight of each breakaway sample (the main law's from rest, a doublet's) "

@@ -202,7 +202,8 @@ class PositionController:
                           park_approach_rad=ps["fine.park_approach_rad"],
                           park_approach_speed=ps["fine.park_approach_speed_rad_s"],
                           doublet_sigmas=ps["fine.doublet_sigmas"],
-                          approach_short_rad=ps["fine.approach_short_rad"], scatter_gain=ps["fine.scatter_gain"],
+                          approach_short=ps["fine.approach_short"],
+                          min_move_prior=ps["fine.min_move_prior"], scatter_gain=ps["fine.scatter_gain"],
                           misfit_weight=ps["fine.misfit_weight"],
                           misfit_limit=ps["fine.misfit_limit"], misfit_decay=ps["fine.misfit_decay"],
                           breakaway_fit=ps["fine.breakaway_fit"], fit_margin=ps["fine.fit_margin"])
