@@ -250,7 +250,8 @@ class PositionController:
                  pressure_kpa: float) -> None:
         outgoing, self.law, self.law_params = self.law, law, names
         if meas is not None and self._started:
-            self.law.reset(meas, self.last_torque, pressure_kpa)
+            hand = outgoing.handover_torque(meas)
+            self.law.reset(meas, self.last_torque if hand is None else hand, pressure_kpa)
             self._outgoing = outgoing
         else:
             self._started = False
@@ -302,7 +303,9 @@ class PositionController:
         kt = self.model.torque_constant_nm_per_a
         torque = self.law.update(t, demand_rad, meas, pressure_kpa)
         if self._outgoing is not None:       # first period of a new law: continue the old command
-            self._transfer = self._outgoing.update(t, demand_rad, meas, pressure_kpa) - torque
+            old = self._outgoing.update(t, demand_rad, meas, pressure_kpa)
+            hand = self._outgoing.handover_torque(meas)
+            self._transfer = (old if hand is None else hand) - torque
             self._outgoing = None
         else:
             self._transfer *= self._transfer_decay
