@@ -126,6 +126,7 @@ class PositionController:
         self.last_torque = 0.0
         self._outgoing: ControlLaw | None = None   # the replaced law, run once more for the transfer
         self._transfer = 0.0                        # bumpless-transfer torque offset, N*m
+        self._transfer_next = None                  # ... from the second period (a handover torque)
         self._transfer_decay = float(np.exp(-self.period / self.TRANSFER_TIME_S))
 
     # ------------------------------------------------------------------ construction
@@ -255,7 +256,7 @@ class PositionController:
             self._outgoing = outgoing
         else:
             self._started = False
-            self._outgoing, self._transfer = None, 0.0
+            self._outgoing, self._transfer, self._transfer_next = None, 0.0, None
 
     def build_law(self, ps: Mapping[str, Any]) -> tuple[ControlLaw, frozenset[str]]:
         """A new law for ``ps["mode"]`` built from ``ps`` and the parameter names it read;
@@ -291,7 +292,7 @@ class PositionController:
         if not keep_limits:
             self._limiter.reset()
         self.law.reset(meas, torque_nm, pressure_kpa)
-        self._outgoing, self._transfer = None, 0.0
+        self._outgoing, self._transfer, self._transfer_next = None, 0.0, None
         self.last_torque = torque_nm
         self.last_current = torque_nm / self.model.torque_constant_nm_per_a
         self._started = True
@@ -303,11 +304,16 @@ class PositionController:
         kt = self.model.torque_constant_nm_per_a
         torque = self.law.update(t, demand_rad, meas, pressure_kpa)
         if self._outgoing is not None:       # first period of a new law: continue the old command
+            # the command continues in this period; the offset that then decays is the one to
+            # the outgoing law's handover torque (a fine stage's hold, not its doublet)
             old = self._outgoing.update(t, demand_rad, meas, pressure_kpa)
             hand = self._outgoing.handover_torque(meas)
-            self._transfer = (old if hand is None else hand) - torque
+            self._transfer = old - torque
+            self._transfer_next = None if hand is None else hand - torque
             self._outgoing = None
         else:
+            if self._transfer_next is not None:
+                self._transfer, self._transfer_next = self._transfer_next, None
             self._transfer *= self._transfer_decay
         torque += self._transfer
         request = torque / kt
