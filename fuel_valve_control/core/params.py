@@ -231,6 +231,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.park_time_s", 0.005, "s", "least time to move the twist to its preload", 0.001, 0.1, runtime=True),
     Param("fine.park_speed_rad_s", 0.5, "rad/s", "largest twist rate while preloading (quasi-static: the "
           "gear-output hold must not overshoot into breakaway)", 0.01, 10.0, runtime=True),
+    Param("fine.park_approach_rad", 5e-4, "rad", "the last this much of the preload twist is approached at "
+          "fine.park_approach_speed_rad_s (the servo overshoots the end of a fast approach: 2.7e-4 rad median "
+          "at 0.5 rad/s)", 0.0, 0.01, runtime=True),
+    Param("fine.park_approach_speed_rad_s", 0.1, "rad/s", "largest twist rate over the last "
+          "fine.park_approach_rad of the preload", 0.01, 10.0, runtime=True),
     Param("fine.observe_time_s", 0.015, "s", "wait after a pulse for the valve to stop (>= half a period of "
           "the valve on the softest coupling, pi / sqrt(0.3 K / JL) = 11 ms)", 0.002, 0.5, runtime=True),
     Param("fine.overdrive_fraction", 0.15, "", "pulse peak beyond the learned breakaway twist, fraction of "
@@ -268,7 +273,17 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "overdrive adds about 4e-4 rad to the move)", 0.0, 1.0, runtime=True),
     Param("fine.doublet_margin", 0.3, "", "doublet: after each stop the first apex lies this fraction of the "
           "static band below the learned breakaway (its level is drawn anew at every stop); the staircase climbs "
-          "from there", 0.0, 2.0, runtime=True),
+          "from there, until the breakaway scatter is learned", 0.0, 2.0, runtime=True),
+    Param("fine.min_move_prior", 0.19, "", "the smallest move a doublet makes before one is learned, fraction of "
+          "the nominal stick-slip jump 2 (T_s - T_c(dp)) / K (benchmarks/fine_doublet.py: 0.86e-3 of 4.6e-3 rad at "
+          "max dp)", 0.0, 1.0, runtime=True),
+    Param("fine.approach_short", 0.2, "", "a servo-blended pulse (errors beyond fine.doublet_max_error_rad) "
+          "aims this fraction of the static band (T_s - T_c(dp)) / K short of the target (0.2: 4.6e-4 rad at max dp), "
+          "so that the doublet finishes the move from the same side", 0.0, 2.0, runtime=True),
+    Param("fine.doublet_sigmas", 2.0, "", "doublet: after each stop the first apex lies this many learned rms "
+          "scatters of the breakaway twist below the learned breakaway", 0.0, 10.0, runtime=True),
+    Param("fine.scatter_gain", 0.2, "", "weight of each breakaway sample (the main law's from rest, a doublet's) "
+          "in the learned breakaway twist and its rms scatter per direction and dp band", 0.0, 1.0, runtime=True),
     Param("fine.fit_margin", 0.3, "", "the stage engages only on a valve whose twist at rest lies inside the "
           "nominal static band (load +- T_s(dp)) / K widened by this fraction of T_s / K (breakaway scatter and "
           "ripple); beyond it the model does not describe the valve and the main law's integral hold keeps it",

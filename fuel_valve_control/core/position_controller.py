@@ -126,6 +126,7 @@ class PositionController:
         self.last_torque = 0.0
         self._outgoing: ControlLaw | None = None   # the replaced law, run once more for the transfer
         self._transfer = 0.0                        # bumpless-transfer torque offset, N*m
+        self._transfer_next = None                  # ... from the second period (a handover torque)
         self._transfer_decay = float(np.exp(-self.period / self.TRANSFER_TIME_S))
 
     # ------------------------------------------------------------------ construction
@@ -180,7 +181,7 @@ class PositionController:
         main = StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode, ps),
                                 seating, speed_window=ps["ff.speed_window_periods"],
                                 delay_periods=int(round(ps["resolver_delay_s"] / period)), v2=not legacy,
-                                hold_on_friction_met=mode == "observer_ff")
+                                hold_on_friction_met=mode in V2_MODES)
         if mode != "observer_fp":
             return main
         return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner))
@@ -199,6 +200,11 @@ class PositionController:
                           ps["fine.max_crossings"], ps["fine.probe_step"], ps["fine.min_move_fraction"],
                           ps["fine.doublet_max_error_rad"], ps["fine.kick_current_a"], ps["fine.kick_rise_rad"],
                           ps["fine.doublet_probe_step"], ps["fine.doublet_margin"],
+                          park_approach_rad=ps["fine.park_approach_rad"],
+                          park_approach_speed=ps["fine.park_approach_speed_rad_s"],
+                          doublet_sigmas=ps["fine.doublet_sigmas"],
+                          approach_short=ps["fine.approach_short"],
+                          min_move_prior=ps["fine.min_move_prior"], scatter_gain=ps["fine.scatter_gain"],
                           misfit_weight=ps["fine.misfit_weight"],
                           misfit_limit=ps["fine.misfit_limit"], misfit_decay=ps["fine.misfit_decay"],
                           breakaway_fit=ps["fine.breakaway_fit"], fit_margin=ps["fine.fit_margin"])
@@ -245,11 +251,12 @@ class PositionController:
                  pressure_kpa: float) -> None:
         outgoing, self.law, self.law_params = self.law, law, names
         if meas is not None and self._started:
-            self.law.reset(meas, self.last_torque, pressure_kpa)
+            hand = outgoing.handover_torque(meas)
+            self.law.reset(meas, self.last_torque if hand is None else hand, pressure_kpa)
             self._outgoing = outgoing
         else:
             self._started = False
-            self._outgoing, self._transfer = None, 0.0
+            self._outgoing, self._transfer, self._transfer_next = None, 0.0, None
 
     def build_law(self, ps: Mapping[str, Any]) -> tuple[ControlLaw, frozenset[str]]:
         """A new law for ``ps["mode"]`` built from ``ps`` and the parameter names it read;
@@ -285,7 +292,7 @@ class PositionController:
         if not keep_limits:
             self._limiter.reset()
         self.law.reset(meas, torque_nm, pressure_kpa)
-        self._outgoing, self._transfer = None, 0.0
+        self._outgoing, self._transfer, self._transfer_next = None, 0.0, None
         self.last_torque = torque_nm
         self.last_current = torque_nm / self.model.torque_constant_nm_per_a
         self._started = True
@@ -297,9 +304,16 @@ class PositionController:
         kt = self.model.torque_constant_nm_per_a
         torque = self.law.update(t, demand_rad, meas, pressure_kpa)
         if self._outgoing is not None:       # first period of a new law: continue the old command
-            self._transfer = self._outgoing.update(t, demand_rad, meas, pressure_kpa) - torque
+            # the command continues in this period; the offset that then decays is the one to
+            # the outgoing law's handover torque (a fine stage's hold, not its doublet)
+            old = self._outgoing.update(t, demand_rad, meas, pressure_kpa)
+            hand = self._outgoing.handover_torque(meas)
+            self._transfer = old - torque
+            self._transfer_next = None if hand is None else hand - torque
             self._outgoing = None
         else:
+            if self._transfer_next is not None:
+                self._transfer, self._transfer_next = self._transfer_next, None
             self._transfer *= self._transfer_decay
         torque += self._transfer
         request = torque / kt

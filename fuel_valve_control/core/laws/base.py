@@ -22,6 +22,11 @@ class ControlLaw(ABC):
     def reset(self, meas: Measurement, torque_nm: float, pressure_kpa: float) -> None:
         """(Re)start from a measurement so that the first output equals ``torque_nm`` (bumpless)."""
 
+    def handover_torque(self, meas: Measurement) -> float | None:
+        """Motor torque (N*m) a law replacing this one (a run-time parameter change) continues
+        from, or ``None``: the torque this law commands (the default)."""
+        return None
+
     @abstractmethod
     def update(self, t: float, demand_rad: float, meas: Measurement, pressure_kpa: float) -> float:
         """Torque request for this period, N*m at the motor."""

@@ -55,6 +55,15 @@ class FinePositioningLaw(ControlLaw):
         self._holding = (not seat and ref is not None and not ref.moving and abs(ref.position - target) < 1e-12)
         return torque
 
+    def handover_torque(self, meas: Measurement) -> float | None:
+        """While the fine stage is in charge its torque may be a doublet's kick or retreat (up to
+        the whole current): a successor continues from the torque that holds the present twist
+        (task h17f: a run-time parameter change mid-staircase carried a retreat into the new
+        law's transfer and the held valve went 2.1 % of stroke past the demand)."""
+        if not self._fine_active:
+            return None
+        return self.fine.hold_torque(meas.motor_rad / self.main.model.gear_ratio, meas.valve_rad)
+
     def forget(self) -> None:
         self.main.forget()
 

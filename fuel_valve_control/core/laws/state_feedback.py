@@ -53,8 +53,9 @@ class StateFeedbackLaw(ControlLaw):
         self.v2 = v2
         #: issue 14 (h16w), the default mode: the hold scheduled on the friction it meets, the Δp
         #: reading only the prior (the held load from both edges of the static band, the drive
-        #: test and stuck ramp on the friction met, the limit-cycle breaker); observer_fp, whose
-        #: fine stage is tuned on the hold as it was, keeps it (v2 alone)
+        #: test and stuck ramp on the friction met, the limit-cycle breaker); observer_fp too since
+        #: task h17f (with the hold as it was its main law hunted on quick-campaign run 3018, where
+        #: the fine stage never engaged and observer_ff did not hunt)
         self.met_hold = v2 and hold_on_friction_met
         self.model = model
         self.period = period_s
