@@ -268,7 +268,13 @@ def seized(tmp_path, request):
         "faults.drive_command_timeout_s": 0.0,
         # the test's Python threads play the resolver and the supervisor: allow them gaps
         # (measured: a 0.62 s demand gap with two CPU hogs on the shared machine)
-        "faults.resolver_timeout_s": 1.0, "demand_timeout_s": 3.0})
+        "faults.resolver_timeout_s": 1.0, "demand_timeout_s": 3.0,
+        # the test's Δp publisher is created after its resolver one: its match can come more
+        # than 0.1 s after the loop's first period, and "no pressure differential reading
+        # received" then stays latched (a warning, level 1) until a reset, so the rig never
+        # reported "running" (the 120 s start-up timeouts of test_tracking_error_latches /
+        # test_i2t_budget_latches on a slow machine, stop-13 CI)
+        "pressure.timeout_s": 3.0})
     s = Launcher(plan, "/seized", tmp_path)
     s.start(("controller",))
     probe = Probe("/seized", keep_all=(contract.CURRENT_COMMAND,))
