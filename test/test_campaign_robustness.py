@@ -167,7 +167,7 @@ STILL_HUNTING = {
           "relax slip (edge 4.7 N*m), then the integrator's pull-back of the valve, stuck just outside the 5.5 mrad "
           "deadband for 1.3 s, as another with the drive torque of 1.3 s before: learned load 8.2 N*m, the relax "
           "slipped it open beyond the band.  Re-taking the relax's place after a reference shift only where the "
-          "valve rests again (SlipWatch.confirm_periods) cures it, but on the full campaign 1022 then hunted and "
+          "valve rests again (measured, removed again) cures it, but on the full campaign 1022 then hunted and "
           "1095 latched a fault (with the place also dropped while the integrator pulls: 1022, 1043, 1177 "
           "hunted) -- not kept",
 }

@@ -163,47 +163,28 @@ class SlipWatch:
     reading leaves the campaign as it was (the same hunting run and faults, one plateau fewer
     beyond 5e-4 rad).
 
-    ``confirm_periods`` (an option, off in every mode): after the reference shifts by more than
-    the threshold (a followed demand step: the feedback, not the relax, moves the valve) the
-    place is forgotten and re-taken only where the valve has then rested for that many settled
-    periods.  Campaign seed 1052 read the 6.3 mrad jump after a followed 2.9 mrad step as a slip
-    (edge 4.7 N*m) and, 1.3 s later, the integrator's pull-back of the valve stuck just outside
-    the deadband as another with the drive of before: learned 8.2 N*m on a 4.1 N*m load, hunted.
-    With the re-take (one settle time) 1052 holds, but on the full campaign 1022 hunted instead
-    (an earlier plateau's learned state differs; its hunt has no relax slip in it) and 1095, a
-    plant beyond the continuous rating, latched the I2t fault: 1 run hunting either way, so left
-    off.  Forgotten too (:meth:`reset`) when a planned move starts."""
+    Measured and not kept (h17w): re-taking the place after a followed reference shift only
+    where the valve has rested again for a settle time.  Campaign seed 1052 read the 6.3 mrad
+    jump after a followed 2.9 mrad step as a slip (edge 4.7 N*m) and, 1.3 s later, the
+    integrator's pull-back of the valve stuck just outside the deadband as another with the
+    drive of before: learned 8.2 N*m on a 4.1 N*m load, hunted.  With the re-take 1052 held, but
+    on the full campaign 1022 hunted instead and 1095, a plant beyond the continuous rating,
+    latched the I2t fault (docs/control_results.md section 15).  Forgotten (:meth:`reset`) when
+    a planned move starts."""
 
-    def __init__(self, threshold: float, creep_threshold: float = 0.0, confirm_periods: int = 0):
+    def __init__(self, threshold: float, creep_threshold: float = 0.0):
         self.threshold = threshold
         self.creep_threshold = creep_threshold
-        self.confirm_periods = max(int(confirm_periods), 0)
         self.reset()
 
     def reset(self) -> None:
         self.recent: tuple[float, float] | None = None   # (drive N*m, valve rad) of the latest settled period
         self.place: float | None = None       # rad, the valve angle where it settled (creep)
         self.edge_nm: float | None = None     # N*m, drive torque beyond the known load while there
-        self.reference: float | None = None   # rad, the reference position when it settled
-        self._candidate: float | None = None  # rad, where it rests after a reference shift
-        self._count = 0                       # settled periods it has rested there
 
-    def settled(self, net_nm: float, valve: float, reference: float | None = None) -> None:
+    def settled(self, net_nm: float, valve: float) -> None:
         """A settled, relaxing period: drive torque ``net_nm`` beyond the known load (valve side,
-        N*m), the valve's filtered angle ``valve`` and the reference position (rad)."""
-        if self.confirm_periods and reference is not None:
-            if self.reference is not None and abs(reference - self.reference) > self.threshold:
-                self.reset()
-                self._candidate = valve
-            self.reference = reference
-            if self._candidate is not None:
-                if abs(valve - self._candidate) <= 0.5 * self.threshold:
-                    self._count += 1
-                else:
-                    self._candidate, self._count = valve, 1
-                if self._count < self.confirm_periods:
-                    return
-                self._candidate = None
+        N*m) and the valve's filtered angle ``valve`` (rad)."""
         self.recent = (net_nm, valve)
         if self.creep_threshold > 0.0:
             if self.place is None:

@@ -93,9 +93,9 @@ class StateFeedbackLaw(ControlLaw):
         #: the slips that taught it, per direction (default mode: both edges of the band give the load)
         self.slip_edges = SlipEdges()
         #: the settled place of a relaxing valve and the drive there: its slips (jumps, and in the
-        #: default mode creeps beyond 3x the jump threshold) are edges of the static band.  The
-        #: re-take after a reference shift (SlipWatch.confirm_periods) is left off: on the full
-        #: campaign it cured seed 1052 but 1022 hunted and 1095 latched a fault instead (h17w)
+        #: default mode creeps beyond 3x the jump threshold) are edges of the static band
+        #: (a re-take after a reference shift cured campaign seed 1052, but 1022 hunted and 1095
+        #: latched a fault instead: measured and not kept, h17w)
         self.slip_watch = SlipWatch(integral.min_rad, 3.0 * integral.min_rad if self.met_hold else 0.0)
         self._relax_periods = 0                 # periods relaxed in a row
         #: (valve angle rad, direction ±1 to the target) where a held valve stuck short of its
@@ -277,7 +277,7 @@ class StateFeedbackLaw(ControlLaw):
             relaxing = True
             self._relax_periods += 1
             if self._relax_periods * self.period >= self.integral.settle_time_s:
-                self.slip_watch.settled(net, valve, ref.position)   # where and with what drive it had settled
+                self.slip_watch.settled(net, valve)   # where and with what drive it had settled
             self._pending = -(net - self.held_load) / n * self.period / self.integral.relax_time_s / self.fb.ki
         if (outside or ref.moving) if self.v2 else not relaxing:
             # a settled valve stays settled through a period the speed estimate calls moving:
