@@ -695,8 +695,8 @@ class FinePositioner:
         d = 1 if err > 0 else -1
         m = self.learn.min_move[d][self.learn.band(self.m.pressure_fraction(pressure_kpa))]
         if m <= 0.0:
-            fl = self.m.friction(pressure_kpa)
-            m = self.cfg.min_move_prior * 2.0 * (fl.valve_static_nm - fl.valve_coulomb_nm) / self.m.coupling_stiffness_nm_per_rad
+            m = self.cfg.min_move_prior * self.m.friction(pressure_kpa).stick_slip_jump_rad(
+                self.m.coupling_stiffness_nm_per_rad)
         return m > 0.0 and abs(err) < self.cfg.min_move_fraction * m
 
     def _after_move(self, th1, thl, pressure_kpa, pulsed: bool):
