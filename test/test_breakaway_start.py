@@ -397,3 +397,16 @@ def test_the_retreat_acts_only_on_a_valve_that_slides():
     c.update(ended)                                                # the move ended: the rest lapses
     gap = fl.valve_static_nm - fl.valve_coulomb_nm
     assert c.update(sliding)[2] > fl.valve_coulomb_nm - 0.1 * gap
+
+
+@pytest.mark.parametrize("mode", ["observer_ff", "observer_fp"])
+def test_both_v2_modes_start_their_planned_moves_on_breakaway(mode):
+    """observer_fp's main law makes the moves its fine stage finishes: it waits for breakaway
+    as observer_ff does (before: only observer_ff waited, so observer_fp overshot the 2 % step
+    by 24-38 % at friction x 0.5 where observer_ff, waiting, stays within 5.4 %)."""
+    from fuel_valve_control.core.position_controller import PositionController
+    ps = CONTROLLER_SPEC.defaults().replace({"mode": mode, "trajectory.breakaway_wait_s": 0.25})
+    law = PositionController(ps).law
+    main = getattr(law, "main", law)
+    assert main.shaper.breakaway_wait == pytest.approx(0.25)
+    assert PositionController(CONTROLLER_SPEC.defaults().replace({"mode": "observer"})).law.shaper.breakaway_wait == 0.0

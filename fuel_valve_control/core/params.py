@@ -185,15 +185,15 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "acceleration for short moves)", 0.0, 2.0),
     Param("trajectory.feedforward_lead_s", 0.002, "s", "how far ahead the acceleration feed-forward "
           "of a move is taken (hold and current-loop delay)", 0.0, 0.05),
-    Param("trajectory.breakaway_wait_s", 0.0, "s", "observer_ff: a planned move waits at its start, at most "
+    Param("trajectory.breakaway_wait_s", 0.0, "s", "observer_ff, observer_fp: a planned move waits at its start, at most "
           "this long, while the friction feed-forward ramps the drive to breakaway; its clock starts when the "
           "valve lets go (0 = start on the clock, as the other modes; 0.25 makes the 2 % step adapt to friction "
           "x0.5-3 and inertia +-20 % at K nominal, but on couplings softer than the model the robustness "
           "campaign got worse: off by default, docs/control_results.md section 9)", 0.0, 1.0, runtime=True),
-    Param("trajectory.breakaway_max_move_pct", 5.0, "%", "observer_ff: only planned moves up to this (percent "
+    Param("trajectory.breakaway_max_move_pct", 5.0, "%", "observer_ff, observer_fp: only planned moves up to this (percent "
           "of stroke) wait for breakaway; longer ones start on the clock and have the time to catch a late "
           "breakaway up", 0.0, 100.0, runtime=True),
-    Param("trajectory.breakaway_counts", 3.0, "counts", "observer_ff: valve travel (valve resolver counts, "
+    Param("trajectory.breakaway_counts", 3.0, "counts", "observer_ff, observer_fp: valve travel (valve resolver counts, "
           "the move's way) that counts as breakaway and starts a waiting move", 0.5, 100.0, runtime=True),
     Param("trajectory.velocity_filter_s", 0.005, "s", "observer, observer_fc, kalman_fc, fc_gain: time constant of the "
           "demand-velocity estimate used as feed-forward when the demand is followed directly", 0.0, 1.0),

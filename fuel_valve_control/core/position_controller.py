@@ -161,8 +161,9 @@ class PositionController:
                                   ps["trajectory.velocity_filter_s" if legacy else "trajectory.follow_filter_s"],
                                   ps["trajectory.min_move_time_s"], ps["trajectory.feedforward_lead_s"],
                                   follow_acceleration=not legacy, follow_lead=follow_lead,
-                                  # the default mode starts a planned move when the valve breaks away
-                                  breakaway_wait=ps["trajectory.breakaway_wait_s"] if mode == "observer_ff" else 0.0,
+                                  # the v2 modes start a planned move when the valve breaks away (observer_fp's
+                                  # main law makes the moves the fine stage then finishes)
+                                  breakaway_wait=ps["trajectory.breakaway_wait_s"] if mode in V2_MODES else 0.0,
                                   breakaway_rad=ps["trajectory.breakaway_counts"] * RESOLVER_COUNT_RAD,
                                   breakaway_max_move=ps["trajectory.breakaway_max_move_pct"] / 100.0 * m.stroke_rad)
         integral = IntegralPolicy(ps["integral.deadband_jump_fraction"], ps["integral.deadband_min_rad"],
