@@ -24,20 +24,26 @@ class FinePositioningLaw(ControlLaw):
         self._main_updated = False
         self._holding = False
         self._applied = 0.0
+        self._stand_down = False      # skip the stage for one period: hand the plateau back
+        self._aside = False           # a valve test measures: the stage stays out (stand_aside)
 
     def reset(self, meas: Measurement, torque_nm: float, pressure_kpa: float) -> None:
         self.main.reset(meas, torque_nm, pressure_kpa)
         self.fine.reset()
         self._fine_active = False
         self._holding = False
+        self._stand_down = False
         self._applied = torque_nm
 
     def update(self, t, demand_rad, meas, pressure_kpa):
         target, seat = self.main.seating.target(demand_rad)
         th1 = meas.motor_rad / self.main.model.gear_ratio
         torque = None
-        if not seat:
-            torque = self.fine.update(target, th1, meas.valve_rad, self._holding, self._applied, pressure_kpa)
+        if self._stand_down:
+            self._stand_down = False
+        elif not seat:
+            torque = self.fine.update(target, th1, meas.valve_rad, self._holding and not self._aside, self._applied,
+                                      pressure_kpa)
         if torque is not None:
             self._fine_active = True
             self._main_updated = False
@@ -64,8 +70,45 @@ class FinePositioningLaw(ControlLaw):
             return None
         return self.fine.hold_torque(meas.motor_rad / self.main.model.gear_ratio, meas.valve_rad)
 
+    @property
+    def jumps(self):
+        """The main law's breakaway-jump learner (it sizes the hold's integrator deadband):
+        the driver's fault reset and its tests read it whichever law holds."""
+        return self.main.jumps
+
     def forget(self) -> None:
+        # the fine stage's learned twists live in the controller's FineLearner, which
+        # PositionController.reset_learning resets together with this
         self.main.forget()
+
+    def stand_aside(self, on: bool) -> None:
+        """A valve test measures friction from the drive torque while it moves the valve: the
+        stage's preloads and pulses would falsify it (a signature's breakaway read 26.8 vs
+        9.1 N*m true with the stage acting on the test's rests).  A stage in charge stops (the
+        next period hands the plateau back to the main law from the torque holding the present
+        twist), and while the test runs it is told the main law is not holding, so it never
+        engages; it still watches the main law's breakaways from rest (the evidence it needs
+        to engage on the operator's plateau after the test: cleared, it waited for a
+        breakaway that a valve at rest never makes and left the partial-stroke test's 0.17 %
+        return error standing)."""
+        if on and not self._aside:
+            self._stop_stage()
+        self._aside = on
+
+    def _stop_stage(self) -> None:
+        if self._fine_active:
+            self.fine.reset(measurements=False)
+            self._stand_down = True
+
+    def friction_rescheduled(self, pressure_kpa: float) -> None:
+        """The main law re-seeds its friction terms bumplessly (the integrator takes the change
+        of the known flow torque over: without it the drive stepped by the flow torque's share,
+        0.7 A at 20 % open, test_friction_check).  A pulse the fine stage has planned from the
+        old Δp's twists is not finished: the stage stands down, and the next period hands the
+        plateau back to the main law (from the torque holding the present twist); it may engage
+        again on the new schedule."""
+        self.main.friction_rescheduled(pressure_kpa)
+        self._stop_stage()
 
     def applied(self, torque_nm, saturated):
         self._applied = torque_nm
