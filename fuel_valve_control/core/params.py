@@ -16,7 +16,7 @@ from ..common.contract import DRIVE_COMMAND_TIMEOUT_S, PRESSURE_MAX_KPA, STROKE_
 from ..common.paramspec import RECORDED_TOPICS, ConfigError, Param, ParamSet, ParamSpec
 
 MODES = ("pi", "pi_dither", "observer", "observer_fc", "kalman_fc", "fc_gain", "observer_ff", "observer_fp")
-DEFAULT_MODE = "observer_ff"  # best measured (README table); SPEC named observer_fc
+DEFAULT_MODE = "observer_fp"  # observer_ff + the fine stage (h18s, docs/control_results.md §17); SPEC named observer_fc
 
 
 def _nominal(name: str, value: float, unit: str, description: str, low: float = 0.0, high: float = 1e6,
