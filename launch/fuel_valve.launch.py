@@ -51,7 +51,7 @@ ARGUMENTS = (
     ('valves', '', 'comma-separated namespaces, one complete valve stack each (e.g. valve1,valve2); '
                    'empty: one valve in namespace'),
     ('mode', '', "controller mode: pi, pi_dither, observer, observer_fc, kalman_fc, fc_gain, "
-                 "observer_ff (empty: config/controller.yaml)"),
+                 "observer_ff, observer_fp (empty: config/controller.yaml, observer_fp)"),
     ('lockstep', 'false', 'true: deterministic simulated time, the plant publishes /clock and '
                           'advances one control period per command'),
     ('record', 'false', 'true: also start the recorder (rosbag2 of the suite topics)'),

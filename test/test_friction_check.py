@@ -363,3 +363,35 @@ def test_a_reschedule_keeps_the_jumps_measured():
     assert learner.ratio == 10.0 and learner.directed == {1: 20.0, -1: 3.0}
     learner.rescale(0.01)
     assert learner.ratio == 0.5 and learner.directed == {1: 0.5, -1: 0.5}
+
+
+def test_a_reschedule_hands_a_plateau_the_fine_stage_has_back_to_the_main_law():
+    """observer_fp: a pulse the fine stage planned from the old Δp's twists is not finished
+    after a reschedule; the next period the main law holds again, from the torque holding the
+    present twist (not from a pulse's kick or retreat), and the valve stays where it was."""
+    from fuel_valve_plant.physics.params import load_plant_params
+    from fuel_valve_plant.physics.plant import Plant
+    from test_param_swap import loop
+    from fuel_valve_control.common.contract import STROKE_RAD
+    from fuel_valve_control.core.driver import ValveDriver
+    plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": 0.0}))
+    drv = ValveDriver(load_controller_params(overrides={"mode": "observer_fp"}))
+    law = drv.controller.law
+    demand = lambda t: 20.0 if t < 0.3 else 20.3     # noqa: E731 - a small step the stage finishes
+    t = 0.0
+    for _ in range(2000):                              # until the stage is in charge
+        loop(drv, plant, t, 1, demand)
+        t += drv.period
+        if law._fine_active:
+            break
+    assert law._fine_active
+    kt = MODEL.torque_constant_nm_per_a
+    before = plant.truth().valve_angle
+    law.friction_rescheduled(0.0)
+    loop(drv, plant, t, 1, demand)
+    assert not law._fine_active                        # handed back this period
+    hold = law.fine.hold_torque(plant.truth().motor_angle / MODEL.gear_ratio, plant.truth().valve_angle)
+    # measured: within 0.06 A of the holding current (4.4-9.2 A over the park's first 27 periods)
+    assert abs(drv.controller.last_current - hold / kt) < 0.5, (drv.controller.last_current, hold / kt)
+    valve = loop(drv, plant, t + drv.period, 50, demand)
+    assert max(abs(v / 100.0 * STROKE_RAD - before) for v in valve) < 2.0 * RESOLVER_COUNT_RAD

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import pytest
 
+from fuel_valve_control.core.params import DEFAULT_MODE
+
 ROOT = Path(__file__).resolve().parents[1]
 
 if shutil.which("ros2") is None or importlib.util.find_spec("launch_ros") is None:
@@ -401,17 +403,17 @@ def _check_bag_metadata(bag: Path) -> None:
 # ---------------------------------------------------------------------------------- two valves
 def test_launch_without_arguments_and_the_readme_commands(env, tmp_path, launches):
     """``ros2 launch fuel_valve fuel_valve.launch.py`` exactly as the README's first line: the
-    namespace ``/fuel_valve``, the default mode ``observer_ff``; the README's ``ros2 node
+    namespace ``/fuel_valve``, the default mode (``DEFAULT_MODE``); the README's ``ros2 node
     list`` / ``param get`` / ``param set ... mode pi`` / ``topic echo`` on it; Ctrl-C ends
     every process with 0."""
     la = Launch(env, tmp_path)
     launches.append(la)
-    la.wait_for(r"\[fuel_valve\.controller\]: controller up: mode observer_ff")
+    la.wait_for(rf"\[fuel_valve\.controller\]: controller up: mode {DEFAULT_MODE}")
     la.wait_for(r"\[fuel_valve\.controller\]: status (OK|ERROR)")     # the loop is up
     names = wait_nodes(env, "fuel_valve")
     assert sorted(n for n in names if n.startswith("/fuel_valve/")) == \
         ["/fuel_valve/controller", "/fuel_valve/demand", "/fuel_valve/plant"], names
-    assert re.search(r"String value is:\s*observer_ff\b",
+    assert re.search(rf"String value is:\s*{DEFAULT_MODE}\b",
                      ros2(env, "param", "get", "/fuel_valve/controller", "mode", *GRAPH))
     assert "Set parameter successful" in ros2(env, "param", "set", "/fuel_valve/controller", "mode", "pi", *GRAPH)
     assert re.search(r"String value is:\s*pi\b", ros2(env, "param", "get", "/fuel_valve/controller", "mode", *GRAPH))
@@ -457,7 +459,7 @@ def test_two_valves_in_real_time(env, tmp_path, launches):
     launches += [a, b]
     # (up and running its fault logic: two 1 kHz valves on a loaded 2-core machine may latch a
     # resolver timeout of 20 ms at start; the faults themselves are tested in test_nodes.py)
-    a.wait_for(r"\[valve_a\.controller\]: controller up: mode observer_ff")
+    a.wait_for(rf"\[valve_a\.controller\]: controller up: mode {DEFAULT_MODE}")
     b.wait_for(r"\[valve_b\.controller\]: controller up: mode pi")
     for ns, la in (("valve_a", a), ("valve_b", b)):
         la.wait_for(rf"\[{ns}\.controller\]: status ")

@@ -188,6 +188,39 @@ def test_partial_stroke_returns_the_valve_to_its_start():
     assert res["figures"]["travel_time_back_s"] < 2.0
 
 
+def test_the_fine_stage_stands_aside_while_a_valve_test_measures():
+    """observer_fp: the fine stage's preloads and pulses add torque the position loop does not;
+    a valve test reads friction from the drive torque, so the stage must not act while a test
+    owns the demand (acting on the partial stroke's rests it read the breakaway back 10.5 vs
+    6.0 N*m).  It stops when the test starts (the main law takes the plateau over), never
+    engages during it, and finishes the operator's plateau after it (the test's return leaves
+    the valve ~0.17 % off; with its breakaway watch cleared the stage waited for good)."""
+    from fuel_valve_plant.physics.plant import Plant
+    from test_param_swap import loop
+    from fuel_valve_control.core.fine_positioning import IDLE
+    plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": 0.0}))
+    driver = ValveDriver(load_controller_params(overrides={"mode": "observer_fp"}))
+    tests = ValveTests(driver)
+    law = driver.controller.law
+    log = []                          # per period, after the step: (t, stage in charge, test running)
+
+    def each(k, t):
+        if k:
+            log.append((t, law.fine.phase != IDLE, tests.running is not None))
+        if k == 2500:
+            assert tests.start(PARTIAL_STROKE)[0]
+    valve = loop(driver, plant, 0.0, 9000, lambda t: 50.0 if t < 1.0 else 50.3, each)
+    res = tests.last_result(PARTIAL_STROKE)
+    assert res["status"] == "completed", res["reason"]
+    assert any(active for t, active, running in log if not running and t < 2.5)     # it had the plateau
+    assert not any(active for t, active, running in log if running)
+    after = [t for t, active, running in log if active and not running and t > 2.5]
+    assert after, "the stage never engaged after the test"
+    end = 2.5 + res["figures"]["duration_s"]
+    left = valve[int(round(end / driver.period))] - 50.3
+    assert abs(valve[-1] - 50.3) < abs(left), (left, valve[-1] - 50.3)
+
+
 def test_plain_reversing_ramp_ends_at_the_demand():
     """The loop alone (no valve test) after a closing then opening ramp of 10 %/s at max Δp:
     the valve ends at the demand.  It stopped 1.7 % short (48.32 %) when the breakaway-jump

@@ -666,6 +666,8 @@ class ValveDriver:
         demand_rad = self.demand_rad()
         if self.valve_test is not None:           # a running valve test owns the demand
             demand_rad = self.valve_test.demand(t, demand_rad)
+            # ... and measures friction from the drive torque: the fine stage stands aside
+            self.controller.law.stand_aside(self.valve_test.running is not None)
         if not self._armed and self._rearm_at_rest and not self._valve_at_rest():
             # the drive is off (it switched itself off): wait, drive off, until the valve is slow
             self.last = DriverOutput(0.0, False, "waiting", self._demand_pct, position_pct, {}, dict(self.warnings))

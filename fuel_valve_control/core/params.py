@@ -16,7 +16,7 @@ from ..common.contract import DRIVE_COMMAND_TIMEOUT_S, PRESSURE_MAX_KPA, STROKE_
 from ..common.paramspec import RECORDED_TOPICS, ConfigError, Param, ParamSet, ParamSpec
 
 MODES = ("pi", "pi_dither", "observer", "observer_fc", "kalman_fc", "fc_gain", "observer_ff", "observer_fp")
-DEFAULT_MODE = "observer_ff"  # best measured (README table); SPEC named observer_fc
+DEFAULT_MODE = "observer_fp"  # observer_ff + the fine stage (h18s, docs/control_results.md §17); SPEC named observer_fc
 
 
 def _nominal(name: str, value: float, unit: str, description: str, low: float = 0.0, high: float = 1e6,
@@ -299,6 +299,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "the valve loose lies within this fraction of T_s(dp)/K of the nominal breakaway twist (load +- T_s) / K "
           "(measured: within 0.15 on the nominal plant with friction scatter, 0.5-2.7 off on valves the model does "
           "not describe)", 0.0, 10.0, runtime=True),
+    Param("fine.min_jump_rad", 1.0e-3, "rad", "the stage engages only where the nominal stick-slip jump "
+          "2 (T_s - T_c(dp)) / K at the dp scheduled is at least this: below it (dp < ~15 % of max) the doublet's "
+          "smallest move exceeds the valve's whole jump (bare plant: 0.77e-3 / 2.2e-3 / 1.4e-3 rad at 0 / 5 / 10 % "
+          "of max dp for jumps of 0.42-0.83e-3; 2.6e-4 at 50 %) and the main law's hold, its deadband about half "
+          "a jump, ends closer (at dp 0 the stage's doublets overshot the 2 % step 24-38 %)", 0.0, 1.0,
+          runtime=True),
     Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "

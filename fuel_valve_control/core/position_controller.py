@@ -185,7 +185,8 @@ class PositionController:
                                 hold_on_friction_met=mode in V2_MODES)
         if mode != "observer_fp":
             return main
-        return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner))
+        return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner),
+                                  min_jump_rad=ps["fine.min_jump_rad"])
 
     def _fine_config(self, ps: Mapping[str, Any]) -> FineConfig:
         per = self.period

@@ -40,6 +40,12 @@ class ControlLaw(ABC):
         driver found the Δp reading implausible against the friction met (or agreeing again).
         Friction levels seeded from the old schedule are re-seeded from the new one."""
 
+    def stand_aside(self, on: bool) -> None:
+        """``on``: a valve test (signature, partial stroke) owns the demand and measures the
+        valve's friction from the drive torque; a law that adds torque of its own beyond the
+        position loop's (the fine stage's preloads and pulses) leaves the valve to the loop
+        until called with ``False``.  Called by the driver every period; the default: nothing."""
+
     def applied(self, torque_nm: float, saturated: bool) -> None:
         """The torque actually applied after limits (for observers and anti-windup)."""
 

@@ -16,20 +16,26 @@ from .state_feedback import StateFeedbackLaw
 
 
 class FinePositioningLaw(ControlLaw):
-    def __init__(self, name: str, main: StateFeedbackLaw, fine: FinePositioner):
+    def __init__(self, name: str, main: StateFeedbackLaw, fine: FinePositioner, min_jump_rad: float = 0.0):
+        """``min_jump_rad``: the stage engages only where the nominal stick-slip jump at the Δp
+        scheduled is at least this (rad, ``fine.min_jump_rad``; see :meth:`_worth_it`)."""
         self.name = name
         self.main = main
         self.fine = fine
+        self.min_jump_rad = min_jump_rad
         self._fine_active = False
         self._main_updated = False
         self._holding = False
         self._applied = 0.0
+        self._stand_down = False      # skip the stage for one period: hand the plateau back
+        self._aside = False           # a valve test measures: the stage stays out (stand_aside)
 
     def reset(self, meas: Measurement, torque_nm: float, pressure_kpa: float) -> None:
         self.main.reset(meas, torque_nm, pressure_kpa)
         self.fine.reset()
         self._fine_active = False
         self._holding = False
+        self._stand_down = False
         self._applied = torque_nm
 
     def update(self, t, demand_rad, meas, pressure_kpa):
@@ -37,7 +43,13 @@ class FinePositioningLaw(ControlLaw):
         th1 = meas.motor_rad / self.main.model.gear_ratio
         torque = None
         if not seat:
-            torque = self.fine.update(target, th1, meas.valve_rad, self._holding, self._applied, pressure_kpa)
+            worth = self._worth_it(pressure_kpa)
+            if not worth:
+                self._stop_stage()
+            if not self._stand_down:      # (stood down: the main law takes the plateau back now)
+                torque = self.fine.update(target, th1, meas.valve_rad, self._holding and worth and not self._aside,
+                                          self._applied, pressure_kpa)
+        self._stand_down = False
         if torque is not None:
             self._fine_active = True
             self._main_updated = False
@@ -55,6 +67,18 @@ class FinePositioningLaw(ControlLaw):
         self._holding = (not seat and ref is not None and not ref.moving and abs(ref.position - target) < 1e-12)
         return torque
 
+    def _worth_it(self, pressure_kpa: float) -> bool:
+        """Whether the stage can end a plateau closer than the main law at this Δp: only where
+        the valve's nominal stick-slip jump 2 (T_s - T_c(Δp)) / K is at least ``min_jump_rad``.
+        The doublet's kick is a fixed current: at low Δp it overdrives the small static band
+        so far that its smallest move (0.77e-3 rad at Δp 0 on the bare plant, up to 2.2e-3 at
+        5 % of max) is larger than the whole jump (0.42e-3 at Δp 0), while the main law's hold
+        ends within about half a jump -- with the stage at Δp 0, doublets of 3-5e-3 rad
+        overshot the 2 % step 24-38 % (test_closed_loop.py, inertia/friction corners).  The
+        stage keeps watching (stands aside as for a valve test) and engages when Δp rises."""
+        m = self.main.model
+        return m.friction(pressure_kpa).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad) >= self.min_jump_rad
+
     def handover_torque(self, meas: Measurement) -> float | None:
         """While the fine stage is in charge its torque may be a doublet's kick or retreat (up to
         the whole current): a successor continues from the torque that holds the present twist
@@ -64,8 +88,45 @@ class FinePositioningLaw(ControlLaw):
             return None
         return self.fine.hold_torque(meas.motor_rad / self.main.model.gear_ratio, meas.valve_rad)
 
+    @property
+    def jumps(self):
+        """The main law's breakaway-jump learner (it sizes the hold's integrator deadband):
+        the driver's fault reset and its tests read it whichever law holds."""
+        return self.main.jumps
+
     def forget(self) -> None:
+        # the fine stage's learned twists live in the controller's FineLearner, which
+        # PositionController.reset_learning resets together with this
         self.main.forget()
+
+    def stand_aside(self, on: bool) -> None:
+        """A valve test measures friction from the drive torque while it moves the valve: the
+        stage's preloads and pulses would falsify it (a signature's breakaway read 26.8 vs
+        9.1 N*m true with the stage acting on the test's rests).  A stage in charge stops (the
+        next period hands the plateau back to the main law from the torque holding the present
+        twist), and while the test runs it is told the main law is not holding, so it never
+        engages; it still watches the main law's breakaways from rest (the evidence it needs
+        to engage on the operator's plateau after the test: cleared, it waited for a
+        breakaway that a valve at rest never makes and left the partial-stroke test's 0.17 %
+        return error standing)."""
+        if on and not self._aside:
+            self._stop_stage()
+        self._aside = on
+
+    def _stop_stage(self) -> None:
+        if self._fine_active:
+            self.fine.reset(measurements=False)
+            self._stand_down = True
+
+    def friction_rescheduled(self, pressure_kpa: float) -> None:
+        """The main law re-seeds its friction terms bumplessly (the integrator takes the change
+        of the known flow torque over: without it the drive stepped by the flow torque's share,
+        0.7 A at 20 % open, test_friction_check).  A pulse the fine stage has planned from the
+        old Δp's twists is not finished: the stage stands down, and the next period hands the
+        plateau back to the main law (from the torque holding the present twist); it may engage
+        again on the new schedule."""
+        self.main.friction_rescheduled(pressure_kpa)
+        self._stop_stage()
 
     def applied(self, torque_nm, saturated):
         self._applied = torque_nm
