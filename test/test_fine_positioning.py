@@ -442,3 +442,25 @@ def test_a_poor_record_keeps_the_stage_out_and_decays_per_plateau(tmp_path):
     assert pc.learner.misfit[1][band] == 1.0
     pc.learner.reset()
     assert pc.learner.misfit == {1: [0.0] * 4, -1: [0.0] * 4}
+
+
+def test_a_hand_back_keeps_the_load_the_main_laws_hold_learned():
+    """When the stage hands a plateau back, the main law restarts bumplessly but keeps the steady
+    load its hold learned (and the slip edges that taught it).  A full reset forgot them at every
+    hand-back and the restarted hold relaxed toward the known load alone (h18g: campaign seed
+    3007, 10 N*m load, slid 8e-3 rad off target)."""
+    from fuel_valve_control.core.position_controller import PositionController
+    from fuel_valve_control.core.signals import Measurement
+    pc = PositionController(CONTROLLER_SPEC.defaults().replace({"mode": "observer_fp"}))
+    law, m = pc.law, pc.model
+    p = m.pressure_max_kpa
+    th = 0.3
+    meas = Measurement(th * m.gear_ratio, th)
+    law.reset(meas, 0.0, p)
+    law.main.update(0.0, th, meas, p)
+    law.main.held_load = 4.0
+    law.main.slip_edges.edges.update({1: 6.0, -1: 2.0})
+    law._fine_active = True             # the stage had the plateau; its update now hands it back
+    law.update(0.001, th, meas, p)
+    assert law.main.held_load == pytest.approx(4.0)
+    assert law.main.slip_edges.edges == {1: 6.0, -1: 2.0}

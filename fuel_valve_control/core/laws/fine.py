@@ -59,13 +59,28 @@ class FinePositioningLaw(ControlLaw):
             # torque last applied may be a pulse's, up to the whole current: restarted from a
             # doublet's retreat, the main law drove the valve 2e-2 rad away)
             hold = self.fine.hold_torque(th1, meas.valve_rad)
-            self.main.reset(meas, self._applied if hold is None else hold, pressure_kpa)
+            self._resume_main(meas, self._applied if hold is None else hold, pressure_kpa)
             self._fine_active = False
         torque = self.main.update(t, demand_rad, meas, pressure_kpa)
         self._main_updated = True
         ref = self.main.reference
         self._holding = (not seat and ref is not None and not ref.moving and abs(ref.position - target) < 1e-12)
         return torque
+
+    def _resume_main(self, meas: Measurement, torque_nm: float, pressure_kpa: float) -> None:
+        """Restart the main law bumplessly from ``torque_nm`` (observer, integrator) but keep what
+        its hold has learned about this valve: the steady load beyond the known one (N*m, valve
+        side, + toward closed) and the slip edges of the static band that taught it.  A full reset
+        forgot them at every hand-back, and the restarted hold relaxed toward the known load alone
+        (h18g: campaign seed 1071, friction x2.2, Δp missing, hunted 2.6e-3 rad on its final hold;
+        seed 3007, 10 N*m load, slid 8e-3 rad off target).  The rest of the main law's learning
+        (its compensator) is not kept: measured worse on the nominal box (h18g: 84 vs 70 plateaus
+        > 8e-4 rad of 480)."""
+        main = self.main
+        held, edges = main.held_load, dict(main.slip_edges.edges)
+        main.reset(meas, torque_nm, pressure_kpa)
+        main.held_load = held
+        main.slip_edges.edges.update(edges)
 
     def _worth_it(self, pressure_kpa: float) -> bool:
         """Whether the stage can end a plateau closer than the main law at this Δp: only where
