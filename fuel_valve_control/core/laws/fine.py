@@ -29,6 +29,7 @@ class FinePositioningLaw(ControlLaw):
         self._applied = 0.0
         self._stand_down = False      # skip the stage for one period: hand the plateau back
         self._aside = False           # a valve test measures: the stage stays out (stand_aside)
+        self._worth_at, self._worth = None, False     # _worth_it's last Δp (kPa) and verdict
 
     def reset(self, meas: Measurement, torque_nm: float, pressure_kpa: float) -> None:
         self.main.reset(meas, torque_nm, pressure_kpa)
@@ -76,11 +77,7 @@ class FinePositioningLaw(ControlLaw):
         seed 3007, 10 N*m load, slid 8e-3 rad off target).  The rest of the main law's learning
         (its compensator) is not kept: measured worse on the nominal box (h18g: 84 vs 70 plateaus
         > 8e-4 rad of 480)."""
-        main = self.main
-        held, edges = main.held_load, dict(main.slip_edges.edges)
-        main.reset(meas, torque_nm, pressure_kpa)
-        main.held_load = held
-        main.slip_edges.edges.update(edges)
+        self.main.reset(meas, torque_nm, pressure_kpa, keep_held_load=True)
 
     def _worth_it(self, pressure_kpa: float) -> bool:
         """Whether the stage can end a plateau closer than the main law at this Δp: only where
@@ -91,8 +88,12 @@ class FinePositioningLaw(ControlLaw):
         ends within about half a jump -- with the stage at Δp 0, doublets of 3-5e-3 rad
         overshot the 2 % step 24-38 % (test_closed_loop.py, inertia/friction corners).  The
         stage keeps watching (stands aside as for a valve test) and engages when Δp rises."""
-        m = self.main.model
-        return m.friction(pressure_kpa).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad) >= self.min_jump_rad
+        if pressure_kpa != self._worth_at:     # (the schedule is evaluated once per Δp, not per period)
+            m = self.main.model
+            self._worth_at = pressure_kpa
+            self._worth = m.friction(pressure_kpa).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad) \
+                >= self.min_jump_rad
+        return self._worth
 
     def handover_torque(self, meas: Measurement) -> float | None:
         """While the fine stage is in charge its torque may be a doublet's kick or retreat (up to

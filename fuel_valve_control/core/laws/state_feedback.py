@@ -143,7 +143,11 @@ class StateFeedbackLaw(ControlLaw):
         if self.met_hold:
             self.held_load = 0.0
 
-    def reset(self, meas, torque_nm, pressure_kpa):
+    def reset(self, meas, torque_nm, pressure_kpa, keep_held_load: bool = False):
+        """Restart bumplessly from ``torque_nm`` (N*m, motor shaft).  ``keep_held_load``: keep
+        what the hold has learned about this valve -- the steady load beyond the known one and
+        the slip edges of the static band that taught it -- as the fine stage's hand-back does
+        (:meth:`.fine.FinePositioningLaw._resume_main`); a fault reset or a new law forgets them."""
         m = self.model
         th1 = meas.motor_rad / m.gear_ratio
         # start the observer with the valve at rest *in equilibrium*: the valve torque the
@@ -165,8 +169,9 @@ class StateFeedbackLaw(ControlLaw):
         # bumpless: the integral state makes the first output equal the present torque
         self.zeta = (torque_nm - u_ff + float(self.fb.k @ (self.xo[:4] - x_ref))) / self.fb.ki
         self._applied = self._u_net = torque_nm
-        self.held_load = 0.0
-        self.slip_edges.reset()
+        if not keep_held_load:
+            self.held_load = 0.0
+            self.slip_edges.reset()
         self.slip_watch.reset()
         self._relax_periods = 0
         self._stuck_short = None
