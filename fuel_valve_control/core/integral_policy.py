@@ -68,8 +68,17 @@ class IntegralPolicy:
         5.5 N*m) it put the load 2.3 N*m beyond the band, the relax then slipped the valve the
         other way, and the two readings alternated (adaptation grid, Δp 0 told 6206 kPa: the
         learned load flipped −3.2 / +0.5 / −3.0 / +0.7 N*m and the hold hunted 5-8 mrad).  An
-        opposite edge that lies beyond this one (``(net − opposite) * direction <= 0``) contradicts
-        it: :func:`contradictory_edges_load`.
+        opposite edge that lies beyond this one (``(net − opposite) * direction <= 0``: the band
+        has moved since, or one of the two was no edge of it) is not used, and the load so learned
+        is not *known* (:attr:`SlipEdges.known`).  Measured and not kept (h19b): aiming the relax at
+        the centre of the two contradictory readings instead.  It held campaign seed 1029 (a
+        closing edge at 3.27 N*m, then the integrator's pull read as an opening one at 1.71 N*m,
+        true band 2.1…4.3 N*m: the prior from the newer, false, edge put the load at 1.33 N*m),
+        but on the clock seed 1022 (LuGre x 0.64, 10.2 N*m) then hunted: there the *older* edge
+        was the false one (closing at 15.1 N*m, the genuine opening edge at 13.0 N*m), the centre
+        lay above the band and the prior from the newer edge (11.3 N*m) inside it.  Which of two
+        contradictory readings is false is not known here; 1029 is held by the breakaway start's
+        load-free retreat instead (:meth:`~.compensation.ReferenceFeedforward._retreat_scale`).
 
         Bounded so that the whole load the relax holds, ``known_nm`` (the known load at the
         valve, N*m, + toward closed) plus the learned one, stays within ``load_limit_nm`` (the
@@ -79,8 +88,6 @@ class IntegralPolicy:
         for 2 s, ``overcurrent_i2t``)."""
         if opposite_edge_nm is not None and (net_at_slip - opposite_edge_nm) * direction > 0.0:
             load = 0.5 * (net_at_slip + opposite_edge_nm)
-        elif opposite_edge_nm is not None:
-            load = contradictory_edges_load(net_at_slip, opposite_edge_nm)
         else:
             load = net_at_slip - math.copysign(self.load_static_fraction * static_nm, direction)
         return min(max(load, -self.load_limit_nm - known_nm), self.load_limit_nm - known_nm)
@@ -112,21 +119,6 @@ class IntegralPolicy:
         return not saturated or pending * applied_nm < 0.0
 
 
-def contradictory_edges_load(net_at_slip: float, opposite_edge_nm: float) -> float:
-    """The held load (N*m, valve side) after a slip at ``net_at_slip`` whose opposite edge
-    ``opposite_edge_nm`` lies beyond it (an opening slip below the closing edge, or the reverse):
-    no fixed band ``L ± Ts`` has those two edges, so one of the readings was not the band's (the
-    integrator's pull toward a followed demand step read as a relax slip, §15.2) or the band has
-    moved; which one is unknown.  The relax then aims at the centre of the span the two readings
-    mark, not at the one-edge prior put beyond both of them.  Campaign seed 1029 (3.2 N*m toward
-    closed, band 2.1…4.3 N*m): a closing edge at 3.27 N*m, then the pull read as an opening edge
-    at 1.71 N*m; the prior put the load at 1.33 N*m, below the band, the relax let the valve slip
-    closing and the integrator pulled it back (2 reversals on the final hold); the centre,
-    2.49 N*m, lies inside the band.  Learned this way the load is not *known*
-    (:meth:`SlipEdges.known`)."""
-    return 0.5 * (net_at_slip + opposite_edge_nm)
-
-
 class SlipEdges:
     """The edges of the static-friction band a settled, relaxing drive has met: per slip
     direction (+1 opening, -1 closing), the drive torque beyond the known load (N*m, valve
@@ -153,9 +145,9 @@ class SlipEdges:
     def known(self) -> bool:
         """Whether the steady load is known from these edges: both met and consistent (the
         opening edge above the closing one).  None met, the load is not known (only assumed 0);
-        one edge gives it only through the scheduled static level's prior, contradictory ones
-        only the centre of their span (:func:`contradictory_edges_load`): each may be off by about
-        the static friction."""
+        one edge gives it only through the scheduled static level's prior, and of contradictory
+        ones one was no edge of the band (:meth:`IntegralPolicy.learn_load`): each may be off by
+        about the static friction."""
         return len(self.edges) == 2 and self.edges[1] > self.edges[-1]
 
     @property
