@@ -132,3 +132,21 @@ def test_a_valve_creeping_under_a_wrong_dp_reading_is_held_without_hunting(inert
     r = grid.run_cell("observer_ff", cell, told_dp_kpa=PRESSURE_MAX_KPA)
     assert not r["fault"]
     assert r["tail_pp_rad"] <= r["hunting_allowance_rad"], r
+
+
+def test_a_slip_contradicting_a_known_band_is_not_an_edge_of_it():
+    """h19b, campaign seed 1082: edges at 1.1 (closing) and 3.73 N*m (opening) gave 2.41 N*m; the
+    integrator's pull back after an overshoot then read as a closing slip at 4.48 N*m, beyond the
+    opening edge.  Learned with the one-edge prior it put the load at 7.23 N*m (the next move
+    started from a drive cocked 5 N*m open and ran 22 mrad past).  Such a slip contradicts a known
+    band: not learned, the band unknown from then on (the next slip a first edge again)."""
+    edges = SlipEdges()
+    assert not edges.contradicts(4.48, -1.0)              # nothing known: every slip teaches
+    edges.met(1.1, -1.0)
+    assert not edges.contradicts(4.48, +1.0)              # one edge: not known either
+    edges.met(3.73, +1.0)
+    assert edges.known
+    assert edges.contradicts(4.48, -1.0)                  # a closing "edge" above the opening one
+    assert edges.contradicts(0.9, +1.0)                   # an opening "edge" below the closing one
+    assert not edges.contradicts(0.9, -1.0)               # the band's own edges move: learned as before
+    assert not edges.contradicts(3.9, +1.0)

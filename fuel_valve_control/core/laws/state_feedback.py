@@ -267,7 +267,9 @@ class StateFeedbackLaw(ControlLaw):
             # the resolver's noise, the way the relaxing drive let it go (the relax takes support
             # away from the side the load pushes): a steady load beyond the known one
             net0, moved = slip
-            if moved * (net0 - self.held_load) < 0.0:
+            if moved * (net0 - self.held_load) < 0.0 and self.met_hold and self.slip_edges.contradicts(net0, moved):
+                self.slip_edges.reset()         # a known band contradicted: unknown now, the load kept (h19b)
+            elif moved * (net0 - self.held_load) < 0.0:
                 self.held_load = self.integral.learn_load(
                     net0, moved, friction.valve_static_nm,
                     load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.met_hold else None)
