@@ -288,6 +288,11 @@ class ReferenceFeedforward(Compensator):
     ``WAIT_OVERRUN`` x the breakaway this valve has shown plus ``WAIT_MARGIN`` x the scheduled
     level; the retreat acts only while the valve is measured sliding and lapses with its move.
 
+    **h19b**: readings are kept gross of the held load and netted of the one in force when used
+    (:meth:`_reading`; the wait-over test compares the drive net of it too); the retreat is sized
+    on load-free friction (:meth:`_retreat_scale`: the two ways' mean, a one-way reading only net
+    of a held load known from both band edges, else no lower than ``RAMP_MIN_SCALE``).
+
     **Coupling** (h16g): every wind-up also reads the coupling stiffness
     (:class:`CouplingStiffness`, ``coupling_softness`` = K_model / K); it sizes the take-back
     of the stored static-Coulomb twist, the hold's deadband (:meth:`jump_ratio`) and, on a
