@@ -4,7 +4,7 @@ campaign seed that showed it (``benchmarks/robustness.py --seed S --runs 1`` rep
 and on the unit that carries the fix.  Found with ``observer_ff`` (the default until h18s);
 run with the default ``observer_fp``, whose main law holds as observer_ff's where the fine stage
 stays out or hands a plateau back (full box, 200 runs, h18s: the same seeds pass, 1043 faults
-beyond rating, 1052 still hunts, and 1071 hunts, which observer_ff holds)."""
+beyond rating, 1052 hunted until h19b, and 1071 hunts, which observer_ff holds)."""
 import functools
 
 import pytest
@@ -155,6 +155,10 @@ FORMER_HUNTERS = {
     1133: "LuGre friction x 2.36 at 5.1 MPa, K x 0.30, 1 mrad backlash: 35-38 mrad jumps across the target "
           "landing 15-20 mrad beyond it while the other direction's band was 12 mrad (learned from smaller "
           "jumps); cured by JumpLearner(cross_hold) in the default mode",
+    1052: "Stribeck friction x 0.50 at max Δp, 4.1 N*m load, K x 0.43, 1 mrad backlash: 2 reversals of 3.3 mrad on "
+          "the final hold (h17w: the integrator's pull-back of a valve stuck just outside the deadband read as a "
+          "relax slip, learned load 8.2 N*m).  Holds since h19b: a slip that contradicts a band known from both "
+          "edges is not learned (SlipEdges.contradicts)",
 }
 
 
@@ -164,16 +168,9 @@ def test_former_campaign_hunters_hold_without_hunting(robustness_bench, seed):
     assert not r["hunts"] and not r["fault"], FORMER_HUNTERS[seed]
 
 
-#: full-box seeds that still hunt after h17w (1 of 200; 2 with observer_fp, h18s), with what was traced
+#: full-box seeds that still hunt after h17w (1 of 200; 2 with observer_fp, h18s; 1052 holds since h19b),
+#: with what was traced
 STILL_HUNTING = {
-    1052: "Stribeck friction x 0.50 at max Δp, 4.1 N*m load, K x 0.43, 1 mrad backlash: 2 reversals of 3.3 mrad on "
-          "the final hold.  Traced (h17w): the 6.3 mrad jump after a followed 2.9 mrad demand step was read as a "
-          "relax slip (edge 4.7 N*m), then the integrator's pull-back of the valve, stuck just outside the 5.5 mrad "
-          "deadband for 1.3 s, as another with the drive torque of 1.3 s before: learned load 8.2 N*m, the relax "
-          "slipped it open beyond the band.  Re-taking the relax's place after a reference shift only where the "
-          "valve rests again (measured, removed again) cures it, but on the full campaign 1022 then hunted and "
-          "1095 latched a fault (with the place also dropped while the integrator pulls: 1022, 1043, 1177 "
-          "hunted) -- not kept",
     1071: "LuGre friction x 2.23 at 1.44 MPa with the Δp reading missing (scheduled for max Δp), K x 0.73, "
           "2.1 N*m load: hunts with observer_fp (the default since h18s; full box 200 runs: 2 hunting, 1052 and "
           "1071), not with observer_ff; not traced here (the fine stage's full-box hunters: task h18g)",

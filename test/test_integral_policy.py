@@ -38,6 +38,23 @@ def test_an_opposite_edge_beyond_this_one_is_not_used():
     assert load == pytest.approx(LOAD + STATIC - 0.5 * TOLD_STATIC)
 
 
+def test_a_held_load_is_known_only_from_two_consistent_edges():
+    """h19b: the breakaway start's retreat trusts a one-way breakaway reading net of the held load
+    only when that load is known: both edges met and the opening one above the closing one.  None
+    met (assumed 0), one edge (the scheduled level's prior) or contradictory edges (one of them
+    was no edge of the band, campaign seeds 1022, 1029) each leave it off by up to the static level."""
+    edges = SlipEdges()
+    assert not edges.known
+    edges.met(LOAD - STATIC, -1.0)
+    assert not edges.known
+    edges.met(LOAD - 2.0 * STATIC, +1.0)            # an "opening edge" below the closing one
+    assert not edges.known
+    edges.met(LOAD + STATIC, +1.0)
+    assert edges.known
+    edges.reset()
+    assert not edges.known
+
+
 def test_the_learned_load_stays_within_the_continuous_torque_with_both_edges():
     load = POLICY.learn_load(30.0, +1.0, TOLD_STATIC, 5.0, 28.0)
     assert load == pytest.approx(LIMIT_NM - 5.0)
@@ -115,3 +132,21 @@ def test_a_valve_creeping_under_a_wrong_dp_reading_is_held_without_hunting(inert
     r = grid.run_cell("observer_ff", cell, told_dp_kpa=PRESSURE_MAX_KPA)
     assert not r["fault"]
     assert r["tail_pp_rad"] <= r["hunting_allowance_rad"], r
+
+
+def test_a_slip_contradicting_a_known_band_is_not_an_edge_of_it():
+    """h19b, campaign seed 1082: edges at 1.1 (closing) and 3.73 N*m (opening) gave 2.41 N*m; the
+    integrator's pull back after an overshoot then read as a closing slip at 4.48 N*m, beyond the
+    opening edge.  Learned with the one-edge prior it put the load at 7.23 N*m (the next move
+    started from a drive cocked 5 N*m open and ran 22 mrad past).  Such a slip contradicts a known
+    band: not learned, the band unknown from then on (the next slip a first edge again)."""
+    edges = SlipEdges()
+    assert not edges.contradicts(4.48, -1.0)              # nothing known: every slip teaches
+    edges.met(1.1, -1.0)
+    assert not edges.contradicts(4.48, +1.0)              # one edge: not known either
+    edges.met(3.73, +1.0)
+    assert edges.known
+    assert edges.contradicts(4.48, -1.0)                  # a closing "edge" above the opening one
+    assert edges.contradicts(0.9, +1.0)                   # an opening "edge" below the closing one
+    assert not edges.contradicts(0.9, -1.0)               # the band's own edges move: learned as before
+    assert not edges.contradicts(3.9, +1.0)

@@ -43,6 +43,10 @@ class Context:
     armed: float = 0.0          # direction of a planned move waiting for breakaway (Reference.armed)
     broke_away: bool = False    # the valve broke away this period and started that move
     held_load: float = 0.0      # steady valve load beyond the known one the law holds, N*m (+ toward open)
+    #: the held load is known: learned from both edges of the static band, consistently
+    #: (:attr:`~.integral_policy.SlipEdges.known`); False: nothing learned yet, or from one edge's
+    #: prior or from edges that contradict each other (it may be off by the static friction)
+    held_load_known: bool = False
 
 
 def _sat(x: float) -> float:
@@ -284,6 +288,11 @@ class ReferenceFeedforward(Compensator):
     ``WAIT_OVERRUN`` x the breakaway this valve has shown plus ``WAIT_MARGIN`` x the scheduled
     level; the retreat acts only while the valve is measured sliding and lapses with its move.
 
+    **h19b**: readings are kept gross of the held load and netted of the one in force when used
+    (:meth:`_reading`; the wait-over test compares the drive net of it too); the retreat is sized
+    on load-free friction (:meth:`_retreat_scale`: the two ways' mean, a one-way reading only net
+    of a held load known from both band edges, else no lower than ``RAMP_MIN_SCALE``).
+
     **Coupling** (h16g): every wind-up also reads the coupling stiffness
     (:class:`CouplingStiffness`, ``coupling_softness`` = K_model / K); it sizes the take-back
     of the stored static-Coulomb twist, the hold's deadband (:meth:`jump_ratio`) and, on a
@@ -334,7 +343,11 @@ class ReferenceFeedforward(Compensator):
         self._armed_dir = 0.0
         self._ramp0 = 0.0                # N*m (valve side), the ramp's level at arming
         self._wait_over = False          # the armed drive passed the breakaway this valve has shown
-        #: latest breakaway reading per direction (met / scheduled; +1 opening, -1 closing)
+        #: latest breakaway reading per direction (+1 opening, -1 closing): the drive beyond the
+        #: *known* load, signed the move's way, over the scheduled level -- gross of any held
+        #: load, so a steady load cancels exactly in the two ways' mean however the held-load
+        #: estimate changed between them, and one way's reading is netted of the held load in
+        #: force when it is used (:meth:`_reading`)
         self._met = {1.0: None, -1.0: None}
         self.retreat_periods = retreat_periods
         self._retreat_periods = 0
@@ -387,8 +400,13 @@ class ReferenceFeedforward(Compensator):
                                        - ctx.held_load)
                 self._ramp0 = max(pressed, sv * self.ramp_start * (fl.valve_static_nm + n * fl.motor_coulomb_nm))
             self._armed_periods += 1
-            self._wait_over = self._overrun(ctx.armed * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa)),
-                                            fl.valve_static_nm + n * fl.motor_coulomb_nm)
+            # net of the held load like the readings it is compared with and the ramp's start: a
+            # load the hold holds against the move's way (campaign seed 1029, 3.2 N*m toward
+            # closed) otherwise counted as drive past breakaway on the first period, every opening
+            # wait ended at once and only the load-helped closing breakaways were ever read
+            self._wait_over = self._overrun(ctx.armed * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa)
+                                                         - ctx.held_load),
+                                            fl.valve_static_nm + n * fl.motor_coulomb_nm, ctx.held_load)
             # the drive less what accelerates the gear output (J1 dω1/dt; the ramp is quick
             # against the drivetrain: left in, 15-period wind-ups read the model's coupling as
             # K x 0.5) is what the coupling carries
@@ -418,7 +436,7 @@ class ReferenceFeedforward(Compensator):
         # model does not know read as friction (toward the load: negative, the scale at its
         # 0.1 bound and the move's feed-forward a tenth of the friction; campaign seeds 1029,
         # 3019, 4-6 N*m); the two directions' mean cancels what is left of it
-        met = s * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa) - ctx.held_load)
+        gross = s * (n * ctx.applied_torque - m.load_torque(ctx.thl, ctx.pressure_kpa))
         static = fl.valve_static_nm + n * fl.motor_coulomb_nm
         if static > 0.0:
             # learned only from a valve that let go while the ramp rose (MIN_RISE of the level
@@ -431,9 +449,9 @@ class ReferenceFeedforward(Compensator):
                 # way is the friction's alone (campaign seed 1006, 4.5 N*m toward closed: every
                 # closing breakaway read 0.1 x, the next ramps stalled and a 4.4e-2 rad move
                 # ended 4.8e-2 rad off)
-                self._met[s] = met / static
+                self._met[s] = gross / static
                 other = self._met[-s]
-                raw = self._met[s] if other is None else 0.5 * (self._met[s] + other)
+                raw = self._reading(s, ctx.held_load, static) if other is None else 0.5 * (self._met[s] + other)
                 ratio = min(max(raw, self.scale_bounds[0]), self.scale_bounds[1])
                 self.breakaway_ratio = ratio
                 self.valve.reset(ratio * fl.valve_coulomb_nm / m.valve_inertia_kgm2)
@@ -452,15 +470,44 @@ class ReferenceFeedforward(Compensator):
             # take back (on K x 0.3 the nominal retreat left 48 % overshoot)
             self.coupling.finish(m.coupling_stiffness_nm_per_rad)
             soft = self.coupling.softness
-            self._retreat_nm = soft * ratio * max(fl.valve_static_nm - fl.valve_coulomb_nm, 0.0)
+            self._retreat_nm = soft * self._retreat_scale(s, ratio, ctx) * max(fl.valve_static_nm - fl.valve_coulomb_nm, 0.0)
             self._retreat_periods = int(round(self.retreat_periods * math.sqrt(soft)))
             self._breakaway_move = True
         self._armed_periods, self._armed_dir, self._wait_over = 0, 0.0, False
         return None
 
-    def _overrun(self, pressed_nm: float, static_nm: float) -> bool:
+    def _retreat_scale(self, direction: float, ratio: float, ctx: Context) -> float:
+        """Friction scale (met / scheduled) the retreat of a move broken away in ``direction``
+        is sized on.  The gap it takes back, the valve's static - Coulomb friction, is friction
+        alone whatever load the valve carries, so it is read where no load enters: the two
+        directions' mean (``ratio`` once both were read: a steady load cancels), or one
+        direction's reading net of a held load that is known (both edges of the static band met,
+        consistently: ``ctx.held_load_known``).  Otherwise the reading carries the error of the
+        load estimate (up to the static level itself) and is used only down to RAMP_MIN_SCALE,
+        the lowest friction the valve can have: a reading below it is a load helping the move.
+        Campaign seeds 1010 (LuGre x 0.58, 1.6 N*m opening load never learned: read 0.33) and
+        1029 (Stribeck x 1.5, 3.2 N*m closing load, held 1.33 N*m from one edge: read at the 0.1
+        bound): the retreat took back a third and a tenth of the gap, the moves ended 3 mrad past
+        their targets and the corrections hunted.  Too large a retreat leaves the valve short
+        of the target, where the move's feedback and the hold take it on without a reversal."""
+        if self._met[-direction] is not None or ctx.held_load_known:
+            return ratio
+        return max(ratio, self.RAMP_MIN_SCALE)
+
+    def _reading(self, direction: float, held_nm: float, static_nm: float) -> float | None:
+        """The latest breakaway reading ``direction``'s way net of the held load ``held_nm``
+        now in force (friction met / scheduled ``static_nm``), None before one.  Netted of the
+        held load of its own time instead, a reading went stale as soon as the hold learned the
+        load better (campaign seed 1029: the closing reading, 0.52 net of 1.33 N*m, was -0.5 net
+        of the 2.45 N*m learned later)."""
+        gross = self._met[direction]
+        if gross is None or static_nm <= 0.0:
+            return None
+        return gross - direction * held_nm / static_nm
+
+    def _overrun(self, pressed_nm: float, static_nm: float, held_nm: float = 0.0) -> bool:
         """Whether the drive, ``pressed_nm`` (valve side, the armed move's way beyond the known
-        load), has passed WAIT_OVERRUN x the breakaway this valve has shown (the latest reading
+        load and the held load ``held_nm``), has passed WAIT_OVERRUN x the breakaway this valve has shown (the latest reading
         this way or the two ways' mean, whichever is larger; ``static_nm`` the scheduled level)
         plus WAIT_MARGIN x the scheduled level.  Before any reading the wait runs its full time
         (a valve three times the model's needs the whole ramp).  A valve that has not let go by
@@ -468,7 +515,7 @@ class ReferenceFeedforward(Compensator):
         the model does not know, 1.7 mrad of backlash on a K x 0.31 coupling: the ramp never
         reached breakaway and the 0.25 s wait ate the whole 0.31 s plateau of a 44 mrad move,
         which then ended 46 mrad short); the clocked move's position feedback then takes it."""
-        seen = [r for r in (self._met[self._armed_dir], self.breakaway_ratio) if r is not None]
+        seen = [r for r in (self._reading(self._armed_dir, held_nm, static_nm), self.breakaway_ratio) if r is not None]
         if not seen:
             return False
         return pressed_nm > (self.WAIT_OVERRUN * max(seen) + self.WAIT_MARGIN) * static_nm

@@ -69,7 +69,16 @@ class IntegralPolicy:
         other way, and the two readings alternated (adaptation grid, Δp 0 told 6206 kPa: the
         learned load flipped −3.2 / +0.5 / −3.0 / +0.7 N*m and the hold hunted 5-8 mrad).  An
         opposite edge that lies beyond this one (``(net − opposite) * direction <= 0``: the band
-        has moved since) is not used.
+        has moved since, or one of the two was no edge of it) is not used, and the load so learned
+        is not *known* (:attr:`SlipEdges.known`).  Measured and not kept (h19b): aiming the relax at
+        the centre of the two contradictory readings instead.  It held campaign seed 1029 (a
+        closing edge at 3.27 N*m, then the integrator's pull read as an opening one at 1.71 N*m,
+        true band 2.1…4.3 N*m: the prior from the newer, false, edge put the load at 1.33 N*m),
+        but on the clock seed 1022 (LuGre x 0.64, 10.2 N*m) then hunted: there the *older* edge
+        was the false one (closing at 15.1 N*m, the genuine opening edge at 13.0 N*m), the centre
+        lay above the band and the prior from the newer edge (11.3 N*m) inside it.  Which of two
+        contradictory readings is false is not known here; 1029 is held by the breakaway start's
+        load-free retreat instead (:meth:`~.compensation.ReferenceFeedforward._retreat_scale`).
 
         Bounded so that the whole load the relax holds, ``known_nm`` (the known load at the
         valve, N*m, + toward closed) plus the learned one, stays within ``load_limit_nm`` (the
@@ -131,6 +140,29 @@ class SlipEdges:
     def met(self, net_nm: float, direction: float) -> None:
         """A slip in ``direction`` at drive torque ``net_nm`` beyond the known load."""
         self.edges[1 if direction > 0.0 else -1] = net_nm
+
+    def contradicts(self, net_nm: float, direction: float) -> bool:
+        """Whether a slip in ``direction`` at drive ``net_nm`` (N*m beyond the known load) lies
+        beyond the opposite edge of a band that is :attr:`known` -- an opening slip below the
+        closing edge, or the reverse.  No band ``L ± Ts`` has such edges: the reading was no edge
+        of it (the integrator pulling a valve back to its target, read as a relax slip), so it is
+        not learned; the band is *unknown* from then on (:meth:`reset`: the next slip is learned
+        as a first edge, so a band that really moved is not locked out) and the load learned so
+        far is kept.  Campaign seed 1082 (Stribeck x 0.81, 2.2 N*m, breakaway start): edges 1.1
+        and 3.73 N*m gave 2.41 N*m; the pull back after an overshoot then read as a closing edge
+        at 4.48 N*m and its prior put the load at 7.23 N*m; the next move started from a drive
+        cocked 5 N*m open, ran 22 mrad past its target and the final hold hunted."""
+        opposite = self.opposite(direction)
+        return self.known and opposite is not None and (net_nm - opposite) * direction <= 0.0
+
+    @property
+    def known(self) -> bool:
+        """Whether the steady load is known from these edges: both met and consistent (the
+        opening edge above the closing one).  None met, the load is not known (only assumed 0);
+        one edge gives it only through the scheduled static level's prior, and of contradictory
+        ones one was no edge of the band (:meth:`IntegralPolicy.learn_load`): each may be off by
+        about the static friction."""
+        return len(self.edges) == 2 and self.edges[1] > self.edges[-1]
 
     @property
     def static_nm(self) -> float | None:

@@ -249,7 +249,8 @@ class StateFeedbackLaw(ControlLaw):
         outside = abs(target - thl) > self.deadband and not ref.moving
         # ---- friction compensation
         ctx = Context(pressure_kpa, th1, w1, thl, wl, valve_speed, self._applied, ref.velocity, ref.acceleration,
-                      ref.moving, error, outside, ref.armed, ref.broke_away, self.held_load)
+                      ref.moving, error, outside, ref.armed, ref.broke_away, self.held_load,
+                      self.met_hold and self.slip_edges.known)
         comp, self._fm, self._fl = self.compensator.update(ctx)
         if ref.armed and self.compensator.wait_over():
             self.shaper.start_clock()           # the valve did not let go where expected (h17b)
@@ -266,7 +267,9 @@ class StateFeedbackLaw(ControlLaw):
             # the resolver's noise, the way the relaxing drive let it go (the relax takes support
             # away from the side the load pushes): a steady load beyond the known one
             net0, moved = slip
-            if moved * (net0 - self.held_load) < 0.0:
+            if moved * (net0 - self.held_load) < 0.0 and self.met_hold and self.slip_edges.contradicts(net0, moved):
+                self.slip_edges.reset()         # a known band contradicted: unknown now, the load kept (h19b)
+            elif moved * (net0 - self.held_load) < 0.0:
                 self.held_load = self.integral.learn_load(
                     net0, moved, friction.valve_static_nm,
                     load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.met_hold else None)
