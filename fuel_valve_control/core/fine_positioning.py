@@ -125,6 +125,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..common.hunting import HUNT_REVERSALS, ReversalCounter
 from .model import NominalModel
 
 IDLE, PARK, PULSE, OBSERVE, HOLD = "idle", "park", "pulse", "observe", "hold"
@@ -147,6 +148,10 @@ EARLY_BREAKS = 2
 #: without a breakaway seen on the plateau the stage waits this many engage times (a step the
 #: main law does not move the valve for)
 FRESH_WAIT = 10
+#: the stage counts the valve's reversals on the mean of this many resolver samples: on the raw
+#: samples (0.25 count rms noise, quantised) it counted up to 236 reversals on nominal-box plateaus
+#: where the metric (true angle) counts 0, and held 46 of 82 plateaus > 8e-4 rad for them
+REVERSAL_MEAN_PERIODS = 8
 
 
 class FineLearner:
@@ -287,6 +292,11 @@ class FineConfig:
                                      # of T_s(Δp)/K of the nominal breakaway twist, else the stage stays out
     fit_margin: float = math.inf  # the twist holding the valve at rest must lie inside the nominal static
                                   # band widened by this fraction of T_s(Δp)/K, else the stage stays out
+    reversal_window_periods: int | None = None  # the valve's reversals on a plateau are counted from this
+                                  # many periods after its start, as the hunting metric counts them (None:
+                                  # never: the stage moves regardless)
+    no_cross_short: float = 0.0   # a move that must not cross the target aims this fraction of the stick-slip
+                                  # jump short of it, and is made only for an error of at least twice that
 
 
 class FinePositioner:
@@ -330,6 +340,9 @@ class FinePositioner:
         self.crossings_this_plateau = 0
         self._early_breaks = 0        # breakaways below the planned preload on this plateau
         self._unfit = False           # the valve showed on this plateau that the model does not fit it
+        self._plateau_k = 0           # periods since the plateau started
+        self._reversals = None        # ReversalCounter of the valve on the plateau's late window
+        self._recent = []             # the last REVERSAL_MEAN_PERIODS valve samples, rad
 
     # ------------------------------------------------------------------ nominal twists
     def _nominal(self, thl: float, pressure_kpa: float, direction: int) -> tuple[float, float]:
@@ -398,6 +411,7 @@ class FinePositioner:
             self._plateau = target
             self._new_plateau()
             self._fresh = False           # no breakaway seen on this plateau yet
+        self._count_reversals(thl)
         if self.phase != IDLE:
             # a demand shifted within the tolerance (a noisy analog demand, conditioned) is the same
             # plateau: it was reset at every shift and re-engaged with a fresh budget of pulses, so
@@ -420,6 +434,8 @@ class FinePositioner:
                     or self._record_bad(err, pressure_kpa):
                 self._unfit = True
                 return None
+            if self._cross_guard(err, pressure_kpa) is None:
+                return None               # a move now could make the plateau hunt: the main law holds
             self._engage(target, th1, thl, torque_now, pressure_kpa)
         return self._run(th1, w1, thl, pressure_kpa)
 
@@ -487,8 +503,9 @@ class FinePositioner:
         # a new staircase; short, it ends on the same side, where the doublet finishes the move.
         # (Sized by the band, not in rad: 5e-4 rad short at Δp 0, a tenth of the band there,
         # left a doublet to a valve the pulse had put on target -- 28 % overshoot of a 2 % step.)
-        doublet = abs(err) <= cfg.doublet_max_error_rad and cfg.kick_current_a > 0.0
-        aim = err if doublet else d * max(abs(err) - cfg.approach_short * gap, 0.0)
+        short = self._cross_guard(err, pressure_kpa) or 0.0
+        doublet = abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short) and cfg.kick_current_a > 0.0
+        aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
         final = phi_e + aim / 2.0
         pre = phi_b - d * cfg.preload_margin * gap
         peak = phi_b + d * cfg.overdrive_fraction * gap
@@ -760,13 +777,60 @@ class FinePositioner:
             # learned does not fit the model: the model does not describe this valve
             self._hand_back()
             return
-        if abs(err) <= cfg.tolerance_rad or self._spent() or self._below_min_move(err, pressure_kpa):
-            # close enough, or its moves are larger than the error left: hold where it is
+        if abs(err) <= cfg.tolerance_rad or self._spent() or self._below_min_move(err, pressure_kpa) \
+                or self._cross_guard(err, pressure_kpa) is None:
+            # close enough, or its moves are larger than the error left, or a move could make the
+            # plateau hunt: hold where it is
             self._judge(failed=abs(err) > self._err0 + cfg.tolerance_rad)
             self.phase = HOLD
             self._hold_ref = th1
             return
         self._start_pulse(th1, thl, pressure_kpa)
+
+    def _count_reversals(self, thl: float) -> None:
+        """Count the valve's direction reversals on this plateau as the hunting metric counts them
+        (:class:`~fuel_valve_control.common.hunting.ReversalCounter`, from ``reversal_window_periods``
+        after the plateau's start) -- on the measured angle averaged over ``REVERSAL_MEAN_PERIODS``
+        (the metric counts on the true one)."""
+        k = self.cfg.reversal_window_periods
+        if k is None:
+            return
+        self._plateau_k += 1
+        recent = self._recent
+        recent.append(thl)
+        if len(recent) > REVERSAL_MEAN_PERIODS:
+            del recent[0]
+        mean = sum(recent) / len(recent)
+        if self._reversals is not None:
+            self._reversals.update(mean)
+        elif self._plateau_k >= k:
+            self._reversals = ReversalCounter(mean)
+
+    def _cross_guard(self, err: float, pressure_kpa: float) -> float | None:
+        """Whether a move toward the target (``err`` = target - valve, rad) can be made without
+        the plateau hunting by the metric (:mod:`~fuel_valve_control.common.hunting`: two
+        reversals on its late window), and how far short it must aim: ``None`` = no move;
+        0 = free (it may cross the target: the move back is still allowed); > 0 = the move, or
+        the one after it, would make the last reversal the metric allows, so it must not cross
+        the target again: it aims ``fine.no_cross_short`` x the stick-slip jump short (its moves
+        spread with the jump: a preload that breaks the valve loose moves it a whole jump, a
+        servo-blended pulse's overshoot its aim by up to ~0.35 of it) and is made only for an
+        error of at least twice that (the servo-blended pulse's smallest moves are ~0.3-0.4 of
+        the jump; the doublet's, ~0.19-0.35 of it, cross 4 times in 5: task h19x, nominal box).
+        The stage never makes the reversal that would be the metric's second (nominal box, main
+        26f43b9: 4 of 40 runs hunted by the stage's crossing moves, each a pulse sized larger
+        than the error it was for)."""
+        c = self._reversals
+        if c is None:
+            return 0.0
+        d = 1 if err > 0 else -1
+        after = c.count + (1 if c.direction == -d else 0)
+        if after >= HUNT_REVERSALS:
+            return None
+        if after < HUNT_REVERSALS - 1:
+            return 0.0
+        return self.cfg.no_cross_short * self.m.friction(pressure_kpa).stick_slip_jump_rad(
+            self.m.coupling_stiffness_nm_per_rad)
 
     def _scatter(self, d: int, b: int, gap: float) -> float:
         """The learned rms scatter (rad) of the breakaway twist from stop to stop, or before any
