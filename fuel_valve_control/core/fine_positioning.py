@@ -431,6 +431,7 @@ class FinePositioner:
                 # small for it: the last breakaway seen is the evidence)
                 return None
             if not self._twist_fits(th1 - thl, thl, pressure_kpa) or not self._breakaway_fits() \
+                    or self._rests_beyond_breakaway(th1 - thl, thl, pressure_kpa, 1 if err > 0 else -1) \
                     or self._record_bad(err, pressure_kpa):
                 self._unfit = True
                 return None
@@ -701,6 +702,21 @@ class FinePositioner:
         static = m.friction(pressure_kpa).valve_static_nm / k
         centre = m.load_torque(thl, pressure_kpa) / k
         return abs(phi - centre) <= static * (1.0 + self.cfg.fit_margin)
+
+    def _rests_beyond_breakaway(self, phi: float, thl: float, pressure_kpa: float, direction: int) -> bool:
+        """Whether a valve held at rest by the twist ``phi`` (rad) already lies beyond the breakaway
+        twist the stage would plan for a move in ``direction`` (nominal plus learned), by more than
+        ``fine.doublet_sigmas`` learned scatters of it: its breakaway is then higher than planned,
+        the preload would unwind the twist holding it and the pulses never reach it.  Campaign seed
+        1071 (LuGre friction x2.2, Δp reading missing, K x0.73; h18g, task h19x): engaged at rest
+        ~2e-3 rad of twist past the planned breakaway, 9-13 pulses that never moved the valve, then
+        handed back to a main law that hunted on the final hold.  Such a plateau is left to the
+        main law's hold.  (Branch h18g, which plans from learned twists, has the same test on
+        them.)"""
+        e0, b0 = self._nominal(thl, pressure_kpa, direction)
+        phi_e, phi_b, band = self._twists(thl, pressure_kpa, direction)
+        sigma = self._scatter(direction, band, max(direction * (phi_b - phi_e), 1e-5))
+        return direction * (phi - phi_b) > self.cfg.doublet_sigmas * sigma
 
     def _below_min_move(self, err: float, pressure_kpa: float) -> bool:
         """Whether the error is so small against the smallest move pulses have made that a
