@@ -554,3 +554,25 @@ def test_nominal_runs_the_stage_made_hunt_hold_without_hunting(robustness_bench,
     r = robustness_bench.run_case((robustness_bench.sample_case(seed, "nominal"), "observer_fp", {}))
     assert not r["hunts"] and not r["fault"]
     assert max(pl["final_error_rad"] for pl in r["plateaus"]) < 4.6e-3     # within one stick-slip jump
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_valve_at_rest_past_the_planned_breakaway_is_left_to_the_hold(direction):
+    """A valve held at rest by a twist beyond the breakaway twist the stage would plan for the
+    move (by more than ``fine.doublet_sigmas`` learned scatters) breaks loose higher than planned:
+    the preload would unwind the twist holding it and the pulses never reach it (campaign seed
+    1071: 9-13 pulses that never moved the valve, a hand-back, then the main law hunted).  The
+    plateau stays with the main law's hold; just short of that twist the stage engages."""
+    fine, m = _stage()
+    p = m.pressure_max_kpa
+    thl = 0.5
+    phi_e, phi_b, band = fine._twists(thl, p, direction)
+    sigma = fine._scatter(direction, band, direction * (phi_b - phi_e))
+    limit = phi_b + direction * fine.cfg.doublet_sigmas * sigma
+    # (both inside the nominal band widened by fine.fit_margin: only the new rule tells them apart)
+    static = m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
+    for phi in (limit + direction * 2e-4, limit - direction * 2e-4):
+        assert abs(phi - _rest_twist(fine, thl, p)) < static * (1.0 + fine.cfg.fit_margin)
+    assert not _engages(fine, direction * 2e-3, p, limit + direction * 2e-4)
+    fine.reset()
+    assert _engages(fine, direction * 2e-3, p, limit - direction * 2e-4)
