@@ -45,6 +45,19 @@ is not pulsed -- the move would leave the valve further off (m improves e only i
 A servo-blended pulse (errors beyond the doublet's) aims ``fine.approach_short_rad`` short of
 the target, so that the doublet finishes from the same side.
 
+Never a hunt by the metric (task h19x).  The campaign calls a plateau hunting when its valve
+reverses direction twice (moves > 1 count) from 0.3 s after the step with more than 2 counts half
+peak-to-peak (:mod:`fuel_valve_control.common.hunting`); the stage's moves are larger than the
+errors they are for (a doublet crosses the target 4 times in 5, a servo-blended pulse for 1-2e-3
+rad 3 times in 4), and on main 26f43b9 4 of 40 nominal-box runs hunted by them.  The stage counts
+the valve's reversals on the plateau as the metric does (its :class:`ReversalCounter`, on the
+measured angle averaged over ``REVERSAL_MEAN_PERIODS``, from ``fine.reversal_lead_s`` before the
+metric's window) and never makes the reversal that would be the second; the move that would be
+the last one allowed (the way back after a crossing) must not cross again: up to twice
+``fine.no_cross_short`` x the stick-slip jump it is a doublet, beyond that a servo-blended pulse
+aiming that far short (:meth:`FinePositioner._cross_guard`).  A valve at rest past the breakaway
+twist the stage would plan is left to the main law's hold (:meth:`FinePositioner._rests_beyond_breakaway`).
+
 What limits it (nominal box, ``benchmarks/robustness.py --box nominal --runs 20``, 240
 plateaus): final error median 3.3e-4, p95 9.6e-4, max 3.6e-3 rad (before this task 3.8e-4 /
 1.29e-3 / 2.0e-3).  The floor is half the smallest move (~0.45e-3 rad at 30 A and one-period
