@@ -726,7 +726,6 @@ class FinePositioner:
         handed back to a main law that hunted on the final hold.  Such a plateau is left to the
         main law's hold.  (Branch h18g, which plans from learned twists, has the same test on
         them.)"""
-        e0, b0 = self._nominal(thl, pressure_kpa, direction)
         phi_e, phi_b, band = self._twists(thl, pressure_kpa, direction)
         sigma = self._scatter(direction, band, max(direction * (phi_b - phi_e), 1e-5))
         return direction * (phi - phi_b) > self.cfg.doublet_sigmas * sigma
