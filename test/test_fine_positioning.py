@@ -1,5 +1,6 @@
 """Fine positioning (mode ``observer_fp``, issue 14): the learned friction twists (bounded,
 reset, visible, saved and loaded) and what the stage does in closed loop."""
+import dataclasses
 import functools
 import math
 import json
@@ -260,7 +261,9 @@ def test_stage_stays_out_of_a_valve_whose_twist_at_rest_the_model_cannot_explain
     """A stuck valve's twist lies inside its static band (load +- T_s(Δp)) / K.  Held beyond the
     nominal band (an unknown load, a softer coupling, a wrong Δp: quick campaign runs whose
     preload unloaded the coupling and let the valve slide 7e-3 rad away, three times a plateau)
-    the stage leaves the plateau to the main law; inside it (scatter and ripple) it engages."""
+    the stage leaves the plateau to the main law; inside it (scatter and ripple) it engages --
+    for a move back into the band: a move further out from a twist past the breakaway the stage
+    would plan is left to the hold as well (test_a_valve_at_rest_past_the_planned_breakaway_is_left_to_the_hold)."""
     fine, m = _stage()
     p = m.pressure_max_kpa
     static = m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
@@ -268,7 +271,7 @@ def test_stage_stays_out_of_a_valve_whose_twist_at_rest_the_model_cannot_explain
     widened = static * (1.0 + fine.cfg.fit_margin)
     for err in (1e-3, -1e-3):
         fine.reset()
-        assert _engages(fine, err, p, centre + side * 0.95 * widened)
+        assert _engages(fine, err, p, centre + side * 0.95 * widened) is (err * side < 0)
         fine.reset()
         assert not _engages(fine, err, p, centre + side * 1.05 * widened)
         assert not _engages(fine, err, p, centre)        # ... nor later on the same demand
@@ -464,3 +467,114 @@ def test_a_hand_back_keeps_the_load_the_main_laws_hold_learned():
     law.update(0.001, th, meas, p)
     assert law.main.held_load == pytest.approx(4.0)
     assert law.main.slip_edges.edges == {1: 6.0, -1: 2.0}
+
+
+def _valve_history(fine, pressure_kpa, target, stops, rest=20, first=None):
+    """Feed the stage a plateau on ``target`` on which the main law (the stage told it is not
+    holding) leaves the valve at rest at each of ``stops`` (valve angles, rad) in turn, the first
+    until the hunting metric's window has begun (or ``first`` periods); each stop's twist is the nominal breakaway twist
+    toward the next one (the evidence the stage engages on).  Returns the last stop's twist."""
+    first = fine.cfg.reversal_window_periods + 5 if first is None else first
+    phi = 0.0
+    for i, v in enumerate(stops):
+        d = 1 if i + 1 < len(stops) and stops[i + 1] > v else -1
+        if i + 1 == len(stops):
+            d = 1 if target > v else -1
+        phi = fine._nominal(v, pressure_kpa, d)[1]
+        for _ in range(first if i == 0 else rest):
+            assert fine.update(target, v + phi, v, False, 0.3, pressure_kpa) is None
+    return phi
+
+
+def _engages_after(fine, pressure_kpa, target, stops, first=None) -> bool:
+    phi = _valve_history(fine, pressure_kpa, target, stops, first=first)
+    v = stops[-1]
+    return any(fine.update(target, v + phi, v, True, 0.3, pressure_kpa) is not None for _ in range(_patience(fine)))
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_the_stage_never_makes_the_metrics_second_reversal(direction):
+    """A plateau hunts by the metric (common.hunting) when its valve reverses twice from 0.3 s
+    after the step.  The stage counts the reversals as the metric does and never makes the one
+    that would be the second: a valve that crossed the target and came back short of it is left
+    where it is, one that reached the same place in one move is pulsed on (nominal box, main
+    26f43b9: 4 of 40 runs hunted by the stage's crossing moves, each larger than its error)."""
+    fine, m = _stage()
+    p = m.pressure_max_kpa
+    d, v0 = direction, 0.5
+    target = v0 + d * 4e-3
+    _break_loose(fine, v0, p)
+    # one move toward the target, short of it: no reversal yet, the stage pulses on
+    assert _engages_after(fine, p, target, [v0, v0 + d * 1.5e-3])
+    fine, m = _stage()
+    _break_loose(fine, v0, p)
+    # across the target (a first direction), back short of it (reversal 1): a move toward the
+    # target again would be reversal 2
+    assert not _engages_after(fine, p, target, [v0, v0 + d * 6e-3, v0 + d * 1.5e-3])
+    assert fine._reversals.count == 1 and fine._reversals.direction == -d
+    # the same history before the metric's window (HUNT_SETTLE_S after the step) is not counted
+    fine, m = _stage()
+    _break_loose(fine, v0, p)
+    win = fine.cfg.reversal_window_periods
+    assert win * fine.period == pytest.approx(0.3 - CONTROLLER_SPEC.defaults()["fine.reversal_lead_s"])
+    fine.cfg = dataclasses.replace(fine.cfg, reversal_window_periods=win + 5 + 2 * 20 + 10)
+    assert _engages_after(fine, p, target, [v0, v0 + d * 6e-3, v0 + d * 1.5e-3], first=win + 5)
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_move_back_across_the_target_must_not_cross_it_again(direction):
+    """After the first move in the metric's window crossed the target, the move back is the last
+    reversal the metric allows: it must not cross again.  Up to twice ``fine.no_cross_short`` x
+    the stick-slip jump it is a doublet (the smallest move, ~0.19 of the jump) even beyond
+    ``fine.doublet_max_error_rad``; beyond that a servo-blended pulse aiming that far short."""
+    ps = CONTROLLER_SPEC.defaults()
+    for err, doublet in ((2.0e-3, True), (6.0e-3, False)):
+        fine, m = _stage()
+        p = m.pressure_max_kpa
+        d, v0 = direction, 0.5
+        short = ps["fine.no_cross_short"] * m.friction(p).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
+        assert ps["fine.doublet_max_error_rad"] < 2.0e-3 < 2.0 * short < 6.0e-3
+        v1 = v0 + d * 12e-3                      # crossed: the target lies back the way it came
+        target = v1 - d * err
+        _break_loose(fine, v0, p)
+        assert _engages_after(fine, p, target, [v0, v1])
+        assert fine._dir == -d and fine._doublet is doublet
+        if not doublet:
+            phi_e, _, _ = fine._twists(v1, p, -d)
+            assert fine._final == pytest.approx(phi_e - d * (err - short) / 2.0)
+
+
+#: nominal-box runs (``robustness.py --box nominal --seed S --runs 1``) that hunted on main 26f43b9
+#: by the stage's own crossing moves: servo-blended pulses for errors of 1.1-1.9e-3 rad that moved
+#: the valve 2.5-5e-3 across the target, then pulses back and forth (two reversals > 2 counts)
+NOMINAL_CROSSING_HUNTERS = (1002, 1004, 1015, 1022)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", NOMINAL_CROSSING_HUNTERS)
+def test_nominal_runs_the_stage_made_hunt_hold_without_hunting(robustness_bench, seed):
+    r = robustness_bench.run_case((robustness_bench.sample_case(seed, "nominal"), "observer_fp", {}))
+    assert not r["hunts"] and not r["fault"]
+    assert max(pl["final_error_rad"] for pl in r["plateaus"]) < 4.6e-3     # within one stick-slip jump
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_valve_at_rest_past_the_planned_breakaway_is_left_to_the_hold(direction):
+    """A valve held at rest by a twist beyond the breakaway twist the stage would plan for the
+    move (by more than ``fine.doublet_sigmas`` learned scatters) breaks loose higher than planned:
+    the preload would unwind the twist holding it and the pulses never reach it (campaign seed
+    1071: 9-13 pulses that never moved the valve, a hand-back, then the main law hunted).  The
+    plateau stays with the main law's hold; just short of that twist the stage engages."""
+    fine, m = _stage()
+    p = m.pressure_max_kpa
+    thl = 0.5
+    phi_e, phi_b, band = fine._twists(thl, p, direction)
+    sigma = fine._scatter(direction, band, direction * (phi_b - phi_e))
+    limit = phi_b + direction * fine.cfg.doublet_sigmas * sigma
+    # (both inside the nominal band widened by fine.fit_margin: only the new rule tells them apart)
+    static = m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
+    for phi in (limit + direction * 2e-4, limit - direction * 2e-4):
+        assert abs(phi - _rest_twist(fine, thl, p)) < static * (1.0 + fine.cfg.fit_margin)
+    assert not _engages(fine, direction * 2e-3, p, limit + direction * 2e-4)
+    fine.reset()
+    assert _engages(fine, direction * 2e-3, p, limit - direction * 2e-4)

@@ -45,6 +45,19 @@ is not pulsed -- the move would leave the valve further off (m improves e only i
 A servo-blended pulse (errors beyond the doublet's) aims ``fine.approach_short_rad`` short of
 the target, so that the doublet finishes from the same side.
 
+Never a hunt by the metric (task h19x).  The campaign calls a plateau hunting when its valve
+reverses direction twice (moves > 1 count) from 0.3 s after the step with more than 2 counts half
+peak-to-peak (:mod:`fuel_valve_control.common.hunting`); the stage's moves are larger than the
+errors they are for (a doublet crosses the target 4 times in 5, a servo-blended pulse for 1-2e-3
+rad 3 times in 4), and on main 26f43b9 4 of 40 nominal-box runs hunted by them.  The stage counts
+the valve's reversals on the plateau as the metric does (its :class:`ReversalCounter`, on the
+measured angle averaged over ``REVERSAL_MEAN_PERIODS``, from ``fine.reversal_lead_s`` before the
+metric's window) and never makes the reversal that would be the second; the move that would be
+the last one allowed (the way back after a crossing) must not cross again: up to twice
+``fine.no_cross_short`` x the stick-slip jump it is a doublet, beyond that a servo-blended pulse
+aiming that far short (:meth:`FinePositioner._cross_guard`).  A valve at rest past the breakaway
+twist the stage would plan is left to the main law's hold (:meth:`FinePositioner._rests_beyond_breakaway`).
+
 What limits it (nominal box, ``benchmarks/robustness.py --box nominal --runs 20``, 240
 plateaus): final error median 3.3e-4, p95 9.6e-4, max 3.6e-3 rad (before this task 3.8e-4 /
 1.29e-3 / 2.0e-3).  The floor is half the smallest move (~0.45e-3 rad at 30 A and one-period
@@ -125,6 +138,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..common.hunting import HUNT_REVERSALS, ReversalCounter
 from .model import NominalModel
 
 IDLE, PARK, PULSE, OBSERVE, HOLD = "idle", "park", "pulse", "observe", "hold"
@@ -147,6 +161,10 @@ EARLY_BREAKS = 2
 #: without a breakaway seen on the plateau the stage waits this many engage times (a step the
 #: main law does not move the valve for)
 FRESH_WAIT = 10
+#: the stage counts the valve's reversals on the mean of this many resolver samples: on the raw
+#: samples (0.25 count rms noise, quantised) it counted up to 236 reversals on nominal-box plateaus
+#: where the metric (true angle) counts 0, and held 46 of 82 plateaus > 8e-4 rad for them
+REVERSAL_MEAN_PERIODS = 8
 
 
 class FineLearner:
@@ -287,6 +305,11 @@ class FineConfig:
                                      # of T_s(Δp)/K of the nominal breakaway twist, else the stage stays out
     fit_margin: float = math.inf  # the twist holding the valve at rest must lie inside the nominal static
                                   # band widened by this fraction of T_s(Δp)/K, else the stage stays out
+    reversal_window_periods: int | None = None  # the valve's reversals on a plateau are counted from this
+                                  # many periods after its start, as the hunting metric counts them (None:
+                                  # never: the stage moves regardless)
+    no_cross_short: float = 0.0   # a move that must not cross the target aims this fraction of the stick-slip
+                                  # jump short of it, and is made only for an error of at least twice that
 
 
 class FinePositioner:
@@ -330,6 +353,9 @@ class FinePositioner:
         self.crossings_this_plateau = 0
         self._early_breaks = 0        # breakaways below the planned preload on this plateau
         self._unfit = False           # the valve showed on this plateau that the model does not fit it
+        self._plateau_k = 0           # periods since the plateau started
+        self._reversals = None        # ReversalCounter of the valve on the plateau's late window
+        self._recent = []             # the last REVERSAL_MEAN_PERIODS valve samples, rad
 
     # ------------------------------------------------------------------ nominal twists
     def _nominal(self, thl: float, pressure_kpa: float, direction: int) -> tuple[float, float]:
@@ -398,6 +424,7 @@ class FinePositioner:
             self._plateau = target
             self._new_plateau()
             self._fresh = False           # no breakaway seen on this plateau yet
+        self._count_reversals(thl)
         if self.phase != IDLE:
             # a demand shifted within the tolerance (a noisy analog demand, conditioned) is the same
             # plateau: it was reset at every shift and re-engaged with a fresh budget of pulses, so
@@ -417,9 +444,12 @@ class FinePositioner:
                 # small for it: the last breakaway seen is the evidence)
                 return None
             if not self._twist_fits(th1 - thl, thl, pressure_kpa) or not self._breakaway_fits() \
+                    or self._rests_beyond_breakaway(th1 - thl, thl, pressure_kpa, 1 if err > 0 else -1) \
                     or self._record_bad(err, pressure_kpa):
                 self._unfit = True
                 return None
+            if self._cross_guard(err, pressure_kpa) is None:
+                return None               # a move now could make the plateau hunt: the main law holds
             self._engage(target, th1, thl, torque_now, pressure_kpa)
         return self._run(th1, w1, thl, pressure_kpa)
 
@@ -487,8 +517,9 @@ class FinePositioner:
         # a new staircase; short, it ends on the same side, where the doublet finishes the move.
         # (Sized by the band, not in rad: 5e-4 rad short at Δp 0, a tenth of the band there,
         # left a doublet to a valve the pulse had put on target -- 28 % overshoot of a 2 % step.)
-        doublet = abs(err) <= cfg.doublet_max_error_rad and cfg.kick_current_a > 0.0
-        aim = err if doublet else d * max(abs(err) - cfg.approach_short * gap, 0.0)
+        short = self._cross_guard(err, pressure_kpa) or 0.0
+        doublet = abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short) and cfg.kick_current_a > 0.0
+        aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
         final = phi_e + aim / 2.0
         pre = phi_b - d * cfg.preload_margin * gap
         peak = phi_b + d * cfg.overdrive_fraction * gap
@@ -685,6 +716,20 @@ class FinePositioner:
         centre = m.load_torque(thl, pressure_kpa) / k
         return abs(phi - centre) <= static * (1.0 + self.cfg.fit_margin)
 
+    def _rests_beyond_breakaway(self, phi: float, thl: float, pressure_kpa: float, direction: int) -> bool:
+        """Whether a valve held at rest by the twist ``phi`` (rad) already lies beyond the breakaway
+        twist the stage would plan for a move in ``direction`` (nominal plus learned), by more than
+        ``fine.doublet_sigmas`` learned scatters of it: its breakaway is then higher than planned,
+        the preload would unwind the twist holding it and the pulses never reach it.  Campaign seed
+        1071 (LuGre friction x2.2, Δp reading missing, K x0.73; h18g, task h19x): engaged at rest
+        ~2e-3 rad of twist past the planned breakaway, 9-13 pulses that never moved the valve, then
+        handed back to a main law that hunted on the final hold.  Such a plateau is left to the
+        main law's hold.  (Branch h18g, which plans from learned twists, has the same test on
+        them.)"""
+        phi_e, phi_b, band = self._twists(thl, pressure_kpa, direction)
+        sigma = self._scatter(direction, band, max(direction * (phi_b - phi_e), 1e-5))
+        return direction * (phi - phi_b) > self.cfg.doublet_sigmas * sigma
+
     def _below_min_move(self, err: float, pressure_kpa: float) -> bool:
         """Whether the error is so small against the smallest move pulses have made that a
         pulse would most likely leave the valve further from the target (a move ``m`` improves
@@ -760,13 +805,60 @@ class FinePositioner:
             # learned does not fit the model: the model does not describe this valve
             self._hand_back()
             return
-        if abs(err) <= cfg.tolerance_rad or self._spent() or self._below_min_move(err, pressure_kpa):
-            # close enough, or its moves are larger than the error left: hold where it is
+        if abs(err) <= cfg.tolerance_rad or self._spent() or self._below_min_move(err, pressure_kpa) \
+                or self._cross_guard(err, pressure_kpa) is None:
+            # close enough, or its moves are larger than the error left, or a move could make the
+            # plateau hunt: hold where it is
             self._judge(failed=abs(err) > self._err0 + cfg.tolerance_rad)
             self.phase = HOLD
             self._hold_ref = th1
             return
         self._start_pulse(th1, thl, pressure_kpa)
+
+    def _count_reversals(self, thl: float) -> None:
+        """Count the valve's direction reversals on this plateau as the hunting metric counts them
+        (:class:`~fuel_valve_control.common.hunting.ReversalCounter`, from ``reversal_window_periods``
+        after the plateau's start) -- on the measured angle averaged over ``REVERSAL_MEAN_PERIODS``
+        (the metric counts on the true one)."""
+        k = self.cfg.reversal_window_periods
+        if k is None:
+            return
+        self._plateau_k += 1
+        recent = self._recent
+        recent.append(thl)
+        if len(recent) > REVERSAL_MEAN_PERIODS:
+            del recent[0]
+        mean = sum(recent) / len(recent)
+        if self._reversals is not None:
+            self._reversals.update(mean)
+        elif self._plateau_k >= k:
+            self._reversals = ReversalCounter(mean)
+
+    def _cross_guard(self, err: float, pressure_kpa: float) -> float | None:
+        """Whether a move toward the target (``err`` = target - valve, rad) can be made without
+        the plateau hunting by the metric (:mod:`~fuel_valve_control.common.hunting`: two
+        reversals on its late window), and how far short it must aim: ``None`` = no move;
+        0 = free (it may cross the target: the move back is still allowed); > 0 = the move, or
+        the one after it, would make the last reversal the metric allows, so it must not cross
+        the target again: it aims ``fine.no_cross_short`` x the stick-slip jump short (its moves
+        spread with the jump: a preload that breaks the valve loose moves it a whole jump, a
+        servo-blended pulse's overshoot its aim by up to ~0.35 of it) and is made only for an
+        error of at least twice that (the servo-blended pulse's smallest moves are ~0.3-0.4 of
+        the jump; the doublet's, ~0.19-0.35 of it, cross 4 times in 5: task h19x, nominal box).
+        The stage never makes the reversal that would be the metric's second (nominal box, main
+        26f43b9: 4 of 40 runs hunted by the stage's crossing moves, each a pulse sized larger
+        than the error it was for)."""
+        c = self._reversals
+        if c is None:
+            return 0.0
+        d = 1 if err > 0 else -1
+        after = c.count + (1 if c.direction == -d else 0)
+        if after >= HUNT_REVERSALS:
+            return None
+        if after < HUNT_REVERSALS - 1:
+            return 0.0
+        return self.cfg.no_cross_short * self.m.friction(pressure_kpa).stick_slip_jump_rad(
+            self.m.coupling_stiffness_nm_per_rad)
 
     def _scatter(self, d: int, b: int, gap: float) -> float:
         """The learned rms scatter (rad) of the breakaway twist from stop to stop, or before any

@@ -305,6 +305,14 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "of max dp for jumps of 0.42-0.83e-3; 2.6e-4 at 50 %) and the main law's hold, its deadband about half "
           "a jump, ends closer (at dp 0 the stage's doublets overshot the 2 % step 24-38 %)", 0.0, 1.0,
           runtime=True),
+    Param("fine.reversal_lead_s", 0.02, "s", "the stage counts the valve's reversals on a plateau from this long "
+          "before the hunting metric's window (common.hunting.HUNT_SETTLE_S after the step) and never makes the "
+          "one that would be the metric's second: the conditioned demand reaches it a few periods after the step, "
+          "and counted from earlier it counts no fewer", 0.0, 0.3, runtime=True),
+    Param("fine.no_cross_short", 0.4, "", "a move that must not cross the target (the valve has reversed once on "
+          "the plateau's late window, or this move would) aims this fraction of the nominal stick-slip jump "
+          "2 (T_s - T_c(dp)) / K short, and is made only for an error of at least twice that (0 = never made)",
+          0.0, 2.0, runtime=True),
     Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "

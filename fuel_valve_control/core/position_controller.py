@@ -26,6 +26,7 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from ..common.contract import RESOLVER_COUNT_RAD
+from ..common.hunting import HUNT_SETTLE_S
 from ..common.paramspec import ParamSet
 
 from . import design
@@ -209,7 +210,9 @@ class PositionController:
                           min_move_prior=ps["fine.min_move_prior"], scatter_gain=ps["fine.scatter_gain"],
                           misfit_weight=ps["fine.misfit_weight"],
                           misfit_limit=ps["fine.misfit_limit"], misfit_decay=ps["fine.misfit_decay"],
-                          breakaway_fit=ps["fine.breakaway_fit"], fit_margin=ps["fine.fit_margin"])
+                          breakaway_fit=ps["fine.breakaway_fit"], fit_margin=ps["fine.fit_margin"],
+                          reversal_window_periods=max(int(round((HUNT_SETTLE_S - ps["fine.reversal_lead_s"]) / per)), 0),
+                          no_cross_short=ps["fine.no_cross_short"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period

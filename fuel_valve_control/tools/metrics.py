@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..common.contract import RESOLVER_COUNT_RAD
+from ..common.hunting import HUNT_COUNTS, HUNT_REVERSALS, HUNT_SETTLE_S, ReversalCounter
 
 TENTH_DEGREE_RAD = math.radians(0.1)
 MIN_PLATEAU_S = 0.1
@@ -262,28 +263,16 @@ def compute(tr: Trace) -> tuple[dict, list[dict]]:
 
 
 # --------------------------------------------------------------------------- plateau sequences
-#: a plateau hunts when, after this long, its angle still reverses twice (moves of more than one
-#: count) and its half peak-to-peak exceeds HUNT_COUNTS resolver counts
-HUNT_SETTLE_S = 0.3
-HUNT_COUNTS = 2.0
+# (how hunting is counted lives in common.hunting: the fine stage counts reversals the same way)
 
 
 def reversals(angle: np.ndarray, hysteresis: float = RESOLVER_COUNT_RAD) -> int:
-    """Direction reversals of ``angle``, counting only moves larger than ``hysteresis``."""
-    n, direction = 0, 0
-    lo = hi = ext = float(angle[0])
+    """Direction reversals of ``angle``, counting only moves larger than ``hysteresis``
+    (:class:`~fuel_valve_control.common.hunting.ReversalCounter`)."""
+    counter = ReversalCounter(float(angle[0]), hysteresis)
     for x in map(float, angle[1:]):
-        if direction == 0:
-            lo, hi = min(lo, x), max(hi, x)
-            if x > lo + hysteresis:
-                direction, ext = 1, x
-            elif x < hi - hysteresis:
-                direction, ext = -1, x
-        elif direction * (x - ext) > 0.0:
-            ext = x                              # the present move goes on
-        elif direction * (ext - x) > hysteresis:
-            n, direction, ext = n + 1, -direction, x
-    return n
+        counter.update(x)
+    return counter.count
 
 
 def plateau_results(tr: Trace, settle_s: float = HUNT_SETTLE_S) -> list[dict]:
@@ -313,7 +302,7 @@ def plateau_results(tr: Trace, settle_s: float = HUNT_SETTLE_S) -> list[dict]:
         else:
             amp, rev = 0.0, 0
         m.update(hunting_amplitude_rad=amp, hunting_reversals=rev,
-                 hunts=bool(rev >= 2 and amp > HUNT_COUNTS * RESOLVER_COUNT_RAD),
+                 hunts=bool(rev >= HUNT_REVERSALS and amp > HUNT_COUNTS * RESOLVER_COUNT_RAD),
                  duration_s=float(tr.t[seg.i1 - 1] - tr.t[seg.i0]))
         out.append(m)
     return out
