@@ -251,7 +251,7 @@ class JumpLearner:
     """
 
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4,
-                 rest_periods: int = 1, cross_hold: bool = False):
+                 rest_periods: int = 1, cross_hold: bool = False, bound_driven: bool = False):
         self.gain = gain
         #: a breakaway across the target that lands beyond the deadband sets both directions'
         #: ratios to at least its own (:meth:`ratio_toward`; v2).  Averaged with the small slips
@@ -263,6 +263,8 @@ class JumpLearner:
         #: learner read 2.3-3.8 mrad pieces, so the deadband stayed at 1.3-1.8 mrad
         self.rest_periods = max(int(rest_periods), 1)
         self.min_jump = min_jump          # rad: smaller "jumps" are resolver noise, not breakaways
+        #: a slide driven onto the target only bounds the jump (:meth:`update`; v2)
+        self.bound_driven = bound_driven
         self.limits = limits
         self.reset()
 
@@ -303,6 +305,12 @@ class JumpLearner:
         side's own jump."""
         return self.directed.get(1 if direction > 0.0 else -1, self.ratio)
 
+    def _driven_to(self, target: float | None, valve: float, band: float) -> bool:
+        """Whether the slide that just ended (from ``self._start`` to ``valve``) started outside
+        the deadband ``band`` of ``target`` and came to rest inside it (on either side)."""
+        return (target is not None and abs(target - self._start) > band
+                and abs(target - valve) <= band)
+
     def update(self, valve: float, stuck: bool, holding: bool, nominal_jump: float,
                target: float | None = None, band: float = 0.0, driven: bool = True,
                travel: float | None = None) -> None:
@@ -328,10 +336,16 @@ class JumpLearner:
             real = travel is None or self._start_travel is None or abs(travel - self._start_travel) >= self.min_jump
             if abs(moved) >= self.min_jump and real:
                 if not self.disturbed:
-                    self.ratio += self.gain * (abs(moved) / nominal_jump - self.ratio)
                     way = 1 if moved > 0.0 else -1
                     seen = abs(moved) / nominal_jump
                     own = self.directed.get(way)
+                    if self.bound_driven and self._driven_to(target, valve, band):
+                        # a catch-up: its length was set by where the target was, not by the
+                        # friction; it shows only that the jumps are no longer than it
+                        seen_all, seen = min(seen, self.ratio), min(seen, self.ratio if own is None else own)
+                    else:
+                        seen_all = seen
+                    self.ratio += self.gain * (seen_all - self.ratio)
                     own = seen if own is None else own + self.gain * (seen - own)
                     self.directed[way] = min(max(own, self.limits[0]), self.limits[1])
                     if (self.cross_hold and target is not None and (target - self._start) * (target - valve) < 0.0

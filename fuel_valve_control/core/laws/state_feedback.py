@@ -70,7 +70,7 @@ class StateFeedbackLaw(ControlLaw):
         # friction met (h16w) the full campaign hunted in 3 of 200 runs without it (1052, 1096, 1133:
         # 35-38 mrad jumps across the target on K x 0.3) and in 1 with it; it costs ~6 % of the
         # median plateau error (the band widens to the jump made).  rest_periods stays 1 (h14r)
-        self.jumps = JumpLearner(cross_hold=self.met_hold)
+        self.jumps = JumpLearner(cross_hold=self.met_hold, bound_driven=v2)
         #: static valve friction of the nominal model at Δp 0 (N*m): the least the schedule knows
         self._static_floor = model.friction(0.0).valve_static_nm
         self.xo = np.zeros(6)      # observer state [θ1, ω1, θL, ωL, d1, dL] at the sample's time
@@ -101,6 +101,7 @@ class StateFeedbackLaw(ControlLaw):
         #: (valve angle rad, direction ±1 to the target) where a held valve stuck short of its
         #: target, until it breaks away (modes whose compensator relieves the breakaway)
         self._stuck_short: tuple[float, float] | None = None
+        self._cocked = False
         self.reference: Reference | None = None
         self._pressure: float | None = None   # kPa, Δp of the latest update
 
@@ -172,6 +173,9 @@ class StateFeedbackLaw(ControlLaw):
         if not keep_held_load:
             self.held_load = 0.0
             self.slip_edges.reset()
+        #: the fine stage's hand-back (v2): its hold leaves the twist preloaded toward breakaway,
+        #: uncocked when the reference starts to follow a ramp (:meth:`update`)
+        self._cocked = keep_held_load and self.v2
         self.slip_watch.reset()
         self._relax_periods = 0
         self._stuck_short = None
@@ -211,11 +215,17 @@ class StateFeedbackLaw(ControlLaw):
         was_moving = self.reference is not None and self.reference.moving
         self.shaper.hold_band = self.deadband     # (the previous period's)
         ref = self.shaper.update(target, meas.valve_rad)
-        if ref.moving and not was_moving:
+        if (ref.moving and not was_moving) or (self._cocked and ref.velocity != 0.0):
             # a move starts: uncock the drive first (valve torque back to the known load) so the
-            # move's feed-forward starts from neutral, not from a drive wound up to breakaway
+            # move's feed-forward starts from neutral, not from a drive wound up to breakaway.
+            # So does a followed ramp after the fine stage's hand-back: taken over as the stage
+            # left it (preloaded toward breakaway), the ramp's friction feed-forward broke the
+            # valve loose with that surplus on the drive and carried it 1.9e-2 rad past a
+            # 7e-3 rad/s ramp (`startup`, 23 -> 25 %).  (Uncocked at the hand-back itself, the
+            # small steps the stage's preload helps overshot: `startup`'s 0.5 % step 29 -> 137 %)
             net = n * self._applied - load_nm - self.held_load
             self.zeta -= net / n / self.fb.ki
+            self._cocked = False
         self.reference = ref
         stuck = abs(valve_speed) <= self.integral.stuck_speed
         friction = m.friction(pressure_kpa)         # once per period: the jump, the drive test, the load learning and the stuck ramp read it
