@@ -215,14 +215,18 @@ class StateFeedbackLaw(ControlLaw):
         was_moving = self.reference is not None and self.reference.moving
         self.shaper.hold_band = self.deadband     # (the previous period's)
         ref = self.shaper.update(target, meas.valve_rad)
-        if (ref.moving and not was_moving) or (self._cocked and ref.velocity != 0.0):
+        if (ref.moving and not was_moving) or (
+                self._cocked and ref.velocity * (n * self._applied - load_nm - self.held_load) > 0.0):
             # a move starts: uncock the drive first (valve torque back to the known load) so the
             # move's feed-forward starts from neutral, not from a drive wound up to breakaway.
-            # So does a followed ramp after the fine stage's hand-back: taken over as the stage
-            # left it (preloaded toward breakaway), the ramp's friction feed-forward broke the
-            # valve loose with that surplus on the drive and carried it 1.9e-2 rad past a
-            # 7e-3 rad/s ramp (`startup`, 23 -> 25 %).  (Uncocked at the hand-back itself, the
-            # small steps the stage's preload helps overshot: `startup`'s 0.5 % step 29 -> 137 %)
+            # So does a followed demand after the fine stage's hand-back that moves the way the
+            # stage left the twist preloaded (toward breakaway): the reference feed-forward adds
+            # the static level the moment the reference moves (ReferenceFeedforward: so that a
+            # relaxed valve breaks away), on a preloaded drive twice the breakaway; the valve was
+            # carried 1.9e-2 rad past a 7e-3 rad/s ramp (`startup`, 23 -> 25 %; a reversing ramp
+            # 1.6e-2).  Uncocked at the hand-back itself, the small steps the preload helps
+            # overshot (`startup`'s 0.5 % step 29 -> 137 %); uncocked on any motion of the
+            # followed reference (demand noise too), quick-campaign seed 3014 hunted
             net = n * self._applied - load_nm - self.held_load
             self.zeta -= net / n / self.fb.ki
             self._cocked = False
