@@ -3,7 +3,7 @@
 import pytest
 
 from fuel_valve_control.common.contract import PRESSURE_MAX_KPA
-from fuel_valve_control.core.integral_policy import IntegralPolicy, SlipEdges
+from fuel_valve_control.core.integral_policy import IntegralPolicy, JumpLearner, SlipEdges
 
 LIMIT_NM = 24.9
 POLICY = IntegralPolicy(0.55, 2.9e-4, relax_time_s=0.3, load_limit_nm=LIMIT_NM)
@@ -115,3 +115,45 @@ def test_a_valve_creeping_under_a_wrong_dp_reading_is_held_without_hunting(inert
     r = grid.run_cell("observer_ff", cell, told_dp_kpa=PRESSURE_MAX_KPA)
     assert not r["fault"]
     assert r["tail_pp_rad"] <= r["hunting_allowance_rad"], r
+
+
+# ------------------------------------------------------------------ jump learner (h19r)
+JUMP, BAND = 4.6e-3, 2.5e-3          # rad: the nominal jump at max Δp and the deadband around it
+
+
+def _slide(learner, start, end, target=0.0, periods=5):
+    """A valve at rest at ``start`` (rad) breaks away while the hold holds ``target`` and comes
+    to rest at ``end``."""
+    for _ in range(3):
+        learner.update(start, True, True, JUMP, target, BAND)
+    for k in range(1, periods):
+        learner.update(start + (end - start) * k / periods, False, True, JUMP, target, BAND)
+    learner.update(end, True, True, JUMP, target, BAND)
+
+
+def test_a_catch_up_driven_onto_the_target_does_not_teach_a_larger_jump():
+    # the cold start of `startup`: the first move ends with the valve stuck 3.8e-2 rad short,
+    # the hold drives it onto the target (1.7e-3 short): read as a jump it was 7.9x nominal
+    learner = JumpLearner(skip_catch_ups=True)
+    _slide(learner, -3.8e-2, -1.7e-3)
+    assert learner.ratio == 1.0 and learner.ratio_toward(+1.0) == 1.0
+    old = JumpLearner()                  # the other modes: learned as before
+    _slide(old, -3.8e-2, -1.7e-3)
+    assert old.ratio_toward(+1.0) == pytest.approx((3.8e-2 - 1.7e-3) / JUMP)
+
+
+@pytest.mark.parametrize("start, end", [(-4e-3, -1e-3),        # shorter than the nominal jump
+                                        (-8.7e-3, -0.4e-3)])   # 1.8x it (campaign seed 3021)
+def test_a_slide_onto_the_target_from_within_twice_the_known_jump_is_learned(start, end):
+    learner = JumpLearner(skip_catch_ups=True)
+    _slide(learner, start, end)
+    assert learner.ratio_toward(+1.0) == pytest.approx((end - start) / JUMP)
+
+
+@pytest.mark.parametrize("start, end", [(-3e-3, +2.6e-3),      # across the target beyond the band
+                                        (-1.05e-1, -2.7e-2)])  # stops by itself far short of it
+def test_a_slide_that_ends_outside_the_band_is_learned_as_a_jump(start, end):
+    # the second: flexible_worst (K x 0.1), where the valve really jumps ~10x the nominal jump
+    learner = JumpLearner(skip_catch_ups=True)
+    _slide(learner, start, end)
+    assert learner.ratio_toward(+1.0) == pytest.approx((end - start) / JUMP)

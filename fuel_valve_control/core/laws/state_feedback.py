@@ -70,7 +70,7 @@ class StateFeedbackLaw(ControlLaw):
         # friction met (h16w) the full campaign hunted in 3 of 200 runs without it (1052, 1096, 1133:
         # 35-38 mrad jumps across the target on K x 0.3) and in 1 with it; it costs ~6 % of the
         # median plateau error (the band widens to the jump made).  rest_periods stays 1 (h14r)
-        self.jumps = JumpLearner(cross_hold=self.met_hold, bound_driven=v2)
+        self.jumps = JumpLearner(cross_hold=self.met_hold, skip_catch_ups=v2)
         #: static valve friction of the nominal model at Δp 0 (N*m): the least the schedule knows
         self._static_floor = model.friction(0.0).valve_static_nm
         self.xo = np.zeros(6)      # observer state [θ1, ω1, θL, ωL, d1, dL] at the sample's time
