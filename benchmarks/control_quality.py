@@ -44,7 +44,7 @@ from fuel_valve_plant.physics.params import PLANT_SPEC  # noqa: E402
 
 METRIC_KEYS = ("rise_time_s", "overshoot_pct", "settling_time_s", "steady_state_error_rad",
                "limit_cycle_amplitude_rad", "limit_cycle_frequency_hz", "peak_current_a", "rms_current_a",
-               "stroke_time_s", "close_time_s", "bandwidth_hz", "iae_rad_s")
+               "stroke_time_s", "close_time_s", "bandwidth_hz", "iae_rad_s", "ramp_max_error_rad", "ramp_lag_s")
 QUICK_DURATION_S = {"hold": 12.0, "startup": 10.0}
 ROBUST_MODES = ("observer_fc", DEFAULT_MODE)
 P_MAX = 6206.0
@@ -143,7 +143,7 @@ SCEN_COLS = (("rise s", "rise_time_s"), ("OS %", "overshoot_pct"), ("settle s", 
              ("sse rad", "steady_state_error_rad"), ("LC amp rad", "limit_cycle_amplitude_rad"),
              ("LC Hz", "limit_cycle_frequency_hz"), ("peak A", "peak_current_a"), ("rms A", "rms_current_a"),
              ("stroke s", "stroke_time_s"), ("close s", "close_time_s"), ("BW Hz", "bandwidth_hz"),
-             ("IAE rad·s", "iae_rad_s"))
+             ("IAE rad·s", "iae_rad_s"), ("ramp err rad", "ramp_max_error_rad"), ("ramp lag s", "ramp_lag_s"))
 
 
 def scenario_table(results: list[dict]) -> str:

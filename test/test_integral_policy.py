@@ -3,7 +3,7 @@
 import pytest
 
 from fuel_valve_control.common.contract import PRESSURE_MAX_KPA
-from fuel_valve_control.core.integral_policy import IntegralPolicy, SlipEdges
+from fuel_valve_control.core.integral_policy import IntegralPolicy, JumpLearner, SlipEdges
 
 LIMIT_NM = 24.9
 POLICY = IntegralPolicy(0.55, 2.9e-4, relax_time_s=0.3, load_limit_nm=LIMIT_NM)
@@ -150,3 +150,54 @@ def test_a_slip_contradicting_a_known_band_is_not_an_edge_of_it():
     assert edges.contradicts(0.9, +1.0)                   # an opening "edge" below the closing one
     assert not edges.contradicts(0.9, -1.0)               # the band's own edges move: learned as before
     assert not edges.contradicts(3.9, +1.0)
+
+
+# ------------------------------------------------------------------ jump learner (h19r)
+JUMP, BAND = 4.6e-3, 2.5e-3          # rad: the nominal jump at max Δp and the deadband around it
+CATCH_UP = 100                       # periods (0.1 s at 1 kHz): a slide this long was driven
+
+
+def _slide(learner, start, end, periods, target=0.0):
+    """A valve at rest at ``start`` (rad) breaks away while the hold holds ``target`` and comes
+    to rest at ``end`` after sliding ``periods`` periods."""
+    for _ in range(3):
+        learner.update(start, True, True, JUMP, target, BAND)
+    for k in range(1, periods):
+        learner.update(start + (end - start) * k / periods, False, True, JUMP, target, BAND)
+    learner.update(end, True, True, JUMP, target, BAND)
+
+
+def test_a_catch_up_driven_onto_the_target_does_not_teach_a_larger_jump():
+    # the cold start of `startup`: the first move ends with the valve stuck 3.8e-2 rad short,
+    # the hold drives it onto the target (1.7e-3 short) in 0.126 s: read as a jump, 7.9x nominal
+    learner = JumpLearner(catch_up_periods=CATCH_UP)
+    _slide(learner, -3.8e-2, -1.7e-3, 126)
+    assert learner.ratio == 1.0 and learner.ratio_toward(+1.0) == 1.0 and learner.catch_ups == 1
+    old = JumpLearner()                  # the other modes: learned as before
+    _slide(old, -3.8e-2, -1.7e-3, 126)
+    assert old.ratio_toward(+1.0) == pytest.approx((3.8e-2 - 1.7e-3) / JUMP)
+
+
+@pytest.mark.parametrize("start, end, periods", [
+    (-3e-3, +2.6e-3, 10),       # a nominal jump across the target beyond the band
+    (-1.05e-1, -2.7e-2, 30),    # flexible_worst (K x 0.1): stops by itself far short of the target
+    (-3.8e-2, -1.7e-3, 20),     # as far as the catch-up, but a coupling's half swing long
+    (-8.7e-3, -0.4e-3, 120),    # onto the target, but from within twice the jump known
+])
+def test_a_breakaway_that_is_no_catch_up_is_learned_as_a_jump(start, end, periods):
+    learner = JumpLearner(catch_up_periods=CATCH_UP)
+    _slide(learner, start, end, periods)
+    assert learner.ratio_toward(+1.0) == pytest.approx((end - start) / JUMP) and learner.catch_ups == 0
+
+
+def test_a_slide_the_law_did_not_see_end_is_not_learned():
+    # observer_fp: the fine stage takes the plateau over while the valve slides, and hands it
+    # back seconds later; what moved the valve in between was not the main law's hold
+    learner = JumpLearner(catch_up_periods=CATCH_UP)
+    for _ in range(3):
+        learner.update(-3.8e-2, True, True, JUMP, 0.0, BAND)
+    learner.update(-3.0e-2, False, True, JUMP, 0.0, BAND)
+    learner.drop_slide()
+    learner.update(0.3e-3, True, True, JUMP, 0.0, BAND)
+    learner.update(0.3e-3, True, True, JUMP, 0.0, BAND)
+    assert learner.ratio == 1.0 and not learner.directed

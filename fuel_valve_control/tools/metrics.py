@@ -9,6 +9,9 @@ current and drive enable.  Segments are found in the demand itself:
   (also the move from the initial valve position to the first plateau);
 * **holds**: plateaus of at least ``MIN_HOLD_S``; their second half is the settled window;
 * **sweeps**: stretches between plateaus where the demand oscillates (>= 6 extrema);
+* **ramps**: the monotonic pieces of the other stretches between plateaus (or before the first,
+  after the last) that last at least ``MIN_RAMP_S`` and change the demand by more than
+  ``MIN_STEP_RAD`` (a reversing ramp is two);
 * **trips**: falling edges of the drive enable.
 
 Metric definitions (all angles rad, times s, currents A):
@@ -28,6 +31,10 @@ Metric definitions (all angles rad, times s, currents A):
 * ``bandwidth_hz``: where the per-cycle gain ``p-p(angle) / p-p(demand)`` of a sweep falls
   below -3 dB (interpolated in log frequency); the top frequency when it never does.
 * ``iae_rad_s``: integral of ``|demand - angle|`` over the whole run.
+* ``ramp_max_error_rad``: largest ``|demand - angle|`` during a ramp from ``RAMP_SETTLE_S`` after
+  its start to its end (the valve had that long to pick the ramp up); ``ramp_lag_s``: the mean
+  of ``(demand - angle)`` there divided by the ramp's rate (s, positive = the valve behind the
+  demand); worst ramp (largest error) of the run.
 """
 from __future__ import annotations
 
@@ -46,6 +53,8 @@ MIN_HOLD_S = 2.0
 MIN_STEP_RAD = 1e-3
 CONST_TOL_RAD = 1e-6
 MINUS_3DB = 10.0 ** (-3.0 / 20.0)
+MIN_RAMP_S = 0.4
+RAMP_SETTLE_S = 0.2
 
 
 @dataclass
@@ -69,7 +78,7 @@ class Trace:
 
 @dataclass
 class Segment:
-    kind: str            # plateau | step | hold | sweep | trip
+    kind: str            # plateau | step | hold | sweep | ramp | trip
     i0: int
     i1: int              # exclusive
     info: dict = field(default_factory=dict)
@@ -88,10 +97,39 @@ def plateaus(tr: Trace) -> list[Segment]:
     return out
 
 
+def _extrema(seg: np.ndarray) -> int:
+    return int(np.count_nonzero(np.diff(np.sign(np.diff(seg))) != 0))
+
+
+def ramps(tr: Trace, i0: int, i1: int) -> list[Segment]:
+    """The monotonic pieces of the demand over samples ``i0:i1`` (a stretch between plateaus
+    that is no sweep) lasting at least ``MIN_RAMP_S`` and moving more than ``MIN_STEP_RAD``."""
+    d, t = tr.demand, tr.t
+    if i1 - i0 < 3:
+        return []
+    slope = np.sign(np.where(np.abs(np.diff(d[i0:i1])) > CONST_TOL_RAD, np.diff(d[i0:i1]), 0.0))
+    out = []
+    a = 0
+    while a < len(slope):
+        if slope[a] == 0.0:
+            a += 1
+            continue
+        b = a
+        while b + 1 < len(slope) and slope[b + 1] in (slope[a], 0.0):
+            b += 1
+        lo, hi = i0 + a, i0 + b + 2           # samples a .. b+1 of the stretch
+        if t[hi - 1] - t[lo] >= MIN_RAMP_S and abs(d[hi - 1] - d[lo]) > MIN_STEP_RAD:
+            out.append(Segment("ramp", lo, hi, {"from": float(d[lo]), "to": float(d[hi - 1])}))
+        a = b + 1
+    return out
+
+
 def find_segments(tr: Trace) -> list[Segment]:
     segs: list[Segment] = []
     plats = plateaus(tr)
     t = tr.t
+    if plats and plats[0].i0 > 0 and _extrema(tr.demand[:plats[0].i0 + 1]) < 6:
+        segs.extend(ramps(tr, 0, plats[0].i0 + 1))         # a ramp from the trace's start
     # the move from the initial angle onto the first plateau counts as a step
     if plats and plats[0].i0 == 0 and abs(plats[0].info["demand"] - tr.position[0]) > MIN_STEP_RAD:
         p = plats[0]
@@ -102,16 +140,18 @@ def find_segments(tr: Trace) -> list[Segment]:
         if gap <= MAX_STEP_WIDTH_S and abs(delta) > MIN_STEP_RAD:
             segs.append(Segment("step", nxt.i0, nxt.i1, {"from": prev.info["demand"], "to": nxt.info["demand"]}))
         elif gap > MAX_STEP_WIDTH_S:
-            seg = tr.demand[prev.i1:nxt.i0]
-            extrema = np.count_nonzero(np.diff(np.sign(np.diff(seg))) != 0)
-            if extrema >= 6:
+            if _extrema(tr.demand[prev.i1:nxt.i0]) >= 6:
                 segs.append(Segment("sweep", prev.i1, nxt.i0))
-    # a sweep that runs to the end of the trace
+            else:
+                # (from the previous plateau's last sample: the ramp leaves it there)
+                segs.extend(ramps(tr, prev.i1 - 1, nxt.i0 + 1))
+    # a sweep (or ramp) that runs to the end of the trace
     last = plats[-1].i1 if plats else 0
     if last < len(t) - 1:
-        seg = tr.demand[last:]
-        if np.count_nonzero(np.diff(np.sign(np.diff(seg))) != 0) >= 6:
+        if _extrema(tr.demand[last:]) >= 6:
             segs.append(Segment("sweep", last, len(t)))
+        elif plats:
+            segs.extend(ramps(tr, last - 1, len(t)))
     for p in plats:
         if t[p.i1 - 1] - t[p.i0] >= MIN_HOLD_S:
             segs.append(Segment("hold", p.i0, p.i1, dict(p.info)))
@@ -206,6 +246,22 @@ def sweep_metrics(tr: Trace, seg: Segment) -> dict:
     return {"bandwidth_hz": bw, "frequencies_hz": freqs.round(3).tolist(), "gains": gains.round(4).tolist()}
 
 
+def ramp_metrics(tr: Trace, seg: Segment) -> dict:
+    """Tracking of a ramp from ``RAMP_SETTLE_S`` after its start: the largest |demand - angle|
+    (rad) and the lag (s; the mean of demand - angle over the ramp's rate, + = valve behind)."""
+    t = tr.t[seg.i0:seg.i1]
+    dur = float(t[-1] - t[0])
+    rate = (seg.info["to"] - seg.info["from"]) / dur
+    w = t - t[0] >= RAMP_SETTLE_S
+    out = {"from_rad": seg.info["from"], "to_rad": seg.info["to"], "rate_rad_s": float(rate)}
+    if np.count_nonzero(w) < 2:
+        return out
+    err = tr.demand[seg.i0:seg.i1][w] - tr.position[seg.i0:seg.i1][w]
+    out["ramp_max_error_rad"] = float(np.max(np.abs(err)))
+    out["ramp_lag_s"] = float(np.mean(err) / rate)
+    return out
+
+
 def trip_metrics(tr: Trace, seg: Segment) -> dict:
     pos = tr.position[seg.i0:]
     t = tr.t[seg.i0:] - tr.t[seg.i0]
@@ -218,7 +274,7 @@ def compute(tr: Trace) -> tuple[dict, list[dict]]:
     """(metrics of SPEC §5, per-segment details).  Absent metrics are omitted."""
     metrics: dict = {}
     details: list[dict] = []
-    steps, holds = [], []
+    steps, holds, ramp_results = [], [], []
     for seg in find_segments(tr):
         if seg.kind == "step":
             m = step_metrics(tr, seg)
@@ -230,6 +286,10 @@ def compute(tr: Trace) -> tuple[dict, list[dict]]:
             m = sweep_metrics(tr, seg)
             if "bandwidth_hz" in m and "bandwidth_hz" not in metrics:
                 metrics["bandwidth_hz"] = m["bandwidth_hz"]
+        elif seg.kind == "ramp":
+            m = ramp_metrics(tr, seg)
+            if "ramp_max_error_rad" in m:
+                ramp_results.append(m)
         elif seg.kind == "trip":
             m = trip_metrics(tr, seg)
             if "close_time_s" not in metrics:
@@ -254,6 +314,10 @@ def compute(tr: Trace) -> tuple[dict, list[dict]]:
         worst = max(holds, key=lambda h: h["limit_cycle_amplitude_rad"])
         metrics["limit_cycle_amplitude_rad"] = worst["limit_cycle_amplitude_rad"]
         metrics["limit_cycle_frequency_hz"] = worst["limit_cycle_frequency_hz"]
+    if ramp_results:
+        worst = max(ramp_results, key=lambda r: r["ramp_max_error_rad"])
+        metrics["ramp_max_error_rad"] = worst["ramp_max_error_rad"]
+        metrics["ramp_lag_s"] = worst["ramp_lag_s"]
     metrics["peak_current_a"] = float(np.max(np.abs(tr.current)))
     metrics["rms_current_a"] = float(np.sqrt(np.mean(tr.current ** 2)))
     dt = np.diff(tr.t)

@@ -290,9 +290,11 @@ def format_report(doc: dict) -> str:
             extra = f" {s['from_rad']:.4f} -> {s['to_rad']:.4f} rad"
         elif s["kind"] == "hold":
             extra = f" at {s['demand_rad']:.4f} rad"
+        elif s["kind"] == "ramp" and "ramp_max_error_rad" in s:
+            extra = f" {s['rate_rad_s']:+.2e} rad/s, max error {s['ramp_max_error_rad']:.2e} rad"
         lines.append(f"  {s['kind']:<6} {s['t_start_s']:8.3f} - {s['t_end_s']:8.3f} s{extra}")
     if not doc["segments"]:
-        lines.append("  (no steps, holds, sweeps or trips found in the demand)")
+        lines.append("  (no steps, holds, ramps, sweeps or trips found in the demand)")
     for res in doc.get("valve_tests", []):
         figs = res.get("figures") or {}
         lines.append(f"valve test {res.get('test')}: {res.get('status')}" + (f" ({res['reason']})" if res.get("reason") else "")

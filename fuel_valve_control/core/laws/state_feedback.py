@@ -42,6 +42,13 @@ class StateFeedbackLaw(ControlLaw):
     compensation.  Without it a 1 ms delay gave a 2 % step 27.7 % overshoot and no settling.
     """
 
+    #: s: a slide onto the target that lasts this long is driven there, no stick-slip jump
+    #: (:meth:`~..integral_policy.JumpLearner._driven_to`): a jump is a half swing of the
+    #: coupling mode, ~6 ms nominal and ~18 ms at the box's softest coupling (K x 0.1; read as
+    #: 10-30 ms through the speed window), while the hold's catch-ups after a cold start took
+    #: 0.12-0.13 s (`startup`, campaign seed 1070)
+    CATCH_UP_S = 0.1
+
     def __init__(self, name: str, model: NominalModel, period_s: float, feedback: StateFeedback,
                  observer_gain: np.ndarray, shaper: TrajectoryShaper, integral: IntegralPolicy,
                  compensator: Compensator, seating: Seating, speed_window: int = 4, delay_periods: int = 0,
@@ -70,7 +77,8 @@ class StateFeedbackLaw(ControlLaw):
         # friction met (h16w) the full campaign hunted in 3 of 200 runs without it (1052, 1096, 1133:
         # 35-38 mrad jumps across the target on K x 0.3) and in 1 with it; it costs ~6 % of the
         # median plateau error (the band widens to the jump made).  rest_periods stays 1 (h14r)
-        self.jumps = JumpLearner(cross_hold=self.met_hold)
+        self.jumps = JumpLearner(cross_hold=self.met_hold,
+                                 catch_up_periods=round(self.CATCH_UP_S / period_s) if v2 else 0)
         #: static valve friction of the nominal model at Δp 0 (N*m): the least the schedule knows
         self._static_floor = model.friction(0.0).valve_static_nm
         self.xo = np.zeros(6)      # observer state [θ1, ω1, θL, ωL, d1, dL] at the sample's time
@@ -101,6 +109,7 @@ class StateFeedbackLaw(ControlLaw):
         #: (valve angle rad, direction ±1 to the target) where a held valve stuck short of its
         #: target, until it breaks away (modes whose compensator relieves the breakaway)
         self._stuck_short: tuple[float, float] | None = None
+        self._cocked = False
         self.reference: Reference | None = None
         self._pressure: float | None = None   # kPa, Δp of the latest update
 
@@ -172,6 +181,11 @@ class StateFeedbackLaw(ControlLaw):
         if not keep_held_load:
             self.held_load = 0.0
             self.slip_edges.reset()
+        #: the fine stage's hand-back (v2): its hold leaves the twist preloaded toward breakaway,
+        #: uncocked when the reference starts to follow a ramp (:meth:`update`)
+        self._cocked = keep_held_load and self.v2
+        if self._cocked:
+            self.jumps.drop_slide()
         self.slip_watch.reset()
         self._relax_periods = 0
         self._stuck_short = None
@@ -211,11 +225,21 @@ class StateFeedbackLaw(ControlLaw):
         was_moving = self.reference is not None and self.reference.moving
         self.shaper.hold_band = self.deadband     # (the previous period's)
         ref = self.shaper.update(target, meas.valve_rad)
-        if ref.moving and not was_moving:
+        if (ref.moving and not was_moving) or (
+                self._cocked and ref.velocity * (n * self._applied - load_nm - self.held_load) > 0.0):
             # a move starts: uncock the drive first (valve torque back to the known load) so the
-            # move's feed-forward starts from neutral, not from a drive wound up to breakaway
+            # move's feed-forward starts from neutral, not from a drive wound up to breakaway.
+            # So does a followed demand after the fine stage's hand-back that moves the way the
+            # stage left the twist preloaded (toward breakaway): the reference feed-forward adds
+            # the static level the moment the reference moves (ReferenceFeedforward: so that a
+            # relaxed valve breaks away), on a preloaded drive twice the breakaway; the valve was
+            # carried 1.9e-2 rad past a 7e-3 rad/s ramp (`startup`, 23 -> 25 %; a reversing ramp
+            # 1.6e-2).  Uncocked at the hand-back itself, the small steps the preload helps
+            # overshot (`startup`'s 0.5 % step 29 -> 137 %); uncocked on any motion of the
+            # followed reference (demand noise too), quick-campaign seed 3014 hunted
             net = n * self._applied - load_nm - self.held_load
             self.zeta -= net / n / self.fb.ki
+            self._cocked = False
         self.reference = ref
         stuck = abs(valve_speed) <= self.integral.stuck_speed
         friction = m.friction(pressure_kpa)         # once per period: the jump, the drive test, the load learning and the stuck ramp read it
