@@ -4,8 +4,8 @@ campaign seed that showed it (``benchmarks/robustness.py --seed S --runs 1`` rep
 and on the unit that carries the fix.  Found with ``observer_ff`` (the default until h18s);
 run with the default ``observer_fp``, whose main law holds as observer_ff's where the fine stage
 stays out or hands a plateau back (full box, 200 runs, h18s: the same seeds pass, 1043 faults
-beyond rating; 1052 hunted until h19b, and 1071, which observer_ff holds, until h19x).  No full-box seed
-is known to hunt since (re-measured after both merged: robustness.py --jobs 2)."""
+beyond rating; 1052 hunted until h19b, and 1071, which observer_ff holds, until h19x; 1070 hunts since
+h19r: its cold-start catch-up, no longer learned as a jump, had hidden the hold's hunting on this valve)."""
 import functools
 
 import pytest
@@ -173,3 +173,19 @@ FORMER_HUNTERS = {
 def test_former_campaign_hunters_hold_without_hunting(robustness_bench, seed):
     r = _run(robustness_bench, seed)
     assert not r["hunts"] and not r["fault"], FORMER_HUNTERS[seed]
+
+
+#: full-box seeds that still hunt (main after h19b, h19x, h19r: 1 of 200), with what was traced
+STILL_HUNTING = {
+    1070: "stick-slip friction x 2.65 at 0.60 MPa (measured 0.86), -2.9 N*m load, K x 0.96, 1.5 mrad backlash, "
+          "0.74 ms resolver delay: 2 reversals of 3.0 mrad on the final 4 s hold.  Held before h19r only because "
+          "the 120 ms cold-start catch-up was learned as a jump: a 1.4e-2 rad deadband that left every later "
+          "plateau wherever the valve stopped.  Since h19r a catch-up is not a "
+          "jump (JumpLearner catch_up_periods) and the hold's own weakness on this valve shows; not traced further",
+}
+
+
+@pytest.mark.parametrize("seed", sorted(STILL_HUNTING))
+def test_remaining_campaign_hunters(robustness_bench, seed, request):
+    request.applymarker(pytest.mark.xfail(strict=True, reason=STILL_HUNTING[seed]))
+    assert not _run(robustness_bench, seed)["hunts"]
