@@ -181,7 +181,11 @@ STILL_HUNTING = {
           "0.74 ms resolver delay: 2 reversals of 3.0 mrad on the final 4 s hold.  Held before h19r only because "
           "the 120 ms cold-start catch-up was learned as a jump: a 1.4e-2 rad deadband that left every later "
           "plateau wherever the valve stopped.  Since h19r a catch-up is not a "
-          "jump (JumpLearner catch_up_periods) and the hold's own weakness on this valve shows; not traced further",
+          "jump (JumpLearner catch_up_periods).  Trace of the final hold: the valve rests 2.4 mrad short, the "
+          "integrator ramps the drive 2 -> 5.7 A, the valve jumps 6 mrad across (-3.7 mrad), the integrator ramps "
+          "back, it jumps to +1.0 mrad and is held there from 8 s on: two converging jumps of a valve whose jump "
+          "(x 2.65 friction at a low Δp, where the nominal jump is below fine.min_jump_rad so the fine stage stays "
+          "out) the hold learns only from the first, not a limit cycle -- but the metric's two reversals",
 }
 
 
