@@ -251,9 +251,9 @@ class Probe:
     def close(self):
         self._seized = None
         self.executor.shutdown(timeout_sec=1.0)
+        self._thread.join(timeout=10.0)         # spin ended before the node goes (see in_process_lockstep)
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
-        self._thread.join(timeout=2.0)
 
 
 @contextlib.contextmanager
@@ -293,7 +293,9 @@ def in_process_lockstep(namespace: str, plant: dict, controller: dict, demand: d
     finally:
         probe.close()
         executor.shutdown(timeout_sec=2.0)
+        # the spin thread ends before its nodes are destroyed: destroyed under a spin still
+        # running (a loaded machine), its guard condition raised InvalidHandle in the thread
+        thread.join(timeout=10.0)
         for node in nodes:
             node.destroy_node()
         rclpy.shutdown(context=context)
-        thread.join(timeout=2.0)
