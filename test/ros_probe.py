@@ -28,6 +28,25 @@ DEEP_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000, reliabili
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+
+def spin_in_thread(executor, stop: threading.Event) -> threading.Thread:
+    """Spin ``executor`` on a daemon thread until ``stop`` is set (:func:`stop_spinning`)."""
+    def spin():
+        while not stop.is_set() and executor.context.ok():
+            executor.spin_once(timeout_sec=0.1)
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    return thread
+
+
+def stop_spinning(thread: threading.Thread, stop: threading.Event, executor) -> None:
+    """End a :func:`spin_in_thread` spin, then shut its executor down.  The thread leaves its
+    loop first: an executor shut down (or its nodes destroyed) under a spin still running on
+    a loaded machine raised in that thread (InvalidHandle; a guard condition already None)."""
+    stop.set()
+    thread.join(timeout=30.0)
+    executor.shutdown(timeout_sec=2.0)
+
 class Probe:
     def __init__(self, namespace: str, keep_all: tuple[str, ...] = (), lockstep: bool = False):
         from diagnostic_msgs.msg import DiagnosticArray
@@ -72,14 +91,8 @@ class Probe:
             self.node.create_timer(0.01, self._publish_demand)      # a supervisor at 100 Hz
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _spin(self):
-        try:
-            self.executor.spin()
-        except Exception:               # noqa: BLE001 - shutdown race at close()
-            pass
+        self._stop_spin = threading.Event()
+        self._thread = spin_in_thread(self.executor, self._stop_spin)
 
     def _store(self, topic, msg):
         now = time.monotonic()
@@ -250,10 +263,9 @@ class Probe:
 
     def close(self):
         self._seized = None
-        self.executor.shutdown(timeout_sec=1.0)
+        stop_spinning(self._thread, self._stop_spin, self.executor)
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
-        self._thread.join(timeout=2.0)
 
 
 @contextlib.contextmanager
@@ -284,16 +296,15 @@ def in_process_lockstep(namespace: str, plant: dict, controller: dict, demand: d
     executor = SingleThreadedExecutor(context=context)
     for node in nodes:
         executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
+    stop = threading.Event()
+    thread = spin_in_thread(executor, stop)
     probe = Probe(namespace)
     try:
         probe.wait_for(lambda: ready(plant_node, controller_node), 60.0, what)
         yield plant_node, controller_node, demand_node, probe
     finally:
         probe.close()
-        executor.shutdown(timeout_sec=2.0)
+        stop_spinning(thread, stop, executor)
         for node in nodes:
             node.destroy_node()
         rclpy.shutdown(context=context)
-        thread.join(timeout=2.0)

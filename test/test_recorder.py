@@ -283,21 +283,24 @@ def test_existing_output_is_not_overwritten(tmp_path):
     existing = tmp_path / "bag1"
     existing.mkdir()
     (existing / "metadata.yaml").write_text("x")
-    p = _recorder(tmp_path, f"output:={existing}")
-    out, _ = p.communicate(timeout=30)
-    assert p.returncode == 2 and "exists already" in out and "overwrite:=true" in out
-    assert (existing / "metadata.yaml").read_text() == "x"
-    # a directory that is not a bag is never deleted, even with overwrite
     other = tmp_path / "photos"
     other.mkdir()
     (other / "a.jpg").write_text("keep")
-    p = _recorder(tmp_path, f"output:={other}", "overwrite:=true")
-    out, _ = p.communicate(timeout=30)
-    assert p.returncode == 2 and "not a bag" in out and (other / "a.jpg").exists()
-    # bad storage: configuration error
-    p = _recorder(tmp_path, "output:=x", "storage:=rosbag1")
-    out, _ = p.communicate(timeout=30)
-    assert p.returncode == 2 and "storage" in out
+    # the three refusals are independent (different outputs): their recorders start side by
+    # side, so the suite waits for one process start-up instead of three
+    refused = {"existing bag": _recorder(tmp_path, f"output:={existing}"),
+               # a directory that is not a bag is never deleted, even with overwrite
+               "not a bag": _recorder(tmp_path, f"output:={other}", "overwrite:=true"),
+               # bad storage: configuration error
+               "bad storage": _recorder(tmp_path, "output:=x", "storage:=rosbag1")}
+    outs = {case: p.communicate(timeout=60)[0] for case, p in refused.items()}
+    out, code = outs["existing bag"], refused["existing bag"].returncode
+    assert code == 2 and "exists already" in out and "overwrite:=true" in out, out
+    assert (existing / "metadata.yaml").read_text() == "x"
+    out, code = outs["not a bag"], refused["not a bag"].returncode
+    assert code == 2 and "not a bag" in out and (other / "a.jpg").exists(), out
+    out, code = outs["bad storage"], refused["bad storage"].returncode
+    assert code == 2 and "storage" in out, out
     # overwrite:=true replaces an existing bag; SIGTERM with no traffic gives an empty, valid bag
     p = _recorder(tmp_path, f"output:={existing}", "overwrite:=true", "topics:=['demand']")
     end = time.monotonic() + 20

@@ -212,6 +212,18 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return flat
 
 
+#: libyaml's parser where PyYAML was built with it (the PyPI wheels are), else the pure-Python
+#: one: the same constructors and resolvers, so the same values, parsed ~10x faster (the
+#: controller file took 14 ms per read in pure Python, and every offline run reads two files)
+_SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+def safe_load_yaml(text: str) -> Any:
+    """``yaml.safe_load(text)`` with the fastest safe loader available (:data:`_SAFE_LOADER`);
+    raises ``yaml.YAMLError`` on malformed text like ``yaml.safe_load``."""
+    return yaml.load(text, Loader=_SAFE_LOADER)
+
+
 def read_ros_param_file(path: str | Path) -> dict[str, Any]:
     """Read a ROS 2 parameter file and return its (single node's) parameters, flattened.
 
@@ -220,7 +232,7 @@ def read_ros_param_file(path: str | Path) -> dict[str, Any]:
     """
     path = Path(path)
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = safe_load_yaml(path.read_text())
     except OSError as exc:
         raise ConfigError(f"cannot read parameter file {path}: {exc.strerror}") from None
     except yaml.YAMLError as exc:

@@ -9,6 +9,7 @@ estimators (the estimate at k uses y[k]).
 from __future__ import annotations
 
 import cmath
+import functools
 import math
 import warnings
 from dataclasses import dataclass
@@ -209,6 +210,7 @@ def worst_resisting_torque(model: NominalModel) -> float:
     return load + lv.valve_coulomb_nm + model.gear_ratio * lv.motor_coulomb_nm
 
 
+@functools.lru_cache(maxsize=32)     # deterministic in its (hashable) arguments: a driver build cost 3 ms of it
 def design_trajectory(model: NominalModel, supply_voltage_v: float, peak_current_a: float,
                       current_fraction: float, voltage_fraction: float) -> TrajectoryLimits:
     """Limits of the planned moves (sin²-shaped acceleration phases, :mod:`.trajectory`) from

@@ -141,6 +141,7 @@ class ValveDriver:
         self.stroke = self.controller.model.stroke_rad
         self.n = self.controller.model.gear_ratio
         self.period = self.controller.period
+        self._twist_kept: tuple | None = None      # (ps, model, constants) of _twist_constants
         self.faults: dict[str, str] = {}
         self.warnings: dict[str, str] = {}
         self._demand_pct: float | None = None      # last good demand (selected source)
@@ -397,12 +398,13 @@ class ValveDriver:
         self._recent.append((t, float(valve_rad)))
 
     def _implausible(self, t, motor, valve) -> str | None:
-        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (motor, valve)):
+        if not (isinstance(motor, (int, float)) and math.isfinite(motor)
+                and isinstance(valve, (int, float)) and math.isfinite(valve)):
             return f"resolver reading not finite (motor {motor!r}, valve {valve!r})"
         margin = 0.05
         if not -margin <= valve <= self.stroke + margin:
             return f"valve angle {valve:.4f} rad outside the stroke 0..{self.stroke:.4f} rad"
-        if abs(motor / self.n - valve) > self.twist_limits(self.ps["limits.peak_current_a"])[2]:
+        if abs(motor / self.n - valve) > self._twist_constants()[4]:
             return (f"motor resolver ({motor / self.n:.4f} rad at the valve) and valve resolver ({valve:.4f} rad) "
                     f"disagree beyond any coupling twist")
         if self._meas is not None and self._meas_t is not None:
@@ -419,14 +421,27 @@ class ValveDriver:
         nominal stiffness and the nominal one, widened by
         ``faults.resolver_disagreement_margin_rad``.  The third value is the bound for any
         current up to the peak: an instantaneous implausibility limit."""
-        m, ps = self.controller.model, self.ps
+        n_kt, k, fk, margin, peak = self._twist_constants()
+        torque = n_kt * current_a
+        a, b = torque / k, torque / fk
+        return min(a, b) - margin, max(a, b) + margin, peak
+
+    def _twist_constants(self) -> tuple[float, float, float, float, float]:
+        """``(N Kt, K, f K, margin, peak bound)`` of :meth:`twist_limits` for the present
+        parameters and model, kept per parameter set (the loop reads them twice a period; the
+        same expressions in the same order, so the same values as computing them each time)."""
+        ps, m = self.ps, self.controller.model
+        kept = self._twist_kept
+        if kept is not None and kept[0] is ps and kept[1] is m:
+            return kept[2]
         k = m.coupling_stiffness_nm_per_rad
         f = ps["faults.coupling_stiffness_min_fraction"]
         margin = ps["faults.resolver_disagreement_margin_rad"]
-        torque = self.n * m.torque_constant_nm_per_a * current_a
-        a, b = torque / k, torque / (f * k)
-        peak = self.n * m.torque_constant_nm_per_a * ps["limits.peak_current_a"] / (f * k) + margin
-        return min(a, b) - margin, max(a, b) + margin, peak
+        n_kt = self.n * m.torque_constant_nm_per_a
+        fk = f * k
+        values = (n_kt, k, fk, margin, n_kt * ps["limits.peak_current_a"] / fk + margin)
+        self._twist_kept = (ps, m, values)
+        return values
 
     @_guarded
     def pressure_differential(self, t: float, kpa: float) -> None:

@@ -82,7 +82,7 @@ class NominalModel:
     def pressure_fraction(self, pressure_kpa: float) -> float:
         return pressure_fraction(pressure_kpa, self.pressure_max_kpa)
 
-    @property
+    @functools.cached_property          # frozen fields: built once (cached in the instance dict)
     def friction_coefficients(self) -> FrictionCoefficients:
         """The nominal friction schedule (the same law the plant integrates)."""
         return FrictionCoefficients(self.motor_coulomb_nm, self.motor_static_nm, self.valve_coulomb_nm,
@@ -90,8 +90,16 @@ class NominalModel:
                                     self.valve_static_per_dp_nm, self.pressure_max_kpa)
 
     def friction(self, pressure_kpa: float) -> FrictionLevels:
-        """Nominal friction levels at a pressure differential."""
-        return self.friction_coefficients.levels(pressure_kpa)
+        """Nominal friction levels at a pressure differential.  The levels of the latest Δp are
+        kept (the loop asks for them 2-4 times a period, at a Δp that changes rarely); the
+        levels are immutable, so a kept one is the very value a fresh evaluation gives."""
+        last = self.__dict__.get("_friction_last")
+        if last is not None and last[0] == pressure_kpa:
+            return last[1]
+        levels = self.friction_coefficients.levels(pressure_kpa)
+        # one tuple, set in one step: a reader on another thread sees the old pair or the new one
+        self.__dict__["_friction_last"] = (pressure_kpa, levels)
+        return levels
 
     def load_torque(self, valve_angle: float, pressure_kpa: float) -> float:
         """Known load on the valve toward closed: spring + nominal flow torque, N*m."""

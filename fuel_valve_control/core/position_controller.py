@@ -18,8 +18,11 @@ reading another parameter.
 """
 from __future__ import annotations
 
+import copy
 import math
+import threading
 
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any, Iterator, Mapping
 
@@ -59,7 +62,55 @@ class Designs:
     kalman_gain: np.ndarray
 
 
-def design_all(ps: ParamSet, model: NominalModel) -> Designs:
+def design_all(ps: Mapping[str, Any], model: NominalModel) -> Designs:
+    """Every design of :class:`Designs` from the parameters ``ps`` and the nominal ``model``.
+
+    Deterministic in the parameters it reads and the (frozen) model, so it is computed once
+    per such set and cached (:data:`_DESIGN_CACHE_SIZE` sets, fresh copies each call): the
+    pole placements, Riccati solutions and matrix exponentials took ~0.1 s per driver built,
+    which every test, fuzz case and run-time law rebuild paid again for the same parameters."""
+    with _DESIGN_LOCK:
+        for names in _DESIGN_READS:
+            key = _design_key(ps, model, names)
+            if key in _DESIGNS:
+                _DESIGNS.move_to_end(key)
+                return copy.deepcopy(_DESIGNS[key])
+    log = _ReadLog(ps)
+    designs = _design_all(log, model)
+    names = tuple(sorted(log.read))
+    key = _design_key(ps, model, names)
+    if key is not None:
+        with _DESIGN_LOCK:
+            if names not in _DESIGN_READS:
+                _DESIGN_READS.append(names)
+            _DESIGNS[key] = copy.deepcopy(designs)
+            while len(_DESIGNS) > _DESIGN_CACHE_SIZE:
+                _DESIGNS.popitem(last=False)
+    return designs
+
+
+#: parameter sets whose designs :func:`design_all` keeps
+_DESIGN_CACHE_SIZE = 32
+_DESIGNS: OrderedDict[tuple, Designs] = OrderedDict()
+#: the names each uncached design read (one tuple: the design does not branch on values; a
+#: branch would add a second, and an entry only matches when everything *it* read is equal)
+_DESIGN_READS: list[tuple[str, ...]] = []
+_DESIGN_LOCK = threading.Lock()
+
+
+def _design_key(ps: Mapping[str, Any], model: NominalModel, names: tuple[str, ...]) -> tuple | None:
+    """The cache key of the design from ``names`` of ``ps`` and ``model``; None if a value is
+    missing or not hashable (then nothing is cached)."""
+    try:
+        key = (model, names, tuple(ps[n] for n in names))
+        hash(key)
+    except (KeyError, TypeError):
+        return None
+    return key
+
+
+def _design_all(ps: Mapping[str, Any], model: NominalModel) -> Designs:
+    """:func:`design_all`, uncached."""
     period = 1.0 / ps["loop_rate_hz"]
     pid = design.design_pid(model, period, ps["pi.crossover_hz"], ps["pi.phase_margin_deg"],
                             ps["pi.integral_corner_ratio"], ps["pi.derivative_filter_ratio"])

@@ -25,7 +25,7 @@ from typing import Any
 
 import yaml
 
-from ..common.paramspec import ConfigError
+from ..common.paramspec import ConfigError, safe_load_yaml
 from ..common.config_dir import default_config_dir
 
 from .profiles import Profile, ProfileError, make_profile
@@ -74,7 +74,7 @@ def load_scenario(name_or_path: str) -> Scenario:
         if not path.is_file():
             raise ConfigError(f"unknown scenario {name_or_path!r}; built-in: {', '.join(builtin_names())}")
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = safe_load_yaml(path.read_text())
     except OSError as exc:
         raise ConfigError(f"cannot read scenario {path}: {exc.strerror}") from None
     except yaml.YAMLError as exc:

@@ -207,7 +207,7 @@ class StateFeedbackLaw(ControlLaw):
             u_i, d_i = self._inputs[i]
             x_now = self.ao @ x_now + self.bu[:, 0] * u_i + self.bd[:, 0] * d_i
         self.x_now = x_now
-        th1, w1, thl, wl = x_now[:4]
+        th1, w1, thl, wl = x_now[:4].tolist()      # Python floats: the same values, cheaper arithmetic
         hist = self._valve_history
         hist.append(meas.valve_rad)
         valve_speed = (hist[-1] - hist[0]) / (self.period * (len(hist) - 1)) if len(hist) > 1 else 0.0
@@ -365,7 +365,7 @@ class StateFeedbackLaw(ControlLaw):
 
     def estimate(self):
         n = self.model.gear_ratio
-        th1, w1, thl, wl = self.x_now[:4]
+        th1, w1, thl, wl = self.x_now[:4].tolist()
         return Estimate(th1 * n, w1 * n, thl, wl, self._fm, self._fl)
 
     def reference_position(self) -> float | None:
