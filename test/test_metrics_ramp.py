@@ -82,3 +82,27 @@ def test_a_ramp_to_the_end_of_the_trace_is_measured():
     pos = d - 1e-3
     metrics, _ = M.compute(_trace(t, d, pos))
     assert metrics["ramp_max_error_rad"] == pytest.approx(1e-3, rel=1e-6)
+
+
+@pytest.mark.parametrize("period_s", [0.005, 0.01, 0.02])
+def test_a_ramp_recorded_as_held_demand_messages_is_a_ramp_not_a_sweep(period_s):
+    # in a bag the demand is the last message received, sampled at each position sample: a ramp
+    # published every few ms reads as a staircase.  Its flat treads are no extrema: judged as
+    # extrema, every ramp of the main job's report was listed as a "sweep" without its error
+    t, d = _profile([(0.0, 0.2), (1.0, 0.2), (4.0, 0.2 + 3.0 * RATE), (6.0, 0.2 + 3.0 * RATE)])
+    held = np.interp(np.floor(t / period_s) * period_s, t, d)
+    lag = 0.05
+    pos = np.interp(t - lag, t, d)
+    metrics, details = M.compute(_trace(t, held, pos))
+    kinds = [s["kind"] for s in details]
+    assert "sweep" not in kinds and kinds.count("ramp") == 1, kinds
+    # the held demand is at most one message behind the true one: the error is the valve's lag
+    assert metrics["ramp_max_error_rad"] == pytest.approx(RATE * lag, rel=0.05)
+
+
+def test_a_sampled_sine_is_still_a_sweep():
+    t = np.arange(0.0, 6.0, DT)
+    d = np.where((t > 1.0) & (t < 5.0), 0.2 + 0.02 * np.sin(2 * np.pi * 2.0 * (t - 1.0)), 0.2)
+    held = np.interp(np.floor(t / 0.005) * 0.005, t, d)
+    _, details = M.compute(_trace(t, held, held))
+    assert [s["kind"] for s in details].count("sweep") == 1

@@ -98,7 +98,12 @@ def plateaus(tr: Trace) -> list[Segment]:
 
 
 def _extrema(seg: np.ndarray) -> int:
-    return int(np.count_nonzero(np.diff(np.sign(np.diff(seg))) != 0))
+    """Direction changes of ``seg``.  Samples where it stays put (within ``CONST_TOL_RAD``) are
+    no extrema: a demand recorded as the last message received reads as a staircase, and its
+    flat treads counted as turning points made every ramp of a bag a "sweep"."""
+    slope = np.diff(seg)
+    signs = np.sign(slope[np.abs(slope) > CONST_TOL_RAD])
+    return int(np.count_nonzero(np.diff(signs) != 0))
 
 
 def ramps(tr: Trace, i0: int, i1: int) -> list[Segment]:
