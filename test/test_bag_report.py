@@ -177,3 +177,33 @@ def test_missing_topics(tmp_path, step_small, capsys):
     assert code == 2 and "valve angle" in err and "current" in err and "/fv/demand" in err
     with pytest.raises(BagError):
         read_bag(tmp_path / "nothing_here")
+
+
+def test_profile_s_judges_the_run_not_the_suites_shutdown(tmp_path, step_small, capsys):
+    """fuel_valve_demo stops the demand node first, then the controller: the plant's drive
+    watchdog lets the spring close the valve with no drive_enable false on record, and the last
+    hold read the closing as a 0.18 rad error and a 0.14 rad limit cycle (a real-time demo bag,
+    stop 15).  ``--profile-s``: the samples after the profile are the shutdown, left out."""
+    import copy
+    run = copy.deepcopy(step_small)
+    t = run.column("t")
+    tail = t > 1.5                                      # the "shutdown": the valve closes, enable on
+    pos = run.log[:, sim.LOG_COLUMNS.index("position_rad")]
+    pos[tail] *= np.exp(-(t[tail] - 1.5) / 0.05)
+    run.log[tail, sim.LOG_COLUMNS.index("demand_rad")] = run.column("demand_rad")[~tail][-1]
+    bag = write_bag(tmp_path / "shutdown", run, "mcap", demand_every=5)
+    whole = report.analyse_bag(bag)
+    assert whole["metrics"]["steady_state_error_rad"] > 0.1          # what the report said before
+    assert report.main([str(bag), "--profile-s", "1.5"]) == 0
+    doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert doc["sim_time_s"] == pytest.approx(1.5, abs=2e-3)
+    assert doc["metrics"]["steady_state_error_rad"] < 1e-3
+    assert "profile" in doc["bag"]["sources"]
+    # equal to the same run cut at 1.5 s before it is recorded
+    cut = copy.deepcopy(step_small)
+    cut.log = cut.log[t <= 1.5 + 1e-9]
+    ref = report.analyse_bag(write_bag(tmp_path / "cut", cut, "mcap", demand_every=5))
+    assert doc["metrics"] == ref["metrics"]
+    # nonsense is refused with a clear error
+    assert report.main([str(bag), "--profile-s", "-1"]) == 2
+    assert "must be positive" in capsys.readouterr().err

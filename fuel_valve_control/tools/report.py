@@ -106,8 +106,13 @@ def _first(bag: Bag, names) -> TopicData | None:
     return None
 
 
-def build_series(bag: Bag) -> tuple[M.Trace, dict, dict]:
-    """(metrics trace, plot series, source notes) of a bag."""
+def build_series(bag: Bag, profile_s: float | None = None) -> tuple[M.Trace, dict, dict]:
+    """(metrics trace, plot series, source notes) of a bag.
+
+    ``profile_s``: the run's demand profile lasted this long (s) from the first demand message;
+    samples after that (the suite shutting down: a controller stopped, the drive's watchdog or a
+    stale-demand trip letting the spring close the valve) are left out, so the last plateau is
+    judged on the run, not on the teardown.  None: the whole bag."""
     missing = [what + " (" + " | ".join(names) + ")" for what, names in REQUIRED.items()
                if _first(bag, names) is None]
     if missing:
@@ -188,6 +193,17 @@ def build_series(bag: Bag) -> tuple[M.Trace, dict, dict]:
             if name in est:
                 series[key] = tl.align(est, est[name])
     series["current"] = current
+    if profile_s is not None:
+        if not profile_s > 0.0:
+            raise ReportError(f"the profile's duration must be positive, got {profile_s} s")
+        end_ns = float(np.min(tl.time_of(dem))) + profile_s * 1e9
+        n = int(np.searchsorted(t_ns, end_ns, side="right"))
+        if n < 2:
+            raise ReportError(f"bag {bag.name}: no position samples within {profile_s} s of the first demand")
+        if n < len(t):
+            series = {k: (v[:n] if isinstance(v, np.ndarray) and len(v) == len(t) else v) for k, v in series.items()}
+            sources["profile"] = f"the first {profile_s:g} s from the first demand (the rest: shutdown)"
+            t, position, current, enable = series["t"], series["position"], series["current"], series["enable"]
     trace = M.Trace(t, series["demand"], position, current, enable, stroke)
     return trace, series, sources
 
@@ -239,11 +255,11 @@ def plot_valve_tests(results: list[dict], plot: str | Path, baselines: list[dict
     return written
 
 
-def analyse(bag: Bag) -> tuple[dict, dict]:
-    """(report dict, plot series) of a bag already read."""
+def analyse(bag: Bag, profile_s: float | None = None) -> tuple[dict, dict]:
+    """(report dict, plot series) of a bag already read (``profile_s``: :func:`build_series`)."""
     if bag.message_count == 0:
         raise ReportError(f"bag {bag.name} is empty (no messages)")
-    trace, series, sources = build_series(bag)
+    trace, series, sources = build_series(bag, profile_s)
     metrics, segments = M.compute(trace)
     doc = {"scenario": bag.name, "controller": controller_mode(bag), "metrics": metrics,
            "sim_time_s": float(trace.t[-1] - trace.t[0]), "segments": segments,
@@ -256,12 +272,13 @@ def analyse(bag: Bag) -> tuple[dict, dict]:
 
 
 def analyse_bag(path: str | Path, plot: str | Path | None = None, trace: str | Path | None = None,
-                baselines: list[dict] = ()) -> dict:
+                baselines: list[dict] = (), profile_s: float | None = None) -> dict:
     """SPEC §5 metrics of the bag at ``path`` as ``fuel_valve_sim`` reports them (plus a
     ``bag`` section); writes the multi-panel PNG to ``plot`` and the time-series CSV
     (:mod:`.trace`) to ``trace`` when given.  Raises :class:`ReportError` /
-    :class:`~.bag_io.BagError` for bad input."""
-    doc, series = analyse(read_bag(path))
+    :class:`~.bag_io.BagError` for bad input.  ``profile_s``: judge only the run's profile
+    (:func:`build_series`)."""
+    doc, series = analyse(read_bag(path), profile_s)
     if trace:
         from .trace import write_trace
         write_trace(trace, series)
@@ -320,12 +337,15 @@ def main(argv=None) -> int:
                         "of fuel_valve_sim --trace)")
     parser.add_argument("--baseline", metavar="PATH.json", help="valve tests: draw the diagrams next to the "
                         "completed results in this JSON file (default: the first run of each test)")
+    parser.add_argument("--profile-s", type=float, metavar="S", help="the run's demand profile lasted S s from "
+                        "its first demand message: judge only that, not the suite's shutdown after it "
+                        "(fuel_valve_demo passes its profile's duration)")
     args = parser.parse_args(argv)
     try:
         baselines = load_baselines(args.baseline) if args.baseline else []
         if args.bag.endswith(".json"):
             return _report_json(args.bag, args.plot, baselines)
-        doc = analyse_bag(args.bag, args.plot, args.trace, baselines)
+        doc = analyse_bag(args.bag, args.plot, args.trace, baselines, args.profile_s)
     except (BagError, ReportError, OSError, ValueError) as exc:
         print(f"fuel_valve_report: error: {exc}", file=sys.stderr)
         return 2
