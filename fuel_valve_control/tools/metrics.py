@@ -97,13 +97,19 @@ def plateaus(tr: Trace) -> list[Segment]:
     return out
 
 
-def _extrema(seg: np.ndarray) -> int:
-    """Direction changes of ``seg``.  Samples where it stays put (within ``CONST_TOL_RAD``) are
-    no extrema: a demand recorded as the last message received reads as a staircase, and its
-    flat treads counted as turning points made every ramp of a bag a "sweep"."""
+def _slope_signs(seg: np.ndarray) -> np.ndarray:
+    """Sign (+1 / -1) of each sample-to-sample change of ``seg``; 0 where it stays put (within
+    ``CONST_TOL_RAD``)."""
     slope = np.diff(seg)
-    signs = np.sign(slope[np.abs(slope) > CONST_TOL_RAD])
-    return int(np.count_nonzero(np.diff(signs) != 0))
+    return np.where(np.abs(slope) > CONST_TOL_RAD, np.sign(slope), 0.0)
+
+
+def _extrema(seg: np.ndarray) -> int:
+    """Direction changes of ``seg``.  Samples where it stays put are no extrema: a demand
+    recorded as the last message received reads as a staircase, and its flat treads counted as
+    turning points made every ramp of a bag a "sweep"."""
+    signs = _slope_signs(seg)
+    return int(np.count_nonzero(np.diff(signs[signs != 0.0]) != 0))
 
 
 def ramps(tr: Trace, i0: int, i1: int) -> list[Segment]:
@@ -112,7 +118,7 @@ def ramps(tr: Trace, i0: int, i1: int) -> list[Segment]:
     d, t = tr.demand, tr.t
     if i1 - i0 < 3:
         return []
-    slope = np.sign(np.where(np.abs(np.diff(d[i0:i1])) > CONST_TOL_RAD, np.diff(d[i0:i1]), 0.0))
+    slope = _slope_signs(d[i0:i1])
     out = []
     a = 0
     while a < len(slope):
