@@ -133,6 +133,7 @@ def test_every_runtime_parameter_has_a_consumer():
         if k < 150:                                                  # then stale: the fallback
             drv.pressure_differential(t, 3000.0)
         drv.resolver(t, 0.2 * 48.019, 0.2, now=t)                    # received on the loop clock
+        drv.loop_timing(t, t + (0.01 if k >= 200 else 0.0))          # real time: one late arrival
         drv.step(t)
     drv.reset()
     drv.health()

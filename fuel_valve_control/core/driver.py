@@ -159,6 +159,12 @@ class ValveDriver:
         self._arm_torque = 0.0
         self._t: float | None = None               # time of the latest step
         self.stall_rearms = 0                      # re-arms after the drive went off (diagnostics)
+        #: real-time loop timing (:meth:`loop_timing`): the previous sample's (stamp, arrival), s;
+        #: loop time of the latest late period and why (None: never late); late periods counted
+        self._timing_prev: tuple[float, float] | None = None
+        self._late_t: float | None = None
+        self._late_why = ""
+        self.late_loop_events = 0
         self._stalled = False
         #: the drive's state word (:meth:`drive_status`): None until a drive reports one (then
         #: the reports, not the loop gap, say when the drive switched itself off)
@@ -396,6 +402,40 @@ class ValveDriver:
         self._meas = Measurement(float(motor_rad), float(valve_rad))
         self._meas_t = t
         self._recent.append((t, float(valve_rad)))
+
+    def loop_timing(self, stamp: float, now: float) -> None:
+        """Real time only (the node calls it for each resolver sample it runs a period on;
+        offline and in lockstep the loop's timing is exact by construction): the sample
+        stamped ``stamp`` (s, the drive's clock) arrived at ``now`` (s, the loop's clock).  The
+        loop is *late* when a sample arrives, or is stamped, more than ``fine.late_loop_s``
+        beyond one period after the previous one: intervals, not the age ``now - stamp``, so
+        an offset between the two clocks does not count.  A late loop stretches whatever
+        current it last commanded; the fine stage's pulses are timed open-loop torques (a
+        29 A kick held ~7 ms instead of ~4 ms moved a held valve 6.5e-2 rad, beside two CPU
+        hogs), so the stage stands aside for ``fine.late_loop_holdoff_s`` after
+        (:meth:`_stage_aside`)."""
+        prev, self._timing_prev = self._timing_prev, (stamp, now)
+        if prev is None:
+            return
+        late = self.ps["fine.late_loop_s"] + self.period
+        stamped, arrived = stamp - prev[0], now - prev[1]
+        if stamped > late:
+            self._loop_late(now, f"{stamped * 1e3:.1f} ms between resolver samples")
+        elif arrived > late:
+            self._loop_late(now, f"a resolver sample {arrived * 1e3:.1f} ms after the previous one")
+
+    def _loop_late(self, t: float, why: str) -> None:
+        self._late_t, self._late_why = t, why
+        self.late_loop_events += 1
+
+    def _stage_aside(self, t: float) -> str:
+        """Why the fine stage stands aside this period ('' = it may act): a valve test is
+        measuring, or the loop was late within ``fine.late_loop_holdoff_s``."""
+        if self.valve_test is not None and self.valve_test.running is not None:
+            return "valve test"
+        if self._late_t is not None and t - self._late_t < self.ps["fine.late_loop_holdoff_s"]:
+            return "late loop: " + self._late_why
+        return ""
 
     def _implausible(self, t, motor, valve) -> str | None:
         if not (isinstance(motor, (int, float)) and math.isfinite(motor)
@@ -652,6 +692,7 @@ class ValveDriver:
             self._coming_back_since = t
             self._reenables = 1
             self.stall_rearms += 1
+            self._loop_late(t, "the drive switched itself off (its command watchdog)")
             # the twist check compared the coupling with a current the drive did not apply
             # while it was off: that time is no evidence of a failed resolver
             self._twist_time = 0.0
@@ -681,8 +722,9 @@ class ValveDriver:
         demand_rad = self.demand_rad()
         if self.valve_test is not None:           # a running valve test owns the demand
             demand_rad = self.valve_test.demand(t, demand_rad)
-            # ... and measures friction from the drive torque: the fine stage stands aside
-            self.controller.law.stand_aside(self.valve_test.running is not None)
+        # a valve test measures friction from the drive torque, a late loop stretches a pulse:
+        # the fine stage stands aside (the other laws ignore it)
+        self.controller.law.stand_aside(bool(self._stage_aside(t)))
         if not self._armed and self._rearm_at_rest and not self._valve_at_rest():
             # the drive is off (it switched itself off): wait, drive off, until the valve is slow
             self.last = DriverOutput(0.0, False, "waiting", self._demand_pct, position_pct, {}, dict(self.warnings))
@@ -862,6 +904,8 @@ class ValveDriver:
                                    else self.friction_check.ratio(self._scheduled_kpa)),
             "i2t_budget_used": self.controller.i2t_budget_fraction,
             "stall_rearms": self.stall_rearms,
+            "late_loop_events": self.late_loop_events,
+            "fine_stage_aside": self._stage_aside(self._t) if self._t is not None else "",
             "drive_state": "unreported" if self.drive_state is None else DRIVE_STATE_NAMES[self.drive_state],
             "law_swaps": self.law_swaps, "params_pending": self.params_pending,
             "faults": ",".join(out.faults) or "none", "warnings": ",".join(out.warnings) or "none",

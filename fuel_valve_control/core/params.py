@@ -313,6 +313,14 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "the plateau's late window, or this move would) aims this fraction of the nominal stick-slip jump "
           "2 (T_s - T_c(dp)) / K short, and is made only for an error of at least twice that (0 = never made)",
           0.0, 2.0, runtime=True),
+    Param("fine.late_loop_s", 2.5e-3, "s", "real time: a resolver sample that arrives, or is stamped, more than "
+          "this beyond one period after the previous one marks the loop late (as does a drive watchdog trip); the "
+          "stage's pulses are timed open-loop torques that a late loop stretches -- a 29 A kick held ~7 ms instead "
+          "of ~4 ms by a starved loop moved a held valve 6.5e-2 rad -- so it stands aside (the main law holds) "
+          "for fine.late_loop_holdoff_s after (measured beside two CPU hogs: gaps of 1-2 ms beyond the period a "
+          "few times a second, one of 6 ms in 15 s)", 5e-4, 1.0, runtime=True),
+    Param("fine.late_loop_holdoff_s", 2.0, "s", "the stage stands aside this long after the loop was late "
+          "(fine.late_loop_s; 0 = never)", 0.0, 600.0, runtime=True),
     Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "

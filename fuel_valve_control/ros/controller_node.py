@@ -477,6 +477,7 @@ class ControllerNode(LifecycleNode):
             self.publish_step(stamp, self._inputs.run(self.driver, stamp, motor, valve, now=clock))
         else:
             self.driver.resolver(stamp, motor, valve, now=clock)
+            self.driver.loop_timing(stamp, clock)
             self.publish_step(self.now_s())
         self._compute.add(time.perf_counter() - t0)
 

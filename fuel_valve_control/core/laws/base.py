@@ -42,9 +42,11 @@ class ControlLaw(ABC):
 
     def stand_aside(self, on: bool) -> None:
         """``on``: a valve test (signature, partial stroke) owns the demand and measures the
-        valve's friction from the drive torque; a law that adds torque of its own beyond the
-        position loop's (the fine stage's preloads and pulses) leaves the valve to the loop
-        until called with ``False``.  Called by the driver every period; the default: nothing."""
+        valve's friction from the drive torque, or the real-time loop was late (a late period
+        stretches a timed pulse: :meth:`~..driver.ValveDriver.loop_timing`); a law that adds
+        torque of its own beyond the position loop's (the fine stage's preloads and pulses)
+        leaves the valve to the loop until called with ``False``.  Called by the driver every
+        period; the default: nothing."""
 
     def applied(self, torque_nm: float, saturated: bool) -> None:
         """The torque actually applied after limits (for observers and anti-windup)."""
