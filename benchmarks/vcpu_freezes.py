@@ -17,7 +17,12 @@ after the freeze the driver gets the report and the latest sample only (depth-1 
 Measured after the first second: the valve's excess over the highest demand of the trailing
 0.5 s and its shortfall under the lowest (soak.py's window), percent of stroke, re-arms.
 
-    python benchmarks/vcpu_freezes.py [--seconds 20]
+Also: shorter freezes (3-4 ms: late periods, no trip) on plateau sequences of 0.1-0.5 % steps,
+whose plateaus the fine stage finishes with timed pulses; a late period stretches the pulse in
+force, and ``thrown_rad`` is how far a valve that had arrived was thrown off its plateau, with
+the driver's late-loop guard (``fine.late_loop_holdoff_s``) and without it.
+
+    python benchmarks/vcpu_freezes.py [--seconds 20] [--plateau-seeds 10]
 
 Last line: one JSON object.
 """
@@ -41,10 +46,31 @@ from fuel_valve_plant.physics.plant import Plant
 SINE_OFFSET, SINE_AMPLITUDE, SINE_HZ, SINE_T0 = 40.0, 20.0, 0.1, 7.5
 #: judged from this time on, s (the start-up move before it), over this trailing window, s
 START_S, WINDOW_S = 1.0, 0.5
+#: a plateau demand: a valve within this of its plateau has arrived (about half the nominal
+#: stick-slip jump at max Δp: what the main law's hold leaves), rad
+ARRIVED_RAD = 2.5e-3
+#: length of a plateau-sequence run (12 plateaus of 0.6 s after the start), s
+PLATEAU_SECONDS = 8.0
 
 
 def soak_demand(t: float) -> float:
     return SINE_OFFSET + SINE_AMPLITUDE * math.sin(2.0 * math.pi * SINE_HZ * (SINE_T0 + t))
+
+
+def plateau_demand(seed: int = 0, start_pct: float = 30.0, steps: int = 40, hold_s: float = 0.6,
+                   low_pct: float = 0.1, high_pct: float = 2.0):
+    """A plateau sequence (the robustness campaign's kind of demand, percent): from
+    ``start_pct``, ``steps`` random steps of ``low_pct``..``high_pct`` either way, ``hold_s``
+    apart; held at the last one after."""
+    rng = np.random.default_rng(seed)
+    levels = [start_pct]
+    for _ in range(steps):
+        levels.append(levels[-1] + rng.choice([-1.0, 1.0]) * rng.uniform(low_pct, high_pct))
+
+    def demand(t: float) -> float:
+        return levels[min(int(t / hold_s), len(levels) - 1)]
+    demand.hold_s = hold_s
+    return demand
 
 
 def regular_freezes(freeze_periods: int, every_s: float, seconds: float, period: float) -> dict[int, int]:
@@ -90,6 +116,7 @@ def simulate_freezes(freezes: dict[int, int], seconds: float, demand=soak_demand
                 drive_on = False
         else:
             last, _ = sim.exchange_period(drv, plant, t, demand(t))
+            drv.loop_timing(t, t)              # the controller node's real-time timing check
             # the drive comes back on an explicit re-enable or an enable edge (plant_node) and
             # says so (its state word reaches the driver before the next period)
             if not drive_on and (last.reenable or (last.enable and not enabled)):
@@ -103,13 +130,29 @@ def simulate_freezes(freezes: dict[int, int], seconds: float, demand=soak_demand
     start, window = int(round(START_S / period)), int(round(WINDOW_S / period))
     excess = max(valve[k] - dem[k - window:k + 1].max() for k in range(start, n))
     shortfall = max(dem[k - window:k + 1].min() - valve[k] for k in range(start, n))
-    return {"excess_pct": float(excess), "shortfall_pct": float(shortfall), "freezes": len(freezes),
-            "rearms": drv.stall_rearms, "faults": sorted(drv.last.faults), "driver": drv}
+    out = {"excess_pct": float(excess), "shortfall_pct": float(shortfall), "freezes": len(freezes),
+           "rearms": drv.stall_rearms, "late": drv.late_loop_events, "faults": sorted(drv.last.faults),
+           "driver": drv}
+    hold_s = getattr(demand, "hold_s", None)
+    if hold_s is not None:
+        # a plateau demand: how far a valve that had arrived (within ARRIVED_RAD of its plateau)
+        # was thrown off it later on the same plateau, rad (largest over the plateaus from START_S)
+        err = np.abs(valve - dem) / 100.0 * STROKE_RAD
+        per = int(round(hold_s / period))
+        thrown = 0.0
+        for k0 in range(int(round(START_S / period)) // per * per + per, n - per + 1, per):
+            e = err[k0:k0 + per - 1]
+            arrived = np.flatnonzero(e < ARRIVED_RAD)
+            if arrived.size:
+                thrown = max(thrown, float(e[arrived[0]:].max()))
+        out["thrown_rad"] = thrown
+    return out
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--plateau-seeds", type=int, default=10, help="plateau sequences per late-loop case")
     args = parser.parse_args()
     period = 1.0 / load_controller_params()["loop_rate_hz"]
     cases = {
@@ -126,7 +169,21 @@ def main() -> int:
         out[name] = {k: round(v, 3) if isinstance(v, float) else v for k, v in r.items()}
         print(f"{name:<38} excess {r['excess_pct']:6.2f} %  shortfall {r['shortfall_pct']:6.2f} %  "
               f"freezes {r['freezes']:4d}  re-arms {r['rearms']:4d}  faults {r['faults']}", flush=True)
-    print(json.dumps({"seconds": args.seconds, "cases": out}))
+    # short freezes (late periods, no watchdog trip) on plateaus the fine stage finishes with
+    # timed pulses: how far a valve that had arrived is thrown, with the late-loop guard
+    # (fine.late_loop_holdoff_s, default) and without it (0)
+    plateaus = {}
+    for late in (3, 4):
+        freezes = regular_freezes(late, 0.25, PLATEAU_SECONDS, period)
+        for guard, overrides in (("guard", {}), ("no guard", {"fine.late_loop_holdoff_s": 0.0})):
+            thrown = [simulate_freezes(freezes, PLATEAU_SECONDS, plateau_demand(seed, steps=12, high_pct=0.5),
+                                       overrides)["thrown_rad"] for seed in range(args.plateau_seeds)]
+            name = f"plateaus, {late} ms late every 0.25 s, {guard}"
+            q = {"median": float(np.median(thrown)), "p95": float(np.percentile(thrown, 95)), "max": max(thrown)}
+            plateaus[name] = {k: float(f"{v:.3g}") for k, v in q.items()}
+            print(f"{name:<46} thrown median {q['median']:.2e} p95 {q['p95']:.2e} max {q['max']:.2e} rad "
+                  f"({args.plateau_seeds} sequences)", flush=True)
+    print(json.dumps({"seconds": args.seconds, "cases": out, "plateaus": plateaus}))
     return 0
 
 

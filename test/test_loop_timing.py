@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fuel_valve_control.common.contract import STROKE_RAD
 from fuel_valve_control.core.driver import ValveDriver
 from fuel_valve_control.core.params import load_controller_params
 from fuel_valve_control.tools.sim import exchange_period
@@ -45,59 +44,34 @@ def test_late_intervals_mark_the_loop_late_a_clock_offset_does_not():
     assert drv.late_loop_events == 2
 
 
-def _hold_sequence(holdoff_s: float, late_periods: int, seed: int = 0, every_s: float = 0.25):
-    """Offline closed loop (default mode, max Δp) over 12 random plateau steps of 0.1-2 % of
-    stroke, 0.6 s each; from 1 s on, every ``every_s`` the loop is ``late_periods`` periods
-    late: the drive keeps the last command meanwhile (shorter than its 5 ms watchdog), then the
-    driver gets the next sample with the stamp gap.  Returns (largest |valve - demand| later
-    than 0.3 s into a plateau, rad; the driver)."""
-    rng = np.random.default_rng(seed)
-    plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": 0.0, "seed": seed}))
-    drv = ValveDriver(load_controller_params(overrides={"fine.late_loop_holdoff_s": holdoff_s}))
-    period, t, next_late, worst = drv.period, 0.0, 1.0, 0.0
-    levels = [30.0]
-    for _ in range(12):
-        levels.append(levels[-1] + rng.choice([-1.0, 1.0]) * rng.uniform(0.1, 2.0))
-    for level in levels:
-        target, start = level / 100.0 * STROKE_RAD, t
-        while t - start < 0.6:
-            if late_periods and t >= next_late:
-                next_late += every_s
-                last = drv.last
-                for _ in range(late_periods):
-                    plant.set_command(last.current_a, last.enable)
-                    plant.advance(period)
-                    t += period
-                    if t - start > 0.3:
-                        worst = max(worst, abs(plant.truth().valve_angle - target))
-            out, _ = exchange_period(drv, plant, t, level)
-            drv.loop_timing(t, t)                    # as the node does in real time
-            plant.set_command(out.current_a, out.enable)
-            plant.advance(period)
-            t += period
-            if t - start > 0.3:
-                worst = max(worst, abs(plant.truth().valve_angle - target))
-    return worst, drv
+def _thrown(bench, late_periods: int, seed: int, guard: bool) -> tuple[float, int]:
+    """``benchmarks/vcpu_freezes.py``'s closed loop (default mode, max Δp) on a plateau sequence
+    of 0.1-0.5 % steps; from 1 s on, every 0.25 s the loop is ``late_periods`` periods late (the
+    drive keeps the last command, shorter than its watchdog).  How far a valve that had arrived
+    was thrown off its plateau (rad), and the late periods the driver saw."""
+    period = 1.0 / load_controller_params()["loop_rate_hz"]
+    freezes = bench.regular_freezes(late_periods, 0.25, bench.PLATEAU_SECONDS, period) if late_periods else {}
+    r = bench.simulate_freezes(freezes, bench.PLATEAU_SECONDS, bench.plateau_demand(seed, steps=12, high_pct=0.5),
+                               {} if guard else {"fine.late_loop_holdoff_s": 0.0})
+    return r["thrown_rad"], r["late"]
 
 
-def test_on_a_loop_that_keeps_time_the_guard_changes_nothing():
-    with_guard, drv = _hold_sequence(2.0, 0)
-    without, _ = _hold_sequence(0.0, 0)
-    assert drv.late_loop_events == 0 and with_guard == without
+def test_on_a_loop_that_keeps_time_the_guard_changes_nothing(freezes_bench):
+    assert _thrown(freezes_bench, 0, 0, True) == (_thrown(freezes_bench, 0, 0, False)[0], 0)
 
 
-@pytest.mark.parametrize("seed", [0, 2])
-def test_a_late_loop_does_not_stretch_the_fine_stages_pulses(seed):
-    # 4-period late loops every 0.25 s: without the guard the stretched kicks moved held valves
-    # 3.5-5.7e-2 rad (seeds 0-2); with it the main law holds, within about half a jump
-    # (2.3-3.1e-3 rad at max Δp)
-    guarded, drv = _hold_sequence(2.0, 4, seed)
-    unguarded, _ = _hold_sequence(0.0, 4, seed)
-    assert drv.late_loop_events >= 40
-    jump = drv.controller.model.friction(drv.pressure_kpa).stick_slip_jump_rad(
-        drv.controller.model.coupling_stiffness_nm_per_rad)
-    assert guarded <= jump, (guarded, jump)
-    assert unguarded > 4 * jump, (unguarded, jump)      # the mechanism the guard is for
+@pytest.mark.parametrize("seed", [0, 4, 5])
+def test_a_late_loop_does_not_stretch_the_fine_stages_pulses(freezes_bench, seed):
+    # 4-period late loops every 0.25 s (benchmarks/vcpu_freezes.py, 10 sequences): without the
+    # guard the stretched kicks threw arrived valves up to 5.3e-2 rad (median 1.1e-2); with it
+    # the main law holds them within about half a jump (max 4.5e-3 rad at max Δp)
+    guarded, late = _thrown(freezes_bench, 4, seed, True)
+    unguarded, _ = _thrown(freezes_bench, 4, seed, False)
+    m = ValveDriver(load_controller_params()).controller.model
+    jump = m.friction(load_plant_params()["pressure_differential_kpa"]).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
+    assert late >= 25
+    assert guarded <= 1.5 * jump, (guarded, jump)
+    assert unguarded > 3.0 * jump, (unguarded, jump)      # the mechanism the guard is for
 
 
 def test_a_drive_watchdog_trip_sets_the_stage_aside_for_the_holdoff():
