@@ -291,9 +291,18 @@ class StateFeedbackLaw(ControlLaw):
             # the resolver's noise, the way the relaxing drive let it go (the relax takes support
             # away from the side the load pushes): a steady load beyond the known one
             net0, moved = slip
-            if moved * (net0 - self.held_load) < 0.0 and self.met_hold and self.slip_edges.contradicts(net0, moved):
+            # default mode: and the drive *now* still lets it go that way (h20s).  The settled
+            # record is the drive of the latest relaxing period; once the error left the deadband
+            # (a followed demand step below the move threshold) the integrator and the stuck ramp
+            # drive the valve toward the new target, and the breakaway they cause is no relax slip:
+            # read at the stale settled drive (~0 on a load-free valve) it made a first edge whose
+            # prior put a 2.8 N*m load on a valve that has none (nominal box seeds 1009, 1019, 1026,
+            # 1036, 1038: every later move started from a drive cocked half the static level
+            # toward or away from its breakaway, the five plateau-step overshoots of 62-112 %)
+            let_go = moved * (net0 - self.held_load) < 0.0 and (not self.met_hold or moved * drive_nm < 0.0)
+            if let_go and self.met_hold and self.slip_edges.contradicts(net0, moved):
                 self.slip_edges.reset()         # a known band contradicted: unknown now, the load kept (h19b)
-            elif moved * (net0 - self.held_load) < 0.0:
+            elif let_go:
                 self.held_load = self.integral.learn_load(
                     net0, moved, friction.valve_static_nm,
                     load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.met_hold else None)
