@@ -48,6 +48,10 @@ class StateFeedbackLaw(ControlLaw):
     #: 10-30 ms through the speed window), while the hold's catch-ups after a cold start took
     #: 0.12-0.13 s (`startup`, campaign seed 1070)
     CATCH_UP_S = 0.1
+    #: periods beyond the deadband after which a settled valve's slip record is no longer the
+    #: relaxing drive's (:meth:`update`): twice the speed window a slip is read through (a relax
+    #: slip that carries the valve beyond the deadband is read within ~3 periods of its start)
+    INTEGRATOR_DRIVEN_PERIODS = 10
 
     def __init__(self, name: str, model: NominalModel, period_s: float, feedback: StateFeedback,
                  observer_gain: np.ndarray, shaper: TrajectoryShaper, integral: IntegralPolicy,
@@ -106,6 +110,7 @@ class StateFeedbackLaw(ControlLaw):
         #: latched a fault instead: measured and not kept, h17w)
         self.slip_watch = SlipWatch(integral.min_rad, 3.0 * integral.min_rad if self.met_hold else 0.0)
         self._relax_periods = 0                 # periods relaxed in a row
+        self._outside_periods = 0               # periods in a row the error was beyond the deadband
         #: (valve angle rad, direction ±1 to the target) where a held valve stuck short of its
         #: target, until it breaks away (modes whose compensator relieves the breakaway)
         self._stuck_short: tuple[float, float] | None = None
@@ -187,7 +192,7 @@ class StateFeedbackLaw(ControlLaw):
         if self._cocked:
             self.jumps.drop_slide()
         self.slip_watch.reset()
-        self._relax_periods = 0
+        self._relax_periods = self._outside_periods = 0
         self._stuck_short = None
         self._d = m.load_torque(meas.valve_rad, pressure_kpa) - m.spring_rate_nm_per_rad * meas.valve_rad
         self._inputs.clear()
@@ -283,6 +288,19 @@ class StateFeedbackLaw(ControlLaw):
                                         0.0, self._fl)
         u = u_ff + (comp - self._fl / n) - float(self.fb.k @ (x_now[:4] - x_ref)) + self.fb.ki * self.zeta
         self._pending = 0.0
+        if self.met_hold and self._outside_periods > self.INTEGRATOR_DRIVEN_PERIODS:
+            # default mode: the settled record is the drive of the latest relaxing period; once the
+            # error has been beyond the deadband for longer than a slip takes to be read, the
+            # integrator and the stuck ramp have driven the valve from there toward a new target
+            # (a followed demand step below the move threshold), and the breakaway they cause is no
+            # relax slip.  Read at the stale settled drive (~0 on a load-free valve), its one-edge
+            # prior put half the static level (2.8 N*m) of load on a valve that carries none
+            # (nominal box seeds 1009, 1019, 1026, 1036, 1038: every later move started from a drive
+            # uncocked to that load, half the static friction toward or away from its breakaway,
+            # and overshot 62-112 %; h20s).  The creep record too (its drive is as stale): the
+            # valve rests again before the next one is taken
+            self.slip_watch.reset()
+        self._outside_periods = self._outside_periods + 1 if outside else 0
         slip = None if ref.moving else self.slip_watch.left(valve)
         if ref.moving:
             self.slip_watch.reset()
@@ -291,18 +309,9 @@ class StateFeedbackLaw(ControlLaw):
             # the resolver's noise, the way the relaxing drive let it go (the relax takes support
             # away from the side the load pushes): a steady load beyond the known one
             net0, moved = slip
-            # default mode: and the drive *now* still lets it go that way (h20s).  The settled
-            # record is the drive of the latest relaxing period; once the error left the deadband
-            # (a followed demand step below the move threshold) the integrator and the stuck ramp
-            # drive the valve toward the new target, and the breakaway they cause is no relax slip:
-            # read at the stale settled drive (~0 on a load-free valve) it made a first edge whose
-            # prior put a 2.8 N*m load on a valve that has none (nominal box seeds 1009, 1019, 1026,
-            # 1036, 1038: every later move started from a drive cocked half the static level
-            # toward or away from its breakaway, the five plateau-step overshoots of 62-112 %)
-            let_go = moved * (net0 - self.held_load) < 0.0 and (not self.met_hold or moved * drive_nm < 0.0)
-            if let_go and self.met_hold and self.slip_edges.contradicts(net0, moved):
+            if moved * (net0 - self.held_load) < 0.0 and self.met_hold and self.slip_edges.contradicts(net0, moved):
                 self.slip_edges.reset()         # a known band contradicted: unknown now, the load kept (h19b)
-            elif let_go:
+            elif moved * (net0 - self.held_load) < 0.0:
                 self.held_load = self.integral.learn_load(
                     net0, moved, friction.valve_static_nm,
                     load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.met_hold else None)
