@@ -111,6 +111,9 @@ class StateFeedbackLaw(ControlLaw):
         self.slip_watch = SlipWatch(integral.min_rad, 3.0 * integral.min_rad if self.met_hold else 0.0)
         self._relax_periods = 0                 # periods relaxed in a row
         self._outside_periods = 0               # periods in a row the error was beyond the deadband
+        #: (drive N*m beyond the known load, valve rad, way ±1) of the latest stuck period while
+        #: the integrator pulls the valve toward its target (:meth:`_read_pull`)
+        self._pull: tuple[float, float, float] | None = None
         #: (valve angle rad, direction ±1 to the target) where a held valve stuck short of its
         #: target, until it breaks away (modes whose compensator relieves the breakaway)
         self._stuck_short: tuple[float, float] | None = None
@@ -193,6 +196,7 @@ class StateFeedbackLaw(ControlLaw):
             self.jumps.drop_slide()
         self.slip_watch.reset()
         self._relax_periods = self._outside_periods = 0
+        self._pull = None
         self._stuck_short = None
         self._d = m.load_torque(meas.valve_rad, pressure_kpa) - m.spring_rate_nm_per_rad * meas.valve_rad
         self._inputs.clear()
@@ -301,6 +305,9 @@ class StateFeedbackLaw(ControlLaw):
             # valve rests again before the next one is taken
             self.slip_watch.reset()
         self._outside_periods = self._outside_periods + 1 if outside else 0
+        if self.met_hold:
+            self._read_pull(outside and not ref.moving, stuck, valve, target - thl, n * self._applied - load_nm,
+                            friction.valve_static_nm, load_nm)
         slip = None if ref.moving else self.slip_watch.left(valve)
         if ref.moving:
             self.slip_watch.reset()
@@ -350,6 +357,37 @@ class StateFeedbackLaw(ControlLaw):
         known_load = load_nm - m.spring_rate_nm_per_rad * thl   # preload + flow
         self._d = known_load + (self._fl if self.compensator.feeds_observer else 0.0)
         return u
+
+    def _read_pull(self, pulling: bool, stuck: bool, valve: float, error: float, net_nm: float,
+                   static_nm: float, known_nm: float) -> None:
+        """The breakaway the integrator and its stuck ramp force toward the target (``pulling``:
+        the error beyond the deadband, no planned move) is an edge of the static band too, read
+        at the drive it broke away at (``net_nm``, N*m beyond the known load, of the latest period
+        the valve was ``stuck``): the ramp is quasi-static, so that drive is ``L + s Ts`` with
+        ``s`` the way it broke.  One such edge alone gives the load only through the scheduled
+        static level's prior (half of it: an estimate off by up to half the static friction,
+        the error the move's start then carries, see :meth:`update`), so it is only *stored*;
+        with the opposite edge it gives the load as their mean, whatever the friction
+        (:meth:`~..integral_policy.IntegralPolicy.learn_load`).  A reading that contradicts a
+        known band is not used (h20s)."""
+        if not pulling:
+            self._pull = None
+            return
+        if stuck:
+            self._pull = (net_nm, valve, 1.0 if error > 0.0 else -1.0)
+            return
+        if self._pull is None:
+            return
+        edge, start, way = self._pull
+        if way * (valve - start) <= self.integral.min_rad:
+            return
+        self._pull = None
+        if self.slip_edges.contradicts(edge, way):
+            return
+        opposite = self.slip_edges.opposite(way)
+        if opposite is not None and (edge - opposite) * way > 0.0:
+            self.held_load = self.integral.learn_load(edge, way, static_nm, known_nm, opposite)
+        self.slip_edges.met(edge, way)
 
     def _relieve_breakaway(self, valve_rad, stuck, outside, moving, error, friction) -> None:
         """Give back the breakaway surplus once a valve held stuck short of its target breaks
