@@ -97,3 +97,38 @@ def test_nominal_box_plateau_steps_do_not_overshoot_by_half_the_step(robustness_
     assert overshoots and max(overshoots) <= 50.0
     assert not any(pl["hunts"] for pl in plats)
     assert all(math.isfinite(pl["final_error_rad"]) for pl in plats)
+
+
+def _main_law():
+    from fuel_valve_control.core.position_controller import PositionController
+    law = PositionController(CONTROLLER_SPEC.defaults()).law
+    return getattr(law, "main", law)
+
+
+def _pull(law, way: float, edge_nm: float, periods: int = 20, start: float = 0.5) -> None:
+    """The integrator pulls a stuck valve ``way`` (+1 opening) with the drive reaching ``edge_nm``
+    (N*m beyond the known load), then it breaks loose and slides 1 mrad."""
+    for i in range(periods):
+        law._read_pull(True, True, start, way * 3e-3, edge_nm * (i + 1) / periods, _STATIC_NM, 12.0)
+    for k in range(1, 6):
+        law._read_pull(True, False, start + way * 2e-4 * k, way * 3e-3, edge_nm, _STATIC_NM, 12.0)
+
+
+def test_the_integrators_breakaway_is_an_edge_at_the_drive_it_broke_away_at():
+    law = _main_law()
+    _pull(law, -1.0, -6.3)
+    assert law.slip_edges.edges == {-1: pytest.approx(-6.3)}
+    assert law.held_load == 0.0          # one edge: stored, no load from the half-static prior
+    _pull(law, 1.0, 5.7)
+    assert law.slip_edges.edges[1] == pytest.approx(5.7)
+    assert law.held_load == pytest.approx(-0.3)      # both edges: their mean
+    assert law.slip_edges.known
+
+
+def test_a_pull_that_ends_inside_the_deadband_or_never_breaks_teaches_nothing():
+    law = _main_law()
+    for i in range(30):                  # stuck all along
+        law._read_pull(True, True, 0.5, 3e-3, -0.2 * i, _STATIC_NM, 12.0)
+    law._read_pull(False, True, 0.5, 1e-4, -6.0, _STATIC_NM, 12.0)     # back inside: the pull lapses
+    law._read_pull(True, False, 0.499, 3e-3, -6.0, _STATIC_NM, 12.0)
+    assert law.slip_edges.edges == {} and law.held_load == 0.0
