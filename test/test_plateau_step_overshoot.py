@@ -109,9 +109,9 @@ def _pull(law, way: float, edge_nm: float, periods: int = 20, start: float = 0.5
     """The integrator pulls a stuck valve ``way`` (+1 opening) with the drive reaching ``edge_nm``
     (N*m beyond the known load), then it breaks loose and slides 1 mrad."""
     for i in range(periods):
-        law._read_pull(True, True, start, way * 3e-3, edge_nm * (i + 1) / periods, _STATIC_NM, 12.0)
+        law._read_pull(True, True, start, 0.6, way * 3e-3, edge_nm * (i + 1) / periods, _STATIC_NM, 12.0)
     for k in range(1, 6):
-        law._read_pull(True, False, start + way * 2e-4 * k, way * 3e-3, edge_nm, _STATIC_NM, 12.0)
+        law._read_pull(True, False, start + way * 2e-4 * k, 0.6, way * 3e-3, edge_nm, _STATIC_NM, 12.0)
 
 
 def test_the_integrators_breakaway_is_an_edge_at_the_drive_it_broke_away_at():
@@ -128,7 +128,16 @@ def test_the_integrators_breakaway_is_an_edge_at_the_drive_it_broke_away_at():
 def test_a_pull_that_ends_inside_the_deadband_or_never_breaks_teaches_nothing():
     law = _main_law()
     for i in range(30):                  # stuck all along
-        law._read_pull(True, True, 0.5, 3e-3, -0.2 * i, _STATIC_NM, 12.0)
-    law._read_pull(False, True, 0.5, 1e-4, -6.0, _STATIC_NM, 12.0)     # back inside: the pull lapses
-    law._read_pull(True, False, 0.499, 3e-3, -6.0, _STATIC_NM, 12.0)
+        law._read_pull(True, True, 0.5, 0.6, 3e-3, -0.2 * i, _STATIC_NM, 12.0)
+    law._read_pull(False, True, 0.5, 0.6, 1e-4, -6.0, _STATIC_NM, 12.0)     # back inside: the pull lapses
+    law._read_pull(True, False, 0.499, 0.6, 3e-3, -6.0, _STATIC_NM, 12.0)
     assert law.slip_edges.edges == {} and law.held_load == 0.0
+
+
+def test_a_pull_under_a_moving_demand_is_no_edge():
+    """A followed ramp: the valve stick-slips with the reference; no slip there is a band edge."""
+    law = _main_law()
+    for i in range(20):
+        law._read_pull(True, True, 0.5, 0.6 + 1e-5 * i, 3e-3, 0.3 * i, _STATIC_NM, 12.0)
+    law._read_pull(True, False, 0.5012, 0.6 + 2e-4, 3e-3, 6.0, _STATIC_NM, 12.0)
+    assert law.slip_edges.edges == {}
