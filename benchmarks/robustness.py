@@ -48,7 +48,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from fuel_valve_control.common.contract import PRESSURE_MAX_KPA  # noqa: E402
+from fuel_valve_control.common.contract import PRESSURE_MAX_KPA, STROKE_RAD  # noqa: E402
 from fuel_valve_control.common.paramspec import ConfigError, parse_overrides  # noqa: E402
 from fuel_valve_control.core.model import NominalModel  # noqa: E402
 from fuel_valve_control.core.params import CONTROLLER_SPEC, DEFAULT_MODE, MODES  # noqa: E402
@@ -242,14 +242,17 @@ def _stats(values) -> dict:
 
 def summarise(results: list[dict]) -> dict:
     plats = [pl for r in results for pl in r["plateaus"]]
-    big = [pl for pl in plats if abs(pl["to_rad"] - pl["from_rad"]) >= 0.01 * 1.0472]
+    step_os = M.plateau_step_overshoots(plats, STROKE_RAD)
     return {
         "runs": len(results),
         "plateaus": len(plats),
         "final_error_rad": _stats(pl["final_error_rad"] for pl in plats),
         "overshoot_rad": _stats(pl["overshoot_rad"] for pl in plats),
         "overshoot_pct": _stats(pl["overshoot_pct"] for pl in plats),
-        "overshoot_pct_steps_ge_1pct": _stats(pl["overshoot_pct"] for pl in big),
+        "overshoot_pct_steps_ge_1pct": _stats(step_os),
+        # the plateau-step overshoot's tail (steps >= 1 % of stroke): n, median, p95, max, over_10, over_50
+        "step_overshoot": M.overshoot_tail(step_os),
+        "worst_step_overshoots": worst_steps(results),
         "hunting_amplitude_rad": _stats(max((pl["hunting_amplitude_rad"] for pl in r["plateaus"]), default=0.0)
                                         for r in results),
         "peak_current_a": _stats(r["peak_current_a"] for r in results),
@@ -262,6 +265,19 @@ def summarise(results: list[dict]) -> dict:
         "plateaus_over_5e-4": sum(pl["final_error_rad"] > 5e-4 for pl in plats),
         "plateaus_over_8e-4": sum(pl["final_error_rad"] > 8e-4 for pl in plats),
     }
+
+
+def worst_steps(results: list[dict], count: int = 8) -> list[dict]:
+    """The ``count`` largest plateau-step overshoots (steps >= 1 % of stroke,
+    :func:`~fuel_valve_control.tools.metrics.plateau_step_overshoots`): seed, plateau index in
+    its run, from / to (% of stroke) and overshoot (% of the step), largest first."""
+    rows = []
+    for r in results:
+        for i, pl in enumerate(r["plateaus"]):
+            for os_pct in M.plateau_step_overshoots([pl], STROKE_RAD):
+                rows.append({"seed": r["case"]["seed"], "plateau": i, "from_pct": 100.0 * pl["from_rad"] / STROKE_RAD,
+                             "to_pct": 100.0 * pl["to_rad"] / STROKE_RAD, "overshoot_pct": os_pct})
+    return sorted(rows, key=lambda row: row["overshoot_pct"], reverse=True)[:count]
 
 
 def _fmt(x) -> str:
@@ -288,6 +304,12 @@ def report(summary: dict, results: list[dict], label: str) -> str:
                  f"the {summary['runs_beyond_rating']} plants whose opening breakaway needs more than the continuous "
                  f"torque); plateaus ending beyond 5e-4 / 8e-4 rad: "
                  f"{summary['plateaus_over_5e-4']} / {summary['plateaus_over_8e-4']}"]
+    so = summary["step_overshoot"]
+    rows += ["", f"plateau steps ≥ 1 % of stroke: {so['n']}; overshoot > 10 % of the step: **{so['over_10']}**, "
+                 f"> 50 %: **{so['over_50']}**; largest:", "",
+             "| seed | plateau | from → to % | overshoot % |", "|---|---|---|---|"]
+    rows += [f"| {w['seed']} | {w['plateau']} | {w['from_pct']:.2f} → {w['to_pct']:.2f} | {w['overshoot_pct']:.1f} |"
+             for w in summary["worst_step_overshoots"]]
     worst = sorted(results, key=lambda r: max((pl["final_error_rad"] for pl in r["plateaus"]), default=0.0),
                    reverse=True)[:5]
     rows += ["", "worst runs (largest plateau final error):", "",

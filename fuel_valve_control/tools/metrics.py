@@ -383,6 +383,36 @@ def plateau_results(tr: Trace, settle_s: float = HUNT_SETTLE_S) -> list[dict]:
     return out
 
 
+#: a plateau step counts for the plateau-step overshoot when it is at least this fraction of the
+#: stroke (smaller steps are the fine stage's, where a count or two of overshoot is a large percent)
+STEP_OVERSHOOT_MIN_FRACTION = 0.01
+#: the plateau-step overshoot's tail is counted beyond these percentages of the step
+STEP_OVERSHOOT_TAIL_PCT = (10.0, 50.0)
+
+
+def plateau_step_overshoots(plateaus: list[dict], stroke_rad: float,
+                            min_fraction: float = STEP_OVERSHOOT_MIN_FRACTION) -> list[float]:
+    """**Plateau-step overshoot**: the overshoot (percent of the step: the largest excursion
+    beyond the new demand over ``|to - from|``) of each plateau step of at least
+    ``min_fraction`` of the stroke ``stroke_rad`` (rad), in the order given.  ``plateaus``:
+    records with ``from_rad``, ``to_rad`` and ``overshoot_pct`` (:func:`plateau_results`)."""
+    least = min_fraction * stroke_rad
+    return [float(pl["overshoot_pct"]) for pl in plateaus
+            if abs(pl["to_rad"] - pl["from_rad"]) >= least and pl.get("overshoot_pct") is not None]
+
+
+def overshoot_tail(values, limits_pct=STEP_OVERSHOOT_TAIL_PCT) -> dict:
+    """Distribution of overshoots (percent): ``n``, ``median``, ``p95``, ``max`` (None when
+    there are none) and ``over_<L>`` = how many exceed each of ``limits_pct`` (percent)."""
+    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=float)
+    out = {"n": int(len(v)), "median": None, "p95": None, "max": None}
+    if len(v):
+        out.update(median=float(np.median(v)), p95=float(np.percentile(v, 95)), max=float(v.max()))
+    for lim in limits_pct:
+        out[f"over_{lim:g}"] = int(np.count_nonzero(v > lim))
+    return out
+
+
 def jsonable(obj):
     """``obj`` with non-finite floats as None and numpy scalars as Python numbers, recursively
     (the JSON the tools print: strict JSON has no NaN or Infinity)."""
