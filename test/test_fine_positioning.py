@@ -657,3 +657,36 @@ def test_before_any_breakaway_is_seen_the_stage_probes_the_valve_itself(directio
             assert fine._breakaway_fits() and not fine._unfit
         else:
             assert fine._breakaway_seen is None and fine._unfit and fine.phase == "idle"
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_doublets_that_do_not_move_the_valve_climb_until_the_plausible_bound_not_the_pulse_budget(direction):
+    """A doublet that did not move the valve is a stair of its staircase, not a move: it does not
+    use up ``fine.max_pulses`` (on valves whose learned scatter is ~1e-3 rad the budget ran out
+    before the staircase reached the learned breakaway, even on the 4 s final hold: nominal box,
+    seeds 2000-2039, 5 plateaus 0.9-1e-3 rad off; task h20p).  The staircase stops instead where
+    its preload would lie beyond the nominal breakaway twist by more than a plausible learned
+    offset (half the nominal static twist, :meth:`FinePositioner._plausible`)."""
+    fine, m = _stage()
+    p = m.pressure_max_kpa
+    err = direction * 0.6e-3
+    _torques_until_observe(fine, err, p)
+    assert fine._doublet
+    thl = 0.5
+    stairs, pres = 0, []
+    for _ in range(40000):
+        phase = fine.phase
+        th1 = thl + (fine._pre if phase == "park" else fine._final)
+        fine.update(thl + err, th1, thl, True, 0.3, p)      # the valve never moves
+        if phase != "observe" and fine.phase == "observe":
+            stairs += 1
+        if phase == "park" and fine.phase == "pulse":
+            pres.append(fine._pre)
+        if fine.phase in ("hold", "idle"):
+            break
+    assert fine.phase == "hold" and fine._climbed_out and fine._spent()
+    assert stairs > fine.cfg.max_pulses
+    _, b0 = fine._nominal(thl, p, direction)
+    static = m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
+    assert all(direction * (pre - b0) <= 0.5 * static for pre in pres)
+    assert direction * (pres[-1] - b0) > 0.5 * static - 2.0 * fine.cfg.doublet_probe_step * static
