@@ -607,58 +607,6 @@ def test_a_servo_blended_pulse_that_did_not_move_the_valve_is_judged_as_soon_as_
             assert periods <= fine.cfg.no_move_periods + 1 < fine.cfg.observe_periods
 
 
-def _settled(fine, error_rad, pressure_kpa, learned=0.0):
-    """Feed a stage that has never seen the valve break loose a valve held at rest ``error_rad``
-    short of a steady target by the nominal load's twist, the learned breakaway offset set to
-    ``learned`` x T_s/K the move's way; returns (engaged, thl, direction, T_s/K)."""
-    m = fine.m
-    d = 1 if error_rad > 0 else -1
-    static = m.friction(pressure_kpa).valve_static_nm / m.coupling_stiffness_nm_per_rad
-    fine.learn.set("breakaway", d, fine.learn.band(m.pressure_fraction(pressure_kpa)), d * learned * static)
-    thl = 0.5
-    th1 = thl + _rest_twist(fine, thl, pressure_kpa)
-    assert fine._breakaway_seen is None
-    engaged = any(fine.update(thl + error_rad, th1, thl, True, 0.3, pressure_kpa) is not None
-                  for _ in range(_patience(fine)))
-    return engaged, thl, d, static
-
-
-@pytest.mark.parametrize("direction", [1, -1])
-def test_before_any_breakaway_is_seen_the_stage_probes_the_valve_itself(direction):
-    """A cold start whose first steps are too small for the main law's hold to move the valve
-    gives the stage no breakaway to judge the valve by (nominal box, seeds 1000-1039: 10 of the
-    73 plateaus > 8e-4 rad, steps of 1.1-2.4e-3 rad never moved).  The stage engages once the
-    demand has been steady ``FRESH_WAIT`` engage times, and its own pulses are held to the test
-    the main law's breakaways get (``fine.breakaway_fit`` x T_s/K of the nominal breakaway twist):
-    a planned apex beyond it, or a first breakaway outside it, hands the plateau back; one inside
-    it is the evidence from then on."""
-    ps = CONTROLLER_SPEC.defaults()
-    fit = ps["fine.breakaway_fit"]
-    p = _stage()[1].pressure_max_kpa
-    # learned breakaway beyond the fit (still plausible): the first apex would exceed it
-    fine, m = _stage()
-    assert fit < 0.4 < 0.5
-    engaged, _, _, _ = _settled(fine, direction * 1.5e-3, p, learned=0.4)
-    assert not engaged and fine._unfit
-    # a nominal valve: engaged, and the first breakaway (at the preload's twist) fits
-    for learned, fits in ((0.0, True), (-0.45, False)):
-        fine, m = _stage()
-        engaged, thl, d, static = _settled(fine, direction * 1.5e-3, p, learned=learned)
-        assert engaged and fine._probing
-        th1 = thl + fine._pre                               # the stiff hold follows the preload
-        moved = thl + d * 1.2e-3                            # ... and the valve breaks loose
-        for _ in range(3 * fine.cfg.observe_periods):
-            fine.update(thl + d * 1.5e-3, th1 - thl + moved, moved, True, 0.3, p)
-            if fine.phase in ("idle", "hold") or fine._breakaway_seen is not None:
-                break
-        assert not fine._probing
-        if fits:
-            assert fine._breakaway_seen is not None and fine._breakaway_seen[0] == d
-            assert fine._breakaway_fits() and not fine._unfit
-        else:
-            assert fine._breakaway_seen is None and fine._unfit and fine.phase == "idle"
-
-
 @pytest.mark.parametrize("direction", [1, -1])
 def test_doublets_that_do_not_move_the_valve_climb_until_the_plausible_bound_not_the_pulse_budget(direction):
     """A doublet that did not move the valve is a stair of its staircase, not a move: it does not

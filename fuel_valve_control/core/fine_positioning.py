@@ -339,7 +339,6 @@ class FinePositioner:
             self._breakaway_seen = None   # (direction, twist rad, valve rad, Δp kPa) of the last breakaway seen
         self._last_target = None
         self._fresh = False
-        self._probing = False         # engaged before any breakaway seen (:meth:`_probe_fits`)
         self._plateau = None          # the demand this plateau started with (shifts within the tolerance
                                       # -- a conditioned noisy demand -- are the same plateau)
         self._steady = 0
@@ -439,42 +438,21 @@ class FinePositioner:
                     or abs(err) > cfg.max_move_rad or self._spent() or self._below_min_move(err, pressure_kpa) \
                     or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1):
                 return None
-            probe = False
-            if not math.isinf(cfg.breakaway_fit) and (
-                    not self._fresh and self._steady < FRESH_WAIT * cfg.engage_periods):
+            if not math.isinf(cfg.breakaway_fit) and (self._breakaway_seen is None or (
+                    not self._fresh and self._steady < FRESH_WAIT * cfg.engage_periods)):
                 # wait for the main law to break it loose on this plateau (its breakaway twist is
                 # the evidence the model fits), or to have held it a while without (a step too
                 # small for it: the last breakaway seen is the evidence)
                 return None
-            if not math.isinf(cfg.breakaway_fit) and self._breakaway_seen is None:
-                # none seen since the start: the steps so far were too small for the main law to
-                # move the valve, so it would stay put; the stage's own first breakaway is the
-                # evidence (:meth:`_probe_fits`)
-                probe = True
-            if not self._twist_fits(th1 - thl, thl, pressure_kpa) or not (probe or self._breakaway_fits()) \
+            if not self._twist_fits(th1 - thl, thl, pressure_kpa) or not self._breakaway_fits() \
                     or self._rests_beyond_breakaway(th1 - thl, thl, pressure_kpa, 1 if err > 0 else -1) \
                     or self._record_bad(err, pressure_kpa):
                 self._unfit = True
                 return None
             if self._cross_guard(err, pressure_kpa) is None:
                 return None               # a move now could make the plateau hunt: the main law holds
-            self._probing = probe
             self._engage(target, th1, thl, torque_now, pressure_kpa)
-            if self.phase == IDLE:
-                return None
         return self._run(th1, w1, thl, pressure_kpa)
-
-    def _probe_fits(self, phi: float, thl: float, pressure_kpa: float, direction: int) -> bool:
-        """While probing (engaged before any breakaway was seen since the start, task h20p) every
-        twist the stage drives toward a breakaway, and the twist it broke the valve loose at,
-        must lie within ``fine.breakaway_fit`` x T_s/K of the nominal breakaway twist -- the test
-        :meth:`_breakaway_fits` makes of the main law's breakaways.  Nominal box, 40 runs (seeds
-        1000-1039): 10 of the 73 plateaus > 8e-4 rad were steps of 1.1-2.4e-3 rad at the start of a
-        run that the main law's hold never moved, and the stage waited for a breakaway to judge
-        the valve by."""
-        _, b0 = self._nominal(thl, pressure_kpa, direction)
-        static = self.m.friction(pressure_kpa).valve_static_nm / self.m.coupling_stiffness_nm_per_rad
-        return abs(phi - b0) <= self.cfg.breakaway_fit * static
 
     def _breakaway_fits(self) -> bool:
         """Whether the twist at which the main law last broke the valve loose fits the nominal
@@ -567,11 +545,6 @@ class FinePositioner:
         self._plan_park()
         self.phase = PARK
         self._peak_seen = th1 - thl
-        if self._probing:
-            apex = self._pre + d * cfg.kick_rise_rad if doublet else peak
-            if d * (apex - self._nominal(thl, pressure_kpa, d)[1]) > 0.0 \
-                    and not self._probe_fits(apex, thl, pressure_kpa, d):
-                self._hand_back()         # its breakaway lies beyond any the model explains
 
     def _plan_park(self) -> None:
         """Plan the preload from ``_phi_start`` to ``_pre``: quasi-statically (a fast unwind
@@ -796,13 +769,6 @@ class FinePositioner:
         if abs(move) > 0.5 * cfg.tolerance_rad:
             self._stair = None                 # a new stop: a new breakaway level
             self._early_breaks += 0 if pulsed else 1
-            if self._probing and d * move > 0.0:
-                phi = self._peak_seen if pulsed else self._pre
-                self._probing = False
-                if not self._probe_fits(phi, self._thl0, pressure_kpa, d):
-                    self._hand_back()
-                    return
-                self._breakaway_seen = (d, phi, self._thl0, pressure_kpa)
         if d * move > 0.5 * cfg.tolerance_rad:
             if pulsed:
                 # it swung about φe from the twist it was left at: φe = φ_final - move / 2
@@ -840,7 +806,7 @@ class FinePositioner:
                 # doublets but made larger moves: nominal box 40 runs, 2-3 runs hunting vs 0.)
                 self._stair -= cfg.doublet_probe_step * gap0
                 static = self.m.friction(pressure_kpa).valve_static_nm / self.m.coupling_stiffness_nm_per_rad
-                if d * (b0 + curb - d * (cfg.kick_rise_rad + self._stair) - b0) > 0.5 * static:
+                if d * curb - (cfg.kick_rise_rad + self._stair) > 0.5 * static:      # (the next preload, beyond b0)
                     # the next stair would preload the valve beyond the nominal breakaway by more
                     # than any plausible learned offset (:meth:`_plausible`): it is not this valve
                     self._climbed_out = True
