@@ -638,3 +638,30 @@ def test_doublets_that_do_not_move_the_valve_climb_until_the_plausible_bound_not
     static = m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
     assert all(direction * (pre - b0) <= 0.5 * static for pre in pres)
     assert direction * (pres[-1] - b0) > 0.5 * static - 2.0 * fine.cfg.doublet_probe_step * static
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_staircase_in_progress_stays_a_staircase_when_the_error_reads_a_count_more(direction):
+    """An error a count either side of ``fine.doublet_max_error_rad`` flipped the pulse kind at
+    every stair of one stop; each servo-blended pulse that did not move the valve raised the learned
+    breakaway, and the next doublet's preload broke the valve loose a whole jump across (nominal
+    box, seed 2013 #8: 6.2e-3 rad, task h20p).  After a doublet that did not move the valve the
+    next pulse at that stop is a doublet again while the error is within a tolerance of the limit;
+    a fresh stop beyond the limit still gets the servo-blended pulse."""
+    from fuel_valve_control.common.contract import RESOLVER_COUNT_RAD as count
+    lim = CONTROLLER_SPEC.defaults()["fine.doublet_max_error_rad"]
+    fine, m = _stage()
+    p = m.pressure_max_kpa
+    err = direction * (lim - 0.2 * count)
+    _torques_until_observe(fine, err, p)
+    assert fine._doublet and fine.phase == "observe"
+    thl = 0.5 - direction * count                       # reads a count further off: not moved
+    for _ in range(3 * fine.cfg.observe_periods):
+        fine.update(0.5 + err, thl + fine._final, thl, True, 0.3, p)
+        if fine.phase == "park":
+            break
+    assert fine.phase == "park" and abs(0.5 + err - thl) > lim
+    assert fine._doublet
+    fine, m = _stage()
+    _torques_until_observe(fine, direction * (lim + 0.8 * count), p)
+    assert not fine._doublet

@@ -519,7 +519,14 @@ class FinePositioner:
         # (Sized by the band, not in rad: 5e-4 rad short at Δp 0, a tenth of the band there,
         # left a doublet to a valve the pulse had put on target -- 28 % overshoot of a 2 % step.)
         short = self._cross_guard(err, pressure_kpa) or 0.0
-        doublet = abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short) and cfg.kick_current_a > 0.0
+        # a staircase in progress at this stop stays a staircase: the valve has not moved since its
+        # last doublet, and an error a count either side of fine.doublet_max_error_rad flipped the
+        # pulse kind at every stair -- each servo-blended pulse that did not move the valve raised
+        # the learned breakaway, the next doublet's preload started ~1e-3 rad higher and broke the
+        # valve loose a whole jump across (nominal box, seed 2013 #8: 6.2e-3 rad; task h20p)
+        doublet = (abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short)
+                   or self._stair is not None and abs(err) <= cfg.doublet_max_error_rad + cfg.tolerance_rad) \
+            and cfg.kick_current_a > 0.0
         aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
         final = phi_e + aim / 2.0
         pre = phi_b - d * cfg.preload_margin * gap
