@@ -578,3 +578,90 @@ def test_a_valve_at_rest_past_the_planned_breakaway_is_left_to_the_hold(directio
     assert not _engages(fine, direction * 2e-3, p, limit + direction * 2e-4)
     fine.reset()
     assert _engages(fine, direction * 2e-3, p, limit - direction * 2e-4)
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_servo_blended_pulse_that_did_not_move_the_valve_is_judged_as_soon_as_a_doublet(direction):
+    """A valve that breaks loose moves 1.5 counts within ~0.7 ms: a servo-blended pulse (errors
+    beyond ``fine.doublet_max_error_rad``) that has not moved it ``no_move_periods`` after its
+    fall did not break it, and the next pulse starts then -- it waited the whole
+    ``fine.observe_time_s`` (27 ms per such pulse; on the nominal box 14 of 73 plateaus > 8e-4 rad
+    ended mid-staircase, task h20p).  A pulse that moved it is still watched until it stops."""
+    ps = CONTROLLER_SPEC.defaults()
+    for moved in (False, True):
+        fine, m = _stage()
+        p = m.pressure_max_kpa
+        err = direction * 2.0 * ps["fine.doublet_max_error_rad"]
+        _torques_until_observe(fine, err, p)
+        assert not fine._doublet and fine.phase == "observe"
+        thl = 0.5 + (direction * 1e-3 if moved else 0.0)
+        th1 = thl + fine._final
+        periods = 0
+        while fine.phase == "observe" and periods < 100:
+            fine.update(0.5 + err, th1, thl, True, 0.3, p)
+            periods += 1
+        assert fine.phase == "park"                        # judged: the next pulse
+        if moved:
+            assert periods >= fine.cfg.observe_periods
+        else:
+            assert periods <= fine.cfg.no_move_periods + 1 < fine.cfg.observe_periods
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_doublets_that_do_not_move_the_valve_climb_until_the_plausible_bound_not_the_pulse_budget(direction):
+    """A doublet that did not move the valve is a stair of its staircase, not a move: it does not
+    use up ``fine.max_pulses`` (on valves whose learned scatter is ~1e-3 rad the budget ran out
+    before the staircase reached the learned breakaway, even on the 4 s final hold: nominal box,
+    seeds 2000-2039, 5 plateaus 0.9-1e-3 rad off; task h20p).  The staircase stops instead where
+    its preload would lie beyond the nominal breakaway twist by more than a plausible learned
+    offset (half the nominal static twist, :meth:`FinePositioner._plausible`)."""
+    fine, m = _stage()
+    p = m.pressure_max_kpa
+    err = direction * 0.6e-3
+    _torques_until_observe(fine, err, p)
+    assert fine._doublet
+    thl = 0.5
+    stairs, pres = 0, []
+    for _ in range(40000):
+        phase = fine.phase
+        th1 = thl + (fine._pre if phase == "park" else fine._final)
+        fine.update(thl + err, th1, thl, True, 0.3, p)      # the valve never moves
+        if phase != "observe" and fine.phase == "observe":
+            stairs += 1
+        if phase == "park" and fine.phase == "pulse":
+            pres.append(fine._pre)
+        if fine.phase in ("hold", "idle"):
+            break
+    assert fine.phase == "hold" and fine._climbed_out and fine._spent()
+    assert stairs > fine.cfg.max_pulses
+    _, b0 = fine._nominal(thl, p, direction)
+    static = m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
+    assert all(direction * (pre - b0) <= 0.5 * static for pre in pres)
+    assert direction * (pres[-1] - b0) > 0.5 * static - 2.0 * fine.cfg.doublet_probe_step * static
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_staircase_in_progress_stays_a_staircase_when_the_error_reads_a_count_more(direction):
+    """An error a count either side of ``fine.doublet_max_error_rad`` flipped the pulse kind at
+    every stair of one stop; each servo-blended pulse that did not move the valve raised the learned
+    breakaway, and the next doublet's preload broke the valve loose a whole jump across (nominal
+    box, seed 2013 #8: 6.2e-3 rad, task h20p).  After a doublet that did not move the valve the
+    next pulse at that stop is a doublet again while the error is within a tolerance of the limit;
+    a fresh stop beyond the limit still gets the servo-blended pulse."""
+    from fuel_valve_control.common.contract import RESOLVER_COUNT_RAD as count
+    lim = CONTROLLER_SPEC.defaults()["fine.doublet_max_error_rad"]
+    fine, m = _stage()
+    p = m.pressure_max_kpa
+    err = direction * (lim - 0.2 * count)
+    _torques_until_observe(fine, err, p)
+    assert fine._doublet and fine.phase == "observe"
+    thl = 0.5 - direction * count                       # reads a count further off: not moved
+    for _ in range(3 * fine.cfg.observe_periods):
+        fine.update(0.5 + err, thl + fine._final, thl, True, 0.3, p)
+        if fine.phase == "park":
+            break
+    assert fine.phase == "park" and abs(0.5 + err - thl) > lim
+    assert fine._doublet
+    fine, m = _stage()
+    _torques_until_observe(fine, direction * (lim + 0.8 * count), p)
+    assert not fine._doublet

@@ -353,6 +353,7 @@ class FinePositioner:
         self.crossings_this_plateau = 0
         self._early_breaks = 0        # breakaways below the planned preload on this plateau
         self._unfit = False           # the valve showed on this plateau that the model does not fit it
+        self._climbed_out = False     # a doublet staircase climbed beyond any plausible breakaway
         self._plateau_k = 0           # periods since the plateau started
         self._reversals = None        # ReversalCounter of the valve on the plateau's late window
         self._recent = []             # the last REVERSAL_MEAN_PERIODS valve samples, rad
@@ -518,7 +519,14 @@ class FinePositioner:
         # (Sized by the band, not in rad: 5e-4 rad short at Δp 0, a tenth of the band there,
         # left a doublet to a valve the pulse had put on target -- 28 % overshoot of a 2 % step.)
         short = self._cross_guard(err, pressure_kpa) or 0.0
-        doublet = abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short) and cfg.kick_current_a > 0.0
+        # a staircase in progress at this stop stays a staircase: the valve has not moved since its
+        # last doublet, and an error a count either side of fine.doublet_max_error_rad flipped the
+        # pulse kind at every stair -- each servo-blended pulse that did not move the valve raised
+        # the learned breakaway, the next doublet's preload started ~1e-3 rad higher and broke the
+        # valve loose a whole jump across (nominal box, seed 2013 #8: 6.2e-3 rad; task h20p)
+        doublet = (abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short)
+                   or self._stair is not None and abs(err) <= cfg.doublet_max_error_rad + cfg.tolerance_rad) \
+            and cfg.kick_current_a > 0.0
         aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
         final = phi_e + aim / 2.0
         pre = phi_b - d * cfg.preload_margin * gap
@@ -670,9 +678,13 @@ class FinePositioner:
             return self._servo(base + x, a, th1, w1, thl, v)
         if self.phase == OBSERVE:
             self._track_peak(th1 - thl)
-            # a doublet that has not moved the valve a count or two a few periods after its
-            # apex did not break it loose (a valve that breaks moves 1.5 counts within ~0.7 ms)
-            unmoved = self._doublet and self._k >= cfg.no_move_periods \
+            # a pulse that has not moved the valve a count or two a few periods after its apex
+            # did not break it loose (a valve that breaks moves 1.5 counts within ~0.7 ms): a
+            # doublet's apex is its kick, a servo-blended pulse's lies its fall time before this
+            # phase.  (The servo-blended pulse waited the whole ``fine.observe_time_s`` instead:
+            # 27 ms per pulse that did not move the valve, 873 of 1390 on the nominal box, 40 runs,
+            # and 14 of its 73 plateaus > 8e-4 rad ended mid-staircase; task h20p.)
+            unmoved = self._pulsed and self._k >= cfg.no_move_periods \
                 and abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad
             if unmoved or (self._k >= cfg.observe_periods and self._rest >= 3):
                 self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed)
@@ -697,11 +709,13 @@ class FinePositioner:
         return min(max(torque, -cap), cap)
 
     def _spent(self) -> bool:
-        """The plateau's pulses are used up, or the valve has crossed the target so often that
-        the moves the stage can make are evidently larger than the error left (pulsing on
-        would be hunting), or the valve has shown on this plateau that the model does not fit it."""
+        """The plateau's pulses are used up (a doublet that did not move the valve does not count),
+        or the valve has crossed the target so often that the moves the stage can make are
+        evidently larger than the error left (pulsing on would be hunting), or the valve has shown
+        on this plateau that the model does not fit it (a hand-back, or a doublet staircase that
+        climbed beyond any plausible breakaway)."""
         return (self.pulses_this_plateau >= self.cfg.max_pulses or self.crossings_this_plateau >= self.cfg.max_crossings
-                or self._unfit)
+                or self._unfit or self._climbed_out)
 
     def _twist_fits(self, phi: float, thl: float, pressure_kpa: float) -> bool:
         """Whether a valve held at rest by the twist ``phi`` (rad) fits the nominal model: a stuck
@@ -747,7 +761,14 @@ class FinePositioner:
     def _after_move(self, th1, thl, pressure_kpa, pulsed: bool):
         cfg, d, b = self.cfg, self._dir, self._band
         move = thl - self._thl0
-        self.pulses_this_plateau += 1
+        if not (pulsed and self._doublet and abs(move) <= 0.5 * cfg.tolerance_rad):
+            # a doublet that did not move the valve is a stair of its staircase, not a move: the
+            # staircase is bounded by its climb instead (below).  Counted, they used up
+            # ``fine.max_pulses`` before the staircase had reached the learned breakaway on
+            # valves whose learned scatter is ~1e-3 rad (2 scatters at 0.07e-3 per stair: ~29
+            # stairs), even on the 4 s final hold (nominal box, 40 runs, seeds 2000-2039: 5 such
+            # plateaus ended 0.9-1e-3 rad off, 25 doublets that never moved the valve; task h20p)
+            self.pulses_this_plateau += 1
         self.learn.pulses += 1
         e0, b0 = self._nominal(self._thl0, pressure_kpa, d)
         gap0 = abs(b0 - e0)
@@ -791,6 +812,11 @@ class FinePositioner:
                 # learned breakaway, far below it where the level seldom lies, took 30 % fewer
                 # doublets but made larger moves: nominal box 40 runs, 2-3 runs hunting vs 0.)
                 self._stair -= cfg.doublet_probe_step * gap0
+                static = self.m.friction(pressure_kpa).valve_static_nm / self.m.coupling_stiffness_nm_per_rad
+                if d * curb - (cfg.kick_rise_rad + self._stair) > 0.5 * static:      # (the next preload, beyond b0)
+                    # the next stair would preload the valve beyond the nominal breakaway by more
+                    # than any plausible learned offset (:meth:`_plausible`): it is not this valve
+                    self._climbed_out = True
             else:
                 step = cfg.doublet_probe_step if self._doublet else cfg.probe_step
                 new_b = d * max(d * (b0 + curb), d * self._peak_seen) + d * step * gap0
