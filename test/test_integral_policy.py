@@ -201,3 +201,48 @@ def test_a_slide_the_law_did_not_see_end_is_not_learned():
     learner.update(0.3e-3, True, True, JUMP, 0.0, BAND)
     learner.update(0.3e-3, True, True, JUMP, 0.0, BAND)
     assert learner.ratio == 1.0 and not learner.directed
+
+
+# ------------------------------------------------------------------ h20w: slips the law caused, Δp reschedule
+def test_a_pull_toward_a_followed_demand_step_is_no_slip():
+    """Campaign seeds 1112, 1188 (breakaway start): a followed demand step below the move
+    threshold left a settled valve outside the deadband; the stuck ramp's breakaway was read as a
+    relax slip with the drive of the settled period before the step (1188: an "opening edge" at
+    -1.49 N*m, the load 1.9 N*m off).  The law caused it: the watch forgets its place.  A valve
+    that slips out of the band of the target it settled at is a slip as before."""
+    from fuel_valve_control.core.integral_policy import SlipWatch
+    band = 2.0e-3
+    watch = SlipWatch(THRESHOLD)
+    watch.settled(-1.49, 0.0, 0.0)
+    assert watch.pulled(4.9e-3, 0.0, band)              # the target moved, the valve did not
+    assert watch.left(1.0e-3) is None                    # the pull's breakaway: not a slip
+    watch.settled(-1.49, 0.0, 0.0)
+    assert not watch.pulled(0.0, 2.5e-3, band)           # slipped out of its own target's band
+    slip = watch.left(2.5e-3)
+    assert slip is not None and slip[0] == pytest.approx(-1.49)
+
+
+def test_a_dp_reschedule_keeps_the_held_load_and_the_band():
+    """Campaign seed 1096 (Stribeck x 0.52, 9.4 N*m, Δp missing, told max, true 1.5 MPa): the
+    cross-check rescheduled mid-move and the held 9.1 N*m went to 0; the hold hunted.  The valve's
+    load did not change, only the part of it the schedule knows (the flow torque): the held load
+    and the edges move by that change, the static friction met stays."""
+    from fuel_valve_control.core.driver import ValveDriver
+    from fuel_valve_control.core.params import load_controller_params
+    from fuel_valve_control.core.signals import Measurement
+    drv = ValveDriver(load_controller_params())
+    law = getattr(drv.controller.law, "main", drv.controller.law)
+    pos = 0.4 * law.model.stroke_rad
+    meas = Measurement(pos * law.model.gear_ratio, pos)
+    law.reset(meas, 0.0, PRESSURE_MAX_KPA)
+    law.update(0.0, pos, meas, PRESSURE_MAX_KPA)
+    law.held_load = 9.1
+    law.slip_edges.met(7.0, -1.0)
+    law.slip_edges.met(11.2, +1.0)
+    static, known = law.slip_edges.static_nm, law.slip_edges.known
+    total = law.model.load_torque(pos, PRESSURE_MAX_KPA) + law.held_load
+    law.friction_rescheduled(438.0)
+    assert law.model.load_torque(pos, 438.0) + law.held_load == pytest.approx(total)
+    assert law.held_load > 9.1                           # less flow torque known: more held
+    assert law.slip_edges.static_nm == pytest.approx(static) and law.slip_edges.known == known
+    assert law.slip_edges.edges[1] - law.held_load == pytest.approx(11.2 - 9.1)

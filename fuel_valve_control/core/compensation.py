@@ -47,6 +47,8 @@ class Context:
     #: (:attr:`~.integral_policy.SlipEdges.known`); False: nothing learned yet, or from one edge's
     #: prior or from edges that contradict each other (it may be off by the static friction)
     held_load_known: bool = False
+    #: the valve resolver's angle averaged over the speed window, rad (None: not given)
+    valve_filtered: float | None = None
 
 
 def _sat(x: float) -> float:
@@ -321,6 +323,11 @@ class ReferenceFeedforward(Compensator):
     #: level (:meth:`wait_over`)
     WAIT_OVERRUN = 1.5
     WAIT_MARGIN = 0.25
+    #: a breakaway reading is kept only if the valve (its resolver angle averaged over the speed
+    #: window) has gone CONFIRM_COUNTS resolver counts the move's way from where it was at arming
+    #: within CONFIRM_PERIODS periods of the breakaway (:meth:`_confirm`)
+    CONFIRM_COUNTS = 4.0
+    CONFIRM_PERIODS = 6
     #: periods over which the wind-up reads the gear output's acceleration (a one-period
     #: difference of the velocity estimate scattered the small wind-ups at Δp 0: r² 0.25)
     ACCEL_WINDOW = 4
@@ -360,10 +367,18 @@ class ReferenceFeedforward(Compensator):
         self.stuck_speed = stuck_speed
         self.fraction = fraction
         self.model: NominalModel | None = None
+        self.count_rad = count_rad
+        #: the valve's filtered angle when the latest wait armed (rad)
+        self._arm_valve: float | None = None
+        #: a breakaway reading not yet confirmed by the valve's slide (:meth:`_confirm`):
+        #: [direction, that way's reading before it, breakaway_ratio before it, periods since]
+        self._unconfirmed: list | None = None
 
     def reset(self, model, pressure_kpa):
         self.model = model
         _seed_levels(self.motor, self.valve, model, pressure_kpa)
+        self._arm_valve = None
+        self._unconfirmed = None
         self._armed_periods = 0
         self._armed_dir = 0.0
         self._wait_over = False
@@ -387,6 +402,7 @@ class ReferenceFeedforward(Compensator):
         if ctx.armed:
             if ctx.armed != self._armed_dir:
                 self._armed_periods, self._armed_dir = 0, ctx.armed
+                self._arm_valve = ctx.valve_filtered
                 # where the wind-up starts: with the valve stuck, the gear output's travel
                 # against the torque added says how stiff the coupling really is
                 self.coupling.begin(ctx.armed * (ctx.th1 - ctx.thl))
@@ -449,6 +465,7 @@ class ReferenceFeedforward(Compensator):
                 # way is the friction's alone (campaign seed 1006, 4.5 N*m toward closed: every
                 # closing breakaway read 0.1 x, the next ramps stalled and a 4.4e-2 rad move
                 # ended 4.8e-2 rad off)
+                self._unconfirmed = [s, self._met[s], self.breakaway_ratio, 0]
                 self._met[s] = gross / static
                 other = self._met[-s]
                 raw = self._reading(s, ctx.held_load, static) if other is None else 0.5 * (self._met[s] + other)
@@ -475,6 +492,35 @@ class ReferenceFeedforward(Compensator):
             self._breakaway_move = True
         self._armed_periods, self._armed_dir, self._wait_over = 0, 0.0, False
         return None
+
+    def _confirm(self, ctx: Context) -> None:
+        """Keep the latest breakaway reading only if the valve really let go: its filtered
+        resolver angle goes CONFIRM_COUNTS counts the move's way from where it was when the wait
+        armed within CONFIRM_PERIODS periods of the breakaway; else that direction's reading and
+        the friction scale return to what they were (the move under way keeps the levels it
+        started with).  The shaper's breakaway test compares single resolver samples (3 counts
+        from the sample at arming): on a valve with ~1 count rms resolver noise a pair of noisy
+        samples passes it while the valve still sticks, and the drive then is no friction met.
+        Campaign seed 1073 (Stribeck x 0.95, 5.8 N*m toward closed, 1 count noise, breakaway
+        start): three of its four opening readings were such samples, 11-12 periods into a ramp
+        started from a hold cocked open (1.18-1.51 x against the first, real, 2.84 x); the
+        two ways' mean with a real closing one (-0.77 x, the load helping) came out 0.37 x
+        for a valve of 0.95 x, the next opening wait was ended by :meth:`wait_over` far below
+        this valve's breakaway, the clocked move stopped 12 mrad short and the hold's jump
+        hunted 6.8 mrad (3 reversals).  A real breakaway slides on: the move's clock and the
+        stored twist carry the valve counts beyond the detection within a few periods."""
+        u = self._unconfirmed
+        if u is None:
+            return
+        s = u[0]
+        if ctx.valve_filtered is None or self._arm_valve is None \
+                or s * (ctx.valve_filtered - self._arm_valve) >= self.CONFIRM_COUNTS * self.count_rad:
+            self._unconfirmed = None
+            return
+        u[3] += 1
+        if u[3] > self.CONFIRM_PERIODS:
+            self._met[s], self.breakaway_ratio = u[1], u[2]
+            self._unconfirmed = None
 
     def _retreat_scale(self, direction: float, ratio: float, ctx: Context) -> float:
         """Friction scale (met / scheduled) the retreat of a move broken away in ``direction``
@@ -550,6 +596,7 @@ class ReferenceFeedforward(Compensator):
         elif self._armed_dir:
             # the wait timed out (or was ended, :meth:`wait_over`): nothing learned
             self._armed_periods, self._armed_dir, self._wait_over = 0, 0.0, False
+        self._confirm(ctx)
         m = self.model
         n = m.gear_ratio
         direction = _sat(ctx.ref_velocity / self.v_smooth) if self.v_smooth > 0 else (

@@ -146,11 +146,30 @@ class StateFeedbackLaw(ControlLaw):
             old = self.model.friction(self._pressure).stick_slip_jump_rad(k)
             new = self.model.friction(pressure_kpa).stick_slip_jump_rad(k)
             self.jumps.rescale(old / new if new > 0.0 else 1.0)
-        # the slip edges and the held load are torques net of the old schedule's known load (its
-        # flow torque): kept, the relax aimed at a load that is not there (default mode)
-        self.slip_edges.reset()
-        if self.met_hold:
+        self._keep_held_load(pressure_kpa)
+
+    def _keep_held_load(self, pressure_kpa: float) -> None:
+        """A Δp reschedule to ``pressure_kpa`` (kPa; the old schedule is ``self._pressure``):
+        the valve's real load did not change, only the part of it the schedule knows (the flow
+        torque), so the held load -- the load beyond the known one (N*m, + the drive pushes toward
+        open) -- and the slip edges that taught it (drive torques beyond the known load) move by the
+        change of the known load at the reference, and the static friction they met (half the
+        band's width) stays (default mode, h20w).  Forgotten instead (main 807b5de), the relax aimed
+        at no load at all: campaign seed 1096 (Stribeck x 0.52, 9.4 N*m, Δp missing, told max, true
+        1.5 MPa, breakaway start) -- the cross-check switched the schedule mid-move (438 -> 6206 kPa),
+        the held 9.1 N*m went to 0 and the hold hunted 2.6 mrad (3 reversals) on that plateau.  The
+        other modes keep the held load as it was and forget the edges (as before)."""
+        if not self.met_hold:
+            self.slip_edges.reset()
+            return
+        if self._pressure is None or self.reference is None:
+            self.slip_edges.reset()
             self.held_load = 0.0
+            return
+        pos = self.reference.position
+        shift = self.model.load_torque(pos, self._pressure) - self.model.load_torque(pos, pressure_kpa)
+        self.held_load += shift
+        self.slip_edges.shift(shift)
 
     def reset(self, meas, torque_nm, pressure_kpa, keep_held_load: bool = False):
         """Restart bumplessly from ``torque_nm`` (N*m, motor shaft).  ``keep_held_load``: keep
@@ -274,7 +293,7 @@ class StateFeedbackLaw(ControlLaw):
         # ---- friction compensation
         ctx = Context(pressure_kpa, th1, w1, thl, wl, valve_speed, self._applied, ref.velocity, ref.acceleration,
                       ref.moving, error, outside, ref.armed, ref.broke_away, self.held_load,
-                      self.met_hold and self.slip_edges.known)
+                      self.met_hold and self.slip_edges.known, valve if self.v2 else None)
         comp, self._fm, self._fl = self.compensator.update(ctx)
         if ref.armed and self.compensator.wait_over():
             self.shaper.start_clock()           # the valve did not let go where expected (h17b)
@@ -298,6 +317,9 @@ class StateFeedbackLaw(ControlLaw):
                     net0, moved, friction.valve_static_nm,
                     load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.met_hold else None)
                 self.slip_edges.met(net0, moved)
+        elif outside and self.met_hold:
+            # the law pulls a valve the demand has left behind: its breakaway is no slip (h20w)
+            self.slip_watch.pulled(target, thl, self.deadband)
         relaxing = False
         if not outside and not ref.moving and stuck and self.integral.relax_time_s > 0.0:
             # settled: relax the drive to the middle of the static-friction band.  The valve
@@ -309,7 +331,7 @@ class StateFeedbackLaw(ControlLaw):
             relaxing = True
             self._relax_periods += 1
             if self._relax_periods * self.period >= self.integral.settle_time_s:
-                self.slip_watch.settled(net, valve)   # where and with what drive it had settled
+                self.slip_watch.settled(net, valve, target)   # where, with what drive, toward what
             self._pending = -(net - self.held_load) / n * self.period / self.integral.relax_time_s / self.fb.ki
         if (outside or ref.moving) if self.v2 else not relaxing:
             # a settled valve stays settled through a period the speed estimate calls moving:
