@@ -203,25 +203,7 @@ def test_a_slide_the_law_did_not_see_end_is_not_learned():
     assert learner.ratio == 1.0 and not learner.directed
 
 
-# ------------------------------------------------------------------ h20w: slips the law caused, Δp reschedule
-def test_a_pull_toward_a_followed_demand_step_is_no_slip():
-    """Campaign seeds 1112, 1188 (breakaway start): a followed demand step below the move
-    threshold left a settled valve outside the deadband; the stuck ramp's breakaway was read as a
-    relax slip with the drive of the settled period before the step (1188: an "opening edge" at
-    -1.49 N*m, the load 1.9 N*m off).  The law caused it: the watch forgets its place.  A valve
-    that slips out of the band of the target it settled at is a slip as before."""
-    from fuel_valve_control.core.integral_policy import SlipWatch
-    band = 2.0e-3
-    watch = SlipWatch(THRESHOLD)
-    watch.settled(-1.49, 0.0, 0.0)
-    assert watch.pulled(4.9e-3, 0.0, band)              # the target moved, the valve did not
-    assert watch.left(1.0e-3) is None                    # the pull's breakaway: not a slip
-    watch.settled(-1.49, 0.0, 0.0)
-    assert not watch.pulled(0.0, 2.5e-3, band)           # slipped out of its own target's band
-    slip = watch.left(2.5e-3)
-    assert slip is not None and slip[0] == pytest.approx(-1.49)
-
-
+# ------------------------------------------------------------------ h20w: a Δp reschedule
 def test_a_dp_reschedule_keeps_the_held_load_and_the_band():
     """Campaign seed 1096 (Stribeck x 0.52, 9.4 N*m, Δp missing, told max, true 1.5 MPa): the
     cross-check rescheduled mid-move and the held 9.1 N*m went to 0; the hold hunted.  The valve's

@@ -89,6 +89,12 @@ class Compensator:
         """Whether a move waiting for breakaway should start on its clock now."""
         return False
 
+    def rescheduled(self, model: NominalModel, old_kpa: float, new_kpa: float, position_rad: float) -> None:
+        """The friction schedule moved from ``old_kpa`` to ``new_kpa`` (kPa; the Δp cross-check)
+        with the valve near ``position_rad``: re-seed from the new schedule (what this strategy
+        learned was learned against the old one)."""
+        self.reset(model, new_kpa)
+
 
 def _non_friction_accels(model: NominalModel, ctx: Context) -> tuple[float, float]:
     """Accelerations from every torque but friction: (motor shaft, rad/s² motor units; valve)."""
@@ -568,6 +574,35 @@ class ReferenceFeedforward(Compensator):
 
     def wait_over(self) -> bool:
         return self._wait_over
+
+    def rescheduled(self, model, old_kpa, new_kpa, position_rad):
+        """Keep what the breakaways taught that does not depend on the Δp schedule (h20w): the
+        coupling stiffness met in the wind-ups, and the breakaway readings as the drive torques
+        they were (N*m beyond the known load, re-expressed against the new known load at
+        ``position_rad`` and over the new scheduled level); the friction scale follows them.  The
+        true Δp did not change, only the schedule: forgotten (main 807b5de), a valve whose
+        reading was rescheduled mid-run restarted from the model's friction and coupling
+        (campaign seed 1002, Stribeck x 2.64 at max Δp told 2.1 MPa, breakaway start: the plateau
+        after the cross-check's reschedule ended 23.7 mrad off, 15.7 on the clock)."""
+        n = model.gear_ratio
+        old_fl, new_fl = model.friction(old_kpa), model.friction(new_kpa)
+        old_static = old_fl.valve_static_nm + n * old_fl.motor_coulomb_nm
+        new_static = new_fl.valve_static_nm + n * new_fl.motor_coulomb_nm
+        dl = model.load_torque(position_rad, old_kpa) - model.load_torque(position_rad, new_kpa)
+        met = {s: None if r is None else (r * old_static + s * dl) / new_static for s, r in self._met.items()}
+        ratio = self.breakaway_ratio
+        softness, readings = self.coupling.softness, self.coupling.readings
+        self.reset(model, new_kpa)
+        self.coupling.softness, self.coupling.readings = softness, readings
+        if ratio is None or new_static <= 0.0:
+            return
+        self._met = met
+        both = [r for r in met.values() if r is not None]
+        raw = 0.5 * sum(both) if len(both) == 2 else ratio * old_static / new_static
+        ratio = min(max(raw, self.scale_bounds[0]), self.scale_bounds[1])
+        self.breakaway_ratio = ratio
+        self.valve.reset(ratio * new_fl.valve_coulomb_nm / model.valve_inertia_kgm2)
+        self.motor.reset(ratio * new_fl.motor_coulomb_nm / model.motor_inertia_kgm2)
 
     def jump_ratio(self) -> float | None:
         """Friction met at breakaway x K_model / K met in the wind-ups: the jump

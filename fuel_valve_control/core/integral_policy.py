@@ -220,40 +220,16 @@ class SlipWatch:
         self.recent: tuple[float, float] | None = None   # (drive N*m, valve rad) of the latest settled period
         self.place: float | None = None       # rad, the valve angle where it settled (creep)
         self.edge_nm: float | None = None     # N*m, drive torque beyond the known load while there
-        self.target: float | None = None      # rad, the hold's target at the latest settled period
 
-    def settled(self, net_nm: float, valve: float, target: float | None = None) -> None:
+    def settled(self, net_nm: float, valve: float) -> None:
         """A settled, relaxing period: drive torque ``net_nm`` beyond the known load (valve side,
-        N*m), the valve's filtered angle ``valve`` (rad) and the hold's target then (rad; for
-        :meth:`pulled`)."""
+        N*m) and the valve's filtered angle ``valve`` (rad)."""
         self.recent = (net_nm, valve)
-        self.target = target
         if self.creep_threshold > 0.0:
             if self.place is None:
                 self.place = valve
             if abs(valve - self.place) <= 0.5 * self.creep_threshold:
                 self.edge_nm = net_nm
-
-    def pulled(self, target: float, valve: float, band: float) -> bool:
-        """The law pulls the valve toward ``target`` (rad: it lies beyond the deadband ``band``
-        of it, the integrator or the stuck ramp acts).  If the valve still lies within ``band`` of
-        the target it settled at, the pull is the *target's* doing (a followed demand step below
-        the move threshold), not a slip of the valve: the place and its drive are forgotten
-        (returns True), so the breakaway the pull makes is not read as an edge of the static band
-        with the drive of before the step.  A slip is learned only where the law did not cause it.
-
-        Campaign seeds 1112 (stick-slip x 0.59, 2.2 N*m) and 1188 (x 1.71, Δp told 4052 of 765 kPa),
-        breakaway start: a followed 3-5 mrad demand step left the valve outside the deadband, the
-        stuck ramp broke it loose, and the watch read that as a relax slip at the drive of the
-        settled period before the step (1188: an "opening edge" at -1.49 N*m, the prior put the load
-        at -3.38; the relax then held the valve at the true band's closing edge, it slipped closing,
-        the ramp drove it 5.9 mrad back across the target, and the final hold hunted; 1112: held
-        3.39 -> 6.15 N*m on a 2.2 N*m load).  A valve that slips by itself out of the band (the
-        relax's slip) is outside the band of the target it settled at too: that is read as before."""
-        if self.target is not None and abs(self.target - valve) <= band:
-            self.reset()
-            return True
-        return False
 
     def left(self, valve: float) -> tuple[float, float] | None:
         """``(drive torque of the slip N*m, distance moved rad)`` once the valve has jumped from

@@ -132,7 +132,10 @@ class StateFeedbackLaw(ControlLaw):
         # the Friedland-Park levels were seeded from the old schedule and adapt only while the
         # valve slides: seeded at Δp max on a valve at Δp 0 (observer_fc) they kept the ±Tc term
         # 9x too large and hunted for 1.5 s after the cross-check had caught the wrong Δp
-        self.compensator.reset(self.model, pressure_kpa)
+        if self._pressure is not None and self.reference is not None:
+            self.compensator.rescheduled(self.model, self._pressure, pressure_kpa, self.reference.position)
+        else:
+            self.compensator.reset(self.model, pressure_kpa)
         # the jump ratio was learned against the old schedule's nominal jump (told 0 on a valve
         # at Δp max: ratio ~11, which on the max schedule made a 16 mrad deadband): the jumps
         # measured are kept, as a ratio to the new nominal jump.  Forgotten instead, the
@@ -317,9 +320,6 @@ class StateFeedbackLaw(ControlLaw):
                     net0, moved, friction.valve_static_nm,
                     load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.met_hold else None)
                 self.slip_edges.met(net0, moved)
-        elif outside and self.met_hold:
-            # the law pulls a valve the demand has left behind: its breakaway is no slip (h20w)
-            self.slip_watch.pulled(target, thl, self.deadband)
         relaxing = False
         if not outside and not ref.moving and stuck and self.integral.relax_time_s > 0.0:
             # settled: relax the drive to the middle of the static-friction band.  The valve
@@ -331,7 +331,7 @@ class StateFeedbackLaw(ControlLaw):
             relaxing = True
             self._relax_periods += 1
             if self._relax_periods * self.period >= self.integral.settle_time_s:
-                self.slip_watch.settled(net, valve, target)   # where, with what drive, toward what
+                self.slip_watch.settled(net, valve)   # where and with what drive it had settled
             self._pending = -(net - self.held_load) / n * self.period / self.integral.relax_time_s / self.fb.ki
         if (outside or ref.moving) if self.v2 else not relaxing:
             # a settled valve stays settled through a period the speed estimate calls moving:
