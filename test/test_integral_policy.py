@@ -228,12 +228,3 @@ def test_a_dp_reschedule_keeps_the_held_load_and_the_band():
     assert law.held_load > 9.1                           # less flow torque known: more held
     assert law.slip_edges.static_nm == pytest.approx(static) and law.slip_edges.known == known
     assert law.slip_edges.edges[1] - law.held_load == pytest.approx(11.2 - 9.1)
-    # one edge: the load is its prior on the *new* schedule's static level (h20w: shifted as it
-    # was, the prior from the told max level left a valve at Δp 0 2.5 N*m off, and it hunted)
-    law.update(0.001, pos, meas, 438.0)                  # a period on the 438 kPa schedule
-    law.slip_edges.reset()
-    law.slip_edges.met(-1.0, +1.0)
-    law.friction_rescheduled(0.0)
-    shifted = -1.0 + law.model.load_torque(pos, 438.0) - law.model.load_torque(pos, 0.0)
-    assert law.held_load == pytest.approx(
-        shifted - law.integral.load_static_fraction * law.model.friction(0.0).valve_static_nm)

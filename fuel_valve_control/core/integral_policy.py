@@ -129,11 +129,9 @@ class SlipEdges:
 
     def __init__(self) -> None:
         self.edges: dict[int, float] = {}
-        self.last: int | None = None      # the direction of the latest edge met
 
     def reset(self) -> None:
         self.edges.clear()
-        self.last = None
 
     def shift(self, delta_nm: float) -> None:
         """The known load the edges are net of fell by ``delta_nm`` (N*m, valve side; a Δp
@@ -148,8 +146,7 @@ class SlipEdges:
 
     def met(self, net_nm: float, direction: float) -> None:
         """A slip in ``direction`` at drive torque ``net_nm`` beyond the known load."""
-        self.last = 1 if direction > 0.0 else -1
-        self.edges[self.last] = net_nm
+        self.edges[1 if direction > 0.0 else -1] = net_nm
 
     def contradicts(self, net_nm: float, direction: float) -> bool:
         """Whether a slip in ``direction`` at drive ``net_nm`` (N*m beyond the known load) lies

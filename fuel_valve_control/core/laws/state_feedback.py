@@ -170,20 +170,9 @@ class StateFeedbackLaw(ControlLaw):
             self.held_load = 0.0
             return
         pos = self.reference.position
-        known = self.model.load_torque(pos, pressure_kpa)
-        shift = self.model.load_torque(pos, self._pressure) - known
+        shift = self.model.load_torque(pos, self._pressure) - self.model.load_torque(pos, pressure_kpa)
         self.held_load += shift
-        edges = self.slip_edges
-        edges.shift(shift)
-        if edges.last is not None:
-            # the load is re-learned from the same edges on the new schedule: with one edge (or
-            # contradictory ones) it was the scheduled static level's prior, which the schedule
-            # just changed (told max on a valve at Δp 0: the prior put the load 2.5 N*m off;
-            # shifted as it was, the relax then let the valve creep and the hold hunted,
-            # adaptation grid F x 1 Δp 0 told max, J x 0.8 / 1.0)
-            way = edges.last
-            self.held_load = self.integral.learn_load(edges.edges[way], way, self.model.friction(pressure_kpa).valve_static_nm,
-                                                      known if self.v2 else 0.0, edges.opposite(way))
+        self.slip_edges.shift(shift)
 
     def reset(self, meas, torque_nm, pressure_kpa, keep_held_load: bool = False):
         """Restart bumplessly from ``torque_nm`` (N*m, motor shaft).  ``keep_held_load``: keep
