@@ -485,7 +485,7 @@ def test_a_one_way_reading_is_netted_of_the_held_load_in_force():
 
 
 #: campaign seeds (full box) that hunted with the move started on breakaway (0.25 s) on main 26f43b9
-#: and hold since h19b, with what was traced
+#: and hold since h19b (1073, 1096: on main 807b5de, hold since h20w), with what was traced
 WAIT_HUNTERS = {
     1010: "LuGre x 0.58, 1.6 N*m opening load never learned: the opening reading 0.33 x sized the retreat, the "
           "27 mrad move ended 3 mrad past and its correction hunted (retreat now floored at the lowest friction)",
@@ -495,6 +495,12 @@ WAIT_HUNTERS = {
     1082: "Stribeck x 0.81, 2.2 N*m: the pull back after an overshoot read as a closing edge beyond the known band "
           "(load 2.41 -> 7.23 N*m), the next move started cocked 5 N*m open, ran 22 mrad past and the final hold "
           "hunted (a slip contradicting a known band is not learned)",
+    # h20w: hunted on main 807b5de
+    1073: "Stribeck x 0.95, 5.8 N*m, ~1 count resolver noise: breakaways read on noise (the valve still stuck) "
+          "made the two ways' mean 0.37 x; the last opening wait ended early, the move stopped 12 mrad short and the "
+          "hold hunted 6.8 mrad (a reading is kept only if the valve slides on)",
+    1096: "Stribeck x 0.52, 9.4 N*m, Δp missing (told max, true 1.5 MPa): the cross-check rescheduled mid-move and "
+          "the held 9.1 N*m went to 0; the hold hunted 2.6 mrad (the reschedule keeps the held load and edges)",
 }
 
 
@@ -505,3 +511,72 @@ def test_campaign_seeds_hold_with_the_move_started_on_breakaway(robustness_bench
     case = robustness_bench.sample_case(seed)
     r = robustness_bench.run_case((case, DEFAULT_MODE, {"trajectory.breakaway_wait_s": 0.25}))
     assert not r["hunts"] and not r["fault"], WAIT_HUNTERS[seed]
+
+
+def _wait_then_let_go(c, direction, met_nm, valve_after):
+    """Ramp a wait ``direction``'s way with the valve's filtered angle at START, let it "go" with
+    the drive ``met_nm`` (N*m beyond the known load, valve side), then feed CONFIRM_PERIODS + 1
+    moving periods with the filtered angle at ``valve_after(k)`` (rad)."""
+    n, load = MODEL.gear_ratio, MODEL.load_torque(START, P_MAX)
+    for _ in range(20):
+        ctx = Context(P_MAX, START, 0.0, START, 0.0, 0.0, load / n, 0.0, 0.0, True, 0.0, False, direction)
+        ctx.valve_filtered = START
+        c.update(ctx)
+    ctx = Context(P_MAX, START, 0.0, START, 0.0, 0.0, (load + direction * met_nm) / n, 0.05 * direction, 0.0,
+                  True, 0.0, False, 0.0, True)
+    ctx.valve_filtered = valve_after(0)
+    c.update(ctx)
+    for k in range(1, ReferenceFeedforward.CONFIRM_PERIODS + 2):
+        ctx = _ctx(0.0, 0.0, ref_velocity=direction)
+        ctx.valve_filtered = valve_after(k)
+        c.update(ctx)
+
+
+def test_a_breakaway_the_valve_does_not_slide_on_from_is_not_kept():
+    """h20w, campaign seed 1073 (Stribeck x 0.95, 5.8 N*m, ~1 count rms resolver noise): the
+    shaper's 3-count breakaway test on single samples passed on noise while the valve still
+    stuck, 11-12 periods into an opening ramp; the drive then (1.2-1.5 x) was kept as the
+    opening reading, its mean with a real closing one (-0.77 x) was 0.37 x on a valve of 0.95 x
+    and the final plateau hunted.  A reading is kept only if the valve's filtered angle goes on
+    the move's way; otherwise that way's reading and the scale are what they were."""
+    fl = MODEL.friction(P_MAX)
+    breakaway = fl.valve_static_nm + MODEL.gear_ratio * fl.motor_coulomb_nm
+    count = RESOLVER_COUNT_RAD
+    c = _comp()
+    _wait_then_let_go(c, 1.0, 2.0 * breakaway, lambda k: START + 2.0 * count * k)      # slides on: kept
+    assert c.breakaway_ratio == pytest.approx(2.0, rel=1e-6)
+    assert c._met[1.0] == pytest.approx(2.0, rel=1e-6)
+    _wait_then_let_go(c, 1.0, 1.0 * breakaway, lambda k: START + 1.0 * count)           # stays: not kept
+    assert c._met[1.0] == pytest.approx(2.0, rel=1e-6)
+    assert c.breakaway_ratio == pytest.approx(2.0, rel=1e-6)
+    _wait_then_let_go(c, -1.0, 0.5 * breakaway, lambda k: START - 2.0 * count * k)      # the other way, real
+    assert c.breakaway_ratio == pytest.approx(1.25, rel=1e-6)                           # mean with the kept 2.0
+
+
+
+def test_a_dp_reschedule_keeps_the_breakaway_readings_and_the_coupling():
+    """h20w, campaign seed 1002 (Stribeck x 2.64 at max Δp told 2.1 MPa, breakaway start): the
+    cross-check's reschedule forgot every breakaway reading and the coupling read in the
+    wind-ups, and the next plateau ended 23.7 mrad off.  The true Δp did not change, only the
+    schedule: the readings are kept as the drive torques they were, over the new level."""
+    n = MODEL.gear_ratio
+    c = _comp()
+    fl = MODEL.friction(P_MAX)
+    breakaway = fl.valve_static_nm + n * fl.motor_coulomb_nm
+    _read_breakaway(c, 1.0, 2.0 * breakaway)
+    _read_breakaway(c, -1.0, 1.0 * breakaway)
+    assert c.breakaway_ratio == pytest.approx(1.5, rel=1e-6)
+    c.coupling.softness, c.coupling.readings = 2.0, 1
+    new = 1000.0
+    c.rescheduled(MODEL, P_MAX, new, START)
+    low = MODEL.friction(new)
+    new_level = low.valve_static_nm + n * low.motor_coulomb_nm
+    dl = MODEL.load_torque(START, P_MAX) - MODEL.load_torque(START, new)
+    assert c._met[1.0] == pytest.approx((2.0 * breakaway + dl) / new_level, rel=1e-6)
+    assert c._met[-1.0] == pytest.approx((1.0 * breakaway - dl) / new_level, rel=1e-6)
+    assert c.breakaway_ratio == pytest.approx(1.5 * breakaway / new_level, rel=1e-6)   # a steady load cancels
+    assert c.coupling_softness == 2.0
+    assert c.scale(new)[1] == pytest.approx(c.breakaway_ratio, rel=1e-6)
+    fresh = _comp()
+    fresh.rescheduled(MODEL, P_MAX, new, START)                      # nothing read: the new schedule
+    assert fresh.breakaway_ratio is None and fresh.scale(new)[1] == pytest.approx(1.0)

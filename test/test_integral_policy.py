@@ -201,3 +201,30 @@ def test_a_slide_the_law_did_not_see_end_is_not_learned():
     learner.update(0.3e-3, True, True, JUMP, 0.0, BAND)
     learner.update(0.3e-3, True, True, JUMP, 0.0, BAND)
     assert learner.ratio == 1.0 and not learner.directed
+
+
+# ------------------------------------------------------------------ h20w: a Δp reschedule
+def test_a_dp_reschedule_keeps_the_held_load_and_the_band():
+    """Campaign seed 1096 (Stribeck x 0.52, 9.4 N*m, Δp missing, told max, true 1.5 MPa): the
+    cross-check rescheduled mid-move and the held 9.1 N*m went to 0; the hold hunted.  The valve's
+    load did not change, only the part of it the schedule knows (the flow torque): the held load
+    and the edges move by that change, the static friction met stays."""
+    from fuel_valve_control.core.driver import ValveDriver
+    from fuel_valve_control.core.params import load_controller_params
+    from fuel_valve_control.core.signals import Measurement
+    drv = ValveDriver(load_controller_params())
+    law = getattr(drv.controller.law, "main", drv.controller.law)
+    pos = 0.4 * law.model.stroke_rad
+    meas = Measurement(pos * law.model.gear_ratio, pos)
+    law.reset(meas, 0.0, PRESSURE_MAX_KPA)
+    law.update(0.0, pos, meas, PRESSURE_MAX_KPA)
+    law.held_load = 9.1
+    law.slip_edges.met(7.0, -1.0)
+    law.slip_edges.met(11.2, +1.0)
+    static, known = law.slip_edges.static_nm, law.slip_edges.known
+    total = law.model.load_torque(pos, PRESSURE_MAX_KPA) + law.held_load
+    law.friction_rescheduled(438.0)
+    assert law.model.load_torque(pos, 438.0) + law.held_load == pytest.approx(total)
+    assert law.held_load > 9.1                           # less flow torque known: more held
+    assert law.slip_edges.static_nm == pytest.approx(static) and law.slip_edges.known == known
+    assert law.slip_edges.edges[1] - law.held_load == pytest.approx(11.2 - 9.1)

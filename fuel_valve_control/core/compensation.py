@@ -47,6 +47,8 @@ class Context:
     #: (:attr:`~.integral_policy.SlipEdges.known`); False: nothing learned yet, or from one edge's
     #: prior or from edges that contradict each other (it may be off by the static friction)
     held_load_known: bool = False
+    #: the valve resolver's angle averaged over the speed window, rad (None: not given)
+    valve_filtered: float | None = None
 
 
 def _sat(x: float) -> float:
@@ -86,6 +88,12 @@ class Compensator:
     def wait_over(self) -> bool:
         """Whether a move waiting for breakaway should start on its clock now."""
         return False
+
+    def rescheduled(self, model: NominalModel, old_kpa: float, new_kpa: float, position_rad: float) -> None:
+        """The friction schedule moved from ``old_kpa`` to ``new_kpa`` (kPa; the Δp cross-check)
+        with the valve near ``position_rad``: re-seed from the new schedule (what this strategy
+        learned was learned against the old one)."""
+        self.reset(model, new_kpa)
 
 
 def _non_friction_accels(model: NominalModel, ctx: Context) -> tuple[float, float]:
@@ -321,6 +329,11 @@ class ReferenceFeedforward(Compensator):
     #: level (:meth:`wait_over`)
     WAIT_OVERRUN = 1.5
     WAIT_MARGIN = 0.25
+    #: a breakaway reading is kept only if the valve (its resolver angle averaged over the speed
+    #: window) has gone CONFIRM_COUNTS resolver counts the move's way from where it was at arming
+    #: within CONFIRM_PERIODS periods of the breakaway (:meth:`_confirm`)
+    CONFIRM_COUNTS = 4.0
+    CONFIRM_PERIODS = 6
     #: periods over which the wind-up reads the gear output's acceleration (a one-period
     #: difference of the velocity estimate scattered the small wind-ups at Δp 0: r² 0.25)
     ACCEL_WINDOW = 4
@@ -360,10 +373,18 @@ class ReferenceFeedforward(Compensator):
         self.stuck_speed = stuck_speed
         self.fraction = fraction
         self.model: NominalModel | None = None
+        self.count_rad = count_rad
+        #: the valve's filtered angle when the latest wait armed (rad)
+        self._arm_valve: float | None = None
+        #: a breakaway reading not yet confirmed by the valve's slide (:meth:`_confirm`):
+        #: [direction, that way's reading before it, breakaway_ratio before it, periods since]
+        self._unconfirmed: list | None = None
 
     def reset(self, model, pressure_kpa):
         self.model = model
         _seed_levels(self.motor, self.valve, model, pressure_kpa)
+        self._arm_valve = None
+        self._unconfirmed = None
         self._armed_periods = 0
         self._armed_dir = 0.0
         self._wait_over = False
@@ -387,6 +408,7 @@ class ReferenceFeedforward(Compensator):
         if ctx.armed:
             if ctx.armed != self._armed_dir:
                 self._armed_periods, self._armed_dir = 0, ctx.armed
+                self._arm_valve = ctx.valve_filtered
                 # where the wind-up starts: with the valve stuck, the gear output's travel
                 # against the torque added says how stiff the coupling really is
                 self.coupling.begin(ctx.armed * (ctx.th1 - ctx.thl))
@@ -449,6 +471,7 @@ class ReferenceFeedforward(Compensator):
                 # way is the friction's alone (campaign seed 1006, 4.5 N*m toward closed: every
                 # closing breakaway read 0.1 x, the next ramps stalled and a 4.4e-2 rad move
                 # ended 4.8e-2 rad off)
+                self._unconfirmed = [s, self._met[s], self.breakaway_ratio, 0]
                 self._met[s] = gross / static
                 other = self._met[-s]
                 raw = self._reading(s, ctx.held_load, static) if other is None else 0.5 * (self._met[s] + other)
@@ -475,6 +498,35 @@ class ReferenceFeedforward(Compensator):
             self._breakaway_move = True
         self._armed_periods, self._armed_dir, self._wait_over = 0, 0.0, False
         return None
+
+    def _confirm(self, ctx: Context) -> None:
+        """Keep the latest breakaway reading only if the valve really let go: its filtered
+        resolver angle goes CONFIRM_COUNTS counts the move's way from where it was when the wait
+        armed within CONFIRM_PERIODS periods of the breakaway; else that direction's reading and
+        the friction scale return to what they were (the move under way keeps the levels it
+        started with).  The shaper's breakaway test compares single resolver samples (3 counts
+        from the sample at arming): on a valve with ~1 count rms resolver noise a pair of noisy
+        samples passes it while the valve still sticks, and the drive then is no friction met.
+        Campaign seed 1073 (Stribeck x 0.95, 5.8 N*m toward closed, 1 count noise, breakaway
+        start): three of its four opening readings were such samples, 11-12 periods into a ramp
+        started from a hold cocked open (1.18-1.51 x against the first, real, 2.84 x); the
+        two ways' mean with a real closing one (-0.77 x, the load helping) came out 0.37 x
+        for a valve of 0.95 x, the next opening wait was ended by :meth:`wait_over` far below
+        this valve's breakaway, the clocked move stopped 12 mrad short and the hold's jump
+        hunted 6.8 mrad (3 reversals).  A real breakaway slides on: the move's clock and the
+        stored twist carry the valve counts beyond the detection within a few periods."""
+        u = self._unconfirmed
+        if u is None:
+            return
+        s = u[0]
+        if ctx.valve_filtered is None or self._arm_valve is None \
+                or s * (ctx.valve_filtered - self._arm_valve) >= self.CONFIRM_COUNTS * self.count_rad:
+            self._unconfirmed = None
+            return
+        u[3] += 1
+        if u[3] > self.CONFIRM_PERIODS:
+            self._met[s], self.breakaway_ratio = u[1], u[2]
+            self._unconfirmed = None
 
     def _retreat_scale(self, direction: float, ratio: float, ctx: Context) -> float:
         """Friction scale (met / scheduled) the retreat of a move broken away in ``direction``
@@ -523,6 +575,35 @@ class ReferenceFeedforward(Compensator):
     def wait_over(self) -> bool:
         return self._wait_over
 
+    def rescheduled(self, model, old_kpa, new_kpa, position_rad):
+        """Keep what the breakaways taught that does not depend on the Δp schedule (h20w): the
+        coupling stiffness met in the wind-ups, and the breakaway readings as the drive torques
+        they were (N*m beyond the known load, re-expressed against the new known load at
+        ``position_rad`` and over the new scheduled level); the friction scale follows them.  The
+        true Δp did not change, only the schedule: forgotten (main 807b5de), a valve whose
+        reading was rescheduled mid-run restarted from the model's friction and coupling
+        (campaign seed 1002, Stribeck x 2.64 at max Δp told 2.1 MPa, breakaway start: the plateau
+        after the cross-check's reschedule ended 23.7 mrad off, 15.7 on the clock)."""
+        n = model.gear_ratio
+        old_fl, new_fl = model.friction(old_kpa), model.friction(new_kpa)
+        old_static = old_fl.valve_static_nm + n * old_fl.motor_coulomb_nm
+        new_static = new_fl.valve_static_nm + n * new_fl.motor_coulomb_nm
+        dl = model.load_torque(position_rad, old_kpa) - model.load_torque(position_rad, new_kpa)
+        met = {s: None if r is None else (r * old_static + s * dl) / new_static for s, r in self._met.items()}
+        ratio = self.breakaway_ratio
+        softness, readings = self.coupling.softness, self.coupling.readings
+        self.reset(model, new_kpa)
+        self.coupling.softness, self.coupling.readings = softness, readings
+        if ratio is None or new_static <= 0.0:
+            return
+        self._met = met
+        both = [r for r in met.values() if r is not None]
+        raw = 0.5 * sum(both) if len(both) == 2 else ratio * old_static / new_static
+        ratio = min(max(raw, self.scale_bounds[0]), self.scale_bounds[1])
+        self.breakaway_ratio = ratio
+        self.valve.reset(ratio * new_fl.valve_coulomb_nm / model.valve_inertia_kgm2)
+        self.motor.reset(ratio * new_fl.motor_coulomb_nm / model.motor_inertia_kgm2)
+
     def jump_ratio(self) -> float | None:
         """Friction met at breakaway x K_model / K met in the wind-ups: the jump
         ``2 (Ts - Tc) / K`` of this valve over the model's.  A move started on breakaway does
@@ -550,6 +631,7 @@ class ReferenceFeedforward(Compensator):
         elif self._armed_dir:
             # the wait timed out (or was ended, :meth:`wait_over`): nothing learned
             self._armed_periods, self._armed_dir, self._wait_over = 0, 0.0, False
+        self._confirm(ctx)
         m = self.model
         n = m.gear_ratio
         direction = _sat(ctx.ref_velocity / self.v_smooth) if self.v_smooth > 0 else (

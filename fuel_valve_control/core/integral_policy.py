@@ -133,6 +133,13 @@ class SlipEdges:
     def reset(self) -> None:
         self.edges.clear()
 
+    def shift(self, delta_nm: float) -> None:
+        """The known load the edges are net of fell by ``delta_nm`` (N*m, valve side; a Δp
+        reschedule changed its flow torque): the same edges of the same band, net of the new
+        known load, lie ``delta_nm`` higher.  Their difference (the static friction met) and
+        whether they are consistent do not change."""
+        self.edges = {w: e + delta_nm for w, e in self.edges.items()}
+
     def opposite(self, direction: float) -> float | None:
         """The edge met the other way from ``direction``, if any."""
         return self.edges.get(-1 if direction > 0.0 else 1)

@@ -140,7 +140,10 @@ class StateFeedbackLaw(ControlLaw):
         # the Friedland-Park levels were seeded from the old schedule and adapt only while the
         # valve slides: seeded at Δp max on a valve at Δp 0 (observer_fc) they kept the ±Tc term
         # 9x too large and hunted for 1.5 s after the cross-check had caught the wrong Δp
-        self.compensator.reset(self.model, pressure_kpa)
+        if self._pressure is not None and self.reference is not None:
+            self.compensator.rescheduled(self.model, self._pressure, pressure_kpa, self.reference.position)
+        else:
+            self.compensator.reset(self.model, pressure_kpa)
         # the jump ratio was learned against the old schedule's nominal jump (told 0 on a valve
         # at Δp max: ratio ~11, which on the max schedule made a 16 mrad deadband): the jumps
         # measured are kept, as a ratio to the new nominal jump.  Forgotten instead, the
@@ -154,11 +157,30 @@ class StateFeedbackLaw(ControlLaw):
             old = self.model.friction(self._pressure).stick_slip_jump_rad(k)
             new = self.model.friction(pressure_kpa).stick_slip_jump_rad(k)
             self.jumps.rescale(old / new if new > 0.0 else 1.0)
-        # the slip edges and the held load are torques net of the old schedule's known load (its
-        # flow torque): kept, the relax aimed at a load that is not there (default mode)
-        self.slip_edges.reset()
-        if self.met_hold:
+        self._keep_held_load(pressure_kpa)
+
+    def _keep_held_load(self, pressure_kpa: float) -> None:
+        """A Δp reschedule to ``pressure_kpa`` (kPa; the old schedule is ``self._pressure``):
+        the valve's real load did not change, only the part of it the schedule knows (the flow
+        torque), so the held load -- the load beyond the known one (N*m, + the drive pushes toward
+        open) -- and the slip edges that taught it (drive torques beyond the known load) move by the
+        change of the known load at the reference, and the static friction they met (half the
+        band's width) stays (default mode, h20w).  Forgotten instead (main 807b5de), the relax aimed
+        at no load at all: campaign seed 1096 (Stribeck x 0.52, 9.4 N*m, Δp missing, told max, true
+        1.5 MPa, breakaway start) -- the cross-check switched the schedule mid-move (438 -> 6206 kPa),
+        the held 9.1 N*m went to 0 and the hold hunted 2.6 mrad (3 reversals) on that plateau.  The
+        other modes keep the held load as it was and forget the edges (as before)."""
+        if not self.met_hold:
+            self.slip_edges.reset()
+            return
+        if self._pressure is None or self.reference is None:
+            self.slip_edges.reset()
             self.held_load = 0.0
+            return
+        pos = self.reference.position
+        shift = self.model.load_torque(pos, self._pressure) - self.model.load_torque(pos, pressure_kpa)
+        self.held_load += shift
+        self.slip_edges.shift(shift)
 
     def reset(self, meas, torque_nm, pressure_kpa, keep_held_load: bool = False):
         """Restart bumplessly from ``torque_nm`` (N*m, motor shaft).  ``keep_held_load``: keep
@@ -283,7 +305,7 @@ class StateFeedbackLaw(ControlLaw):
         # ---- friction compensation
         ctx = Context(pressure_kpa, th1, w1, thl, wl, valve_speed, self._applied, ref.velocity, ref.acceleration,
                       ref.moving, error, outside, ref.armed, ref.broke_away, self.held_load,
-                      self.met_hold and self.slip_edges.known)
+                      self.met_hold and self.slip_edges.known, valve if self.v2 else None)
         comp, self._fm, self._fl = self.compensator.update(ctx)
         if ref.armed and self.compensator.wait_over():
             self.shaper.start_clock()           # the valve did not let go where expected (h17b)
