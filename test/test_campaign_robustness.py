@@ -6,7 +6,8 @@ run with the default ``observer_fp``, whose main law holds as observer_ff's wher
 stays out or hands a plateau back (full box, 200 runs, h18s: the same seeds pass, 1043 faults
 beyond rating; 1052 hunted until h19b, and 1071, which observer_ff holds, until h19x; 1070 hunted from
 h19r (its cold-start catch-up, no longer learned as a jump, had hidden the hold's hunting on this valve)
-to h20s (the integrator's breakaways read as band edges); 1112 hunts since h20s)."""
+to h20s (the integrator's breakaways read as band edges); 1112 hunts since h20s, 1195 since stop 16's
+merges)."""
 import functools
 
 import pytest
@@ -181,14 +182,20 @@ def test_former_campaign_hunters_hold_without_hunting(robustness_bench, seed):
     assert not r["hunts"] and not r["fault"], FORMER_HUNTERS[seed]
 
 
-#: full-box seeds that still hunt (main after h20s: 2 of 200, one of them 1043, beyond rating, which
-#: latches its fault anyway), with what was traced
+#: full-box seeds that still hunt (main after stop 16's merges: 3 of 200, one of them 1043, beyond rating,
+#: which latches its fault anyway), with what was traced
 STILL_HUNTING = {
     1112: "stick-slip friction x 0.59 at 5.4 MPa (measured 5.8), 2.2 N*m load, K x 0.86, 0.05 % rms demand "
           "noise: 2 reversals of 3.5 mrad on the final 4 s hold.  Held on main 807b5de with a load of 2.18 N*m "
           "learned from the stale record; since h20s the load (1.94 N*m) comes from both edges of the band, and "
           "the hold's stuck-ramp jumps (3-5 mrad) cross the target against a 1.8-2.1 mrad deadband under the "
           "noisy followed demand (the jump learner's sizing, not the load)",
+    1195: "LuGre friction x 2.40 at max Δp (measured), 4.4 N*m load, K x 0.77, 1.6 mrad backlash: the first "
+          "plateau (a 4.4 mrad closing step, 0.55 s): the valve creeps 0.7 mrad while the move's current ramps "
+          "down, jumps 7.5 mrad across the target, then creeps back 0.4 mrad under the hold and the fine stage's "
+          "pulses -- 3 reversals of 4.4e-4 rad (the metric's bound: 2 counts, 1.9e-4).  Hunts once h20s and "
+          "h20p are both merged (each alone holds it): pre-sliding creep read by the reversal count, not a "
+          "limit cycle; not fixed (stop 16)",
 }
 
 
