@@ -60,18 +60,20 @@ def test_on_a_loop_that_keeps_time_the_guard_changes_nothing(freezes_bench):
     assert _thrown(freezes_bench, 0, 0, True) == (_thrown(freezes_bench, 0, 0, False)[0], 0)
 
 
-@pytest.mark.parametrize("seed", [0, 4, 5])
-def test_a_late_loop_does_not_stretch_the_fine_stages_pulses(freezes_bench, seed):
-    # 4-period late loops every 0.25 s (benchmarks/vcpu_freezes.py, 10 sequences): without the
-    # guard the stretched kicks threw arrived valves up to 5.3e-2 rad (median 1.1e-2); with it
-    # the main law holds them within about half a jump (max 4.5e-3 rad at max Δp)
-    guarded, late = _thrown(freezes_bench, 4, seed, True)
-    unguarded, _ = _thrown(freezes_bench, 4, seed, False)
+def test_a_late_loop_does_not_stretch_the_fine_stages_pulses(freezes_bench):
+    # 4-period late loops every 0.25 s on four plateau sequences (benchmarks/vcpu_freezes.py
+    # gives the distribution over ten): without the guard the stretched kicks threw arrived
+    # valves 1.0-4.7e-2 rad; with it the main law holds them within about half a jump (2.4e-3
+    # rad at max Δp).  Judged on the median and the worst of the four: which sequence a kick
+    # lands in shifts with any change to the stage
     m = ValveDriver(load_controller_params()).controller.model
     jump = m.friction(load_plant_params()["pressure_differential_kpa"]).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
-    assert late >= 25
-    assert guarded <= 1.5 * jump, (guarded, jump)
-    assert unguarded > 3.0 * jump, (unguarded, jump)      # the mechanism the guard is for
+    runs = [(_thrown(freezes_bench, 4, seed, True), _thrown(freezes_bench, 4, seed, False)[0]) for seed in (1, 2, 3, 4)]
+    guarded = [g for (g, _), _ in runs]
+    unguarded = [u for _, u in runs]
+    assert min(late for (_, late), _ in runs) >= 25
+    assert max(guarded) <= 1.5 * jump, (guarded, jump)
+    assert float(np.median(unguarded)) > 4.0 * jump, (unguarded, jump)      # the mechanism the guard is for
 
 
 def test_a_drive_watchdog_trip_sets_the_stage_aside_for_the_holdoff():
