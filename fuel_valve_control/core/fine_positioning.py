@@ -374,10 +374,16 @@ class FinePositioner:
         far from nominal, an unknown load, a wrong Δp reading, a soft coupling) and the stage
         leaves the plateau to the main law's integral hold."""
         m = self.m
-        bound = 0.5 * m.friction(pressure_kpa).valve_static_nm / m.coupling_stiffness_nm_per_rad
+        bound = self._plausible_offset_rad(pressure_kpa)
         band = self.learn.band(m.pressure_fraction(pressure_kpa))
         return (abs(self.learn.equilibrium[direction][band]) <= bound
                 and abs(self.learn.breakaway[direction][band]) <= bound)
+
+    def _plausible_offset_rad(self, pressure_kpa: float) -> float:
+        """Largest plausible learned twist offset from the nominal model at ``pressure_kpa``:
+        half the nominal static twist ``T_s(Δp)/K``, rad (:meth:`_plausible`)."""
+        m = self.m
+        return 0.5 * m.friction(pressure_kpa).valve_static_nm / m.coupling_stiffness_nm_per_rad
 
     def _twists(self, thl, pressure_kpa, direction):
         e0, b0 = self._nominal(thl, pressure_kpa, direction)
@@ -812,9 +818,8 @@ class FinePositioner:
                 # learned breakaway, far below it where the level seldom lies, took 30 % fewer
                 # doublets but made larger moves: nominal box 40 runs, 2-3 runs hunting vs 0.)
                 self._stair -= cfg.doublet_probe_step * gap0
-                static = self.m.friction(pressure_kpa).valve_static_nm / self.m.coupling_stiffness_nm_per_rad
-                if d * curb - (cfg.kick_rise_rad + self._stair) > 0.5 * static:      # (the next preload, beyond b0)
-                    # the next stair would preload the valve beyond the nominal breakaway by more
+                if d * curb - (cfg.kick_rise_rad + self._stair) > self._plausible_offset_rad(pressure_kpa):
+                    # the next stair's preload would lie beyond the nominal breakaway b0 by more
                     # than any plausible learned offset (:meth:`_plausible`): it is not this valve
                     self._climbed_out = True
             else:
