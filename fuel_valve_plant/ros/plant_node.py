@@ -385,42 +385,51 @@ class PlantNode(Node):
         self.timer_slack_ns = set_timer_slack()     # this thread's sleeps (node_runner)
         while self._running and not self.recorder_gate.opened.wait(0.05):
             pass
-        last = time.monotonic()
-        next_tick = last + self.period
+        self._last_tick = time.monotonic()
+        self._next_tick = self._last_tick + self.period
         while self._running:
-            delay = next_tick - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            now = time.monotonic()
-            self.stats.add_late(now - next_tick)
-            # the sample instant: the state published this tick is the state at this time, so
-            # consecutive stamps differ by the wall time the tick covers even when the thread
-            # is pre-empted between here and the publish (a stamp taken at publish time made a
-            # starved plant look like a 65 rad/s resolver jump to the controller); a starved
-            # tick advances less simulated time than that (next_tick_after), which only makes
-            # the valve look slower
-            stamp = self.get_clock().now().to_msg()
-            elapsed, next_tick, skipped = next_tick_after(now, last, next_tick, self.period)
-            last = now
-            with self._lock:
-                if self.stats.commands:         # the loop is closed (a controller answers): count
-                    self.stats.ticks += 1 + skipped     # its periods (those skipped: missed); before,
-                    self.stats.missed += skipped        # every tick would be "missed"
-                    if not self._got_command:
-                        self.stats.missed += 1
-                    self._check_watchdog(elapsed)
-                try:
-                    if self._awaiting_since is None:
-                        # the sample about to be published (plant time): marked before the
-                        # publish, so an answer that arrives at once clears it (marked after
-                        # the publish, a fast answer was overwritten and the sample counted
-                        # as unanswered)
-                        self._awaiting_since = self.plant.time + elapsed
-                    self.step_and_publish(elapsed, stamp)
-                except Exception as exc:                # noqa: BLE001
-                    if not self.context.ok():           # context shut down under us: the end
-                        return
-                    self.drive_fault("real-time tick", exc)
+            try:
+                self._tick()
+            except Exception as exc:                # noqa: BLE001
+                # the end: stop() was called (its join may have timed out on a starved machine,
+                # and the node been destroyed under this thread since) or the context shut down
+                # under us -- a thread traceback in a clean shutdown's log, not a drive fault
+                if not self._running or not self.context.ok():
+                    return
+                self.drive_fault("real-time tick", exc)
+
+    def _tick(self) -> None:
+        """One tick of :meth:`realtime_loop`: sleep until ``_next_tick`` (monotonic s), advance
+        the physics by the wall time since the last tick (``_last_tick``) and publish."""
+        next_tick = self._next_tick
+        delay = next_tick - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        now = time.monotonic()
+        self.stats.add_late(now - next_tick)
+        # the sample instant: the state published this tick is the state at this time, so
+        # consecutive stamps differ by the wall time the tick covers even when the thread
+        # is pre-empted between here and the publish (a stamp taken at publish time made a
+        # starved plant look like a 65 rad/s resolver jump to the controller); a starved
+        # tick advances less simulated time than that (next_tick_after), which only makes
+        # the valve look slower
+        stamp = self.get_clock().now().to_msg()
+        elapsed, self._next_tick, skipped = next_tick_after(now, self._last_tick, next_tick, self.period)
+        self._last_tick = now
+        with self._lock:
+            if self.stats.commands:         # the loop is closed (a controller answers): count
+                self.stats.ticks += 1 + skipped     # its periods (those skipped: missed); before,
+                self.stats.missed += skipped        # every tick would be "missed"
+                if not self._got_command:
+                    self.stats.missed += 1
+                self._check_watchdog(elapsed)
+            if self._awaiting_since is None:
+                # the sample about to be published (plant time): marked before the
+                # publish, so an answer that arrives at once clears it (marked after
+                # the publish, a fast answer was overwritten and the sample counted
+                # as unanswered)
+                self._awaiting_since = self.plant.time + elapsed
+            self.step_and_publish(elapsed, stamp)
 
     def stop(self) -> None:
         if not self.lockstep:
