@@ -665,3 +665,51 @@ def test_a_staircase_in_progress_stays_a_staircase_when_the_error_reads_a_count_
     fine, m = _stage()
     _torques_until_observe(fine, direction * (lim + 0.8 * count), p)
     assert not fine._doublet
+
+
+def _stuck_staircase(fine, err, p, stairs=12):
+    """The stage's doublet staircase on a valve that never moves, ``err`` short of a steady target:
+    (periods spent, climb of each stair in rad of twist, the error each stair was sized for)."""
+    _torques_until_observe(fine, err, p)
+    assert fine._doublet
+    thl, periods, climbs, stair = 0.5, 0, [], fine._stair
+    while len(climbs) < stairs:
+        phase = fine.phase
+        th1 = thl + (fine._pre if phase == "park" else fine._final)
+        fine.update(thl + err, th1, thl, True, 0.3, p)
+        periods += 1
+        if fine._stair != stair:
+            climbs.append(stair - fine._stair)
+            stair = fine._stair
+        assert fine.phase not in ("hold", "idle")
+    return periods, climbs
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_stairs_sized_to_the_error_climb_faster_and_their_worst_move_still_improves_it(direction):
+    """``fine.move_per_overdrive`` (off by default: measured no better on the nominal box, task h21n):
+    after a doublet that did not move the valve, the next stair climbs as far as the worst move it
+    allows (the smallest move plus the slope x the stair) still leaves at most half the error -- a
+    move up to 1.5 x it -- between the fixed stair (``fine.doublet_probe_step`` x the band) and ``fine.kick_rise_rad``
+    (the preload stays below the apex that did not break the valve).  For an error near
+    ``fine.doublet_max_error_rad`` it reaches a given twist in fewer periods than fixed stairs; for
+    an error of about the smallest move the stairs stay the fixed ones."""
+    slope = 4.0
+    lim = CONTROLLER_SPEC.defaults()["fine.doublet_max_error_rad"]
+    fixed, m = _stage()
+    p = m.pressure_max_kpa
+    sized, _ = _stage(**{"fine.move_per_overdrive": slope})
+    err = direction * 0.95 * lim
+    n_fixed, c_fixed = _stuck_staircase(fixed, err, p)
+    n_sized, c_sized = _stuck_staircase(sized, err, p)
+    floor = c_fixed[0]
+    assert all(c == pytest.approx(floor) for c in c_fixed)
+    cfg = sized.cfg
+    m0 = cfg.min_move_prior * m.friction(p).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
+    assert all(floor < c <= max(cfg.kick_rise_rad, floor) + 1e-12 for c in c_sized)
+    assert all(m0 + slope * c <= 1.5 * abs(err) + 1e-12 for c in c_sized)
+    # twist climbed per period of staircase: the same stairs, each taking about as long
+    assert sum(c_sized) / n_sized > 1.5 * sum(c_fixed) / n_fixed
+    small, _ = _stage(**{"fine.move_per_overdrive": slope})
+    _, c_small = _stuck_staircase(small, direction * 0.95 * (m0 + slope * floor) / 1.5, p, stairs=4)
+    assert all(c == pytest.approx(floor) for c in c_small)

@@ -310,6 +310,8 @@ class FineConfig:
                                   # never: the stage moves regardless)
     no_cross_short: float = 0.0   # a move that must not cross the target aims this fraction of the stick-slip
                                   # jump short of it, and is made only for an error of at least twice that
+    move_per_overdrive: float = 0.0  # doublet: valve move per twist overdrive at breakaway, rad/rad: sizes the
+                                     # staircase's stairs to the error (0: every stair doublet_probe_step)
 
 
 class FinePositioner:
@@ -344,6 +346,7 @@ class FinePositioner:
         self._steady = 0
         self._new_plateau()
         self._stair = None
+        self._stair_step = 0.0        # the last stair's climb, rad of twist (the level lies within it below the apex)
         self._judged = None           # (direction, band) of an engagement whose outcome is not yet judged
         self._osc, self._osc_sign = 0.0, 0   # the servo's limit-cycle watch (leaky count of reversals)
         self._servo_torque = 0.0
@@ -554,6 +557,7 @@ class FinePositioner:
             # drawn anew at every stop, and one that breaks while preloading jumps the whole way
             if self._stair is None:
                 self._stair = cfg.doublet_sigmas * self._scatter(d, band, gap)
+                self._stair_step = cfg.doublet_probe_step * self._nominal_gap(thl, pressure_kpa, d)
             self._pre = phi_b - d * (cfg.kick_rise_rad + self._stair)
         self._plan_park()
         self.phase = PARK
@@ -750,6 +754,40 @@ class FinePositioner:
         sigma = self._scatter(direction, band, max(direction * (phi_b - phi_e), 1e-5))
         return direction * (phi - phi_b) > self.cfg.doublet_sigmas * sigma
 
+    def _nominal_gap(self, thl: float, pressure_kpa: float, direction: int) -> float:
+        """The nominal static band (T_s - T_c(Δp)) / K above the swing centre, rad."""
+        e0, b0 = self._nominal(thl, pressure_kpa, direction)
+        return abs(b0 - e0)
+
+    def _fitting_stair(self, err: float, pressure_kpa: float, gap0: float) -> float:
+        """The next stair's climb (rad of twist) after a doublet that did not move the valve, for the
+        error ``err`` (rad, target - valve).  The level lies somewhere within the stair above the last
+        apex, so the doublet that breaks the valve loose does so at an overdrive of up to a stair and
+        moves it up to the smallest move ``m`` (learned, else the prior) plus
+        ``fine.move_per_overdrive`` x the stair (benchmarks/fine_doublet.py: ~4 rad/rad).  The stair is
+        the largest whose worst move still leaves at most half the error (a move up to 1.5 |err|;
+        up to |err| where the move must not cross the target, :meth:`_cross_guard`), at least
+        ``fine.doublet_probe_step`` x the band (the floor: where the smallest move itself, ~0.6-1e-3
+        rad, leaves no room) and at most ``fine.kick_rise_rad`` -- the preload stays below the apex the
+        last stair reached and did not break the valve loose (a preload above it would at times break
+        it for a whole stick-slip jump).  Without the slope (``fine.move_per_overdrive`` 0, the
+        default) every stair is the floor.  Errors near ``fine.doublet_max_error_rad`` -- where the
+        staircases that outlast their plateau end, 0.85-1e-3 rad off -- then climb in stairs up to
+        ~2x the floor.  Measured (task h21n, nominal box): plateaus > 8e-4 rad 66 / 50 / 187 ->
+        57 / 41 / 157 on seeds 1000 / 2000 / 5000 (40 / 40 / 120 runs), but p95 on seeds 1000
+        1.46 -> 1.85e-3 rad (the larger stairs' larger moves); the worst move allowed up to 2 |err|
+        (the stopping rule's test) measured worse (67 / 56 / 172)."""
+        cfg = self.cfg
+        floor = cfg.doublet_probe_step * gap0
+        if cfg.move_per_overdrive <= 0.0:
+            return floor
+        d = 1 if err > 0 else -1
+        m = self.learn.min_move[d][self.learn.band(self.m.pressure_fraction(pressure_kpa))]
+        if m <= 0.0:
+            m = cfg.min_move_prior * self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad)
+        room = (1.0 if self._cross_guard(err, pressure_kpa) else 1.5) * abs(err) - m
+        return min(max(room / cfg.move_per_overdrive, floor), max(cfg.kick_rise_rad, floor))
+
     def _below_min_move(self, err: float, pressure_kpa: float) -> bool:
         """Whether the error is so small against the smallest move pulses have made that a
         pulse would most likely leave the valve further from the target (a move ``m`` improves
@@ -792,7 +830,7 @@ class FinePositioner:
                 # a sample of the level drawn at the last stop: within one stair step below the
                 # apex that broke it loose (the apex before did not), or below the preload it
                 # broke loose at (the staircase started too close: the scatter grows)
-                half_step = 0.5 * cfg.doublet_probe_step * gap0
+                half_step = 0.5 * (self._stair_step or cfg.doublet_probe_step * gap0)
                 self._learn_breakaway(d, b, (self._peak_seen if pulsed else self._pre) - d * half_step - b0, gap0)
             else:
                 # breakaway at most the largest twist seen: probe a little lower next time
@@ -817,7 +855,8 @@ class FinePositioner:
                 # of overdrive adds ~4e-4 rad to the move.  (Steps of 0.3 x the way left to the
                 # learned breakaway, far below it where the level seldom lies, took 30 % fewer
                 # doublets but made larger moves: nominal box 40 runs, 2-3 runs hunting vs 0.)
-                self._stair -= cfg.doublet_probe_step * gap0
+                self._stair_step = self._fitting_stair(self._target - thl, pressure_kpa, gap0)
+                self._stair -= self._stair_step
                 if d * curb - (cfg.kick_rise_rad + self._stair) > self._plausible_offset_rad(pressure_kpa):
                     # the next stair's preload would lie beyond the nominal breakaway b0 by more
                     # than any plausible learned offset (:meth:`_plausible`): it is not this valve

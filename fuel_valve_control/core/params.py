@@ -280,6 +280,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.approach_short", 0.2, "", "a servo-blended pulse (errors beyond fine.doublet_max_error_rad) "
           "aims this fraction of the static band (T_s - T_c(dp)) / K short of the target (0.2: 4.6e-4 rad at max dp), "
           "so that the doublet finishes the move from the same side", 0.0, 2.0, runtime=True),
+    Param("fine.move_per_overdrive", 0.0, "rad/rad", "doublet: the valve's move per twist overdrive at breakaway "
+          "(benchmarks/fine_doublet.py: ~4): after a doublet that did not move the valve the next stair climbs as far "
+          "as the worst move it allows still leaves at most half the error (a move up to 1.5 x it; up to 1 x where it "
+          "must not cross), between fine.doublet_probe_step x the band and fine.kick_rise_rad (0 = always "
+          "fine.doublet_probe_step; 4 measured no better on the nominal box, task h21n)", 0.0, 100.0, runtime=True),
     Param("fine.doublet_sigmas", 2.0, "", "doublet: after each stop the first apex lies this many learned rms "
           "scatters of the breakaway twist below the learned breakaway", 0.0, 10.0, runtime=True),
     Param("fine.scatter_gain", 0.2, "", "weight of each breakaway sample (the main law's from rest, a doublet's) "
