@@ -361,13 +361,14 @@ class ReferenceFeedforward(Compensator):
         self.breakaway_rad = breakaway_rad
         #: the clocked move under way's breakaway reading: [direction ±1, valve angle at the move's
         #: start rad, latest stuck period's static friction met N*m (None before one), the valve
-        #: samples of the latest periods (deque), done]; None outside planned moves
+        #: samples of the latest periods (deque), done, the friction read in the first period
+        #: seen leaving N*m (None while stuck)]; None outside planned moves
         self._move_read: list | None = None
         #: the cap (x the schedule) on the valve's level for the rest of the move under way, None
         #: when nothing was read in it
         self._move_cap: float | None = None
-        #: (static friction met / scheduled, the learned level's scale then) of the latest clocked
-        #: move's breakaway reading (diagnostics and tests; None before one)
+        #: (lower, upper bound of the static friction met) / scheduled static level of the latest
+        #: clocked move's breakaway reading (diagnostics and tests; None before one)
         self.move_reading: tuple[float, float] | None = None
         #: the coupling stiffness met in the wind-ups (K_model / K; persistent, plausibility-checked)
         self.coupling = CouplingStiffness(self.WINDUP_START_COUNTS * count_rad, self.WINDUP_MIN_COUNTS * count_rad,
@@ -538,12 +539,19 @@ class ReferenceFeedforward(Compensator):
         and the steady load the hold holds (``ctx.held_load``), signed the move's way, is the
         friction holding the valve.  Its value in the latest period the valve was still within
         half of ``breakaway_rad`` of its start is the static friction met (a lower bound by at most
-        the last period's rise); breakaway is a slide as the shaper reads it (``breakaway_rad``
-        from the start, 2/3 of it within the last BREAKAWAY_WINDOW periods).  From the next period
-        to the end of the move the valve's level (static and Coulomb alike) is at most
-        ``r`` = met / scheduled static level (``scale_bounds[0]`` the least) times the schedule:
-        a valve that lets go below the level fed forward gets the Coulomb level of the friction it
-        has; one that holds more than the schedule is left to the Friedland-Park update (a cap).
+        the last period's rise), its value in the first period beyond that an upper bound;
+        breakaway is a slide as the shaper reads it (``breakaway_rad`` from the start, 2/3 of it
+        within the last BREAKAWAY_WINDOW periods).  If even the upper bound is below the scheduled
+        *Coulomb* level -- the valve let go below what the move feeds it to keep sliding, so the
+        feed-forward is certainly too large -- then from the next period to the end of the move
+        the valve's level (static and Coulomb alike) is at most ``r`` = met (the lower bound) /
+        scheduled static level (``scale_bounds[0]`` the least) times the schedule: the valve gets
+        the Coulomb level of the friction it has.  Otherwise nothing changes: the gate lies the
+        static-Coulomb gap (20 % of the level) below the schedule, beyond the breakaway-to-breakaway
+        scatter of the static level (a few %) that a reading of it cannot tell from a lower friction
+        (without the gate, a nominal valve read 0.89-1.01 x, lost up to 11 % of its Coulomb
+        feed-forward, stopped short and the hold's jump overshot: nominal box seed 2032, 64.9 %).
+        One that holds more than the schedule is left to the Friedland-Park update (a cap).
         The cap lapses with the move: the next move starts from the learned level, not from one
         reading (kept across moves as the level itself, a breakaway that an unknown load helped
         left the next move the other way a tenth of its feed-forward; full box 5 runs hunting
@@ -571,17 +579,20 @@ class ReferenceFeedforward(Compensator):
             # only a move that starts from a valve at rest has a breakaway to read
             done = s == 0 or abs(ctx.valve_speed_meas) > self.stuck_speed
             self._move_read = r = [float(s), ctx.valve_meas, None,
-                                   deque(maxlen=TRAJECTORY_BREAKAWAY_WINDOW + 1), done]
+                                   deque(maxlen=TRAJECTORY_BREAKAWAY_WINDOW + 1), done, None]
         if r[4]:
             return
-        s, start, _, recent, _ = r
+        s, start, _, recent, _, _ = r
         recent.append(ctx.valve_meas)
         travel = s * (ctx.valve_meas - start)
         m = self.model
+        k = m.coupling_stiffness_nm_per_rad / self.coupling.softness
+        met = s * (k * ctx.twist_meas - m.load_torque(ctx.valve_meas, ctx.pressure_kpa) - ctx.held_load)
         if travel <= 0.5 * self.breakaway_rad:
-            k = m.coupling_stiffness_nm_per_rad / self.coupling.softness
-            r[2] = s * (k * ctx.twist_meas - m.load_torque(ctx.valve_meas, ctx.pressure_kpa) - ctx.held_load)
+            r[2], r[5] = met, None          # still stuck: the lower bound
             return
+        if r[5] is None:
+            r[5] = met                      # the first period seen leaving: the upper bound
         if r[2] is None or travel <= self.breakaway_rad \
                 or s * (ctx.valve_meas - recent[0]) <= TRAJECTORY_BREAKAWAY_SLIDE * self.breakaway_rad:
             return
@@ -589,9 +600,9 @@ class ReferenceFeedforward(Compensator):
         fl = m.friction(ctx.pressure_kpa)
         if fl.valve_static_nm <= 0.0:
             return
-        self._move_cap = max(r[2] / fl.valve_static_nm, self.scale_bounds[0])
-        sv = self.scale(ctx.pressure_kpa)[1]
-        self.move_reading = (self._move_cap, sv)
+        self.move_reading = (r[2] / fl.valve_static_nm, r[5] / fl.valve_static_nm)
+        if max(r[2], r[5]) < fl.valve_coulomb_nm:     # else no cut is certain: nothing changes
+            self._move_cap = max(r[2] / fl.valve_static_nm, self.scale_bounds[0])
 
     def _confirm(self, ctx: Context) -> None:
         """Keep the latest breakaway reading only if the valve really let go: its filtered
