@@ -2,10 +2,10 @@
 
 :meth:`ReferenceFeedforward._read_move_breakaway` (``ff.read_breakaway``): while the valve is stuck
 at the start of a planned move the coupling torque ``K (θm/N - θL)`` less the known load is the
-friction holding it; once the valve slides, that reading over the scheduled static level sizes the
-valve's friction feed-forward for the rest of that move: a cap, never a raise, and it lapses with
-the move.
-The closed-loop figure (the 2 % step over friction x inertia x Δp) is at the end.
+friction holding it; once the valve slides, if it let go below the scheduled Coulomb level, that
+reading over the scheduled static level caps the valve's friction feed-forward for the rest of that
+move (never a raise; it lapses with the move).  Off by default (docs/control_results.md §31).
+The closed-loop figure (the 2 % step at friction x 0.5, max Δp) is at the end.
 """
 import pytest
 
