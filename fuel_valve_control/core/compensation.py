@@ -17,11 +17,17 @@ estimate is friction acting toward closed (the shaft moves toward open).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 from ..common.contract import RESOLVER_COUNT_RAD
 from .friction_observer import FrictionObserver
 from .model import NominalModel
+from .trajectory import TrajectoryShaper
+
+#: a clocked move's breakaway is read as the shaper reads a waiting move's: a slide
+TRAJECTORY_BREAKAWAY_WINDOW = TrajectoryShaper.BREAKAWAY_WINDOW
+TRAJECTORY_BREAKAWAY_SLIDE = TrajectoryShaper.BREAKAWAY_SLIDE
 
 
 @dataclass
@@ -49,6 +55,11 @@ class Context:
     held_load_known: bool = False
     #: the valve resolver's angle averaged over the speed window, rad (None: not given)
     valve_filtered: float | None = None
+    #: this period's valve resolver sample, rad (None: not given)
+    valve_meas: float | None = None
+    #: the coupling's twist from the two resolvers, motor angle / N - valve angle, rad
+    #: (+ winds toward open; None: not given)
+    twist_meas: float | None = None
 
 
 def _sat(x: float) -> float:
@@ -341,8 +352,24 @@ class ReferenceFeedforward(Compensator):
     def __init__(self, motor: FrictionObserver, valve: FrictionObserver, velocity_smoothing: float,
                  stuck_speed: float, static_start: bool = True, fraction: float = 1.0, period_s: float = 1e-3,
                  ramp_time: float = 0.05, ramp_start: float = 0.4, scale_bounds: tuple[float, float] = (0.1, 30.0),
-                 retreat_periods: int = 0, count_rad: float = RESOLVER_COUNT_RAD):
+                 retreat_periods: int = 0, count_rad: float = RESOLVER_COUNT_RAD, read_breakaway: bool = False,
+                 breakaway_rad: float = 3.0 * RESOLVER_COUNT_RAD):
         self.motor, self.valve = motor, valve
+        #: clocked planned moves: read the static friction the valve lets go at from the coupling's
+        #: twist and cap the move's valve level at it (:meth:`_read_move_breakaway`, h21g)
+        self.read_breakaway = read_breakaway
+        self.breakaway_rad = breakaway_rad
+        #: the clocked move under way's breakaway reading: [direction ±1, valve angle at the move's
+        #: start rad, latest stuck period's static friction met N*m (None before one), the valve
+        #: samples of the latest periods (deque), done, the friction read in the first period
+        #: seen leaving N*m (None while stuck)]; None outside planned moves
+        self._move_read: list | None = None
+        #: the cap (x the schedule) on the valve's level for the rest of the move under way, None
+        #: when nothing was read in it
+        self._move_cap: float | None = None
+        #: (lower, upper bound of the static friction met) / scheduled static level of the latest
+        #: clocked move's breakaway reading (diagnostics and tests; None before one)
+        self.move_reading: tuple[float, float] | None = None
         #: the coupling stiffness met in the wind-ups (K_model / K; persistent, plausibility-checked)
         self.coupling = CouplingStiffness(self.WINDUP_START_COUNTS * count_rad, self.WINDUP_MIN_COUNTS * count_rad,
                                           bounds=self.SOFT_BOUNDS)
@@ -385,6 +412,9 @@ class ReferenceFeedforward(Compensator):
         _seed_levels(self.motor, self.valve, model, pressure_kpa)
         self._arm_valve = None
         self._unconfirmed = None
+        self._move_read = None
+        self._move_cap = None
+        self.move_reading = None
         self._armed_periods = 0
         self._armed_dir = 0.0
         self._wait_over = False
@@ -498,6 +528,81 @@ class ReferenceFeedforward(Compensator):
             self._breakaway_move = True
         self._armed_periods, self._armed_dir, self._wait_over = 0, 0.0, False
         return None
+
+    def _read_move_breakaway(self, ctx: Context) -> None:
+        """A clocked planned move from a valve at rest: read the static friction the valve lets go
+        at, and cap the valve's friction level for the rest of *this* move at it (h21g).
+
+        While the valve is stuck the coupling carries everything the drive puts on it: the
+        coupling torque ``K (θm/N - θL)``, read from the two resolvers (``ctx.twist_meas``) at the
+        model's stiffness (over the softness a wind-up has read), less the known load at the valve
+        and the steady load the hold holds (``ctx.held_load``), signed the move's way, is the
+        friction holding the valve.  Its value in the latest period the valve was still within
+        half of ``breakaway_rad`` of its start is the static friction met (a lower bound by at most
+        the last period's rise), its value in the first period beyond that an upper bound;
+        breakaway is a slide as the shaper reads it (``breakaway_rad`` from the start, 2/3 of it
+        within the last BREAKAWAY_WINDOW periods).  If even the upper bound is below the scheduled
+        *Coulomb* level -- the valve let go below what the move feeds it to keep sliding, so the
+        feed-forward is certainly too large -- then from the next period to the end of the move
+        the valve's level (static and Coulomb alike) is at most ``r`` = met (the lower bound) /
+        scheduled static level (``scale_bounds[0]`` the least) times the schedule: the valve gets
+        the Coulomb level of the friction it has.  Otherwise nothing changes: the gate lies the
+        static-Coulomb gap (20 % of the level) below the schedule, beyond the breakaway-to-breakaway
+        scatter of the static level (a few %) that a reading of it cannot tell from a lower friction
+        (without the gate, a nominal valve read 0.89-1.01 x, lost up to 11 % of its Coulomb
+        feed-forward, stopped short and the hold's jump overshot: nominal box seed 2032, 64.9 %).
+        One that holds more than the schedule is left to the Friedland-Park update (a cap).
+        The cap lapses with the move: the next move starts from the learned level, not from one
+        reading (kept across moves as the level itself, a breakaway that an unknown load helped
+        left the next move the other way a tenth of its feed-forward; full box 5 runs hunting
+        against 3, see docs/control_results.md §31).
+
+        Why: the planned move feeds the scheduled Coulomb level forward from its first period and
+        the update adapts only while the valve slides, too late for a ~20 ms move.  On a valve with
+        half the scheduled friction (the adaptation grid's friction x 0.5 at max Δp) the valve let
+        go at 2.5 of the 5.5 N*m scheduled, 6 ms into the move, and then got 4.4 N*m where it needed
+        2.2: the 2 % step overshot 31-37 % (now 0.4-1.6 %).  The reading errs on the safe side
+        wherever the model does not know the plant: a coupling softer than the model's (or
+        backlash) shows a larger twist for the same torque, i.e. more friction (no cut); an unknown
+        load helping the move lowers the static reading by the load and the Coulomb level x r then
+        still exceeds what sliding needs (Tc - load) by the load x (1 - Tc/Ts)."""
+        if not ctx.ref_moving:
+            self._move_read = None
+            self._move_cap = None
+            return
+        if ctx.armed or self._breakaway_move or ctx.valve_meas is None or ctx.twist_meas is None:
+            return
+        r = self._move_read
+        if r is None:
+            s = (ctx.ref_velocity > 0.0) - (ctx.ref_velocity < 0.0) or \
+                (ctx.ref_acceleration > 0.0) - (ctx.ref_acceleration < 0.0)
+            # only a move that starts from a valve at rest has a breakaway to read
+            done = s == 0 or abs(ctx.valve_speed_meas) > self.stuck_speed
+            self._move_read = r = [float(s), ctx.valve_meas, None,
+                                   deque(maxlen=TRAJECTORY_BREAKAWAY_WINDOW + 1), done, None]
+        if r[4]:
+            return
+        s, start, _, recent, _, _ = r
+        recent.append(ctx.valve_meas)
+        travel = s * (ctx.valve_meas - start)
+        m = self.model
+        k = m.coupling_stiffness_nm_per_rad / self.coupling.softness
+        met = s * (k * ctx.twist_meas - m.load_torque(ctx.valve_meas, ctx.pressure_kpa) - ctx.held_load)
+        if travel <= 0.5 * self.breakaway_rad:
+            r[2], r[5] = met, None          # still stuck: the lower bound
+            return
+        if r[5] is None:
+            r[5] = met                      # the first period seen leaving: the upper bound
+        if r[2] is None or travel <= self.breakaway_rad \
+                or s * (ctx.valve_meas - recent[0]) <= TRAJECTORY_BREAKAWAY_SLIDE * self.breakaway_rad:
+            return
+        r[4] = True
+        fl = m.friction(ctx.pressure_kpa)
+        if fl.valve_static_nm <= 0.0:
+            return
+        self.move_reading = (r[2] / fl.valve_static_nm, r[5] / fl.valve_static_nm)
+        if max(r[2], r[5]) < fl.valve_coulomb_nm:     # else no cut is certain: nothing changes
+            self._move_cap = max(r[2] / fl.valve_static_nm, self.scale_bounds[0])
 
     def _confirm(self, ctx: Context) -> None:
         """Keep the latest breakaway reading only if the valve really let go: its filtered
@@ -632,6 +737,8 @@ class ReferenceFeedforward(Compensator):
             # the wait timed out (or was ended, :meth:`wait_over`): nothing learned
             self._armed_periods, self._armed_dir, self._wait_over = 0, 0.0, False
         self._confirm(ctx)
+        if self.read_breakaway:
+            self._read_move_breakaway(ctx)
         m = self.model
         n = m.gear_ratio
         direction = _sat(ctx.ref_velocity / self.v_smooth) if self.v_smooth > 0 else (
@@ -659,6 +766,8 @@ class ReferenceFeedforward(Compensator):
         fl = m.friction(ctx.pressure_kpa)
         sm, sv = self.scale(ctx.pressure_kpa)
         tm = sm * (fl.motor_static_nm if breakaway else fl.motor_coulomb_nm)
+        if self._move_cap is not None:      # this move's breakaway showed less (h21g)
+            sv = min(sv, self._move_cap)
         tv = sv * (fl.valve_static_nm if breakaway else fl.valve_coulomb_nm)
         if self._retreat_periods > 0 and not at_rest:
             # only from a valve that slides: a "breakaway" that was a creep (LuGre presliding

@@ -288,7 +288,9 @@ class PositionController:
                                         ps["ff.breakaway_ramp_s"], ps["ff.breakaway_start_fraction"],
                                         # the breakaway retreat: one period of the valve on the coupling
                                         retreat_periods=int(round(2.0 * math.pi * math.sqrt(
-                                            m.valve_inertia_kgm2 / m.coupling_stiffness_nm_per_rad) / period)))
+                                            m.valve_inertia_kgm2 / m.coupling_stiffness_nm_per_rad) / period)),
+                                        read_breakaway=ps["ff.read_breakaway"],
+                                        breakaway_rad=ps["trajectory.breakaway_counts"] * RESOLVER_COUNT_RAD)
         return FriedlandPark(*fps, ps["fp.compensation_fraction"], ps["ff.stuck_speed_rad_s"])
 
     # ------------------------------------------------------------------ run time

@@ -305,7 +305,8 @@ class StateFeedbackLaw(ControlLaw):
         # ---- friction compensation
         ctx = Context(pressure_kpa, th1, w1, thl, wl, valve_speed, self._applied, ref.velocity, ref.acceleration,
                       ref.moving, error, outside, ref.armed, ref.broke_away, self.held_load,
-                      self.met_hold and self.slip_edges.known, valve if self.v2 else None)
+                      self.met_hold and self.slip_edges.known, valve if self.v2 else None,
+                      meas.valve_rad, meas.motor_rad / n - meas.valve_rad)
         comp, self._fm, self._fl = self.compensator.update(ctx)
         if ref.armed and self.compensator.wait_over():
             self.shaper.start_clock()           # the valve did not let go where expected (h17b)
