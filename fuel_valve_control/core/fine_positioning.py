@@ -694,6 +694,7 @@ class FinePositioner:
                 # move once the valve has stopped (judged mid-swing, the next pulse would start
                 # from a valve still moving)
                 self.phase, self._k, self._final, self._pulsed = OBSERVE, 0, x, False
+                self._break_twist = th1 - thl     # (a cold engagement judges the valve by it)
             return self._servo(base + x, a, th1, w1, thl, v)
         if self.phase == PULSE and self._doublet:
             # torque doublet on the hold torque the park ended with: one period of kick, then
@@ -818,12 +819,19 @@ class FinePositioner:
             self._early_breaks += 0 if pulsed else 1
             if self._cold:
                 # the first breakaway of a cold engagement is the evidence the main law's would have
-                # been: the twist it broke loose at (a doublet's apex, or the preload reached)
-                phi = self._peak_seen if pulsed else self._pre
+                # been: the twist it broke loose at (a doublet's apex; in the preload, the twist where
+                # the slide was seen -- not the planned preload: a x0.54-friction valve broke loose
+                # 1e-2 rad of twist below it, and judged by it as fitting, a second preload broke it
+                # back, the metric's second reversal: full box seed 1032)
+                phi = self._peak_seen if pulsed else self._break_twist
                 self._cold = False
                 self._breakaway_seen = (d, phi, self._thl0, pressure_kpa)
                 self._fresh = True
-                if not self._cold_fits(d, phi, self._thl0, pressure_kpa):
+                if not pulsed or not self._cold_fits(d, phi, self._thl0, pressure_kpa):
+                    # (a breakaway in the preload of a cold staircase, which starts 2 prior scatters
+                    # below the nominal breakaway, says the level lies lower than the model puts it
+                    # -- seed 1032 broke loose 0.29 T_s/K below, inside the fit -- and another preload
+                    # would break it loose again, back across the target: the main law takes it)
                     self._hand_back()
                     return
         if d * move > 0.5 * cfg.tolerance_rad:
