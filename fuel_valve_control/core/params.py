@@ -309,6 +309,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "the valve loose lies within this fraction of T_s(dp)/K of the nominal breakaway twist (load +- T_s) / K "
           "(measured: within 0.15 on the nominal plant with friction scatter, 0.5-2.7 off on valves the model does "
           "not describe)", 0.0, 10.0, runtime=True),
+    Param("fine.cold_start", False, "", "the stage engages before any breakaway has been seen (a run's first "
+          "steps too small for the main law's hold to move the valve): after FRESH_WAIT engage times at rest with "
+          "the twist at rest inside the nominal static band, it judges the valve by its own first doublets (a "
+          "staircase from fine.doublet_margin below the nominal breakaway) and hands back when the first "
+          "breakaway they find lies beyond fine.breakaway_fit x T_s/K of nominal", runtime=True),
     Param("fine.min_jump_rad", 1.0e-3, "rad", "the stage engages only where the nominal stick-slip jump "
           "2 (T_s - T_c(dp)) / K at the dp scheduled is at least this: below it (dp < ~15 % of max) the doublet's "
           "smallest move exceeds the valve's whole jump (bare plant: 0.77e-3 / 2.2e-3 / 1.4e-3 rad at 0 / 5 / 10 % "

@@ -263,7 +263,8 @@ class PositionController:
                           misfit_limit=ps["fine.misfit_limit"], misfit_decay=ps["fine.misfit_decay"],
                           breakaway_fit=ps["fine.breakaway_fit"], fit_margin=ps["fine.fit_margin"],
                           reversal_window_periods=max(int(round((HUNT_SETTLE_S - ps["fine.reversal_lead_s"]) / per)), 0),
-                          no_cross_short=ps["fine.no_cross_short"], move_per_overdrive=ps["fine.move_per_overdrive"])
+                          no_cross_short=ps["fine.no_cross_short"], move_per_overdrive=ps["fine.move_per_overdrive"],
+                          cold_start=ps["fine.cold_start"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
