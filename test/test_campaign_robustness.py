@@ -173,6 +173,16 @@ FORMER_HUNTERS = {
           "catch-up no longer learned as a jump).  Holds since h20s: the integrator's breakaways toward the "
           "target are read as edges of the static band at the drive they broke away at (StateFeedbackLaw."
           "_read_pull), and from both edges the hold knows the load",
+    1112: "stick-slip friction x 0.59 at 5.4 MPa (measured 5.8), 2.2 N*m load, K x 0.86, 0.05 % rms demand noise: "
+          "2 reversals of 3.5 mrad on the final 4 s hold -- 6.3 mrad breakaways across the target that rested "
+          "~11 ms inside the 1.8 mrad band on the way, read as two jumps neither of which crossed, so the "
+          "limit-cycle breaker never fired and the pieces pulled the learned jump down.  Holds since h21h: pieces "
+          "within the hold's settle time are one breakaway to the breaker (JumpLearner.chain_periods)",
+    1195: "LuGre friction x 2.40 at max Δp (measured), 4.4 N*m load, K x 0.77, 1.6 mrad backlash: first plateau, "
+          "3 reversals of 4.4e-4 rad -- after a 7.5 mrad jump across the target the fine stage made 12 pulses "
+          "while the valve crept 0.76 mrad away from the target, a count or so per pulse (its hand-back read "
+          "the creep from each pulse's start only).  Holds since h21h: the creep is read from the furthest pulse "
+          "start toward the target too (FinePositioner._anchor) and the plateau goes back to the hold",
 }
 
 
@@ -182,21 +192,9 @@ def test_former_campaign_hunters_hold_without_hunting(robustness_bench, seed):
     assert not r["hunts"] and not r["fault"], FORMER_HUNTERS[seed]
 
 
-#: full-box seeds that still hunt (main after stop 16's merges: 3 of 200, one of them 1043, beyond rating,
-#: which latches its fault anyway), with what was traced
-STILL_HUNTING = {
-    1112: "stick-slip friction x 0.59 at 5.4 MPa (measured 5.8), 2.2 N*m load, K x 0.86, 0.05 % rms demand "
-          "noise: 2 reversals of 3.5 mrad on the final 4 s hold.  Held on main 807b5de with a load of 2.18 N*m "
-          "learned from the stale record; since h20s the load (1.94 N*m) comes from both edges of the band, and "
-          "the hold's stuck-ramp jumps (3-5 mrad) cross the target against a 1.8-2.1 mrad deadband under the "
-          "noisy followed demand (the jump learner's sizing, not the load)",
-    1195: "LuGre friction x 2.40 at max Δp (measured), 4.4 N*m load, K x 0.77, 1.6 mrad backlash: the first "
-          "plateau (a 4.4 mrad closing step, 0.55 s): the valve creeps 0.7 mrad while the move's current ramps "
-          "down, jumps 7.5 mrad across the target, then creeps back 0.4 mrad under the hold and the fine stage's "
-          "pulses -- 3 reversals of 4.4e-4 rad (the metric's bound: 2 counts, 1.9e-4).  Hunts once h20s and "
-          "h20p are both merged (each alone holds it): pre-sliding creep read by the reversal count, not a "
-          "limit cycle; not fixed (stop 16)",
-}
+#: full-box seeds that still hunt (main after stop 17's h21h: none in rating; 1043, beyond rating, latches
+#: its fault anyway and is not listed), with what was traced
+STILL_HUNTING: dict[int, str] = {}
 
 
 @pytest.mark.parametrize("seed", sorted(STILL_HUNTING))

@@ -353,6 +353,7 @@ class FinePositioner:
         self._judged = None           # (direction, band) of an engagement whose outcome is not yet judged
         self._osc, self._osc_sign = 0.0, 0   # the servo's limit-cycle watch (leaky count of reversals)
         self._servo_torque = 0.0
+        self._anchor = None           # (rad, way ±1): the furthest pulse start toward the target
 
     def _new_plateau(self) -> None:
         self.pulses_this_plateau = 0
@@ -543,6 +544,7 @@ class FinePositioner:
         self._target = target
         self._ff0 = torque_now                 # holds the present twist against load + reaction
         self._phi0 = th1 - thl                 # ... which is this twist
+        self._anchor = None                    # (rad, way ±1): the furthest start toward the target
         self._last_engage = (self._ff0, self._phi0)
         self._integral = 0.0
         self._start_pulse(th1, thl, pressure_kpa)
@@ -580,6 +582,8 @@ class FinePositioner:
             pre = final
         self._dir, self._band = d, band
         self._thl0 = thl
+        if self._anchor is None or self._anchor[1] != d or d * (thl - self._anchor[0]) > 0.0:
+            self._anchor = (thl, d)
         self._pre, self._peak_planned, self._final = pre, peak, final
         self._phi_start = th1 - thl
         self._k = 0
@@ -689,7 +693,14 @@ class FinePositioner:
             x, v, a = self._park_ref(self._k)
             if self._k >= self._park_n + 2:
                 self.phase, self._k = PULSE, 0
-            if self._dir * (thl - self._thl0) < -2.0 * cfg.tolerance_rad:
+            if self._dir * (thl - self._thl0) < -2.0 * cfg.tolerance_rad or (
+                    self._anchor is not None and self._dir * (thl - self._anchor[0]) < -2.0 * cfg.tolerance_rad):
+                # (h21h) the second reading: from the furthest start toward the target since the
+                # stage engaged this way (``_anchor``), not only from this pulse's start -- a valve
+                # that creeps away a count or so per pulse is as unfit.  Campaign
+                # seed 1195 (LuGre x 2.40 at max Δp, 4.4 N*m load, K x 0.77, 1.6 mrad backlash):
+                # 12 pulses over 0.3 s, each starting where the last had let the valve creep, the
+                # valve 0.76 mrad further from the target at the end -- 3 reversals of 4.4e-4 rad
                 # it slides *away* from the target while the twist moves toward it: the twists
                 # the model planned do not hold this valve -- the main law takes it back at once
                 return self._hand_back()

@@ -304,8 +304,13 @@ class JumpLearner:
     """
 
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4,
-                 rest_periods: int = 1, cross_hold: bool = False, catch_up_periods: int = 0):
+                 rest_periods: int = 1, cross_hold: bool = False, catch_up_periods: int = 0,
+                 chain_periods: int = 0):
         self.gain = gain
+        #: a breakaway the same way that starts within this many periods of the end of the one
+        #: before (0 = off) is read by the limit-cycle breaker (``cross_hold``) as the rest of it
+        #: (:meth:`_chain_start`)
+        self.chain_periods = int(chain_periods)
         #: a breakaway across the target that lands beyond the deadband sets both directions'
         #: ratios to at least its own (:meth:`ratio_toward`; v2).  Averaged with the small slips
         #: of a creeping valve, the 5-6 mrad crossings of seed 1096 kept a 1.3-1.8 mrad band
@@ -338,6 +343,9 @@ class JumpLearner:
         #: direction not met yet is absent): :meth:`ratio_toward`
         self.directed: dict[int, float] = {}
         self.crossings = 0                # breakaways across the target beyond the band (diagnostics)
+        #: (start rad, way ±1, periods since it ended, ended inside the deadband) of the latest
+        #: breakaway, pieces chained (:meth:`_chain_start`)
+        self._chain: tuple[float, int, int, bool] | None = None
         self.catch_ups = 0                # slides driven onto the target, not learned (diagnostics)
 
     def drop_slide(self) -> None:
@@ -369,6 +377,32 @@ class JumpLearner:
         side's own jump."""
         return self.directed.get(1 if direction > 0.0 else -1, self.ratio)
 
+    def _chain_start(self, way: int, inside: bool) -> float:
+        """Where the breakaway that just ended (from ``self._start``, ``way`` ±1) began, its
+        pieces joined: a slide that starts the same way within ``chain_periods`` of the end of the
+        one before is the rest of that breakaway, and the chain's start is the first piece's.
+
+        A jump can stop for a few periods on the way (the backlash taken up, the coupling's
+        twist not yet spent) and go on by itself: campaign seed 1112 (stick-slip x 0.59, K x 0.86,
+        0.64 mrad backlash) jumped 6.3 mrad from 3.8 mrad short to 2.5 mrad beyond the target,
+        resting 11 ms at 0.3 mrad beyond it on the way.  Read as two jumps (4.1 mrad ending inside
+        the 1.8 mrad deadband, then 2.1 mrad starting inside it), neither crossed the target and
+        beyond the band, so the limit-cycle breaker never saw the crossing, the pieces pulled the
+        ratio down (0.87 -> 0.67) and the final hold hunted 3.5 mrad.  The window is the hold's
+        settle time (:attr:`IntegralPolicy.settle_time_s`): slips before it are the move's own.
+
+        Only a piece that came to rest *inside* the deadband (``inside``, of the piece before) is
+        continued: one that ended beyond it across the target has been judged by the breaker at
+        its own size already.  Chaining those too widened the band to the whole chain on nominal
+        valves (nominal box, 40 runs: 66 -> 71 plateaus > 8e-4 rad; h21h)."""
+        start = self._start
+        chain = self._chain
+        if (self.chain_periods > 0 and chain is not None and chain[1] == way and chain[3]
+                and chain[2] <= self.chain_periods + self._slide):
+            start = chain[0]
+        self._chain = (start, way, 0, inside)
+        return start
+
     def _driven_to(self, target: float | None, valve: float, band: float, known: float) -> bool:
         """Whether the slide that just ended (from ``self._start`` to ``valve``) was driven onto
         the target rather than thrown by a breakaway: it started more than twice the jump this
@@ -389,6 +423,7 @@ class JumpLearner:
         by ``min_jump`` for a breakaway to count (None: no such check)."""
         if not holding:
             self._start = None
+            self._chain = None
             self.disturbed = False
         elif not stuck and self._stuck_at is not None and self._start is None:
             self._start = self._stuck_at                      # broke away while holding
@@ -414,7 +449,10 @@ class JumpLearner:
                     seen = abs(moved) / nominal_jump
                     own = seen if own is None else own + self.gain * (seen - own)
                     self.directed[way] = min(max(own, self.limits[0]), self.limits[1])
-                    if (self.cross_hold and target is not None and (target - self._start) * (target - valve) < 0.0
+                    origin = self._chain_start(way, target is None or abs(target - valve) <= band)
+                    if origin != self._start:
+                        seen = max(seen, abs(valve - origin) / nominal_jump)
+                    if (self.cross_hold and target is not None and (target - origin) * (target - valve) < 0.0
                             and abs(target - valve) > band):
                         # the breakaway carried the valve across the target and beyond the
                         # deadband: the integrator would push it back by a jump of that size
@@ -430,5 +468,7 @@ class JumpLearner:
         self._stuck_at = valve if stuck else None
         self._rest = self._rest + 1 if stuck else 0
         self._slide += 1
+        if self._chain is not None:
+            self._chain = (self._chain[0], self._chain[1], self._chain[2] + 1, self._chain[3])
         self._stuck_travel = travel if stuck else None
 

@@ -81,8 +81,11 @@ class StateFeedbackLaw(ControlLaw):
         # friction met (h16w) the full campaign hunted in 3 of 200 runs without it (1052, 1096, 1133:
         # 35-38 mrad jumps across the target on K x 0.3) and in 1 with it; it costs ~6 % of the
         # median plateau error (the band widens to the jump made).  rest_periods stays 1 (h14r)
+        # default mode: a breakaway's pieces within the hold's settle time are one breakaway to the
+        # limit-cycle breaker (JumpLearner._chain_start; h21h, campaign seed 1112)
         self.jumps = JumpLearner(cross_hold=self.met_hold,
-                                 catch_up_periods=round(self.CATCH_UP_S / period_s) if v2 else 0)
+                                 catch_up_periods=round(self.CATCH_UP_S / period_s) if v2 else 0,
+                                 chain_periods=round(integral.settle_time_s / period_s) if self.met_hold else 0)
         #: static valve friction of the nominal model at Δp 0 (N*m): the least the schedule knows
         self._static_floor = model.friction(0.0).valve_static_nm
         self.xo = np.zeros(6)      # observer state [θ1, ω1, θL, ωL, d1, dL] at the sample's time
