@@ -19,6 +19,7 @@ reading another parameter.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import threading
 
@@ -76,17 +77,41 @@ def design_all(ps: Mapping[str, Any], model: NominalModel) -> Designs:
                 _DESIGNS.move_to_end(key)
                 return copy.deepcopy(_DESIGNS[key])
     log = _ReadLog(ps)
-    designs = _design_all(log, model)
+    designs = _canonical(_design_all(log, model))
     names = tuple(sorted(log.read))
     key = _design_key(ps, model, names)
     if key is not None:
         with _DESIGN_LOCK:
             if names not in _DESIGN_READS:
                 _DESIGN_READS.append(names)
-            _DESIGNS[key] = copy.deepcopy(designs)
+            _DESIGNS[key] = designs
             while len(_DESIGNS) > _DESIGN_CACHE_SIZE:
                 _DESIGNS.popitem(last=False)
-    return designs
+    # a copy on the first call too: the caller gets the same (C-ordered) arrays from the
+    # computation as from the cache
+    return copy.deepcopy(designs)
+
+
+def _canonical(value):
+    """``value`` with every array in it (through dataclass fields) a fresh C-contiguous copy.
+
+    Why: scipy's ``place_poles`` hands back ``np.real`` of a complex matrix, a strided view
+    (strides 16/96 bytes for a 2 x 6 gain), and the designs transpose some gains; ``copy.deepcopy``
+    of such an array keeps its element order but not its strides.  The laws' small matrix-vector
+    products (``@``) take numpy's own loop for a strided operand and BLAS ``gemv`` for a
+    contiguous one, which sum in different orders: the same gain gave results 1 ULP apart,
+    depending on whether a driver's designs were computed (first build of a parameter set in
+    the process) or copied from the cache (any later build), and the stick-slip plants grow
+    that ULP into a different run.  One layout for every build makes a run's result
+    independent of what ran before it in the process."""
+    if isinstance(value, np.ndarray):
+        return np.array(value, order="C", copy=True)
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return dataclasses.replace(value, **{f.name: _canonical(getattr(value, f.name))
+                                             for f in dataclasses.fields(value) if f.init})
+    if isinstance(value, tuple) and not hasattr(value, "_fields"):
+        return tuple(_canonical(v) for v in value)
+    return value
 
 
 #: parameter sets whose designs :func:`design_all` keeps
