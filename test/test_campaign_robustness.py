@@ -192,12 +192,5 @@ def test_former_campaign_hunters_hold_without_hunting(robustness_bench, seed):
     assert not r["hunts"] and not r["fault"], FORMER_HUNTERS[seed]
 
 
-#: full-box seeds that still hunt (main after stop 17's h21h: none in rating; 1043, beyond rating, latches
-#: its fault anyway and is not listed), with what was traced
-STILL_HUNTING: dict[int, str] = {}
-
-
-@pytest.mark.parametrize("seed", sorted(STILL_HUNTING))
-def test_remaining_campaign_hunters(robustness_bench, seed, request):
-    request.applymarker(pytest.mark.xfail(strict=True, reason=STILL_HUNTING[seed]))
-    assert not _run(robustness_bench, seed)["hunts"]
+#: no full-box seed hunts in rating any more (stop 17, h21h: 1112 and 1195 above); 1043, beyond rating,
+#: latches its fault (test_a_fault_on_a_plant_beyond_the_continuous_rating_is_the_overload_it_deserves)
