@@ -207,14 +207,9 @@ def test_a_slide_the_law_did_not_see_end_is_not_learned():
 CHAIN = 30                            # periods (the hold's settle time, 0.03 s at 1 kHz)
 
 
-@pytest.mark.parametrize("gap, crossing", [(11, True), (2 * CHAIN, False)])
-def test_a_breakaway_that_rests_on_the_way_is_one_crossing_to_the_breaker(gap, crossing):
-    # campaign seed 1112: 3.8 mrad short, the valve jumps to 0.3 mrad beyond the target, rests
-    # 11 ms inside the band and goes on to 2.5 mrad beyond it (outside the band): one 6.3 mrad
-    # breakaway across the target.  Read as two pieces neither of which crossed, the breaker never
-    # fired and the pieces pulled the learned jump down.  Pieces a settle time apart stay two.
-    band = 1.8e-3
-    learner = JumpLearner(cross_hold=True, chain_periods=CHAIN)
+def _breakaway_in_two_pieces(learner: JumpLearner, gap: int, band: float = 1.8e-3) -> JumpLearner:
+    """Feed ``learner`` seed 1112's breakaway (rad from the target): at rest 3.8e-3 short, sliding
+    to 0.3e-3 beyond, resting there ``gap`` periods inside the ``band``, sliding on to 2.5e-3."""
     for _ in range(3):
         learner.update(-3.8e-3, True, True, JUMP, 0.0, band)
     for v in (-2.0e-3, -0.5e-3):
@@ -224,23 +219,24 @@ def test_a_breakaway_that_rests_on_the_way_is_one_crossing_to_the_breaker(gap, c
     for v in (1.0e-3, 2.0e-3):
         learner.update(v, False, True, JUMP, 0.0, band)
     learner.update(2.5e-3, True, True, JUMP, 0.0, band)
+    return learner
+
+
+@pytest.mark.parametrize("gap, crossing", [(11, True), (2 * CHAIN, False)])
+def test_a_breakaway_that_rests_on_the_way_is_one_crossing_to_the_breaker(gap, crossing):
+    # campaign seed 1112: 3.8 mrad short, the valve jumps to 0.3 mrad beyond the target, rests
+    # 11 ms inside the band and goes on to 2.5 mrad beyond it (outside the band): one 6.3 mrad
+    # breakaway across the target.  Read as two pieces neither of which crossed, the breaker never
+    # fired and the pieces pulled the learned jump down.  Pieces a settle time apart stay two.
+    learner = _breakaway_in_two_pieces(JumpLearner(cross_hold=True, chain_periods=CHAIN), gap)
     assert learner.crossings == (1 if crossing else 0)
     whole = (2.5e-3 + 3.8e-3) / JUMP
     if crossing:
         assert learner.ratio_toward(+1.0) == pytest.approx(whole) and learner.ratio_toward(-1.0) == pytest.approx(whole)
     else:
         assert learner.ratio_toward(+1.0) < 0.9 * whole      # learned in pieces, as before
-    off = JumpLearner(cross_hold=True)    # without the chain (main b059704): no crossing seen
-    for _ in range(3):
-        off.update(-3.8e-3, True, True, JUMP, 0.0, band)
-    for v in (-2.0e-3, -0.5e-3):
-        off.update(v, False, True, JUMP, 0.0, band)
-    for _ in range(gap):
-        off.update(0.3e-3, True, True, JUMP, 0.0, band)
-    for v in (1.0e-3, 2.0e-3):
-        off.update(v, False, True, JUMP, 0.0, band)
-    off.update(2.5e-3, True, True, JUMP, 0.0, band)
-    assert off.crossings == 0
+    # without the chain (main b059704): no crossing seen
+    assert _breakaway_in_two_pieces(JumpLearner(cross_hold=True), gap).crossings == 0
 
 
 # ------------------------------------------------------------------ h20w: a Δp reschedule
