@@ -343,9 +343,10 @@ class JumpLearner:
         #: direction not met yet is absent): :meth:`ratio_toward`
         self.directed: dict[int, float] = {}
         self.crossings = 0                # breakaways across the target beyond the band (diagnostics)
-        #: (start rad, way ±1, periods since it ended, ended inside the deadband) of the latest
-        #: breakaway, pieces chained (:meth:`_chain_start`)
+        #: (start rad, way ±1, the period it ended (:attr:`_period`), ended inside the deadband) of
+        #: the latest breakaway, pieces chained (:meth:`_chain_start`)
         self._chain: tuple[float, int, int, bool] | None = None
+        self._period = 0                  # periods updated (the clock of the chain's end)
         self.catch_ups = 0                # slides driven onto the target, not learned (diagnostics)
 
     def drop_slide(self) -> None:
@@ -398,9 +399,9 @@ class JumpLearner:
         start = self._start
         chain = self._chain
         if (self.chain_periods > 0 and chain is not None and chain[1] == way and chain[3]
-                and chain[2] <= self.chain_periods + self._slide):
+                and self._period - chain[2] <= self.chain_periods + self._slide):
             start = chain[0]
-        self._chain = (start, way, 0, inside)
+        self._chain = (start, way, self._period, inside)
         return start
 
     def _driven_to(self, target: float | None, valve: float, band: float, known: float) -> bool:
@@ -468,7 +469,6 @@ class JumpLearner:
         self._stuck_at = valve if stuck else None
         self._rest = self._rest + 1 if stuck else 0
         self._slide += 1
-        if self._chain is not None:
-            self._chain = (self._chain[0], self._chain[1], self._chain[2] + 1, self._chain[3])
+        self._period += 1
         self._stuck_travel = travel if stuck else None
 
