@@ -481,22 +481,13 @@ class FinePositioner:
         ``fine.cold_start`` on.
         The valve is then judged by what the drive knows at rest -- its twist inside the nominal
         static band (:meth:`_twist_fits`, checked as for any engagement) -- and by the stage's own
-        first breakaway, which must fit as the main law's would (:meth:`_cold_fits`).  Only
+        first breakaway, which must fit as the main law's would (:meth:`_breakaway_fits`).  Only
         doublets are made while cold (their moves at ~0 overdrive are the smallest the stage
         makes, and their staircase starts below the nominal breakaway)."""
         cfg = self.cfg
         return (cfg.cold_start and self._breakaway_seen is None and not math.isinf(cfg.breakaway_fit)
                 and self._steady >= FRESH_WAIT * cfg.engage_periods
                 and abs(err) <= 0.5 * self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad))
-
-    def _cold_fits(self, d: int, phi: float, thl: float, pressure_kpa: float) -> bool:
-        """Whether the twist ``phi`` (rad) at which a cold-engaged stage first broke the valve loose
-        in direction ``d`` lies within ``fine.breakaway_fit`` x T_s/K of the nominal breakaway twist
-        (the main law's test, :meth:`_breakaway_fits`)."""
-        m = self.m
-        k = m.coupling_stiffness_nm_per_rad
-        static = m.friction(pressure_kpa).valve_static_nm / k
-        return abs(phi - (m.load_torque(thl, pressure_kpa) / k + d * static)) <= self.cfg.breakaway_fit * static
 
     def _breakaway_fits(self) -> bool:
         """Whether the twist at which the main law last broke the valve loose fits the nominal
@@ -876,7 +867,7 @@ class FinePositioner:
                 self._cold = False
                 self._breakaway_seen = (d, phi, self._thl0, pressure_kpa)
                 self._fresh = True
-                if not pulsed or not self._cold_fits(d, phi, self._thl0, pressure_kpa):
+                if not pulsed or not self._breakaway_fits():     # judged as the main law's, just recorded
                     # (a breakaway in the preload of a cold staircase, which starts 2 prior scatters
                     # below the nominal breakaway, says the level lies lower than the model puts it
                     # -- seed 1032 broke loose 0.29 T_s/K below, inside the fit -- and another preload
