@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ..common.contract import RESOLVER_COUNT_RAD
 from .friction_observer import FrictionObserver
@@ -60,6 +60,18 @@ class Context:
     #: the coupling's twist from the two resolvers, motor angle / N - valve angle, rad
     #: (+ winds toward open; None: not given)
     twist_meas: float | None = None
+
+
+@dataclass
+class _MoveRead:
+    """A clocked planned move's breakaway reading (:meth:`ReferenceFeedforward._read_move_breakaway`)."""
+    way: float                        # the move's direction, ±1
+    start: float                      # the valve angle at the move's start, rad
+    #: the valve samples of the latest periods, rad (the slide test's window)
+    recent: deque = field(default_factory=lambda: deque(maxlen=TRAJECTORY_BREAKAWAY_WINDOW + 1))
+    done: bool = False                # read (or nothing to read: the valve was not at rest)
+    stuck_nm: float | None = None     # the static friction met in the latest stuck period, N*m
+    leaving_nm: float | None = None   # ... in the first period seen leaving, N*m (None while stuck)
 
 
 def _sat(x: float) -> float:
@@ -359,11 +371,8 @@ class ReferenceFeedforward(Compensator):
         #: twist and cap the move's valve level at it (:meth:`_read_move_breakaway`, h21g)
         self.read_breakaway = read_breakaway
         self.breakaway_rad = breakaway_rad
-        #: the clocked move under way's breakaway reading: [direction ±1, valve angle at the move's
-        #: start rad, latest stuck period's static friction met N*m (None before one), the valve
-        #: samples of the latest periods (deque), done, the friction read in the first period
-        #: seen leaving N*m (None while stuck)]; None outside planned moves
-        self._move_read: list | None = None
+        #: the clocked move under way's breakaway reading; None outside planned moves
+        self._move_read: _MoveRead | None = None
         #: the cap (x the schedule) on the valve's level for the rest of the move under way, None
         #: when nothing was read in it
         self._move_cap: float | None = None
@@ -578,31 +587,30 @@ class ReferenceFeedforward(Compensator):
                 (ctx.ref_acceleration > 0.0) - (ctx.ref_acceleration < 0.0)
             # only a move that starts from a valve at rest has a breakaway to read
             done = s == 0 or abs(ctx.valve_speed_meas) > self.stuck_speed
-            self._move_read = r = [float(s), ctx.valve_meas, None,
-                                   deque(maxlen=TRAJECTORY_BREAKAWAY_WINDOW + 1), done, None]
-        if r[4]:
+            self._move_read = r = _MoveRead(float(s), ctx.valve_meas, done=done)
+        if r.done:
             return
-        s, start, _, recent, _, _ = r
-        recent.append(ctx.valve_meas)
-        travel = s * (ctx.valve_meas - start)
+        s = r.way
+        r.recent.append(ctx.valve_meas)
+        travel = s * (ctx.valve_meas - r.start)
         m = self.model
         k = m.coupling_stiffness_nm_per_rad / self.coupling.softness
         met = s * (k * ctx.twist_meas - m.load_torque(ctx.valve_meas, ctx.pressure_kpa) - ctx.held_load)
         if travel <= 0.5 * self.breakaway_rad:
-            r[2], r[5] = met, None          # still stuck: the lower bound
+            r.stuck_nm, r.leaving_nm = met, None    # still stuck: the lower bound
             return
-        if r[5] is None:
-            r[5] = met                      # the first period seen leaving: the upper bound
-        if r[2] is None or travel <= self.breakaway_rad \
-                or s * (ctx.valve_meas - recent[0]) <= TRAJECTORY_BREAKAWAY_SLIDE * self.breakaway_rad:
+        if r.leaving_nm is None:
+            r.leaving_nm = met              # the first period seen leaving: the upper bound
+        if r.stuck_nm is None or travel <= self.breakaway_rad \
+                or s * (ctx.valve_meas - r.recent[0]) <= TRAJECTORY_BREAKAWAY_SLIDE * self.breakaway_rad:
             return
-        r[4] = True
+        r.done = True
         fl = m.friction(ctx.pressure_kpa)
         if fl.valve_static_nm <= 0.0:
             return
-        self.move_reading = (r[2] / fl.valve_static_nm, r[5] / fl.valve_static_nm)
-        if max(r[2], r[5]) < fl.valve_coulomb_nm:     # else no cut is certain: nothing changes
-            self._move_cap = max(r[2] / fl.valve_static_nm, self.scale_bounds[0])
+        self.move_reading = (r.stuck_nm / fl.valve_static_nm, r.leaving_nm / fl.valve_static_nm)
+        if max(r.stuck_nm, r.leaving_nm) < fl.valve_coulomb_nm:     # else no cut is certain: nothing changes
+            self._move_cap = max(r.stuck_nm / fl.valve_static_nm, self.scale_bounds[0])
 
     def _confirm(self, ctx: Context) -> None:
         """Keep the latest breakaway reading only if the valve really let go: its filtered
