@@ -153,20 +153,12 @@ def _states_since(probe, t0_mono) -> list[int]:
     return [int(m.data) for m in probe.since(contract.DRIVE_STATUS, t0_mono)]
 
 
-def test_short_controller_stalls_at_a_hold_the_drive_reports_and_the_controller_re_enables(realtime):
-    # the soak's defect: 5-20 ms loop gaps at a hold; the drive switched itself off and on
-    # again while the controller's law went on as if the current had acted, and the valve
-    # ran to 82.8 % for a 47.5 % demand.  Now the plant reports its watchdog trip and stays off
-    # until the controller, re-armed from the measurement with zero torque, re-enables it.
-    s, probe = realtime
-    demand = 47.5
-    # at rest first: a stall during the approach (the valve still creeping up at 0.2-0.3 rad/s,
-    # the law's command still changing) is another test's case (stalled_controller_does_not_run...)
-    _hold(probe, demand, settle_s=0.3)
-    pid = s.procs["controller"].pid
-    mono = time.monotonic()
+def _stall_cycles(probe, pid) -> tuple[int, str | None]:
+    """12 ms SIGSTOP stalls of the controller ``pid`` at a hold until three have tripped the
+    drive watchdog (at most ten); each trip must be followed by the drive enabled again.
+    Returns (trips, None), or (trips so far, the driver's message) once it latched a fault."""
     trips = 0
-    for _ in range(10):                 # 12 ms stalls until three have tripped the drive
+    for _ in range(10):
         before = time.monotonic()
         os.kill(pid, signal.SIGSTOP)
         time.sleep(0.012)
@@ -174,8 +166,11 @@ def test_short_controller_stalls_at_a_hold_the_drive_reports_and_the_controller_
         # the trip is reported, then the drive is enabled again (by the controller: the plant
         # alone no longer does it); generous timeout for a loaded machine
         probe.wait_for(lambda: contract.DRIVE_STATE_ENABLED in _states_since(probe, before)[1:]
-                       or (not _states_since(probe, before) and time.monotonic() - before > 1.0),
+                       or (not _states_since(probe, before) and time.monotonic() - before > 1.0)
+                       or probe.driver_level() == 2,
                        20.0, "the drive re-enabled after a watchdog trip (or no trip)")
+        if probe.driver_level() == 2:
+            return trips, probe.driver_status().message
         states = _states_since(probe, before)
         if contract.DRIVE_STATE_WATCHDOG in states:
             trips += 1
@@ -183,6 +178,34 @@ def test_short_controller_stalls_at_a_hold_the_drive_reports_and_the_controller_
         time.sleep(0.3)
         if trips >= 3:
             break
+    return trips, None
+
+
+def test_short_controller_stalls_at_a_hold_the_drive_reports_and_the_controller_re_enables(realtime):
+    # the soak's defect: 5-20 ms loop gaps at a hold; the drive switched itself off and on
+    # again while the controller's law went on as if the current had acted, and the valve
+    # ran to 82.8 % for a 47.5 % demand.  Now the plant reports its watchdog trip and stays off
+    # until the controller, re-armed from the measurement with zero torque, re-enables it.
+    s, probe = realtime
+    demand = 47.5
+    pid = s.procs["controller"].pid
+    for attempt in range(2):
+        # at rest first: a stall during the approach (the valve still creeping up at 0.2-0.3 rad/s,
+        # the law's command still changing) is another test's case (stalled_controller_does_not_run...)
+        _hold(probe, demand, settle_s=0.3)          # (also resets a fault latched by the attempt before)
+        mono = time.monotonic()
+        trips, fault = _stall_cycles(probe, pid)
+        if fault is None:
+            break
+        # Once in a few runs (stop 16 beside hogs, stop 17 in one of four quiet clean-clone CI
+        # runs) the controller gets no resolver sample for ~1 s after a SIGCONT and latches the
+        # resolver timeout (1 s here): the correct response to that silence, and not the re-arm
+        # this test is about.  Suspected, not verified: Fast DDS's shared-memory port health check
+        # (healthy_check_timeout_ms, 1000 ms by default) against a process that SIGSTOP keeps from
+        # answering.  Tolerated once; any other fault, or the silence twice, fails.
+        assert "no resolver sample" in fault, fault
+    else:
+        pytest.fail(f"the controller latched a resolver silence after a SIGSTOP in both attempts: {fault}")
     # a loaded machine also trips the watchdog on its own (and a stall may land between two
     # plant ticks that were late anyway): at least one stall's trip and re-enable seen
     assert trips >= 1, "no stall tripped the drive watchdog"
