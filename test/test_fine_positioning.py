@@ -764,7 +764,7 @@ def test_a_staircase_stops_where_the_level_makes_the_move_larger_than_twice_the_
 
 @pytest.mark.parametrize("direction", [1, -1])
 def test_a_longer_whole_current_retreat_is_an_option(direction):
-    """``fine.retreat_full_periods`` (1 by default: 2 measured no better on the nominal box, task
+    """``fine.retreat_full_periods`` (1 by default: 2 measured far worse on the nominal box, task
     h22m): after the kick the doublet pulls the whole current backwards for that many periods, then
     half of it for one."""
     ps = CONTROLLER_SPEC.defaults()

@@ -750,7 +750,9 @@ class FinePositioner:
         whole current backwards and one of half of it), N*m.  The valve lets go at the end of the first
         retreat period (nominal box, task h22m: 2.9-3.4 ms after the doublet's start, the twist's apex at
         3.4 ms), so the half period is what pulls while it slides; on the bare plant a second whole
-        period cuts the smallest move 0.74 -> 0.68e-3 rad (1.29 -> 1.15e-3 at a static level x1.07)."""
+        period cuts the smallest move 0.74 -> 0.68e-3 rad (1.29 -> 1.15e-3 at a static level x1.07), but in
+        closed loop (``fine.retreat_full_periods`` 2) the servo pulling the deeper swing back broke valves
+        loose for whole jumps (moves p90 1.5 -> 4.9e-3 rad): nominal box 139 vs 67 plateaus > 8e-4 rad."""
         cfg, d = self.cfg, self._dir
         kt = self.m.torque_constant_nm_per_a
         cap = cfg.peak_current_a * kt
