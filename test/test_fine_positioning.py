@@ -713,3 +713,66 @@ def test_stairs_sized_to_the_error_climb_faster_and_their_worst_move_still_impro
     small, _ = _stage(**{"fine.move_per_overdrive": slope})
     _, c_small = _stuck_staircase(small, direction * 0.95 * (m0 + slope * floor) / 1.5, p, stairs=4)
     assert all(c == pytest.approx(floor) for c in c_small)
+
+
+def _staircase_with_apex(fine, err, p, rise, periods=3000):
+    """The stage's doublet staircase on a valve that never moves, ``err`` short of a steady target,
+    each doublet's apex ``rise`` (rad of twist) beyond its preload (the bare kick adds ~2.7e-4 rad,
+    task h22m): (final phase, the apexes reached, rad of twist relative to the valve)."""
+    thl = 0.5
+    th1 = thl + _rest_twist(fine, thl, p)
+    _break_loose(fine, thl, p)
+    d = 1 if err > 0 else -1
+    apexes, engaged = [], False
+    for _ in range(periods):
+        phase = fine.phase
+        engaged = engaged or phase != "idle"
+        if phase == "park":
+            th1 = thl + fine._pre
+        elif phase in ("pulse", "observe"):
+            th1 = thl + fine._pre + d * rise
+        fine.update(thl + err, th1, thl, True, 0.3, p)
+        if phase == "observe" and fine.phase != "observe":
+            apexes.append(fine._peak_seen)
+        if engaged and fine.phase in ("hold", "idle") or fine._climbed_out:
+            break
+    return fine.phase, apexes
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_staircase_stops_where_the_level_makes_the_move_larger_than_twice_the_error(direction):
+    """``fine.move_per_level`` (off by default: measured no better on the nominal box, task h22m):
+    the doublet's move follows the level the plant drew at the stop (0.64 rad per rad of static
+    excess, the true overdrive ~0), so a staircase whose unmoved apex has climbed so far above the
+    learned breakaway that the move expected there -- the smallest move plus the slope x the apex's
+    excess over the learned breakaway -- is more than twice the error stops and holds, at the first
+    such stair; without the slope the staircase climbs on."""
+    slope, rise = 0.64, 2.7e-4
+    fine, m = _stage(**{"fine.move_per_level": slope})
+    p = m.pressure_max_kpa
+    m0 = fine.cfg.min_move_prior * m.friction(p).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
+    err = direction * 0.6 * m0
+    phase, apexes = _staircase_with_apex(fine, err, p, rise)
+    assert phase == "hold" and len(apexes) > 3
+    b = fine._nominal(0.5, p, direction)[1] + fine.learn.breakaway[direction][fine.learn.band(m.pressure_fraction(p))]
+    expected = [m0 + slope * max(direction * (a - b), 0.0) for a in apexes]
+    assert expected[-1] > 2.0 * abs(err) >= expected[-2]
+    plain, _ = _stage()
+    phase, more = _staircase_with_apex(plain, err, p, rise)
+    assert phase != "hold" and len(more) > len(apexes) + 3
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_longer_whole_current_retreat_is_an_option(direction):
+    """``fine.retreat_full_periods`` (1 by default: 2 measured far worse on the nominal box, task
+    h22m): after the kick the doublet pulls the whole current backwards for that many periods, then
+    half of it for one."""
+    ps = CONTROLLER_SPEC.defaults()
+    fine, m = _stage(**{"fine.retreat_full_periods": 2})
+    kt = m.torque_constant_nm_per_a
+    cap = ps["fine.peak_current_a"] * kt
+    out = _torques_until_observe(fine, direction * 0.5 * ps["fine.doublet_max_error_rad"], m.pressure_max_kpa)
+    hold = out[-5]
+    assert out[-4] == pytest.approx(hold + direction * ps["fine.kick_current_a"] * kt)
+    assert out[-3] == pytest.approx(max(min(hold - direction * cap, cap), -cap)) == pytest.approx(out[-2])
+    assert out[-1] == pytest.approx(max(min(hold - direction * 0.5 * cap, cap), -cap))

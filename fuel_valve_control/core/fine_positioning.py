@@ -312,6 +312,10 @@ class FineConfig:
                                   # jump short of it, and is made only for an error of at least twice that
     move_per_overdrive: float = 0.0  # doublet: valve move per twist overdrive at breakaway, rad/rad: sizes the
                                      # staircase's stairs to the error (0: every stair doublet_probe_step)
+    move_per_level: float = 0.0   # doublet: the valve's move per rad of twist its breakaway level lies above the learned
+                                  # mean: a staircase stops where the move it would make exceeds twice the error
+                                  # (:meth:`_level_outgrows_error`; 0: never)
+    retreat_full_periods: int = 1  # doublet: periods of the whole current backwards after the kick (then one of half)
     cold_start: bool = False      # engage before any breakaway was seen, judging the valve by the stage's own
                                   # first doublets (:meth:`FinePositioner._cold_ready`)
 
@@ -742,13 +746,19 @@ class FinePositioner:
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
 
     def _doublet_torque(self) -> float:
-        """The doublet's torque in its period ``_k`` (1: kick; 2, 3: retreat), N*m."""
+        """The doublet's torque in its period ``_k`` (1: kick; then ``fine.retreat_full_periods`` of the
+        whole current backwards and one of half of it), N*m.  The valve lets go at the end of the first
+        retreat period (nominal box, task h22m: 2.9-3.4 ms after the doublet's start, the twist's apex at
+        3.4 ms), so the half period is what pulls while it slides; on the bare plant a second whole
+        period cuts the smallest move 0.74 -> 0.68e-3 rad (1.29 -> 1.15e-3 at a static level x1.07), but in
+        closed loop (``fine.retreat_full_periods`` 2) the servo pulling the deeper swing back broke valves
+        loose for whole jumps (moves p90 1.5 -> 4.9e-3 rad): nominal box 139 vs 67 plateaus > 8e-4 rad."""
         cfg, d = self.cfg, self._dir
         kt = self.m.torque_constant_nm_per_a
         cap = cfg.peak_current_a * kt
         if self._k == 1:
             torque = self._hold_torque + d * cfg.kick_current_a * kt
-        elif self._k == 2:
+        elif self._k <= 1 + max(cfg.retreat_full_periods, 1):
             torque = self._hold_torque - d * cap
         else:
             torque = self._hold_torque - d * 0.5 * cap
@@ -838,6 +848,30 @@ class FinePositioner:
             m = self.cfg.min_move_prior * self.m.friction(pressure_kpa).stick_slip_jump_rad(
                 self.m.coupling_stiffness_nm_per_rad)
         return m > 0.0 and abs(err) < self.cfg.min_move_fraction * m
+
+    def _level_outgrows_error(self, err: float, pressure_kpa: float, learned_b: float) -> bool:
+        """Whether a doublet staircase that has climbed this far should stop: the level lies above
+        the apex the last stair reached without breaking the valve loose (``_peak_seen``, rad of
+        twist), and a valve that breaks loose at a higher level swings further -- the doublet does not
+        size its move, the level the plant drew at the last stop does.  Measured (task h22m, nominal
+        box, seeds 1000-1039, the plant's true level read per doublet): the 112 doublets that moved
+        the valve broke it loose at a true overdrive of -1e-5..5e-5 rad (p10-p90: no share of the
+        spread), and their moves, 0.58-1.4e-3 rad, follow the true static excess (level less the
+        Coulomb twist, 1.6-2.7e-3 rad) at 0.64 rad/rad (r^2 0.70; residual rms 0.19e-3 rad).  The
+        move expected at a level at least the apex is the learned smallest move (the doublets' mean)
+        plus ``fine.move_per_level`` x how far that apex lies above the learned breakaway
+        ``learned_b`` (rad of twist; never less than the learned move); when it exceeds
+        1 / ``fine.min_move_fraction`` x the error (twice it: the move would not improve it) the
+        staircase stops and the stage holds.  Off (``fine.move_per_level`` 0, the default): never."""
+        cfg = self.cfg
+        if cfg.move_per_level <= 0.0:
+            return False
+        d = 1 if err > 0 else -1
+        m = self.learn.min_move[d][self.learn.band(self.m.pressure_fraction(pressure_kpa))]
+        if m <= 0.0:
+            m = cfg.min_move_prior * self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad)
+        expected = m + cfg.move_per_level * max(d * (self._peak_seen - learned_b), 0.0)
+        return abs(err) < cfg.min_move_fraction * expected
 
     def _after_move(self, th1, thl, pressure_kpa, pulsed: bool):
         cfg, d, b = self.cfg, self._dir, self._band
@@ -930,6 +964,8 @@ class FinePositioner:
             self._hand_back()
             return
         if abs(err) <= cfg.tolerance_rad or self._spent() or self._below_min_move(err, pressure_kpa) \
+                or (pulsed and self._doublet and self._stair is not None
+                    and self._level_outgrows_error(err, pressure_kpa, b0 + curb)) \
                 or self._cross_guard(err, pressure_kpa) is None:
             # close enough, or its moves are larger than the error left, or a move could make the
             # plateau hunt: hold where it is

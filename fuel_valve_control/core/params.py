@@ -290,6 +290,17 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "as the worst move it allows still leaves at most half the error (a move up to 1.5 x it; up to 1 x where it "
           "must not cross), between fine.doublet_probe_step x the band and fine.kick_rise_rad (0 = always "
           "fine.doublet_probe_step; 4 measured no better on the nominal box, task h21n)", 0.0, 100.0, runtime=True),
+    Param("fine.move_per_level", 0.0, "rad/rad", "doublet: the valve's move per rad of twist its breakaway level "
+          "lies above the learned breakaway (nominal box, the plant's true level per doublet: 0.64, task h22m): a "
+          "staircase whose last unmoved apex lies so far above the learned breakaway that the move expected there "
+          "(the learned smallest move plus this x the excess) exceeds the error / fine.min_move_fraction stops and "
+          "holds (0 = never; 0.64 measured no better on the nominal box: 68 / 51 vs 67 / 50 plateaus > 8e-4 rad on "
+          "seeds 1000 / 2000)", 0.0, 100.0, runtime=True),
+    Param("fine.retreat_full_periods", 1, "", "doublet: loop periods of the whole current (fine.peak_current_a) "
+          "backwards after the kick, then one of half of it (the valve lets go at the end of the first: a second "
+          "whole period cuts the bare plant's smallest move 0.74 -> 0.68e-3 rad, but in closed loop the servo's rebound "
+          "from the deeper swing broke valves loose for whole jumps: nominal box 139 vs 67 plateaus > 8e-4 rad, task "
+          "h22m)", 1, 3, runtime=True),
     Param("fine.doublet_sigmas", 2.0, "", "doublet: after each stop the first apex lies this many learned rms "
           "scatters of the breakaway twist below the learned breakaway", 0.0, 10.0, runtime=True),
     Param("fine.scatter_gain", 0.2, "", "weight of each breakaway sample (the main law's from rest, a doublet's) "

@@ -289,6 +289,8 @@ class PositionController:
                           breakaway_fit=ps["fine.breakaway_fit"], fit_margin=ps["fine.fit_margin"],
                           reversal_window_periods=max(int(round((HUNT_SETTLE_S - ps["fine.reversal_lead_s"]) / per)), 0),
                           no_cross_short=ps["fine.no_cross_short"], move_per_overdrive=ps["fine.move_per_overdrive"],
+                          move_per_level=ps["fine.move_per_level"],
+                          retreat_full_periods=ps["fine.retreat_full_periods"],
                           cold_start=ps["fine.cold_start"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
