@@ -127,8 +127,7 @@ def overrides(valve: dict) -> tuple[dict, dict]:
             plant["motor.flux_linkage_wb"] = value
             ctrl["model.torque_constant_nm_per_a"] = 1.5 * _P["motor.pole_pairs"] * value
         elif name == "loop_rate_hz":
-            ctrl["loop_rate_hz"] = value
-            plant["publish_rate_hz"] = value
+            ctrl["loop_rate_hz"] = value     # offline, the plant advances one controller period per step
         else:
             pk, ck = _KEYS[name]
             plant[pk] = value
@@ -216,7 +215,7 @@ def summarise(results: list[dict]) -> dict:
             "campaign_errors": [], "campaign_step_overshoots": []})
         tag = f"{r['kind']}:{r['name']}"
         if "error" in r:
-            row["errors"].append(f"{tag}: {r['error']}")
+            row["errors"].append(f"{tag}: {r['error'][:120]}")
             continue
         if r["hunts"]:
             row["hunting"].append(tag)
