@@ -123,6 +123,46 @@ def place_state_feedback(model: NominalModel, period_s: float, poles_s: np.ndarr
     return StateFeedback(gain[0, :4].copy(), float(-gain[0, 4]), np.linalg.eigvals(aa - ba @ gain))
 
 
+def hold_stiff_state_feedback(model: NominalModel, period_s: float, bandwidth_hz: float, damping: float,
+                              integrator_ratio: float, resonance_damping: float,
+                              resonance_ratio: float) -> tuple[StateFeedback, np.ndarray]:
+    """Pole placement (:func:`continuous_poles`, :func:`place_state_feedback`) whose coupling-mode
+    damping is at most ``resonance_damping`` and lowered, where needed, until the gain on the
+    gear-output angle θ1 is not negative: ``(feedback, continuous poles)``.
+
+    Why: the valve spends most of its time stuck by static friction, and then the loop acts on
+    the motor alone through the coupling.  With the valve locked, a motor torque ``u`` twists
+    the coupling ``N u / K`` at rest, while the state feedback answers ``-k1`` per rad of θ1, so
+    the drive's static stiffness against its own integrator (and the hold's relax, which moves
+    the integrator) is ``K (1 + k1 N / K)``: a negative ``k1`` takes it away.  Damping a stiff
+    coupling's mode at its own frequency asks the placement for exactly that (non-collocated:
+    ``k1`` negative, ``k3`` on the valve angle large): K 1500 N*m/rad at ζr 0.2 gave
+    ``1 + k1 N/K = -0.008`` -- the relax of a stuck valve swung the drive from one edge of the
+    static band to the other (6 -> 15 N*m in 0.15 s) and the hold hunted 1.2e-2 rad (section 35).
+    The nominal valve (K 480) has ``k1 > 0`` at the configured damping and is designed as before.
+    The coupling's own damping is left to it below that (a bisection over the damping; the
+    lowest tried is 1 % of ``resonance_damping``)."""
+    def placed(zr: float):
+        poles = continuous_poles(model, bandwidth_hz, damping, integrator_ratio, zr, resonance_ratio)
+        return place_state_feedback(model, period_s, poles), poles
+
+    fb, poles = placed(resonance_damping)
+    if fb.k[0] >= 0.0:
+        return fb, poles
+    lo, hi = 0.01 * resonance_damping, resonance_damping
+    best = placed(lo)
+    if best[0].k[0] < 0.0:
+        return best
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        trial = placed(mid)
+        if trial[0].k[0] >= 0.0:
+            lo, best = mid, trial
+        else:
+            hi = mid
+    return best
+
+
 def lqr_state_feedback(model: NominalModel, period_s: float, q, r: float) -> StateFeedback:
     """Discrete LQR on the augmented model (``solve_discrete_are``); ``q`` the 5 x 5 state
     weight on [θ1, ω1, θL, ωL, ζ] (a 1-D array: its diagonal), ``r`` the motor-torque weight."""

@@ -139,10 +139,11 @@ def _design_all(ps: Mapping[str, Any], model: NominalModel) -> Designs:
     period = 1.0 / ps["loop_rate_hz"]
     pid = design.design_pid(model, period, ps["pi.crossover_hz"], ps["pi.phase_margin_deg"],
                             ps["pi.integral_corner_ratio"], ps["pi.derivative_filter_ratio"])
-    poles = design.continuous_poles(model, ps["design.bandwidth_hz"], ps["design.damping"],
-                                    ps["design.integrator_ratio"], ps["design.resonance_damping"],
-                                    ps["design.resonance_frequency_ratio"])
-    placement = design.place_state_feedback(model, period, poles)
+    # the coupling mode's damping as configured, lowered where a stiff coupling would make the
+    # held (friction-locked) valve's drive lose its stiffness (design.hold_stiff_state_feedback)
+    placement, poles = design.hold_stiff_state_feedback(
+        model, period, ps["design.bandwidth_hz"], ps["design.damping"], ps["design.integrator_ratio"],
+        ps["design.resonance_damping"], ps["design.resonance_frequency_ratio"])
     q, r = design.bryson_weights(model, ps["lqr.position_error_rad"], ps["lqr.velocity_rad_s"],
                                  ps["lqr.twist_rad"], ps["lqr.integral_rad_s"], ps["lqr.current_a"])
     lqr = design.lqr_state_feedback(model, period, q, r)
