@@ -72,6 +72,10 @@ class _MoveRead:
     done: bool = False                # read (or nothing to read: the valve was not at rest)
     stuck_nm: float | None = None     # the static friction met in the latest stuck period, N*m
     leaving_nm: float | None = None   # ... in the first period seen leaving, N*m (None while stuck)
+    #: (valve sample rad, coupling torque net of the loads N*m) of the periods after the slide
+    slide: list = field(default_factory=list)
+    #: the valve's friction while sliding, coupling torque less J_L x its acceleration, N*m
+    sliding_nm: list = field(default_factory=list)
 
 
 def _sat(x: float) -> float:
@@ -357,6 +361,11 @@ class ReferenceFeedforward(Compensator):
     #: within CONFIRM_PERIODS periods of the breakaway (:meth:`_confirm`)
     CONFIRM_COUNTS = 4.0
     CONFIRM_PERIODS = 6
+    #: periods of sliding friction (coupling torque less the valve's inertia torque) averaged
+    #: before a move's cap may be raised to it (:meth:`_read_move_breakaway`): one estimate
+    #: scatters ~0.5 N*m (the second difference of a resolver with ~1 count of noise), and a
+    #: 20 ms move that lets go 6 ms in slides ~10 periods before it decelerates
+    SLIDE_PERIODS = 6
     #: periods over which the wind-up reads the gear output's acceleration (a one-period
     #: difference of the velocity estimate scattered the small wind-ups at Δp 0: r² 0.25)
     ACCEL_WINDOW = 4
@@ -561,6 +570,9 @@ class ReferenceFeedforward(Compensator):
         (without the gate, a nominal valve read 0.89-1.01 x, lost up to 11 % of its Coulomb
         feed-forward, stopped short and the hold's jump overshot: nominal box seed 2032, 64.9 %).
         One that holds more than the schedule is left to the Friedland-Park update (a cap).
+        A cap may then be raised, never lowered, to the friction the valve meets while it slides
+        (:meth:`_read_sliding`): a presliding valve passes half a breakaway before its friction
+        peaks and is read low (campaign seed 1137, h22g).
         The cap lapses with the move: the next move starts from the learned level, not from one
         reading (kept across moves as the level itself, a breakaway that an unknown load helped
         left the next move the other way a tenth of its feed-forward; full box 5 runs hunting
@@ -589,13 +601,14 @@ class ReferenceFeedforward(Compensator):
             done = s == 0 or abs(ctx.valve_speed_meas) > self.stuck_speed
             self._move_read = r = _MoveRead(float(s), ctx.valve_meas, done=done)
         if r.done:
+            if self._move_cap is not None and len(r.sliding_nm) < self.SLIDE_PERIODS:
+                self._read_sliding(ctx, r)
             return
         s = r.way
         r.recent.append(ctx.valve_meas)
         travel = s * (ctx.valve_meas - r.start)
         m = self.model
-        k = m.coupling_stiffness_nm_per_rad / self.coupling.softness
-        met = s * (k * ctx.twist_meas - m.load_torque(ctx.valve_meas, ctx.pressure_kpa) - ctx.held_load)
+        met = self._coupling_nm(ctx, s)
         if travel <= 0.5 * self.breakaway_rad:
             r.stuck_nm, r.leaving_nm = met, None    # still stuck: the lower bound
             return
@@ -611,6 +624,42 @@ class ReferenceFeedforward(Compensator):
         self.move_reading = (r.stuck_nm / fl.valve_static_nm, r.leaving_nm / fl.valve_static_nm)
         if max(r.stuck_nm, r.leaving_nm) < fl.valve_coulomb_nm:     # else no cut is certain: nothing changes
             self._move_cap = max(r.stuck_nm / fl.valve_static_nm, self.scale_bounds[0])
+
+    def _coupling_nm(self, ctx: Context, way: float) -> float:
+        """The coupling torque ``K (θm/N - θL)`` from the two resolvers (the model's K over the
+        softness a wind-up has read) less the known load at the valve and the held load, signed
+        ``way`` (N*m, valve side): the friction the valve meets plus its inertia torque."""
+        m = self.model
+        k = m.coupling_stiffness_nm_per_rad / self.coupling.softness
+        return way * (k * ctx.twist_meas - m.load_torque(ctx.valve_meas, ctx.pressure_kpa) - ctx.held_load)
+
+    def _read_sliding(self, ctx: Context, r: _MoveRead) -> None:
+        """A move whose breakaway reading capped its feed-forward: read the friction the valve
+        meets while it slides, the coupling torque less ``J_L`` x the valve's acceleration (the
+        central second difference of its resolver samples), and once SLIDE_PERIODS estimates are
+        in, raise the cap to their mean over the scheduled Coulomb level if that is more (never a
+        cut: the static reading decided that).
+
+        Why (h22g, campaign seed 1137, LuGre x 0.71): the static reading takes the valve as stuck
+        until its resolver leaves half a breakaway, but a LuGre valve passes 1.5 counts in
+        presliding while its friction still rises, and the move's drive rises 15-20 % of the
+        static level a period: the 45 mrad closing move read 0.36 x (the coupling then carried
+        0.98 x as the valve slid), its feed-forward capped there left it 7.7 mrad short and the
+        hold hunted (8 reversals, 33 mrad).  The sliding friction read this way is 0.3-0.6 x
+        there and 0.40-0.49 x of the static schedule on the adaptation grid's friction x 0.5 valve
+        (Coulomb 0.4 x): it is the level the cap feeds, measured where the valve slides."""
+        r.slide.append((ctx.valve_meas, self._coupling_nm(ctx, r.way)))
+        if len(r.slide) < 3:
+            return
+        (v0, _), (v1, met1), (v2, _) = r.slide[-3:]
+        m = self.model
+        accel = r.way * (v2 - 2.0 * v1 + v0) / (self.period * self.period)
+        r.sliding_nm.append(met1 - m.valve_inertia_kgm2 * accel)
+        if len(r.sliding_nm) < self.SLIDE_PERIODS:
+            return
+        fl = m.friction(ctx.pressure_kpa)
+        if fl.valve_coulomb_nm > 0.0:
+            self._move_cap = max(self._move_cap, sum(r.sliding_nm) / len(r.sliding_nm) / fl.valve_coulomb_nm)
 
     def _confirm(self, ctx: Context) -> None:
         """Keep the latest breakaway reading only if the valve really let go: its filtered
