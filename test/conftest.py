@@ -17,8 +17,8 @@ module as a unit of its own (its module fixtures and result caches are built onc
 
 ``--cpu-durations=N`` prints the N tests that used the most CPU time (set-up, call and
 tear-down; this process's threads and the node processes it waited for), beside their wall
-time: on a machine shared with other work, wall time says more about the neighbours than
-about the test.
+time, then every module's totals: on a machine shared with other work, wall time says more
+about the neighbours than about the test.
 """
 from __future__ import annotations
 
@@ -142,6 +142,19 @@ def pytest_terminal_summary(terminalreporter, config):
     for nodeid, (w, o, c) in rows[:n] if n > 0 else rows:
         terminalreporter.write_line(f"{w:8.2f} {o:8.2f} {c:8.2f}  {nodeid}")
     terminalreporter.write_line(f"{wall:8.2f} {own:8.2f} {kids:8.2f}  total over {len(_CPU_TIMES)} tests")
+    # per module too: where a module's time goes is the question a trim starts from (one
+    # module's many cheap cases can outweigh its one slow test); the DDS modules' wall beyond
+    # their CPU is waiting (real time, start-up), not work
+    modules: dict[str, list[float]] = {}
+    for nodeid, times in _CPU_TIMES.items():
+        acc = modules.setdefault(nodeid.split("::", 1)[0], [0.0, 0.0, 0.0, 0])
+        for i in range(3):
+            acc[i] += times[i]
+        acc[3] += 1
+    terminalreporter.write_sep("=", "cpu durations per module: wall / own CPU / children CPU, s (tests)")
+    for module, (w, o, c, count) in sorted(modules.items(), key=lambda kv: -(kv[1][1] + kv[1][2])):
+        ros = " [ros]" if is_ros_module(config.rootpath / module) else ""
+        terminalreporter.write_line(f"{w:8.2f} {o:8.2f} {c:8.2f}  {module} ({count}){ros}")
 
 
 @pytest.fixture(scope="module", autouse=True)
