@@ -17,14 +17,21 @@ module as a unit of its own (its module fixtures and result caches are built onc
 
 ``--cpu-durations=N`` prints the N tests that used the most CPU time (set-up, call and
 tear-down; this process's threads and the node processes it waited for), beside their wall
-time: on a machine shared with other work, wall time says more about the neighbours than
-about the test.
+time, then every module's totals: on a machine shared with other work, wall time says more
+about the neighbours than about the test.
+
+``--sim-repeats`` lists the offline simulations (``sim.simulate_plan``, every scenario and
+campaign run goes through it) that ran more than once with the same inputs, and the CPU the
+repeats cost: the candidates for sharing one run between tests.  Serial runs only (with
+pytest-xdist each worker keeps its own list and none is printed).  Loops a test closes itself
+(``exchange_period``, ``test/snapshots.py``) are not seen.
 """
 from __future__ import annotations
 
 import fcntl
 import os
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -102,6 +109,41 @@ def pytest_collection_modifyitems(config, items):
 def pytest_addoption(parser):
     parser.addoption("--cpu-durations", type=int, default=None, metavar="N",
                      help="print the N tests with the most CPU time (own + waited-for children), with wall time")
+    parser.addoption("--sim-repeats", action="store_true", default=False,
+                     help="print the offline simulations (sim.simulate_plan) run more than once with the same inputs")
+
+
+#: --sim-repeats: (inputs key, CPU s, test id, plan name, simulated s) of every simulate_plan call
+_SIM_CALLS: list[tuple[str, float, str, str, float]] = []
+_SIM_TEST = {"id": ""}
+
+
+def _plan_key(plan, baselines) -> str:
+    """A digest of everything a :func:`~fuel_valve_control.tools.sim.simulate_plan` run depends
+    on: two runs with the same key give the same result (the simulator is deterministic)."""
+    import hashlib
+    import json
+    doc = dict(name=plan.name, timing=plan.timing, duration=plan.duration_s, demand=repr(plan.demand_spec),
+               plant=sorted((k, repr(v)) for k, v in dict(plan.plant_params).items()),
+               controller=sorted((k, repr(v)) for k, v in dict(plan.controller_params).items()),
+               initial=plan.initial_percent, events=repr(plan.events), baselines=repr(list(baselines)))
+    return hashlib.sha1(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def pytest_configure(config):
+    if not config.getoption("--sim-repeats"):
+        return
+    # wrapped before the test modules import it (``from ... import simulate_plan`` included);
+    # the run itself is untouched, only timed and keyed
+    from fuel_valve_control.tools import sim
+    run = sim.simulate_plan
+
+    def timed(plan, baselines=()):
+        key, t0 = _plan_key(plan, baselines), time.process_time()
+        result = run(plan, baselines)
+        _SIM_CALLS.append((key, time.process_time() - t0, _SIM_TEST["id"], plan.name, plan.duration_s))
+        return result
+    sim.simulate_plan = timed
 
 
 _CPU_START: dict[str, os.times_result] = {}     # nodeid -> os.times() at its set-up
@@ -110,6 +152,7 @@ _CPU_TIMES: dict[str, tuple[float, float, float]] = {}      # nodeid -> (wall, o
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item):
+    _SIM_TEST["id"] = item.nodeid
     if item.config.getoption("--cpu-durations") is not None:
         _CPU_START[item.nodeid] = os.times()
 
@@ -133,6 +176,8 @@ def pytest_runtest_logreport(report):
 
 
 def pytest_terminal_summary(terminalreporter, config):
+    if config.getoption("--sim-repeats"):
+        _report_sim_repeats(terminalreporter)
     n = config.getoption("--cpu-durations")
     if n is None or not _CPU_TIMES:
         return
@@ -142,6 +187,34 @@ def pytest_terminal_summary(terminalreporter, config):
     for nodeid, (w, o, c) in rows[:n] if n > 0 else rows:
         terminalreporter.write_line(f"{w:8.2f} {o:8.2f} {c:8.2f}  {nodeid}")
     terminalreporter.write_line(f"{wall:8.2f} {own:8.2f} {kids:8.2f}  total over {len(_CPU_TIMES)} tests")
+    # per module too: where a module's time goes is the question a trim starts from (one
+    # module's many cheap cases can outweigh its one slow test); the DDS modules' wall beyond
+    # their CPU is waiting (real time, start-up), not work
+    modules: dict[str, list[float]] = {}
+    for nodeid, times in _CPU_TIMES.items():
+        acc = modules.setdefault(nodeid.split("::", 1)[0], [0.0, 0.0, 0.0, 0])
+        for i in range(3):
+            acc[i] += times[i]
+        acc[3] += 1
+    terminalreporter.write_sep("=", "cpu durations per module: wall / own CPU / children CPU, s (tests)")
+    for module, (w, o, c, count) in sorted(modules.items(), key=lambda kv: -(kv[1][1] + kv[1][2])):
+        ros = " [ros]" if is_ros_module(config.rootpath / module) else ""
+        terminalreporter.write_line(f"{w:8.2f} {o:8.2f} {c:8.2f}  {module} ({count}){ros}")
+
+
+def _report_sim_repeats(terminalreporter):
+    by_key: dict[str, list] = {}
+    for key, cpu, test, name, duration in _SIM_CALLS:
+        by_key.setdefault(key, []).append((cpu, test, name, duration))
+    repeats = sorted(((k, v) for k, v in by_key.items() if len(v) > 1), key=lambda kv: -sum(c for c, *_ in kv[1][1:]))
+    total = sum(c for _, c, *_ in _SIM_CALLS)
+    extra = sum(c for _, v in repeats for c, *_ in v[1:])
+    terminalreporter.write_sep("=", f"offline simulations: {len(_SIM_CALLS)} runs, {total:.1f} s CPU; "
+                                    f"{len(repeats)} inputs run more than once, {extra:.1f} s CPU in the repeats")
+    for _, runs in repeats:
+        _, _, name, duration = runs[0]
+        terminalreporter.write_line(f"{sum(c for c, *_ in runs[1:]):7.2f} s  {len(runs)} x {name} ({duration:g} s): "
+                                    + ", ".join(sorted({t for _, t, _, _ in runs})))
 
 
 @pytest.fixture(scope="module", autouse=True)

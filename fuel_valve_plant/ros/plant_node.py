@@ -320,7 +320,12 @@ class PlantNode(Node):
         (starved of CPU) advances only :data:`MAX_STEP_PERIODS` over it, and its drive must
         not trip for a silence of the controller that only the frozen simulator caused (the
         controller had answered; the simulator had not published since)."""
-        unanswered = None if self._awaiting_since is None else self.plant.time + elapsed - self._awaiting_since
+        # read once: the command callback (executor thread, not under the tick's lock) clears
+        # it at any time; read twice, a clear between the check and the subtraction raised
+        # TypeError (float - None) in the tick and latched a drive fault (stop 18, the stall
+        # test under load: "the drive reports an internal fault")
+        since = self._awaiting_since
+        unanswered = None if since is None else self.plant.time + elapsed - since
         if not self._watchdog_off and unanswered is not None and unanswered > self._command_timeout:
             self._watchdog_off = True
             self._watchdog_trips += 1
