@@ -776,3 +776,49 @@ def test_a_longer_whole_current_retreat_is_an_option(direction):
     assert out[-4] == pytest.approx(hold + direction * ps["fine.kick_current_a"] * kt)
     assert out[-3] == pytest.approx(max(min(hold - direction * cap, cap), -cap)) == pytest.approx(out[-2])
     assert out[-1] == pytest.approx(max(min(hold - direction * 0.5 * cap, cap), -cap))
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_learned_kick_rise_puts_each_apex_on_its_planned_stair(direction):
+    """``fine.learn_kick_rise`` (off by default: measured, task h22f): the preload is planned below the
+    stair's apex by the twist the stage's own unmoved doublets rose above their preload (nominal box:
+    0.28-0.30e-3 rad) instead of ``fine.kick_rise_rad`` (0.15e-3), so from the second stair on each apex
+    lies on the planned stair -- the learned breakaway less the stair -- instead of the rise's excess
+    above it; without the option every apex lies that excess above its stair."""
+    rise = 2.8e-4
+    p, err = None, None
+
+    def staircase(fine, m):
+        nonlocal p, err
+        p = m.pressure_max_kpa
+        err = direction * 0.9 * fine.cfg.doublet_max_error_rad
+        thl = 0.5
+        th1 = thl + _rest_twist(fine, thl, p)
+        _break_loose(fine, thl, p)
+        rows, stair, engaged = [], None, False
+        for _ in range(3000):
+            phase = fine.phase
+            engaged = engaged or phase != "idle"
+            if phase == "park":
+                th1 = thl + fine._pre
+            elif phase in ("pulse", "observe"):
+                th1 = thl + fine._pre + direction * rise
+            if phase == "pulse" and stair is None:
+                stair = fine._stair
+            fine.update(thl + err, th1, thl, True, 0.3, p)
+            if phase == "observe" and fine.phase != "observe":
+                rows.append((fine._peak_seen, stair))
+                stair = None
+            if len(rows) >= 5 or engaged and fine.phase in ("hold", "idle") or fine._climbed_out:
+                break
+        assert len(rows) >= 5
+        phi_b = fine._twists(thl, p, direction)[1]
+        return [direction * (phi_b - apex) - s for apex, s in rows]   # apex below its planned stair, rad
+
+    learned = staircase(*_stage(**{"fine.learn_kick_rise": True}))
+    plain_fine, m = _stage()
+    plain = staircase(plain_fine, m)
+    excess = rise - plain_fine.cfg.kick_rise_rad
+    assert all(x == pytest.approx(-excess, abs=1e-9) for x in plain)
+    assert learned[0] == pytest.approx(-excess, abs=1e-9)          # the first kick: nothing seen yet
+    assert all(x == pytest.approx(0.0, abs=1e-9) for x in learned[1:]), (learned, plain)

@@ -301,6 +301,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "whole period cuts the bare plant's smallest move 0.74 -> 0.68e-3 rad, but in closed loop the servo's rebound "
           "from the deeper swing broke valves loose for whole jumps: nominal box 139 vs 67 plateaus > 8e-4 rad, task "
           "h22m)", 1, 3, runtime=True),
+    Param("fine.learn_kick_rise", False, "", "doublet: plan each preload below its stair's apex by the twist the "
+          "kick was seen to add above the preload (the mean over the stage's own unmoved doublets) instead of "
+          "fine.kick_rise_rad (nominal box: 0.28-0.30e-3 rad seen where 0.15e-3 is planned, task h22f)", runtime=True),
     Param("fine.doublet_sigmas", 2.0, "", "doublet: after each stop the first apex lies this many learned rms "
           "scatters of the breakaway twist below the learned breakaway", 0.0, 10.0, runtime=True),
     Param("fine.scatter_gain", 0.2, "", "weight of each breakaway sample (the main law's from rest, a doublet's) "
