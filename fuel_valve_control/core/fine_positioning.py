@@ -320,6 +320,7 @@ class FineConfig:
                                   # first doublets (:meth:`FinePositioner._cold_ready`)
     learn_kick_rise: bool = False  # doublet: plan each preload against the kick's rise learned from the stage's
                                    # own apexes (:meth:`FinePositioner._kick_rise`) instead of ``kick_rise_rad``
+    first_kick_fraction: float = 1.0  # doublet: a staircase's first stair kicks with this fraction of kick_current_a
 
 
 class FinePositioner:
@@ -355,7 +356,9 @@ class FinePositioner:
         self._new_plateau()
         self._stair = None
         self._stair_step = 0.0        # the last stair's climb, rad of twist (the level lies within it below the apex)
-        self._rise_seen = 0.0         # mean twist a doublet's kick raised above its planned preload, rad (0: none yet)
+        self._rise_seen = [0.0, 0.0]  # mean twist a doublet's kick raised above its planned preload, rad (0: none
+                                      # yet), [later stairs, a staircase's first stair]
+        self._first_stair = False     # this doublet is its staircase's first stair
         self._kick_apex = 0.0         # the largest twist since this pulse left its preload, rad
         self._cold = False            # engaged before any breakaway was seen: doublets only, until the first
         self._judged = None           # (direction, band) of an engagement whose outcome is not yet judged
@@ -592,6 +595,7 @@ class FinePositioner:
             # current, so the valve breaks loose while the gear output is already turning back
             # ... and starts a staircase ``_stair`` below the learned breakaway: the level is
             # drawn anew at every stop, and one that breaks while preloading jumps the whole way
+            self._first_stair = self._stair is None
             if self._stair is None:
                 self._stair = cfg.doublet_sigmas * self._scatter(d, band, gap)
                 self._stair_step = cfg.doublet_probe_step * self._nominal_gap(thl, pressure_kpa, d)
@@ -759,9 +763,11 @@ class FinePositioner:
         h22f: every unmoved doublet's kick of 4 A rose 0.28-0.30e-3 rad above its preload, where 0.15e-3 is
         planned -- each apex lay ~0.13e-3 above the stair the plan put it on.)"""
         cfg = self.cfg
-        if cfg.learn_kick_rise and self._rise_seen > 0.0:
-            return self._rise_seen
-        return cfg.kick_rise_rad
+        first = self._first_stair and cfg.first_kick_fraction != 1.0   # its own kick: its own rise
+        seen = self._rise_seen[1 if first else 0]
+        if cfg.learn_kick_rise and seen > 0.0:
+            return seen
+        return cfg.kick_rise_rad * (cfg.first_kick_fraction if first else 1.0)
 
     def _doublet_torque(self) -> float:
         """The doublet's torque in its period ``_k`` (1: kick; then ``fine.retreat_full_periods`` of the
@@ -775,7 +781,9 @@ class FinePositioner:
         kt = self.m.torque_constant_nm_per_a
         cap = cfg.peak_current_a * kt
         if self._k == 1:
-            torque = self._hold_torque + d * cfg.kick_current_a * kt
+            # (a first stair's kick may be smaller: ``fine.first_kick_fraction``)
+            kick = cfg.kick_current_a * (cfg.first_kick_fraction if self._first_stair else 1.0)
+            torque = self._hold_torque + d * kick * kt
         elif self._k <= 1 + max(cfg.retreat_full_periods, 1):
             torque = self._hold_torque - d * cap
         else:
@@ -959,8 +967,10 @@ class FinePositioner:
                 # the kick's rise above the planned preload, seen where the valve stayed (a valve that
                 # let go cuts the rise short): a sample of the twist the next kick will add
                 rise = d * (self._kick_apex - self._pre)
+                i = 1 if self._first_stair and cfg.first_kick_fraction != 1.0 else 0
                 if rise > 0.0:
-                    self._rise_seen = rise if self._rise_seen <= 0.0 else self._rise_seen + MOVE_GAIN * (rise - self._rise_seen)
+                    cur = self._rise_seen[i]
+                    self._rise_seen[i] = rise if cur <= 0.0 else cur + MOVE_GAIN * (rise - cur)
                 # climb the staircase, on past the learned breakaway if need be (the level found
                 # is learned from the doublet that breaks it loose), in small steps: each 1e-4 rad
                 # of overdrive adds ~4e-4 rad to the move.  (Steps of 0.3 x the way left to the

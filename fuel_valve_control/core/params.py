@@ -304,6 +304,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.learn_kick_rise", False, "", "doublet: plan each preload below its stair's apex by the twist the "
           "kick was seen to add above the preload (the mean over the stage's own unmoved doublets) instead of "
           "fine.kick_rise_rad (nominal box: 0.28-0.30e-3 rad seen where 0.15e-3 is planned, task h22f)", runtime=True),
+    Param("fine.first_kick_fraction", 1.0, "", "doublet: a staircase's first stair kicks with this fraction of "
+          "fine.kick_current_a, its preload planned that fraction of fine.kick_rise_rad (or with fine.learn_kick_rise "
+          "the rise its own first stairs were seen to reach) below its apex (1 = the same kick on every stair)",
+          0.0, 1.0, runtime=True),
     Param("fine.doublet_sigmas", 2.0, "", "doublet: after each stop the first apex lies this many learned rms "
           "scatters of the breakaway twist below the learned breakaway", 0.0, 10.0, runtime=True),
     Param("fine.scatter_gain", 0.2, "", "weight of each breakaway sample (the main law's from rest, a doublet's) "
