@@ -763,8 +763,8 @@ class FinePositioner:
         h22f: every unmoved doublet's kick of 4 A rose 0.28-0.30e-3 rad above its preload, where 0.15e-3 is
         planned -- each apex lay ~0.13e-3 above the stair the plan put it on.  Learned, the whole staircase
         lies that much lower; measured no better (121 / 124 vs 144 / 116 plateaus > 5e-4 rad on seeds 1000 /
-        2000, p95 1.85e-3 vs 1.32e-3 rad on seed 1000), and the first stairs that let the valve go while the
-        kick still raised the twist went 2 -> 9 on seeds 1000-1039: off by default.)"""
+        2000, p95 1.85e-3 vs 1.32e-3 rad on seed 1000; the first stairs that let the valve go while the kick
+        still raised the twist 9 vs 6 on the 80 runs): off by default.)"""
         cfg = self.cfg
         first = self._first_stair and cfg.first_kick_fraction != 1.0   # its own kick: its own rise
         seen = self._rise_seen[1 if first else 0]
