@@ -776,3 +776,81 @@ def test_a_longer_whole_current_retreat_is_an_option(direction):
     assert out[-4] == pytest.approx(hold + direction * ps["fine.kick_current_a"] * kt)
     assert out[-3] == pytest.approx(max(min(hold - direction * cap, cap), -cap)) == pytest.approx(out[-2])
     assert out[-1] == pytest.approx(max(min(hold - direction * 0.5 * cap, cap), -cap))
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_learned_kick_rise_puts_each_apex_on_its_planned_stair(direction):
+    """``fine.learn_kick_rise`` (off by default: measured, task h22f): the preload is planned below the
+    stair's apex by the twist the stage's own unmoved doublets rose above their preload (nominal box:
+    0.28-0.30e-3 rad) instead of ``fine.kick_rise_rad`` (0.15e-3), so from the second stair on each apex
+    lies on the planned stair -- the learned breakaway less the stair -- instead of the rise's excess
+    above it; without the option every apex lies that excess above its stair."""
+    rise = 2.8e-4
+    p, err = None, None
+
+    def staircase(fine, m):
+        nonlocal p, err
+        p = m.pressure_max_kpa
+        err = direction * 0.9 * fine.cfg.doublet_max_error_rad
+        thl = 0.5
+        th1 = thl + _rest_twist(fine, thl, p)
+        _break_loose(fine, thl, p)
+        rows, stair, engaged = [], None, False
+        for _ in range(3000):
+            phase = fine.phase
+            engaged = engaged or phase != "idle"
+            if phase == "park":
+                th1 = thl + fine._pre
+            elif phase in ("pulse", "observe"):
+                th1 = thl + fine._pre + direction * rise
+            if phase == "pulse" and stair is None:
+                stair = fine._stair
+            fine.update(thl + err, th1, thl, True, 0.3, p)
+            if phase == "observe" and fine.phase != "observe":
+                rows.append((fine._peak_seen, stair))
+                stair = None
+            if len(rows) >= 5 or engaged and fine.phase in ("hold", "idle") or fine._climbed_out:
+                break
+        assert len(rows) >= 5
+        phi_b = fine._twists(thl, p, direction)[1]
+        return [direction * (phi_b - apex) - s for apex, s in rows]   # apex below its planned stair, rad
+
+    learned = staircase(*_stage(**{"fine.learn_kick_rise": True}))
+    plain_fine, m = _stage()
+    plain = staircase(plain_fine, m)
+    excess = rise - plain_fine.cfg.kick_rise_rad
+    assert all(x == pytest.approx(-excess, abs=1e-9) for x in plain)
+    assert learned[0] == pytest.approx(-excess, abs=1e-9)          # the first kick: nothing seen yet
+    assert all(x == pytest.approx(0.0, abs=1e-9) for x in learned[1:]), (learned, plain)
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_first_stair_may_kick_smaller_and_the_next_stairs_kick_whole(direction):
+    """``fine.first_kick_fraction`` (1 by default: measured, task h22f): a staircase's first stair kicks
+    with that fraction of ``fine.kick_current_a`` (a level drawn just above the first preload let the valve
+    go while the whole kick still raised the twist: moves 0.3-2.0e-3 rad, nominal box), its preload that
+    fraction of ``fine.kick_rise_rad`` below its apex; the stairs after it kick with the whole current."""
+    ps = CONTROLLER_SPEC.defaults()
+    frac = 0.5
+    fine, m = _stage(**{"fine.first_kick_fraction": frac})
+    kt = m.torque_constant_nm_per_a
+    p = m.pressure_max_kpa
+    out = _torques_until_observe(fine, direction * 0.5 * ps["fine.doublet_max_error_rad"], p)
+    assert fine._first_stair
+    assert out[-3] - out[-4] == pytest.approx(direction * frac * ps["fine.kick_current_a"] * kt)
+    phi_b = fine._twists(0.5, p, direction)[1]
+    assert direction * (phi_b - fine._pre) == pytest.approx(frac * ps["fine.kick_rise_rad"] + fine._stair)
+    # the valve stays: the next stair kicks with the whole current
+    thl, err = 0.5, direction * 0.5 * ps["fine.doublet_max_error_rad"]
+    kicks, prev = [], None
+    for _ in range(400):
+        phase = fine.phase
+        th1 = thl + (fine._pre if phase == "park" else fine._final)
+        tq = fine.update(thl + err, th1, thl, True, 0.3, p)
+        if phase == "pulse" and fine._k == 1:
+            kicks.append(tq - prev)
+        prev = tq
+        if len(kicks) >= 1:
+            break
+    assert not fine._first_stair
+    assert kicks[0] == pytest.approx(direction * ps["fine.kick_current_a"] * kt)

@@ -318,6 +318,9 @@ class FineConfig:
     retreat_full_periods: int = 1  # doublet: periods of the whole current backwards after the kick (then one of half)
     cold_start: bool = False      # engage before any breakaway was seen, judging the valve by the stage's own
                                   # first doublets (:meth:`FinePositioner._cold_ready`)
+    learn_kick_rise: bool = False  # doublet: plan each preload against the kick's rise learned from the stage's
+                                   # own apexes (:meth:`FinePositioner._kick_rise`) instead of ``kick_rise_rad``
+    first_kick_fraction: float = 1.0  # doublet: a staircase's first stair kicks with this fraction of kick_current_a
 
 
 class FinePositioner:
@@ -353,6 +356,10 @@ class FinePositioner:
         self._new_plateau()
         self._stair = None
         self._stair_step = 0.0        # the last stair's climb, rad of twist (the level lies within it below the apex)
+        self._rise_seen = [0.0, 0.0]  # mean twist a doublet's kick raised above its planned preload, rad (0: none
+                                      # yet), [later stairs, a staircase's first stair]
+        self._first_stair = False     # this doublet is its staircase's first stair
+        self._kick_apex = 0.0         # the largest twist since this pulse left its preload, rad
         self._cold = False            # engaged before any breakaway was seen: doublets only, until the first
         self._judged = None           # (direction, band) of an engagement whose outcome is not yet judged
         self._osc, self._osc_sign = 0.0, 0   # the servo's limit-cycle watch (leaky count of reversals)
@@ -588,10 +595,11 @@ class FinePositioner:
             # current, so the valve breaks loose while the gear output is already turning back
             # ... and starts a staircase ``_stair`` below the learned breakaway: the level is
             # drawn anew at every stop, and one that breaks while preloading jumps the whole way
+            self._first_stair = self._stair is None
             if self._stair is None:
                 self._stair = cfg.doublet_sigmas * self._scatter(d, band, gap)
                 self._stair_step = cfg.doublet_probe_step * self._nominal_gap(thl, pressure_kpa, d)
-            self._pre = phi_b - d * (cfg.kick_rise_rad + self._stair)
+            self._pre = phi_b - d * (self._kick_rise() + self._stair)
         self._plan_park()
         self.phase = PARK
         self._peak_seen = th1 - thl
@@ -638,6 +646,8 @@ class FinePositioner:
     def _track_peak(self, phi: float) -> None:
         if self._dir * phi > self._dir * self._peak_seen:
             self._peak_seen = phi
+        if self.phase in (PULSE, OBSERVE) and self._dir * phi > self._dir * self._kick_apex:
+            self._kick_apex = phi
 
     def _servo(self, th1_ref, a_ref, th1, w1, thl, v_ref=0.0):
         """Torque holding the gear output on ``th1_ref`` (feed-forward: the engage torque plus
@@ -688,6 +698,7 @@ class FinePositioner:
             x, v, a = self._park_ref(self._k)
             if self._k >= self._park_n + 2:
                 self.phase, self._k = PULSE, 0
+                self._kick_apex = th1 - thl       # the kick's apex is tracked from the preload reached
             if self._dir * (thl - self._thl0) < -2.0 * cfg.tolerance_rad or (
                     self._anchor is not None and self._dir * (thl - self._anchor[0]) < -2.0 * cfg.tolerance_rad):
                 # (h21h) the second reading: from the furthest start toward the target since the
@@ -745,6 +756,22 @@ class FinePositioner:
         # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
 
+    def _kick_rise(self) -> float:
+        """The twist (rad, >= 0) the doublet's kick raises above its preload, as the preload is planned
+        below the apex: ``fine.kick_rise_rad``, or with ``fine.learn_kick_rise`` the mean rise the stage's
+        own unmoved doublets reached above their planned preload once one was seen.  (Nominal box, task
+        h22f: every unmoved doublet's kick of 4 A rose 0.28-0.30e-3 rad above its preload, where 0.15e-3 is
+        planned -- each apex lay ~0.13e-3 above the stair the plan put it on.  Learned, the whole staircase
+        lies that much lower; measured no better (121 / 124 vs 144 / 116 plateaus > 5e-4 rad on seeds 1000 /
+        2000, p95 1.85e-3 vs 1.32e-3 rad on seed 1000; the first stairs that let the valve go while the kick
+        still raised the twist 9 vs 6 on the 80 runs): off by default.)"""
+        cfg = self.cfg
+        first = self._first_stair and cfg.first_kick_fraction != 1.0   # its own kick: its own rise
+        seen = self._rise_seen[1 if first else 0]
+        if cfg.learn_kick_rise and seen > 0.0:
+            return seen
+        return cfg.kick_rise_rad * (cfg.first_kick_fraction if first else 1.0)
+
     def _doublet_torque(self) -> float:
         """The doublet's torque in its period ``_k`` (1: kick; then ``fine.retreat_full_periods`` of the
         whole current backwards and one of half of it), N*m.  The valve lets go at the end of the first
@@ -757,7 +784,9 @@ class FinePositioner:
         kt = self.m.torque_constant_nm_per_a
         cap = cfg.peak_current_a * kt
         if self._k == 1:
-            torque = self._hold_torque + d * cfg.kick_current_a * kt
+            # (a first stair's kick may be smaller: ``fine.first_kick_fraction``)
+            kick = cfg.kick_current_a * (cfg.first_kick_fraction if self._first_stair else 1.0)
+            torque = self._hold_torque + d * kick * kt
         elif self._k <= 1 + max(cfg.retreat_full_periods, 1):
             torque = self._hold_torque - d * cap
         else:
@@ -938,6 +967,13 @@ class FinePositioner:
         elif pulsed:
             # the pulse did not move it: breakaway lies beyond the peak reached
             if self._doublet and self._stair is not None:
+                # the kick's rise above the planned preload, seen where the valve stayed (a valve that
+                # let go cuts the rise short): a sample of the twist the next kick will add
+                rise = d * (self._kick_apex - self._pre)
+                i = 1 if self._first_stair and cfg.first_kick_fraction != 1.0 else 0
+                if rise > 0.0:
+                    cur = self._rise_seen[i]
+                    self._rise_seen[i] = rise if cur <= 0.0 else cur + MOVE_GAIN * (rise - cur)
                 # climb the staircase, on past the learned breakaway if need be (the level found
                 # is learned from the doublet that breaks it loose), in small steps: each 1e-4 rad
                 # of overdrive adds ~4e-4 rad to the move.  (Steps of 0.3 x the way left to the
@@ -945,7 +981,7 @@ class FinePositioner:
                 # doublets but made larger moves: nominal box 40 runs, 2-3 runs hunting vs 0.)
                 self._stair_step = self._fitting_stair(self._target - thl, pressure_kpa, gap0)
                 self._stair -= self._stair_step
-                if d * curb - (cfg.kick_rise_rad + self._stair) > self._plausible_offset_rad(pressure_kpa):
+                if d * curb - (self._kick_rise() + self._stair) > self._plausible_offset_rad(pressure_kpa):
                     # the next stair's preload would lie beyond the nominal breakaway b0 by more
                     # than any plausible learned offset (:meth:`_plausible`): it is not this valve
                     self._climbed_out = True

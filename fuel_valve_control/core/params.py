@@ -301,6 +301,17 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "whole period cuts the bare plant's smallest move 0.74 -> 0.68e-3 rad, but in closed loop the servo's rebound "
           "from the deeper swing broke valves loose for whole jumps: nominal box 139 vs 67 plateaus > 8e-4 rad, task "
           "h22m)", 1, 3, runtime=True),
+    Param("fine.learn_kick_rise", False, "", "doublet: plan each preload below its stair's apex by the twist the "
+          "kick was seen to add above the preload (the mean over the stage's own unmoved doublets) instead of "
+          "fine.kick_rise_rad (nominal box: 0.28-0.30e-3 rad seen where 0.15e-3 is planned; on, measured no better: "
+          "121 / 124 vs 144 / 116 plateaus > 5e-4, 63 / 51 vs 67 / 50 > 8e-4 rad on seeds 1000 / 2000, p95 1.85e-3 vs "
+          "1.32e-3 on seed 1000; first stairs letting go during the kick's rise 9 vs 6 on 80 runs, task h22f)", runtime=True),
+    Param("fine.first_kick_fraction", 1.0, "", "doublet: a staircase's first stair kicks with this fraction of "
+          "fine.kick_current_a, its preload planned that fraction of fine.kick_rise_rad (or with fine.learn_kick_rise "
+          "the rise its own first stairs were seen to reach) below its apex (1 = the same kick on every stair; 0.5 with "
+          "fine.learn_kick_rise measured worse on the nominal box: 71 / 62 vs 67 / 50 plateaus > 8e-4 rad on seeds "
+          "1000 / 2000, task h22f)",
+          0.0, 1.0, runtime=True),
     Param("fine.doublet_sigmas", 2.0, "", "doublet: after each stop the first apex lies this many learned rms "
           "scatters of the breakaway twist below the learned breakaway", 0.0, 10.0, runtime=True),
     Param("fine.scatter_gain", 0.2, "", "weight of each breakaway sample (the main law's from rest, a doublet's) "
