@@ -165,6 +165,10 @@ class ValveDriver:
         self._late_t: float | None = None
         self._late_why = ""
         self.late_loop_events = 0
+        #: age of the latest resolver sample when it arrived (arrival minus stamp, s; None: not
+        #: known, offline) and the loop time the drive last reported itself enabled (diagnostics)
+        self._sample_age: float | None = None
+        self._enabled_since: float | None = None
         self._stalled = False
         #: the drive's state word (:meth:`drive_status`): None until a drive reports one (then
         #: the reports, not the loop gap, say when the drive switched itself off)
@@ -401,6 +405,7 @@ class ValveDriver:
         self._meas_bad = None
         self._meas = Measurement(float(motor_rad), float(valve_rad))
         self._meas_t = t
+        self._sample_age = None if now is None else now - t
         self._recent.append((t, float(valve_rad)))
 
     def loop_timing(self, stamp: float, now: float) -> None:
@@ -580,6 +585,8 @@ class ValveDriver:
         if state not in DRIVE_STATE_NAMES:
             self._latch(DRIVE_FAULT, f"drive reports an unknown state {state!r}")
             return
+        if state == DRIVE_STATE_ENABLED and self.drive_state != DRIVE_STATE_ENABLED:
+            self._enabled_since = t
         self.drive_state = state
         if state == DRIVE_STATE_WATCHDOG and self._armed:
             self._drive_tripped = True
@@ -793,7 +800,8 @@ class ValveDriver:
         if self._twist_time > ps["faults.resolver_disagreement_time_s"]:
             self._latch(RESOLVER_IMPLAUSIBLE, f"motor/valve resolver disagreement {twist:.4f} rad not explained by "
                                               f"the applied {applied:.1f} A ({low:.4f}..{high:.4f} rad) for "
-                                              f"{self._twist_time:.2f} s (net): a resolver has failed")
+                                              f"{self._twist_time:.2f} s (net): a resolver has failed"
+                                              f" [{self._twist_context(t)}]")
         if self.controller.overload_time > ps["faults.i2t_fault_time_s"]:
             self._latch(OVERCURRENT, f"I2t budget exhausted and more than "
                                      f"{ps['limits.continuous_current_a']:g} A requested for "
@@ -811,6 +819,20 @@ class ValveDriver:
         self.last = DriverOutput(current, True, "holding" if holding else "running", self._demand_pct,
                                  position_pct, {}, dict(self.warnings), reenable=reenable)
         return self.last
+
+    def _twist_context(self, t: float) -> str:
+        """What the loop knew when the twist check latched (diagnostics in its message): the
+        drive's reported state and since when, the sample's age, the loop's lateness, re-arms."""
+        state = DRIVE_STATE_NAMES.get(self.drive_state, "unreported")
+        parts = [f"drive {state}"]
+        if self._enabled_since is not None:
+            parts.append(f"enabled for {(t - self._enabled_since) * 1e3:.0f} ms")
+        if self._sample_age is not None:
+            parts.append(f"sample age {self._sample_age * 1e3:.1f} ms")
+        if self._late_t is not None:
+            parts.append(f"late {(t - self._late_t) * 1e3:.0f} ms ago ({self._late_why}; {self.late_loop_events} late)")
+        parts.append(f"{self.stall_rearms} re-arms")
+        return ", ".join(parts)
 
     def _valve_at_rest(self) -> bool:
         """The valve may be re-armed: over the latest :data:`REST_WINDOW_SAMPLES` resolver
