@@ -248,6 +248,11 @@ def test_an_unloaded_coupling_under_current_is_a_drive_that_applies_nothing_not_
     _assert_failsafe(out, D.DRIVE_FAULT)
     assert D.RESOLVER_IMPLAUSIBLE not in out.faults, out.faults
     assert "applies no torque" in out.faults[D.DRIVE_FAULT]
+    rig.run(D.RESET_QUIET_S)
+    assert rig.d.reset()[0]                              # a reset starts the run of re-enables afresh
+    rig.d.drive_status(rig.t, contract.DRIVE_STATE_ENABLED)
+    out = rig.run(0.3)
+    assert not out.faults and out.enable and rig.d.silent_drive_offs > D.DRIVE_BACK_ATTEMPTS, out.faults
     # a drive that does not report its state (the offline simulator's) keeps the resolver verdict
     rig = Rig(**{"faults.resolver_disagreement_margin_rad": PS["faults.resolver_disagreement_margin_rad"]})
     rig.demand, rig.valve = 60.0, 0.30 * STROKE_RAD

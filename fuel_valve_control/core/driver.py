@@ -654,6 +654,7 @@ class ValveDriver:
         if self.friction_check is not None:
             self.friction_check.reset()
         self._tracking_time = self._twist_time = 0.0
+        self._silent_offs, self._t_silent_off = 0, None     # a run of unloaded-coupling re-enables ends
         self.controller.reset_limits()
         self.controller.reset_learning()        # nothing learned before the fault outlives it
         return True, ("cleared: " + ", ".join(cleared)) if cleared else "nothing to clear"
