@@ -35,6 +35,12 @@ def _plant_status(probe):
     return probe.status("plant: loop")
 
 
+def _plant_values(probe) -> dict:
+    """The plant's loop diagnostics (watchdog trips, missed periods, ...) as a dict."""
+    st = _plant_status(probe)
+    return {} if st is None else {kv.key: kv.value for kv in st.values}
+
+
 def _level(st):
     return None if st is None else (st.level[0] if isinstance(st.level, bytes) else int(st.level))
 
@@ -203,7 +209,7 @@ def test_short_controller_stalls_at_a_hold_the_drive_reports_and_the_controller_
         # this test is about.  Suspected, not verified: Fast DDS's shared-memory port health check
         # (healthy_check_timeout_ms, 1000 ms by default) against a process that SIGSTOP keeps from
         # answering.  Tolerated once; any other fault, or the silence twice, fails.
-        assert "no resolver sample" in fault, fault
+        assert "no resolver sample" in fault, (fault, _plant_values(probe))
     else:
         pytest.fail(f"the controller latched a resolver silence after a SIGSTOP in both attempts: {fault}")
     # a loaded machine also trips the watchdog on its own (and a stall may land between two
@@ -212,7 +218,9 @@ def test_short_controller_stalls_at_a_hold_the_drive_reports_and_the_controller_
     time.sleep(0.5)
     valve = [v for _, v in _truth_since(probe, mono)]
     peak_pct = 100.0 * max(valve) / STROKE_RAD
-    print(f"{trips} drive watchdog trips from 12 ms controller stalls at a {demand} % hold: peak {peak_pct:.2f} %")
+    plant = _plant_values(probe)
+    print(f"{trips} drive watchdog trips from 12 ms controller stalls at a {demand} % hold: peak {peak_pct:.2f} % "
+          f"(plant: {plant.get('watchdog_trips')} watchdog trips, missed fraction {plant.get('missed_fraction')})")
     assert peak_pct <= demand + 2.0, peak_pct
     values = probe.driver_values()
     assert int(values["stall_rearms"]) >= trips, values.get("stall_rearms")

@@ -98,6 +98,13 @@ DRIVE_BACK_TIMEOUT_S = 0.1
 #: average 10) it commanded 15 A into a switched-off drive while the spring closed the valve,
 #: and the twist check then latched "a resolver has failed" -- safe, but a false diagnosis
 DRIVE_BACK_ATTEMPTS = 5
+#: a drive that reports itself on while the coupling shows no torque is re-armed and re-enabled
+#: (:meth:`ValveDriver._step`); such events less than this apart, s, count as one run, and
+#: DRIVE_BACK_ATTEMPTS in a run latch DRIVE_FAULT.  Each event takes the twist check's
+#: ``faults.resolver_disagreement_time_s`` (0.1 s) of an unloaded coupling: a drive that
+#: never applies torque latches within about half a second, a host that loses a trip report
+#: now and then does not
+SILENT_OFF_RUN_S = 1.0
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
 #: warning code of a measured Δp that disagrees with the valve friction met (friction_check.py)
@@ -165,6 +172,16 @@ class ValveDriver:
         self._late_t: float | None = None
         self._late_why = ""
         self.late_loop_events = 0
+        #: times the twist check found an unloaded coupling under a commanded current while the
+        #: drive reported itself on (handled as an unreported watchdog trip; diagnostics), and
+        #: the latest one's loop time and how many came in a row (:data:`SILENT_OFF_RUN_S`)
+        self.silent_drive_offs = 0
+        self._t_silent_off: float | None = None
+        self._silent_offs = 0
+        #: age of the latest resolver sample when it arrived (arrival minus stamp, s; None: not
+        #: known, offline) and the loop time the drive last reported itself enabled (diagnostics)
+        self._sample_age: float | None = None
+        self._enabled_since: float | None = None
         self._stalled = False
         #: the drive's state word (:meth:`drive_status`): None until a drive reports one (then
         #: the reports, not the loop gap, say when the drive switched itself off)
@@ -401,6 +418,7 @@ class ValveDriver:
         self._meas_bad = None
         self._meas = Measurement(float(motor_rad), float(valve_rad))
         self._meas_t = t
+        self._sample_age = None if now is None else now - t
         self._recent.append((t, float(valve_rad)))
 
     def loop_timing(self, stamp: float, now: float) -> None:
@@ -580,6 +598,8 @@ class ValveDriver:
         if state not in DRIVE_STATE_NAMES:
             self._latch(DRIVE_FAULT, f"drive reports an unknown state {state!r}")
             return
+        if state == DRIVE_STATE_ENABLED and self.drive_state != DRIVE_STATE_ENABLED:
+            self._enabled_since = t
         self.drive_state = state
         if state == DRIVE_STATE_WATCHDOG and self._armed:
             self._drive_tripped = True
@@ -634,6 +654,7 @@ class ValveDriver:
         if self.friction_check is not None:
             self.friction_check.reset()
         self._tracking_time = self._twist_time = 0.0
+        self._silent_offs, self._t_silent_off = 0, None     # a run of unloaded-coupling re-enables ends
         self.controller.reset_limits()
         self.controller.reset_learning()        # nothing learned before the fault outlives it
         return True, ("cleared: " + ", ".join(cleared)) if cleared else "nothing to clear"
@@ -790,10 +811,35 @@ class ValveDriver:
             self._twist_time = max(self._twist_time + (dt if off else -dt), 0.0)
         # else: the drive reports itself off, so the commanded current is not the applied one
         # and the twist is no evidence about the resolvers (the count is held)
+        if self._twist_time > ps["faults.resolver_disagreement_time_s"] and self.drive_state is not None \
+                and self.twist_limits(0.0)[0] <= twist <= self.twist_limits(0.0)[1]:
+            # an unloaded coupling under a commanded current: what a drive that applies nothing
+            # looks like, not a failed resolver.  A drive that reports its state said it was on:
+            # its trip report is late or lost (under CPU load a reliable sample delayed behind a
+            # starved reader; the stop-18 stall test latched "disagreement 0.0004 rad not
+            # explained by the applied 15.0 A" with the valve dropped by the spring and the law
+            # at the I2t limit).  Handled as the watchdog trip it most likely is: re-armed
+            # from the measurement and re-enabled (the drive answers the enable with its state
+            # word).  A drive that keeps applying nothing after DRIVE_BACK_ATTEMPTS of these
+            # in a row is a drive fault (a lost phase, a drive ignoring its set-point)
+            if self._t_silent_off is not None and t - self._t_silent_off < SILENT_OFF_RUN_S:
+                self._silent_offs += 1
+            else:
+                self._silent_offs = 1
+            self._t_silent_off = t
+            self.silent_drive_offs += 1
+            if self._silent_offs >= DRIVE_BACK_ATTEMPTS:
+                self._latch(DRIVE_FAULT, f"the drive reports itself on but applies no torque: coupling twist "
+                                         f"{twist:.4f} rad at {applied:.1f} A ({low:.4f}..{high:.4f} rad), "
+                                         f"{self._silent_offs} re-enables in a row [{self._twist_context(t)}]")
+            else:
+                self._drive_tripped = True        # next period: re-armed and re-enabled
+            self._twist_time = 0.0
         if self._twist_time > ps["faults.resolver_disagreement_time_s"]:
             self._latch(RESOLVER_IMPLAUSIBLE, f"motor/valve resolver disagreement {twist:.4f} rad not explained by "
                                               f"the applied {applied:.1f} A ({low:.4f}..{high:.4f} rad) for "
-                                              f"{self._twist_time:.2f} s (net): a resolver has failed")
+                                              f"{self._twist_time:.2f} s (net): a resolver has failed"
+                                              f" [{self._twist_context(t)}]")
         if self.controller.overload_time > ps["faults.i2t_fault_time_s"]:
             self._latch(OVERCURRENT, f"I2t budget exhausted and more than "
                                      f"{ps['limits.continuous_current_a']:g} A requested for "
@@ -811,6 +857,20 @@ class ValveDriver:
         self.last = DriverOutput(current, True, "holding" if holding else "running", self._demand_pct,
                                  position_pct, {}, dict(self.warnings), reenable=reenable)
         return self.last
+
+    def _twist_context(self, t: float) -> str:
+        """What the loop knew when the twist check latched (diagnostics in its message): the
+        drive's reported state and since when, the sample's age, the loop's lateness, re-arms."""
+        state = DRIVE_STATE_NAMES.get(self.drive_state, "unreported")
+        parts = [f"drive {state}"]
+        if self._enabled_since is not None:
+            parts.append(f"enabled for {(t - self._enabled_since) * 1e3:.0f} ms")
+        if self._sample_age is not None:
+            parts.append(f"sample age {self._sample_age * 1e3:.1f} ms")
+        if self._late_t is not None:
+            parts.append(f"late {(t - self._late_t) * 1e3:.0f} ms ago ({self._late_why}; {self.late_loop_events} late)")
+        parts.append(f"{self.stall_rearms} re-arms")
+        return ", ".join(parts)
 
     def _valve_at_rest(self) -> bool:
         """The valve may be re-armed: over the latest :data:`REST_WINDOW_SAMPLES` resolver
@@ -904,6 +964,7 @@ class ValveDriver:
                                    else self.friction_check.ratio(self._scheduled_kpa)),
             "i2t_budget_used": self.controller.i2t_budget_fraction,
             "stall_rearms": self.stall_rearms,
+            "silent_drive_offs": self.silent_drive_offs,
             "late_loop_events": self.late_loop_events,
             "fine_stage_aside": self._stage_aside(self._t) if self._t is not None else "",
             "drive_state": "unreported" if self.drive_state is None else DRIVE_STATE_NAMES[self.drive_state],
