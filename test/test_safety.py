@@ -224,42 +224,6 @@ def test_the_twist_check_is_held_while_the_drive_reports_itself_off(monkeypatch)
     _assert_failsafe(rig.run(0.3), D.RESOLVER_IMPLAUSIBLE)
 
 
-def test_an_unloaded_coupling_under_current_is_a_drive_that_applies_nothing_not_a_failed_resolver():
-    # stop 18, the stall test under CPU load: the drive had switched itself off but its trip
-    # report had not reached the loop, which kept commanding (up to the I2t limit, 15 A) a
-    # valve the spring closed; the coupling carried no torque and the twist check latched "a
-    # resolver has failed".  An unloaded coupling is what a drive applying nothing looks like:
-    # the loop re-arms and re-enables (a drive answers with its state word), and only a drive
-    # that keeps applying nothing becomes a fault -- the drive's, not the resolvers'
-    rig = Rig(**{"faults.resolver_disagreement_margin_rad": PS["faults.resolver_disagreement_margin_rad"]})
-    rig.d.drive_status(rig.t, contract.DRIVE_STATE_ENABLED)
-    rig.demand, rig.valve = 60.0, 0.30 * STROKE_RAD      # rigid rig: twist 0 whatever the current
-    rig.healthy()
-    reenables = 0
-    out = None
-    for _ in range(int(0.3 / T)):                        # the first event: re-armed, re-enabled
-        out = rig.run(T)
-        reenables += out.reenable
-        if out.faults or reenables:
-            break
-    assert not out.faults and reenables == 1 and out.enable, out.faults
-    assert rig.d.silent_drive_offs == 1 and rig.d.stall_rearms == 1
-    out = rig.run(2.0)                                   # it goes on applying nothing
-    _assert_failsafe(out, D.DRIVE_FAULT)
-    assert D.RESOLVER_IMPLAUSIBLE not in out.faults, out.faults
-    assert "applies no torque" in out.faults[D.DRIVE_FAULT]
-    rig.run(D.RESET_QUIET_S)
-    assert rig.d.reset()[0]                              # a reset starts the run of re-enables afresh
-    rig.d.drive_status(rig.t, contract.DRIVE_STATE_ENABLED)
-    out = rig.run(0.3)
-    assert not out.faults and out.enable and rig.d.silent_drive_offs > D.DRIVE_BACK_ATTEMPTS, out.faults
-    # a drive that does not report its state (the offline simulator's) keeps the resolver verdict
-    rig = Rig(**{"faults.resolver_disagreement_margin_rad": PS["faults.resolver_disagreement_margin_rad"]})
-    rig.demand, rig.valve = 60.0, 0.30 * STROKE_RAD
-    rig.healthy()
-    _assert_failsafe(rig.run(0.5), D.RESOLVER_IMPLAUSIBLE)
-
-
 def test_tracking_error_that_dips_under_the_limit_still_latches():
     # issue 13.3: the timer restarted whenever the error dipped; a valve swinging around the
     # demand (a failed sensor) never tripped.  Beyond the limit 80 % of the time -> latches.

@@ -98,13 +98,6 @@ DRIVE_BACK_TIMEOUT_S = 0.1
 #: average 10) it commanded 15 A into a switched-off drive while the spring closed the valve,
 #: and the twist check then latched "a resolver has failed" -- safe, but a false diagnosis
 DRIVE_BACK_ATTEMPTS = 5
-#: a drive that reports itself on while the coupling shows no torque is re-armed and re-enabled
-#: (:meth:`ValveDriver._step`); such events less than this apart, s, count as one run, and
-#: DRIVE_BACK_ATTEMPTS in a run latch DRIVE_FAULT.  Each event takes the twist check's
-#: ``faults.resolver_disagreement_time_s`` (0.1 s) of an unloaded coupling: a drive that
-#: never applies torque latches within about half a second, a host that loses a trip report
-#: now and then does not
-SILENT_OFF_RUN_S = 1.0
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
 #: warning code of a measured Δp that disagrees with the valve friction met (friction_check.py)
@@ -172,12 +165,6 @@ class ValveDriver:
         self._late_t: float | None = None
         self._late_why = ""
         self.late_loop_events = 0
-        #: times the twist check found an unloaded coupling under a commanded current while the
-        #: drive reported itself on (handled as an unreported watchdog trip; diagnostics), and
-        #: the latest one's loop time and how many came in a row (:data:`SILENT_OFF_RUN_S`)
-        self.silent_drive_offs = 0
-        self._t_silent_off: float | None = None
-        self._silent_offs = 0
         #: age of the latest resolver sample when it arrived (arrival minus stamp, s; None: not
         #: known, offline) and the loop time the drive last reported itself enabled (diagnostics)
         self._sample_age: float | None = None
@@ -654,7 +641,6 @@ class ValveDriver:
         if self.friction_check is not None:
             self.friction_check.reset()
         self._tracking_time = self._twist_time = 0.0
-        self._silent_offs, self._t_silent_off = 0, None     # a run of unloaded-coupling re-enables ends
         self.controller.reset_limits()
         self.controller.reset_learning()        # nothing learned before the fault outlives it
         return True, ("cleared: " + ", ".join(cleared)) if cleared else "nothing to clear"
@@ -811,30 +797,6 @@ class ValveDriver:
             self._twist_time = max(self._twist_time + (dt if off else -dt), 0.0)
         # else: the drive reports itself off, so the commanded current is not the applied one
         # and the twist is no evidence about the resolvers (the count is held)
-        if self._twist_time > ps["faults.resolver_disagreement_time_s"] and self.drive_state is not None \
-                and self.twist_limits(0.0)[0] <= twist <= self.twist_limits(0.0)[1]:
-            # an unloaded coupling under a commanded current: what a drive that applies nothing
-            # looks like, not a failed resolver.  A drive that reports its state said it was on:
-            # its trip report is late or lost (under CPU load a reliable sample delayed behind a
-            # starved reader; the stop-18 stall test latched "disagreement 0.0004 rad not
-            # explained by the applied 15.0 A" with the valve dropped by the spring and the law
-            # at the I2t limit).  Handled as the watchdog trip it most likely is: re-armed
-            # from the measurement and re-enabled (the drive answers the enable with its state
-            # word).  A drive that keeps applying nothing after DRIVE_BACK_ATTEMPTS of these
-            # in a row is a drive fault (a lost phase, a drive ignoring its set-point)
-            if self._t_silent_off is not None and t - self._t_silent_off < SILENT_OFF_RUN_S:
-                self._silent_offs += 1
-            else:
-                self._silent_offs = 1
-            self._t_silent_off = t
-            self.silent_drive_offs += 1
-            if self._silent_offs >= DRIVE_BACK_ATTEMPTS:
-                self._latch(DRIVE_FAULT, f"the drive reports itself on but applies no torque: coupling twist "
-                                         f"{twist:.4f} rad at {applied:.1f} A ({low:.4f}..{high:.4f} rad), "
-                                         f"{self._silent_offs} re-enables in a row [{self._twist_context(t)}]")
-            else:
-                self._drive_tripped = True        # next period: re-armed and re-enabled
-            self._twist_time = 0.0
         if self._twist_time > ps["faults.resolver_disagreement_time_s"]:
             self._latch(RESOLVER_IMPLAUSIBLE, f"motor/valve resolver disagreement {twist:.4f} rad not explained by "
                                               f"the applied {applied:.1f} A ({low:.4f}..{high:.4f} rad) for "
@@ -964,7 +926,6 @@ class ValveDriver:
                                    else self.friction_check.ratio(self._scheduled_kpa)),
             "i2t_budget_used": self.controller.i2t_budget_fraction,
             "stall_rearms": self.stall_rearms,
-            "silent_drive_offs": self.silent_drive_offs,
             "late_loop_events": self.late_loop_events,
             "fine_stage_aside": self._stage_aside(self._t) if self._t is not None else "",
             "drive_state": "unreported" if self.drive_state is None else DRIVE_STATE_NAMES[self.drive_state],
