@@ -40,6 +40,10 @@ class IntegralPolicy:
     relax_time_s: float = 0.0          # time constant of relaxing a settled drive (0 = off)
     load_limit_nm: float = 0.0         # bound of the learned steady load (valve side, N*m)
     load_static_fraction: float = 0.5  # a slip while relaxing puts the load this fraction of Ts beyond it
+    #: h23h: give the stuck ramp's static-Coulomb surplus back at breakaway in observer_ff /
+    #: observer_fp too, on valves whose swing cannot arrest itself against it
+    #: (StateFeedbackLaw.SWING_ARREST_RATIO; never the nominal valve)
+    relieve_unarrested_swing: bool = False
 
     @property
     def settle_time_s(self) -> float:

@@ -159,6 +159,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           runtime=True),
     Param("integral.relax_time_s", 0.3, "s", "time constant with which a settled, stuck valve's drive "
           "relaxes to the middle of the static-friction band (0 = off)", 0.0, 100.0, runtime=True),
+    Param("integral.relieve_unarrested_swing", False, "", "observer_ff, observer_fp: on a valve whose stick-slip "
+          "swing cannot stop itself while the drive stays at the breakaway torque (valve inertia / motor inertia "
+          "at the gear output > 0.2172; nominal 0.11, never on), give the stuck ramp's static-Coulomb surplus back "
+          "once the valve breaks away (docs/control_results.md section 38: JL x3 startup worst plateau 4.6e-3 -> "
+          "4.8e-4 rad, but its observer_fp campaign p95 1.4e-3 -> 2.4e-3: off)"),
     Param("integral.deadband_min_rad", 2.9e-4, "rad", "smallest deadband (3 valve resolver counts)",
           0.0, 0.05, runtime=True),
     # --- the drive's supply (planned moves are designed for it, core/design.design_trajectory)

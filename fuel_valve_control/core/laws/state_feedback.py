@@ -52,6 +52,15 @@ class StateFeedbackLaw(ControlLaw):
     #: relaxing drive's (:meth:`update`): twice the speed window a slip is read through (a relax
     #: slip that carries the valve beyond the deadband is read within ~3 periods of its start)
     INTEGRATOR_DRIVEN_PERIODS = 10
+    #: JL / J1 above which a valve's stick-slip swing does not stop by itself while the drive
+    #: stays at the breakaway torque (h23h).  Two masses (gear output J1, valve JL) on the
+    #: coupling, the drive held at Ts, the sliding valve's friction Tc: the pair's centre
+    #: accelerates at (Ts - Tc) / (J1 + JL) while the coupling swings; the valve's speed
+    #: ``∝ c s + sin s`` (s = ω t, c = JL / J1) returns to zero only if c is below the tangent
+    #: value -cos(s0), tan s0 = s0 (s0 = 4.4934): 0.2172.  Nominal valve 0.11 (arrests after
+    #: 6.4 ms, 3.75e-3 rad ≈ the quasi-static 2 (Ts - Tc) / K); JL x3 0.33 (no arrest: the
+    #: slide ran 1.07e-2 rad for a 3.6e-3 rad error until the position loop took it back)
+    SWING_ARREST_RATIO = 0.2172
 
     def __init__(self, name: str, model: NominalModel, period_s: float, feedback: StateFeedback,
                  observer_gain: np.ndarray, shaper: TrajectoryShaper, integral: IntegralPolicy,
@@ -69,6 +78,12 @@ class StateFeedbackLaw(ControlLaw):
         #: the fine stage never engaged and observer_ff did not hunt)
         self.met_hold = v2 and hold_on_friction_met
         self.model = model
+        #: give the stuck ramp's static-Coulomb surplus back at breakaway (:meth:`_relieve_breakaway`)
+        #: also under a compensator that does not ask for it when this valve's swing cannot arrest
+        #: itself against the surplus (:data:`SWING_ARREST_RATIO`; never on the nominal valve) and
+        #: ``integral.relieve_unarrested_swing`` is on (off by default: docs section 38)
+        self.relieve_swing = (v2 and integral.relieve_unarrested_swing
+                              and model.valve_inertia_kgm2 / model.j1 > self.SWING_ARREST_RATIO)
         self.period = period_s
         self.fb = feedback
         self.ao, self.bu, self.bd, self.co = model.observer_model(period_s)
@@ -369,7 +384,7 @@ class StateFeedbackLaw(ControlLaw):
             # was never learned from its slips and the relax let it slip again and again
             # (campaign seed 1019: 9.3 N*m, 116-count hunting on the final hold; none now)
             self._relax_periods = 0
-        if self.compensator.relieves_breakaway:
+        if self.compensator.relieves_breakaway or self.relieve_swing:
             self._relieve_breakaway(meas.valve_rad, stuck, outside, self.compensator.reference_moves(ctx), error,
                                     friction)
         if outside:
