@@ -84,7 +84,7 @@ def test_swing_design_is_the_blocked_valve_motor_mode():
 @pytest.mark.parametrize("valve", ["nominal", "gear80"])
 def test_a_valve_held_open_stays_on_the_stop_until_the_trip(valve):
     # `trip` starts held open; the first period's law aims beyond the stop and seats on arrival.
-    # main: the nominal valve left the stop 4 times in 0.15 s (up to 1.7e-2 rad)
+    # main: the nominal valve left the stop 4 times in 0.15 s (up to 2.1e-2 rad)
     res = _run(valve, "trip")
     pos, t = res.column("position_rad"), res.column("t")
     margin = CONTROLLER_SPEC.defaults()["seat.margin_pct"] / 100.0 * res.stroke_rad
