@@ -209,6 +209,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("seat.margin_pct", 0.5, "%", "demands within this of a stop seat the valve on it", 0.0, 10.0),
     Param("seat.overtravel_rad", 0.1, "rad", "how far beyond the stop a seating move is aimed", 0.0, 0.5),
     Param("seat.torque_nm", 3.0, "N*m", "seating torque beyond the known load (valve side)", 0.0, 50.0),
+    Param("seat.swing_damping", 0.7, "", "damping ratio the seated torque gives the motor's swing against the "
+          "blocked valve (sqrt(K / (Jm N^2))) for twice its settling time after the valve arrives on a stop: the "
+          "coupling arrives wound past the seated twist and, undamped, swung the valve back off the stop (80:1 "
+          "gear: 2.5e-2 rad bounces every ~55 ms; docs/control_results.md section 39; 0 = constant seated torque)",
+          0.0, 2.0),
     # --- Friedland-Park friction observers --------------------------------------------------
     *_friedland_park_params("motor", freeze_default=2.0, freeze_high=1000.0),
     *_friedland_park_params("valve", freeze_default=0.05, freeze_high=100.0),

@@ -257,7 +257,8 @@ class PositionController:
         elif ps["design.method"] == "lqr":
             feedback = d.lqr
         seating = Seating(ps["seat.margin_pct"] / 100.0 * m.stroke_rad, ps["seat.overtravel_rad"],
-                          ps["seat.torque_nm"], m.stroke_rad)
+                          ps["seat.torque_nm"], m.stroke_rad,
+                          *Seating.swing_design(m, ps["seat.swing_damping"], period))
         main = StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode, ps),
                                 seating, speed_window=ps["ff.speed_window_periods"],
                                 delay_periods=int(round(ps["resolver_delay_s"] / period)), v2=not legacy,

@@ -92,6 +92,10 @@ class StateFeedbackLaw(ControlLaw):
         self.integral = integral
         self.compensator = compensator
         self.seating = seating
+        #: seating (§39): None until the first period after a reset (a valve the law starts on
+        #: a stop has not arrived there), then whether the last period was seated
+        self._was_seated: bool | None = None
+        self._seat_damp_periods = 0    # periods left in which the seated torque damps the swing
         # default mode: the limit-cycle breaker (cross_hold) on.  With the hold scheduled on the
         # friction met (h16w) the full campaign hunted in 3 of 200 runs without it (1052, 1096, 1133:
         # 35-38 mrad jumps across the target on K x 0.3) and in 1 with it; it costs ~6 % of the
@@ -241,6 +245,8 @@ class StateFeedbackLaw(ControlLaw):
         self._d = m.load_torque(meas.valve_rad, pressure_kpa) - m.spring_rate_nm_per_rad * meas.valve_rad
         self._inputs.clear()
         self._inputs.extend([(torque_nm, self._d)] * (self._inputs.maxlen - 1))   # at rest before
+        self._was_seated = None
+        self._seat_damp_periods = 0
 
     def update(self, t, demand_rad, meas, pressure_kpa):
         m = self.model
@@ -268,7 +274,19 @@ class StateFeedbackLaw(ControlLaw):
             self.reference = Reference(stop, 0.0, 0.0, False)
             self._pending, self._fm, self._fl = 0.0, 0.0, 0.0
             self._d = m.load_torque(stop, pressure_kpa) - m.spring_rate_nm_per_rad * stop
-            return self.seating.torque(m, stop, seat, pressure_kpa)
+            if self._was_seated is False:
+                # arrived from a move: the coupling is wound past the seated twist (§39)
+                self._seat_damp_periods = self.seating.settle_periods
+            self._was_seated = True
+            swing = 0.0
+            if self._seat_damp_periods > 0:
+                # the gear output's speed alone: the stop holds the valve still, which the
+                # observer does not know (its valve-speed estimate swung along at ~half of it)
+                self._seat_damp_periods -= 1
+                swing = w1
+            return self.seating.torque(m, stop, seat, pressure_kpa, swing)
+        self._was_seated = False
+        self._seat_damp_periods = 0
         # ---- reference, deadband
         load_nm = m.load_torque(thl, pressure_kpa)   # the known valve load (spring, preload, flow), once per period
         was_moving = self.reference is not None and self.reference.moving
