@@ -321,6 +321,8 @@ class FineConfig:
     learn_kick_rise: bool = False  # doublet: plan each preload against the kick's rise learned from the stage's
                                    # own apexes (:meth:`FinePositioner._kick_rise`) instead of ``kick_rise_rad``
     first_kick_fraction: float = 1.0  # doublet: a staircase's first stair kicks with this fraction of kick_current_a
+    doublet_jump_fraction: float = 0.0  # doublet also for errors up to this fraction of the nominal stick-slip
+                                        # jump 2 (T_s - T_c(Δp)) / K (0: only up to doublet_max_error_rad)
 
 
 class FinePositioner:
@@ -335,7 +337,21 @@ class FinePositioner:
         self.kp = j1 * w * w               # N*m/rad at the gear output
         self.kd = 2.0 * 0.8 * w * j1       # N*m*s/rad
         self.ki = self.kp * w / 8.0        # slow integral: removes the feed-forward's error
+        self.timeable = self.servo_margin_rad(j1, self.kp, self.kd, period_s) > 0.0
         self.reset()
+
+    @staticmethod
+    def servo_margin_rad(j1: float, kp: float, kd: float, period_s: float) -> float:
+        """Phase margin (rad) of the stage's gear-output servo on this loop: the PD ``kp + kd s`` on
+        the gear output's inertia ``j1`` crosses over at ``ωc`` (``j1² ωc⁴ = kd² ωc² + kp²``) with
+        ``atan(kd ωc / kp)`` (70 deg at fine.servo_hz's damping 0.8), less the lag of one loop period
+        ``ωc T`` (the zero-order hold's half period and the backward-difference speed's half
+        period).  Nominal 1 kHz loop, 60 Hz: ωc 103 Hz, margin 33 deg; 2 kHz: 52 deg; 500 Hz: -4 deg
+        -- there the servo rang +-3e-3 rad of twist about the preload reference and broke the valve
+        loose while preloading (task h23s, docs §37).  Where the margin is not positive the stage
+        stays out and the main law's hold keeps the plateau (the slow integral, ω/8, ignored)."""
+        wc = math.sqrt((kd * kd + math.sqrt(kd ** 4 + 4.0 * j1 * j1 * kp * kp)) / (2.0 * j1 * j1))
+        return math.atan2(kd * wc, kp) - wc * period_s
 
     def reset(self, measurements: bool = True) -> None:
         """Back to idle; ``measurements=False`` (a new demand) keeps what the resolvers have
@@ -457,8 +473,8 @@ class FinePositioner:
             self._target = target
         if self.phase == IDLE:
             err = target - thl
-            if not holding or self._rest < cfg.engage_periods or self._steady < cfg.engage_periods \
-                    or abs(err) <= cfg.tolerance_rad \
+            if not self.timeable or not holding or self._rest < cfg.engage_periods \
+                    or self._steady < cfg.engage_periods or abs(err) <= cfg.tolerance_rad \
                     or abs(err) > cfg.max_move_rad or self._spent() or self._below_min_move(err, pressure_kpa) \
                     or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1):
                 return None
@@ -571,7 +587,7 @@ class FinePositioner:
         # pulse kind at every stair -- each servo-blended pulse that did not move the valve raised
         # the learned breakaway, the next doublet's preload started ~1e-3 rad higher and broke the
         # valve loose a whole jump across (nominal box, seed 2013 #8: 6.2e-3 rad; task h20p)
-        doublet = (abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short)
+        doublet = (abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short, self._doublet_jump_range(pressure_kpa))
                    or self._stair is not None and abs(err) <= cfg.doublet_max_error_rad + cfg.tolerance_rad
             or self._cold) and cfg.kick_current_a > 0.0
         aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
@@ -755,6 +771,14 @@ class FinePositioner:
             return self._servo(base + self._final, 0.0, th1, w1, thl)
         # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
+
+    def _doublet_jump_range(self, pressure_kpa: float) -> float:
+        """Errors up to this (rad) may get a doublet besides ``fine.doublet_max_error_rad``:
+        ``fine.doublet_jump_fraction`` x the nominal stick-slip jump at ``pressure_kpa`` (0: none).
+        On a soft coupling (K 200, jump 1.1e-2 rad) the main law stops ~half a jump short, where the
+        servo-blended pulse's preloads broke the valve loose a whole jump across (task h23s)."""
+        f = self.cfg.doublet_jump_fraction
+        return f * self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad) if f > 0.0 else 0.0
 
     def _kick_rise(self) -> float:
         """The twist (rad, >= 0) the doublet's kick raises above its preload, as the preload is planned

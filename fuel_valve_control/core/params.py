@@ -322,6 +322,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "fine.learn_kick_rise measured worse on the nominal box: 71 / 62 vs 67 / 50 plateaus > 8e-4 rad on seeds "
           "1000 / 2000, task h22f)",
           0.0, 1.0, runtime=True),
+    Param("fine.doublet_jump_fraction", 0.0, "", "a torque doublet also for errors up to this fraction of the "
+          "nominal stick-slip jump 2 (T_s - T_c(dp)) / K, besides fine.doublet_max_error_rad (0 = never; task h23s: "
+          "on a soft coupling, K 200, the main law stops ~half a jump short and the servo-blended pulse's preload broke "
+          "the valve loose a whole jump across, 2 % step overshoot 27.6 %; 0.5 gives 0.5 % there but the nominal box "
+          "134 vs 67 plateaus > 8e-4 rad, p95 2.27e-3 vs 1.32e-3: docs §37)",
+          0.0, 2.0, runtime=True),
     Param("fine.doublet_sigmas", 2.0, "", "doublet: after each stop the first apex lies this many learned rms "
           "scatters of the breakaway twist below the learned breakaway", 0.0, 10.0, runtime=True),
     Param("fine.scatter_gain", 0.2, "", "weight of each breakaway sample (the main law's from rest, a doublet's) "

@@ -295,7 +295,8 @@ class PositionController:
                           move_per_level=ps["fine.move_per_level"],
                           retreat_full_periods=ps["fine.retreat_full_periods"],
                           cold_start=ps["fine.cold_start"], learn_kick_rise=ps["fine.learn_kick_rise"],
-                          first_kick_fraction=ps["fine.first_kick_fraction"])
+                          first_kick_fraction=ps["fine.first_kick_fraction"],
+                          doublet_jump_fraction=ps["fine.doublet_jump_fraction"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
