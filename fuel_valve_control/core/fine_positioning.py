@@ -882,11 +882,19 @@ class FinePositioner:
         if cfg.move_per_overdrive <= 0.0:
             return floor
         d = 1 if err > 0 else -1
-        m = self.learn.min_move[d][self.learn.band(self.m.pressure_fraction(pressure_kpa))]
-        if m <= 0.0:
-            m = cfg.min_move_prior * self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad)
+        m = self._smallest_move(d, pressure_kpa)
         room = (1.0 if self._cross_guard(err, pressure_kpa) else 1.5) * abs(err) - m
         return min(max(room / cfg.move_per_overdrive, floor), max(cfg.kick_rise_rad, floor))
+
+    def _smallest_move(self, d: int, pressure_kpa: float) -> float:
+        """The smallest move (rad, > 0 unless the jump is 0) a doublet makes toward ``d`` (+1 open,
+        -1 close) at this Δp: the one learned in its direction and Δp band, else
+        ``fine.min_move_prior`` x the nominal stick-slip jump ``2 (T_s - T_c(Δp)) / K``."""
+        m = self.learn.min_move[d][self.learn.band(self.m.pressure_fraction(pressure_kpa))]
+        if m <= 0.0:
+            m = self.cfg.min_move_prior * self.m.friction(pressure_kpa).stick_slip_jump_rad(
+                self.m.coupling_stiffness_nm_per_rad)
+        return m
 
     def _below_min_move(self, err: float, pressure_kpa: float) -> bool:
         """Whether the error is so small against the smallest move pulses have made that a
@@ -895,11 +903,7 @@ class FinePositioner:
         direction and Δp band, ``fine.min_move_prior`` x the nominal stick-slip jump
         ``2 (T_s - T_c(Δp)) / K`` (task h17f: without a prior a doublet for an error of 3.4e-4 rad,
         just outside the tolerance, broke a nominal-box valve loose for a whole jump, seed 2001)."""
-        d = 1 if err > 0 else -1
-        m = self.learn.min_move[d][self.learn.band(self.m.pressure_fraction(pressure_kpa))]
-        if m <= 0.0:
-            m = self.cfg.min_move_prior * self.m.friction(pressure_kpa).stick_slip_jump_rad(
-                self.m.coupling_stiffness_nm_per_rad)
+        m = self._smallest_move(1 if err > 0 else -1, pressure_kpa)
         return m > 0.0 and abs(err) < self.cfg.min_move_fraction * m
 
     def _level_outgrows_error(self, err: float, pressure_kpa: float, learned_b: float) -> bool:
@@ -920,9 +924,7 @@ class FinePositioner:
         if cfg.move_per_level <= 0.0:
             return False
         d = 1 if err > 0 else -1
-        m = self.learn.min_move[d][self.learn.band(self.m.pressure_fraction(pressure_kpa))]
-        if m <= 0.0:
-            m = cfg.min_move_prior * self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad)
+        m = self._smallest_move(d, pressure_kpa)
         expected = m + cfg.move_per_level * max(d * (self._peak_seen - learned_b), 0.0)
         return abs(err) < cfg.min_move_fraction * expected
 
