@@ -17,8 +17,8 @@ module as a unit of its own (its module fixtures and result caches are built onc
 
 ``--cpu-durations=N`` prints the N tests that used the most CPU time (set-up, call and
 tear-down; this process's threads and the node processes it waited for), beside their wall
-time, then every module's totals: on a machine shared with other work, wall time says more
-about the neighbours than about the test.
+time, then the N with the most wall time, then every module's totals: on a machine shared
+with other work, wall time says more about the neighbours than about the test.
 
 ``--sim-repeats`` lists the offline simulations (``sim.simulate_plan``, every scenario and
 campaign run goes through it) that ran more than once with the same inputs, and the CPU the
@@ -187,6 +187,12 @@ def pytest_terminal_summary(terminalreporter, config):
     for nodeid, (w, o, c) in rows[:n] if n > 0 else rows:
         terminalreporter.write_line(f"{w:8.2f} {o:8.2f} {c:8.2f}  {nodeid}")
     terminalreporter.write_line(f"{wall:8.2f} {own:8.2f} {kids:8.2f}  total over {len(_CPU_TIMES)} tests")
+    # by wall too: the DDS tests wait in real time (start-up, loops that must run), so the tests
+    # that hold the suite's clock are not the ones that use the CPU
+    if n > 0:
+        terminalreporter.write_sep("=", f"wall durations (top {n}): wall / own CPU / children CPU, s")
+        for nodeid, (w, o, c) in sorted(_CPU_TIMES.items(), key=lambda kv: -kv[1][0])[:n]:
+            terminalreporter.write_line(f"{w:8.2f} {o:8.2f} {c:8.2f}  {nodeid}")
     # per module too: where a module's time goes is the question a trim starts from (one
     # module's many cheap cases can outweigh its one slow test); the DDS modules' wall beyond
     # their CPU is waiting (real time, start-up), not work

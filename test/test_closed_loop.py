@@ -86,6 +86,12 @@ def test_small_step_overshoot_and_settling(seed):
     assert m["rise_time_s"] <= 0.2
 
 
+# The hold is 30 s (settled half 15-30 s) on purpose; do not shorten it to save time (h24t measured):
+# an integrator winding up through the static friction starts hunting late, and when is erratic:
+# pi first slips at 11.7 s, pi with integral_corner_ratio 0.12 / 0.5 / 0.15 / 0.2 / 0.3 at
+# 9.7 / 14.3 / 14.8 / 17.6 / 23.4 s.  On a 10 s hold this test passes pi (amplitude 0, error
+# 3.3e-4 rad); on a 20 s hold it passes the 0.3 variant.  Every default-mode hold here (3 seeds,
+# 22 box corners) already gives the 30 s run's metrics when cut at 6 s: on main a cut would show nothing.
 @pytest.mark.parametrize("seed", [None, 1, 2])
 def test_hold_no_hunting_and_small_error(seed):
     m = _metrics("hold", seed=seed)
