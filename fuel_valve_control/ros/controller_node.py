@@ -166,9 +166,16 @@ class ControllerNode(LifecycleNode):
         self._lock = threading.Lock()
         # every input on this node and the one executor (node_runner): no helper node.
         # Δp first: in lockstep it was published before the resolver sample of the same period
-        ri.quiet_subscription(self, Float64, contract.PRESSURE_DIFFERENTIAL, self.on_pressure)
-        ri.quiet_subscription(self, Float64, contract.DEMAND, self.on_demand)
-        ri.quiet_subscription(self, Float64, contract.DEMAND_MA, self.on_demand_ma)
+        # real time: the external inputs accept publishers of any reliability (ri.INPUT_QOS);
+        # lockstep: reliable, each period waits for its demand
+        inputs = None if self.lockstep else ri.INPUT_QOS
+        #: the input subscriptions by contract name (their resolved, remapped topics are what
+        #: :meth:`_input_publishers` counts the publishers of)
+        self._inputs_subs = {
+            contract.PRESSURE_DIFFERENTIAL: ri.quiet_subscription(self, Float64, contract.PRESSURE_DIFFERENTIAL,
+                                                                  self.on_pressure, inputs),
+            contract.DEMAND: ri.quiet_subscription(self, Float64, contract.DEMAND, self.on_demand, inputs),
+            contract.DEMAND_MA: ri.quiet_subscription(self, Float64, contract.DEMAND_MA, self.on_demand_ma, inputs)}
         ri.quiet_subscription(self, JointState, contract.RESOLVER, self.on_resolver)
         ri.quiet_subscription(self, UInt8, contract.DRIVE_STATUS, self.on_drive_status)
         if node_ps["monitor_drive_telemetry"]:
@@ -632,16 +639,43 @@ class ControllerNode(LifecycleNode):
             h = Health(2, f"FAULT: internal error while reporting health: {exc}", {"faults": "internal_error"})
         values = dict(h.values, malformed_messages=self._bad_messages, periods=self._periods,
                       **self._compute.take(), **self.valve_tests.summary())
-        st = DiagnosticStatus(level=bytes([h.level]), name=f"{self.get_fully_qualified_name()}: valve driver",
-                              message=h.message, hardware_id="fuel_valve_driver",
+        level, message = h.level, h.message
+        conflicts, counts = self._input_publishers()
+        values.update(counts)
+        if conflicts:
+            # not latched: it lasts as long as the graph shows it (a warning, the loop runs on)
+            level = max(level, 1)
+            message = f"{message}; {'; '.join(conflicts)}"
+        st = DiagnosticStatus(level=bytes([level]), name=f"{self.get_fully_qualified_name()}: valve driver",
+                              message=message, hardware_id="fuel_valve_driver",
                               values=[KeyValue(key=k, value=_fmt(v)) for k, v in values.items()])
         msg = DiagnosticArray(status=[st])
         msg.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(msg)
         self.recorder_gate.count(contract.DIAGNOSTICS)
-        if h.level != self._level:
-            self.get_logger().info(f"status {LEVEL_NAMES[h.level]}: {h.message}")
-            self._level = h.level
+        if level != self._level:
+            self.get_logger().info(f"status {LEVEL_NAMES[level]}: {message}")
+            self._level = level
+
+    def _input_publishers(self) -> tuple[list[str], dict]:
+        """Publishers on the inputs the driver uses (the configured demand topic and Δp), from
+        the ROS graph at the diagnostics rate: ``(conflicts, {diagnostic key: count})``.  Two
+        publishers on the demand (two supervisors, a forgotten ``ros2 topic pub``) interleave
+        their samples and the valve follows whichever came last: the demand filter took the
+        alternation between 30 and 50 % for noise and the valve sat at 38 % with the status OK
+        (h24u).  A second Δp source makes the readings jump and the schedule falls back.  Each
+        is a conflict the status names while it lasts."""
+        if self.driver is None:
+            return [], {}
+        topic = contract.DEMAND if self.driver.ps["demand_source"] == "percent" else contract.DEMAND_MA
+        conflicts, counts = [], {}
+        for key, name in (("demand_publishers", topic), ("pressure_publishers", contract.PRESSURE_DIFFERENTIAL)):
+            resolved = self._inputs_subs[name].topic_name
+            n = counts[key] = self.count_publishers(resolved)
+            if n > 1:
+                conflicts.append(f"{n} publishers on {resolved}: conflicting sources, the driver takes whichever "
+                                 "sample came last")
+        return conflicts, counts
 
 
 class ComputeTime:

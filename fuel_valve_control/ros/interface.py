@@ -29,6 +29,16 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=R
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 TELEMETRY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.VOLATILE)
+#: the controller's subscriptions to the inputs a client outside the suite publishes (``demand``,
+#: ``demand_ma``, ``pressure_differential``) in real time: BEST_EFFORT, the most permissive
+#: request, so a publisher of either reliability matches (DDS pairs a RELIABLE reader only with
+#: RELIABLE writers: a supervisor publishing its demand best-effort, e.g. with the sensor-data
+#: profile, was silently ignored and the controller tripped on a stale demand, h24u).  The
+#: inputs are levels whose newest value wins, so a sample lost on the way costs nothing the
+#: next one does not repair.  VOLATILE also accepts any writer (TRANSIENT_LOCAL ones too).  Not
+#: in lockstep: there each period waits for its demand, and a lost sample would stall the loop.
+INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
+                       durability=DurabilityPolicy.VOLATILE)
 #: writer history of a volatile topic while a recorder is part of the run (``recorded_topics``):
 #: samples a starved recorder has not acknowledged yet, which DDS re-sends once it runs again.
 #: The 1 kHz topics times the worst stall of the recorder process seen on the loaded 2-core
