@@ -191,3 +191,49 @@ def test_a_second_pressure_source_is_named_on_diagnostics(controller, client):
     finally:
         for pub in pubs:
             client.node.destroy_publisher(pub)
+
+
+def test_a_learned_state_file_of_another_valve_is_neither_loaded_nor_saved_over(tmp_path):
+    # found: the file had no owner, so two valves given one learned_state_file (one
+    # controller.yaml for a launch of valves:=valve1,valve2) loaded each other's friction and
+    # duty and saved over each other; a file copied from another valve loaded silently
+    from rclpy.parameter import Parameter
+    from fuel_valve_control.ros.controller_node import ControllerNode
+
+    path = tmp_path / "learned.json"
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+
+    def start(namespace):
+        return ControllerNode(context=ctx, namespace=namespace,
+                              parameter_overrides=[Parameter("learned_state_file", value=str(path))])
+
+    try:
+        first = start("/valve1")
+        assert first._state_status.startswith("not loaded"), first._state_status
+        first.trigger_deactivate()                    # saves: the file now names its owner
+        first.trigger_cleanup()
+        first.destroy_node()
+        doc = json.loads(path.read_text())
+        assert doc["owner"] == "/valve1/controller"
+        written = path.read_bytes()
+
+        other = start("/valve2")
+        assert other._state_status.startswith("foreign (/valve1/controller)"), other._state_status
+        other.trigger_deactivate()
+        other.trigger_shutdown()
+        other.save_on_exit()
+        other.destroy_node()
+        assert path.read_bytes() == written           # valve1's state survives valve2
+
+        again = start("/valve1")                      # the owner's restart loads it
+        assert again._state_status == "loaded", again._state_status
+        again.destroy_node()
+
+        doc.pop("owner")                              # a file from before owners: accepted
+        path.write_text(json.dumps(doc))
+        legacy = start("/valve2")
+        assert legacy._state_status == "loaded", legacy._state_status
+        legacy.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)

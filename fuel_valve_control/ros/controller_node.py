@@ -58,7 +58,7 @@ from ..common.paramspec import ConfigError
 from ..core.params import CONTROLLER_NODE_SPEC, CONTROLLER_SPEC, load_controller_params
 from ..core.driver import Health, ValveDriver
 from ..core.period_inputs import PeriodInputs
-from ..core.health import NE107_DIAGNOSTIC_LEVEL, FUNCTION_CHECK, load_state, save_state
+from ..core.health import NE107_DIAGNOSTIC_LEVEL, FUNCTION_CHECK, load_state, save_state, state_owner
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
 
@@ -133,6 +133,10 @@ class ControllerNode(LifecycleNode):
         self.lockstep = node_ps["lockstep"]
         self._state_file = node_ps["learned_state_file"]
         self._save_interval = node_ps["learned_state_save_s"]
+        #: the learned-state file names another valve (configure): never saved over
+        self._state_foreign = False
+        #: what configure made of the learned-state file, for /diagnostics (``learned_state``)
+        self._state_status = "not persisted" if not self._state_file else "not loaded yet"
         self._last_save = time.monotonic()
         self._reset_loop_state()
         self._bad_messages = 0
@@ -234,7 +238,16 @@ class ControllerNode(LifecycleNode):
         if initial_a:
             driver.start_from_torque(initial_a * driver.controller.model.torque_constant_nm_per_a)
         if self._state_file:
-            loaded, message = load_state(self._state_file, driver.valve_health, driver.controller.learner)
+            me = self.get_fully_qualified_name()
+            loaded, message = load_state(self._state_file, driver.valve_health, driver.controller.learner, owner=me)
+            # another valve's file (two valves given one path, a file copied across): neither
+            # loaded nor overwritten, so that valve's learned state survives this one (h24u)
+            owner = None if loaded else state_owner(self._state_file)
+            self._state_foreign = owner is not None and owner != me
+            if self._state_foreign:
+                message += f"; not saved over either (it belongs to {owner}): give this valve a file of its own"
+            self._state_status = ("loaded" if loaded else f"foreign ({owner}): not loaded, not saved"
+                                  if self._state_foreign else "not loaded: " + message.split(" (")[0].split(": ")[0])
             # one call site per severity: rclpy refuses a site that changes severity
             if loaded:
                 self.get_logger().info(message)
@@ -354,11 +367,12 @@ class ControllerNode(LifecycleNode):
 
     def _save_state(self) -> None:
         """Persist the learned state (``learned_state_file``); a failure is logged, never raised."""
-        if not self._state_file or self.driver is None:
+        if not self._state_file or self.driver is None or self._state_foreign:
             return
         self._last_save = time.monotonic()
         try:
-            save_state(self._state_file, self.driver.valve_health, self.driver.controller.learner)
+            save_state(self._state_file, self.driver.valve_health, self.driver.controller.learner,
+                       owner=self.get_fully_qualified_name())
         except OSError as exc:
             self.get_logger().error(f"cannot save the learned state to {self._state_file}: {exc}",
                                     throttle_duration_sec=10.0)
@@ -641,7 +655,7 @@ class ControllerNode(LifecycleNode):
                       **self._compute.take(), **self.valve_tests.summary())
         level, message = h.level, h.message
         conflicts, counts = self._input_publishers()
-        values.update(counts)
+        values.update(counts, learned_state=self._state_status)
         if conflicts:
             # not latched: it lasts as long as the graph shows it (a warning, the loop runs on)
             level = max(level, 1)
