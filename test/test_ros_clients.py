@@ -237,3 +237,26 @@ def test_a_learned_state_file_of_another_valve_is_neither_loaded_nor_saved_over(
         legacy.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+def test_a_typo_in_a_parameter_file_is_reported_not_silently_dropped(controller, client):
+    # found: rclpy drops an override of a parameter the node does not have without a word, so
+    # `faults.resolver_timeout: 0.5` (the `_s` forgotten) left 0.02 s in force unnoticed
+    from rclpy.parameter import Parameter
+    from fuel_valve_control.ros.controller_node import ControllerNode
+    from fuel_valve_control.ros import interface as ri
+
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = ControllerNode(context=ctx, namespace="/typo", parameter_overrides=[
+            Parameter("autostart", value=False), Parameter("faults.resolver_timeout", value=0.5),
+            Parameter("demand_timeout_s", value=1.0)])
+        assert node._unknown_params == ["faults.resolver_timeout"]
+        assert node.get_parameter("faults.resolver_timeout_s").value == 0.02     # the default, still
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    # and the shared node reports none on /diagnostics
+    wait_for(lambda: client.values().get("ignored_parameters") == "none", MATCH_S, "ignored_parameters none")
+    assert ri.unknown_overrides(controller) == []

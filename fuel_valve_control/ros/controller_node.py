@@ -122,6 +122,8 @@ class ControllerNode(LifecycleNode):
         super().__init__("controller", **kwargs)
         guard_change_state(self)
         ri.declare_spec(self, CONTROLLER_NODE_SPEC)
+        #: overrides for parameters this node does not have (typos): logged, and on /diagnostics
+        self._unknown_params = ri.unknown_overrides(self)
         try:
             node_ps = CONTROLLER_NODE_SPEC.defaults().replace(ri.read_spec(self, CONTROLLER_NODE_SPEC))
         except ConfigError as exc:
@@ -655,7 +657,8 @@ class ControllerNode(LifecycleNode):
                       **self._compute.take(), **self.valve_tests.summary())
         level, message = h.level, h.message
         conflicts, counts = self._input_publishers()
-        values.update(counts, learned_state=self._state_status)
+        values.update(counts, learned_state=self._state_status,
+                      ignored_parameters=",".join(self._unknown_params) or "none")
         if conflicts:
             # not latched: it lasts as long as the graph shows it (a warning, the loop runs on)
             level = max(level, 1)

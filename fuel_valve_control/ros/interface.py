@@ -197,6 +197,25 @@ def declare_spec(node, spec, values=None, names: Iterable[str] | None = None) ->
         node.declare_parameter(p.name, default, desc)
 
 
+def unknown_overrides(node) -> list[str]:
+    """Call after every declaration: the names a parameter file or ``-p`` set for this node
+    that it does not have, each logged as a warning with the closest declared name.  rclpy
+    drops such overrides without a word, so a typo in a technician's YAML
+    (``faults.resolver_timeout: 0.5``) left the default in force while the file said
+    otherwise (h24u).  Not an error: one ``/**`` file may serve several nodes."""
+    import difflib
+    declared = sorted(node._parameters)
+    # rclpy keeps the overrides that matched this node (its name, a wildcard) in one dict;
+    # no public accessor in Jazzy
+    unknown = sorted(n for n in getattr(node, "_parameter_overrides", {}) if n not in node._parameters)
+    for name in unknown:
+        close = difflib.get_close_matches(name, declared, n=1, cutoff=0.6)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        node.get_logger().warn(f"parameter {name!r} set by a parameter file or -p is not a parameter of this node: "
+                               f"ignored{hint}")
+    return unknown
+
+
 def handle_parameter_changes(node, spec, check, apply) -> None:
     """Run-time parameter changes of ``spec``'s parameters, in two steps as rclpy intends:
     ``check(changes)`` validates in the on-set callback (raise ``ValueError`` to reject, with
