@@ -260,3 +260,17 @@ def test_a_typo_in_a_parameter_file_is_reported_not_silently_dropped(controller,
     # and the shared node reports none on /diagnostics
     wait_for(lambda: client.values().get("ignored_parameters") == "none", MATCH_S, "ignored_parameters none")
     assert ri.unknown_overrides(controller) == []
+
+
+def test_a_demand_publisher_of_the_wrong_type_is_named_on_diagnostics(controller, client):
+    # found: `ros2 topic pub .../demand std_msgs/msg/Float32 ...` never matches (type mismatch):
+    # the demand went stale and the valve tripped, the status naming only the stale demand
+    from std_msgs.msg import Float32
+    pub = client.node.create_publisher(Float32, contract.DEMAND, CLIENT_QOS["reliable_depth1"])
+    try:
+        wait_for(lambda: "std_msgs/msg/Float32 on /clients/demand is ignored" in client.message(), MATCH_S,
+                 "the wrong-type publisher named in the status")
+        assert client.status.level[0] >= 1
+        assert client.values().get("demand_publishers") == "0"          # not counted as a source
+    finally:
+        client.node.destroy_publisher(pub)

@@ -681,17 +681,25 @@ class ControllerNode(LifecycleNode):
         their samples and the valve follows whichever came last: the demand filter took the
         alternation between 30 and 50 % for noise and the valve sat at 38 % with the status OK
         (h24u).  A second Δp source makes the readings jump and the schedule falls back.  Each
-        is a conflict the status names while it lasts."""
+        is a conflict the status names while it lasts, and so is a publisher of the wrong type
+        (DDS never delivers its samples)."""
         if self.driver is None:
             return [], {}
         topic = contract.DEMAND if self.driver.ps["demand_source"] == "percent" else contract.DEMAND_MA
         conflicts, counts = [], {}
         for key, name in (("demand_publishers", topic), ("pressure_publishers", contract.PRESSURE_DIFFERENTIAL)):
             resolved = self._inputs_subs[name].topic_name
-            n = counts[key] = self.count_publishers(resolved)
+            infos = self.get_publishers_info_by_topic(resolved)
+            wanted = contract.TOPIC_TYPES[name]
+            # a publisher of another type (std_msgs/Float32 from `ros2 topic pub`) never matches:
+            # its samples are dropped by DDS and the demand goes stale with no other hint
+            foreign = sorted({i.topic_type for i in infos if i.topic_type != wanted})
+            n = counts[key] = len(infos) - sum(1 for i in infos if i.topic_type != wanted)
             if n > 1:
                 conflicts.append(f"{n} publishers on {resolved}: conflicting sources, the driver takes whichever "
                                  "sample came last")
+            if foreign:
+                conflicts.append(f"a publisher of {', '.join(foreign)} on {resolved} is ignored ({wanted} expected)")
         return conflicts, counts
 
 
