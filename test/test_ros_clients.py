@@ -274,3 +274,15 @@ def test_a_demand_publisher_of_the_wrong_type_is_named_on_diagnostics(controller
         assert client.values().get("demand_publishers") == "0"          # not counted as a source
     finally:
         client.node.destroy_publisher(pub)
+
+
+def test_a_demand_on_the_other_scaling_is_named_on_diagnostics(controller, client):
+    # a supervisor publishing 4-20 mA to a controller set to demand_source: percent was ignored
+    # with only the stale demand to show for it
+    from std_msgs.msg import Float64
+    pub = client.node.create_publisher(Float64, contract.DEMAND_MA, CLIENT_QOS["reliable_depth1"])
+    try:
+        wait_for(lambda: f"published on {NS}/demand_ma, but demand_source is 'percent'" in client.message(),
+                 MATCH_S, "the unused demand topic named in the status")
+    finally:
+        client.node.destroy_publisher(pub)

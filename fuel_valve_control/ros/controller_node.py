@@ -700,6 +700,13 @@ class ControllerNode(LifecycleNode):
                                  "sample came last")
             if foreign:
                 conflicts.append(f"a publisher of {', '.join(foreign)} on {resolved} is ignored ({wanted} expected)")
+        other = contract.DEMAND_MA if topic == contract.DEMAND else contract.DEMAND
+        if counts["demand_publishers"] == 0:
+            # the supervisor publishes the other scaling: the driver reads only demand_source's
+            resolved = self._inputs_subs[other].topic_name
+            if self.count_publishers(resolved):
+                conflicts.append(f"the demand is published on {resolved}, but demand_source is "
+                                 f"{self.driver.ps['demand_source']!r}: ignored")
         return conflicts, counts
 
 
