@@ -286,3 +286,23 @@ def test_a_demand_on_the_other_scaling_is_named_on_diagnostics(controller, clien
                  MATCH_S, "the unused demand topic named in the status")
     finally:
         client.node.destroy_publisher(pub)
+
+
+def test_the_learned_state_path_expands_home_and_variables(tmp_path, monkeypatch):
+    # a technician's `~/...` or `$STATE_DIR/...` was taken literally (a directory named `~`)
+    from rclpy.parameter import Parameter
+    from fuel_valve_control.ros.controller_node import ControllerNode
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.setenv("FV_STATE_DIR", str(tmp_path))
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    try:
+        for text in ("~/a.json", "$FV_STATE_DIR/b.json"):
+            node = ControllerNode(context=ctx, namespace="/paths", parameter_overrides=[
+                Parameter("learned_state_file", value=text)])
+            node.trigger_deactivate()                 # saves
+            node.destroy_node()
+        assert (tmp_path / "a.json").is_file() and (tmp_path / "b.json").is_file()
+    finally:
+        rclpy.try_shutdown(context=ctx)

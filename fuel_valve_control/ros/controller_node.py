@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import threading
 import time
 
@@ -133,7 +134,11 @@ class ControllerNode(LifecycleNode):
         self.lifecycle_state = "unconfigured"
         self._configure_error = "configure raised (see the log)"
         self.lockstep = node_ps["lockstep"]
-        self._state_file = node_ps["learned_state_file"]
+        # `~` and $VARS expanded, made absolute: as a shell would take the path a technician
+        # writes (`~/fuel_valve/valve1.json` was a relative directory named `~`, h24u), and
+        # independent of the directory the launch happened to start in
+        self._state_file = (os.path.abspath(os.path.expanduser(os.path.expandvars(node_ps["learned_state_file"])))
+                            if node_ps["learned_state_file"] else "")
         self._save_interval = node_ps["learned_state_save_s"]
         #: the learned-state file names another valve (configure): never saved over
         self._state_foreign = False
