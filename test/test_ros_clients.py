@@ -306,3 +306,31 @@ def test_the_learned_state_path_expands_home_and_variables(tmp_path, monkeypatch
         assert (tmp_path / "a.json").is_file() and (tmp_path / "b.json").is_file()
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+def test_a_replayed_resolver_sample_is_named_as_a_second_source():
+    # a bag replayed into a live valve: a resolver sample stamped an hour ago became the
+    # measurement and the next period latched "no resolver sample for 3600000 ms" while
+    # samples kept arriving; now the sample is refused, and the fault says what it was
+    from fuel_valve_control.core.driver import RESOLVER_IMPLAUSIBLE, ValveDriver
+    from fuel_valve_control.core.params import load_controller_params
+
+    def running_driver():
+        d = ValveDriver(load_controller_params())
+        for k in range(50):
+            t = 1000.0 + k * 1e-3
+            d.demand_percent(t, 20.0)
+            d.resolver(t, 0.2 * 48.019, 0.2, now=t)
+            d.pressure_differential(t, 6206.0)
+            assert d.step(t).enable
+        return d, t
+
+    d, t = running_driver()
+    d.resolver(t - 3600.0, 0.2 * 48.019, 0.2, now=t + 1e-3)
+    out = d.step(t + 1e-3)
+    assert not out.enable and set(out.faults) == {RESOLVER_IMPLAUSIBLE}, out.faults
+    assert "second source" in out.faults[RESOLVER_IMPLAUSIBLE]
+    # a system clock stepped back moves the stamp and the loop's clock together: no fault
+    d, t = running_driver()
+    d.resolver(t - 10.0, 0.2 * 48.019, 0.2, now=t - 10.0 + 1e-4)
+    assert d.step(t - 10.0 + 1e-4).enable
