@@ -661,7 +661,12 @@ class ControllerNode(LifecycleNode):
         values = dict(h.values, malformed_messages=self._bad_messages, periods=self._periods,
                       **self._compute.take(), **self.valve_tests.summary())
         level, message = h.level, h.message
-        conflicts, counts = self._input_publishers()
+        try:
+            conflicts, counts = self._input_publishers()
+        except Exception as exc:            # noqa: BLE001 - a graph query is a report, never a reason to trip
+            conflicts, counts = [], {}
+            self.get_logger().warn(f"input publishers not checked: {type(exc).__name__}: {exc}",
+                                   throttle_duration_sec=10.0)
         values.update(counts, learned_state=self._state_status,
                       ignored_parameters=",".join(self._unknown_params) or "none")
         if conflicts:
