@@ -11,6 +11,10 @@ Topics (SPEC §4): subscribes ``demand`` (percent), ``demand_ma`` (4-20 mA), ``r
 from the measurement with the torque that holds the valve there and re-enabled,
 ``ValveDriver.drive_status``) and,
 optionally, the plant's ``drive`` telemetry (measured current for the over-current check);
+in real time the demand and Δp subscriptions accept writers of any reliability
+(``interface.INPUT_QOS``), and ``/diagnostics`` names a second publisher, a publisher of the
+wrong type, or a demand on the scaling ``demand_source`` does not read
+(:meth:`ControllerNode._input_publishers`);
 publishes ``current_command`` (A), ``drive_enable``, ``position`` (percent),
 ``estimate`` and ``/diagnostics``.  Services ``~/trip`` and ``~/reset`` (std_srvs/Trigger); the
 valve tests' ``~/signature_test``, ``~/partial_stroke_test`` and latched ``valve_test``

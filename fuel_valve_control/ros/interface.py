@@ -9,7 +9,11 @@ deep reliable queue, ``ros2 topic echo``) can connect.  Loop topics (``resolver`
 ``current_command``, ``demand``, ``demand_ma``) keep only the newest sample (depth 1): a
 control loop wants the latest value, never a backlog.  ``drive_enable`` is TRANSIENT_LOCAL so
 a plant that starts late still learns whether the drive may run.  Telemetry keeps 10 (the 1 kHz
-loop measured worse with 100 in one comparison; recorders keep deep reader queues).
+loop measured worse with 100 in one comparison; recorders keep deep reader queues).  The
+controller's subscriptions to the inputs an outside client publishes (``demand``,
+``demand_ma``, ``pressure_differential``) are BEST_EFFORT in real time (:data:`INPUT_QOS`), so
+a client's writer of either reliability matches; a RELIABLE reader ignored a best-effort
+supervisor without a word.
 """
 from __future__ import annotations
 
