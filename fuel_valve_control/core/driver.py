@@ -396,6 +396,17 @@ class ValveDriver:
         if (isinstance(t, (int, float)) and now is not None
                 and not t - now <= self.ps["faults.stamp_future_tolerance_s"]):
             why = f"resolver sample stamped {t - now:+.3f} s ahead of the loop's clock"
+        elif (isinstance(t, (int, float)) and now is not None and self._meas_t is not None
+              and t < self._meas_t and now - t > self.ps["faults.resolver_timeout_s"]):
+            # one drive's samples arrive in order (DDS keeps a writer's order, the stamps
+            # increase): one older than the previous and than the resolver timeout is a second
+            # source on the topic, e.g. a bag replayed into a live valve.  Trusted, it became the
+            # measurement and the next period latched "no resolver sample for 3600000 ms" while
+            # samples kept arriving (h24u).  (A system clock stepped back moves the stamps and
+            # the loop's clock together: now - t stays small, not flagged.)
+            why = (f"resolver sample stamped {self._meas_t - t:.3f} s before the previous one and "
+                   f"{now - t:.3f} s before the loop's clock: a second source on the resolver topic "
+                   "(a replayed bag?)")
         else:
             why = self._implausible(t, motor_rad, valve_rad)
         if why:

@@ -327,21 +327,41 @@ class ValveHealth:
         self.friction_baseline, self.breakaway_baseline_nm = values
 
 
-def save_state(path: str | Path, health: ValveHealth, learner=None) -> None:
+class ForeignStateError(ValueError):
+    """A learned-state file that belongs to another valve (:func:`load_state`)."""
+
+
+def state_owner(path: str | Path) -> str | None:
+    """The ``owner`` a learned-state file names (None: no file, no owner, or unreadable)."""
+    try:
+        doc = json.loads(Path(path).read_text())
+        owner = doc.get("owner") if isinstance(doc, dict) else None
+        return owner if isinstance(owner, str) else None
+    except Exception:                        # noqa: BLE001 - no usable file: no owner
+        return None
+
+
+def save_state(path: str | Path, health: ValveHealth, learner=None, owner: str | None = None) -> None:
     """Write the learned state (counters, baselines, the learner's twists) to ``path``:
-    atomically (a temporary file renamed over it), so a crash never leaves half a file."""
+    atomically (a temporary file renamed over it), so a crash never leaves half a file.
+    ``owner``: the valve the state belongs to (the controller node's fully qualified name),
+    written as ``owner`` so that another valve's controller refuses the file
+    (:func:`load_state`)."""
     path = Path(path)
-    doc = {"format": STATE_FORMAT, "version": STATE_VERSION, **health.to_dict(),
-           "fine_learner": learner.to_dict() if learner is not None else None}
+    doc = {"format": STATE_FORMAT, "version": STATE_VERSION, **({"owner": owner} if owner else {}),
+           **health.to_dict(), "fine_learner": learner.to_dict() if learner is not None else None}
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(doc, indent=1) + "\n")
     os.replace(tmp, path)
 
 
-def load_state(path: str | Path, health: ValveHealth, learner=None) -> tuple[bool, str]:
+def load_state(path: str | Path, health: ValveHealth, learner=None, owner: str | None = None) -> tuple[bool, str]:
     """Load the learned state of ``path`` into ``health`` (and ``learner``).  Never raises:
     ``(True, message)`` when loaded; ``(False, why)`` for a missing or unusable file, and then
-    nothing is changed (the valve starts from zero counters and no baselines)."""
+    nothing is changed (the valve starts from zero counters and no baselines).  ``owner``
+    given: a file that names another owner is unusable (another valve's friction and duty are
+    not this one's); a file without an owner (written before owners were recorded, or by hand)
+    is accepted."""
     path = Path(path)
     if not path.exists():
         return False, f"learned state file {path} not found: counters and baselines start from zero"
@@ -351,6 +371,8 @@ def load_state(path: str | Path, health: ValveHealth, learner=None) -> tuple[boo
             raise ValueError(f"not a {STATE_FORMAT} file")
         if doc.get("version") != STATE_VERSION:
             raise ValueError(f"version {doc.get('version')!r}, this controller reads version {STATE_VERSION}")
+        if owner and doc.get("owner") not in (None, owner):
+            raise ForeignStateError(f"written for {doc['owner']!r}, this is {owner!r}")
         trial = ValveHealth(health.ps)
         trial.from_dict(doc)                 # validate everything before changing anything
         if learner is not None and doc.get("fine_learner") is not None:

@@ -11,6 +11,10 @@ Topics (SPEC §4): subscribes ``demand`` (percent), ``demand_ma`` (4-20 mA), ``r
 from the measurement with the torque that holds the valve there and re-enabled,
 ``ValveDriver.drive_status``) and,
 optionally, the plant's ``drive`` telemetry (measured current for the over-current check);
+in real time the demand and Δp subscriptions accept writers of any reliability
+(``interface.INPUT_QOS``), and ``/diagnostics`` names a second publisher, a publisher of the
+wrong type, or a demand on the scaling ``demand_source`` does not read
+(:meth:`ControllerNode._input_publishers`);
 publishes ``current_command`` (A), ``drive_enable``, ``position`` (percent),
 ``estimate`` and ``/diagnostics``.  Services ``~/trip`` and ``~/reset`` (std_srvs/Trigger); the
 valve tests' ``~/signature_test``, ``~/partial_stroke_test`` and latched ``valve_test``
@@ -43,6 +47,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import threading
 import time
 
@@ -58,7 +63,7 @@ from ..common.paramspec import ConfigError
 from ..core.params import CONTROLLER_NODE_SPEC, CONTROLLER_SPEC, load_controller_params
 from ..core.driver import Health, ValveDriver
 from ..core.period_inputs import PeriodInputs
-from ..core.health import NE107_DIAGNOSTIC_LEVEL, FUNCTION_CHECK, load_state, save_state
+from ..core.health import NE107_DIAGNOSTIC_LEVEL, FUNCTION_CHECK, load_state, save_state, state_owner
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
 
@@ -122,6 +127,8 @@ class ControllerNode(LifecycleNode):
         super().__init__("controller", **kwargs)
         guard_change_state(self)
         ri.declare_spec(self, CONTROLLER_NODE_SPEC)
+        #: overrides for parameters this node does not have (typos): logged, and on /diagnostics
+        self._unknown_params = ri.unknown_overrides(self)
         try:
             node_ps = CONTROLLER_NODE_SPEC.defaults().replace(ri.read_spec(self, CONTROLLER_NODE_SPEC))
         except ConfigError as exc:
@@ -131,8 +138,16 @@ class ControllerNode(LifecycleNode):
         self.lifecycle_state = "unconfigured"
         self._configure_error = "configure raised (see the log)"
         self.lockstep = node_ps["lockstep"]
-        self._state_file = node_ps["learned_state_file"]
+        # `~` and $VARS expanded, made absolute: as a shell would take the path a technician
+        # writes (`~/fuel_valve/valve1.json` was a relative directory named `~`, h24u), and
+        # independent of the directory the launch happened to start in
+        self._state_file = (os.path.abspath(os.path.expanduser(os.path.expandvars(node_ps["learned_state_file"])))
+                            if node_ps["learned_state_file"] else "")
         self._save_interval = node_ps["learned_state_save_s"]
+        #: the learned-state file names another valve (configure): never saved over
+        self._state_foreign = False
+        #: what configure made of the learned-state file, for /diagnostics (``learned_state``)
+        self._state_status = "not persisted" if not self._state_file else "not loaded yet"
         self._last_save = time.monotonic()
         self._reset_loop_state()
         self._bad_messages = 0
@@ -166,9 +181,16 @@ class ControllerNode(LifecycleNode):
         self._lock = threading.Lock()
         # every input on this node and the one executor (node_runner): no helper node.
         # Δp first: in lockstep it was published before the resolver sample of the same period
-        ri.quiet_subscription(self, Float64, contract.PRESSURE_DIFFERENTIAL, self.on_pressure)
-        ri.quiet_subscription(self, Float64, contract.DEMAND, self.on_demand)
-        ri.quiet_subscription(self, Float64, contract.DEMAND_MA, self.on_demand_ma)
+        # real time: the external inputs accept publishers of any reliability (ri.INPUT_QOS);
+        # lockstep: reliable, each period waits for its demand
+        inputs = None if self.lockstep else ri.INPUT_QOS
+        #: the input subscriptions by contract name (their resolved, remapped topics are what
+        #: :meth:`_input_publishers` counts the publishers of)
+        self._inputs_subs = {
+            contract.PRESSURE_DIFFERENTIAL: ri.quiet_subscription(self, Float64, contract.PRESSURE_DIFFERENTIAL,
+                                                                  self.on_pressure, inputs),
+            contract.DEMAND: ri.quiet_subscription(self, Float64, contract.DEMAND, self.on_demand, inputs),
+            contract.DEMAND_MA: ri.quiet_subscription(self, Float64, contract.DEMAND_MA, self.on_demand_ma, inputs)}
         ri.quiet_subscription(self, JointState, contract.RESOLVER, self.on_resolver)
         ri.quiet_subscription(self, UInt8, contract.DRIVE_STATUS, self.on_drive_status)
         if node_ps["monitor_drive_telemetry"]:
@@ -227,7 +249,16 @@ class ControllerNode(LifecycleNode):
         if initial_a:
             driver.start_from_torque(initial_a * driver.controller.model.torque_constant_nm_per_a)
         if self._state_file:
-            loaded, message = load_state(self._state_file, driver.valve_health, driver.controller.learner)
+            me = self.get_fully_qualified_name()
+            loaded, message = load_state(self._state_file, driver.valve_health, driver.controller.learner, owner=me)
+            # another valve's file (two valves given one path, a file copied across): neither
+            # loaded nor overwritten, so that valve's learned state survives this one (h24u)
+            owner = None if loaded else state_owner(self._state_file)
+            self._state_foreign = owner is not None and owner != me
+            if self._state_foreign:
+                message += f"; not saved over either (it belongs to {owner}): give this valve a file of its own"
+            self._state_status = ("loaded" if loaded else f"foreign ({owner}): not loaded, not saved"
+                                  if self._state_foreign else "not loaded: " + message.split(" (")[0].split(": ")[0])
             # one call site per severity: rclpy refuses a site that changes severity
             if loaded:
                 self.get_logger().info(message)
@@ -347,11 +378,12 @@ class ControllerNode(LifecycleNode):
 
     def _save_state(self) -> None:
         """Persist the learned state (``learned_state_file``); a failure is logged, never raised."""
-        if not self._state_file or self.driver is None:
+        if not self._state_file or self.driver is None or self._state_foreign:
             return
         self._last_save = time.monotonic()
         try:
-            save_state(self._state_file, self.driver.valve_health, self.driver.controller.learner)
+            save_state(self._state_file, self.driver.valve_health, self.driver.controller.learner,
+                       owner=self.get_fully_qualified_name())
         except OSError as exc:
             self.get_logger().error(f"cannot save the learned state to {self._state_file}: {exc}",
                                     throttle_duration_sec=10.0)
@@ -632,16 +664,64 @@ class ControllerNode(LifecycleNode):
             h = Health(2, f"FAULT: internal error while reporting health: {exc}", {"faults": "internal_error"})
         values = dict(h.values, malformed_messages=self._bad_messages, periods=self._periods,
                       **self._compute.take(), **self.valve_tests.summary())
-        st = DiagnosticStatus(level=bytes([h.level]), name=f"{self.get_fully_qualified_name()}: valve driver",
-                              message=h.message, hardware_id="fuel_valve_driver",
+        level, message = h.level, h.message
+        try:
+            conflicts, counts = self._input_publishers()
+        except Exception as exc:            # noqa: BLE001 - a graph query is a report, never a reason to trip
+            conflicts, counts = [], {}
+            self.get_logger().warn(f"input publishers not checked: {type(exc).__name__}: {exc}",
+                                   throttle_duration_sec=10.0)
+        values.update(counts, learned_state=self._state_status,
+                      ignored_parameters=",".join(self._unknown_params) or "none")
+        if conflicts:
+            # not latched: it lasts as long as the graph shows it (a warning, the loop runs on)
+            level = max(level, 1)
+            message = f"{message}; {'; '.join(conflicts)}"
+        st = DiagnosticStatus(level=bytes([level]), name=f"{self.get_fully_qualified_name()}: valve driver",
+                              message=message, hardware_id="fuel_valve_driver",
                               values=[KeyValue(key=k, value=_fmt(v)) for k, v in values.items()])
         msg = DiagnosticArray(status=[st])
         msg.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(msg)
         self.recorder_gate.count(contract.DIAGNOSTICS)
-        if h.level != self._level:
-            self.get_logger().info(f"status {LEVEL_NAMES[h.level]}: {h.message}")
-            self._level = h.level
+        if level != self._level:
+            self.get_logger().info(f"status {LEVEL_NAMES[level]}: {message}")
+            self._level = level
+
+    def _input_publishers(self) -> tuple[list[str], dict]:
+        """Publishers on the inputs the driver uses (the configured demand topic and Δp), from
+        the ROS graph at the diagnostics rate: ``(conflicts, {diagnostic key: count})``.  Two
+        publishers on the demand (two supervisors, a forgotten ``ros2 topic pub``) interleave
+        their samples and the valve follows whichever came last: the demand filter took the
+        alternation between 30 and 50 % for noise and the valve sat at 38 % with the status OK
+        (h24u).  A second Δp source makes the readings jump and the schedule falls back.  Each
+        is a conflict the status names while it lasts, and so is a publisher of the wrong type
+        (DDS never delivers its samples)."""
+        if self.driver is None:
+            return [], {}
+        topic = contract.DEMAND if self.driver.ps["demand_source"] == "percent" else contract.DEMAND_MA
+        conflicts, counts = [], {}
+        for key, name in (("demand_publishers", topic), ("pressure_publishers", contract.PRESSURE_DIFFERENTIAL)):
+            resolved = self._inputs_subs[name].topic_name
+            infos = self.get_publishers_info_by_topic(resolved)
+            wanted = contract.TOPIC_TYPES[name]
+            # a publisher of another type (std_msgs/Float32 from `ros2 topic pub`) never matches:
+            # its samples are dropped by DDS and the demand goes stale with no other hint
+            foreign = sorted({i.topic_type for i in infos if i.topic_type != wanted})
+            n = counts[key] = len(infos) - sum(1 for i in infos if i.topic_type != wanted)
+            if n > 1:
+                conflicts.append(f"{n} publishers on {resolved}: conflicting sources, the driver takes whichever "
+                                 "sample came last")
+            if foreign:
+                conflicts.append(f"a publisher of {', '.join(foreign)} on {resolved} is ignored ({wanted} expected)")
+        other = contract.DEMAND_MA if topic == contract.DEMAND else contract.DEMAND
+        if counts["demand_publishers"] == 0:
+            # the supervisor publishes the other scaling: the driver reads only demand_source's
+            resolved = self._inputs_subs[other].topic_name
+            if self.count_publishers(resolved):
+                conflicts.append(f"the demand is published on {resolved}, but demand_source is "
+                                 f"{self.driver.ps['demand_source']!r}: ignored")
+        return conflicts, counts
 
 
 class ComputeTime:

@@ -33,6 +33,7 @@ class DemandNode(Node):
     def __init__(self, **kwargs):
         super().__init__("demand", **kwargs)
         ri.declare_spec(self, DEMAND_NODE_SPEC)
+        ri.unknown_overrides(self)           # typos in a parameter file: logged
         try:
             self.ps = DEMAND_NODE_SPEC.defaults().replace(ri.read_spec(self, DEMAND_NODE_SPEC))
             self.profile = profile_from_params(self.ps)

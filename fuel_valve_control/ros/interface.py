@@ -9,7 +9,11 @@ deep reliable queue, ``ros2 topic echo``) can connect.  Loop topics (``resolver`
 ``current_command``, ``demand``, ``demand_ma``) keep only the newest sample (depth 1): a
 control loop wants the latest value, never a backlog.  ``drive_enable`` is TRANSIENT_LOCAL so
 a plant that starts late still learns whether the drive may run.  Telemetry keeps 10 (the 1 kHz
-loop measured worse with 100 in one comparison; recorders keep deep reader queues).
+loop measured worse with 100 in one comparison; recorders keep deep reader queues).  The
+controller's subscriptions to the inputs an outside client publishes (``demand``,
+``demand_ma``, ``pressure_differential``) are BEST_EFFORT in real time (:data:`INPUT_QOS`), so
+a client's writer of either reliability matches; a RELIABLE reader ignored a best-effort
+supervisor without a word.
 """
 from __future__ import annotations
 
@@ -29,6 +33,16 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=R
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 TELEMETRY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.VOLATILE)
+#: the controller's subscriptions to the inputs a client outside the suite publishes (``demand``,
+#: ``demand_ma``, ``pressure_differential``) in real time: BEST_EFFORT, the most permissive
+#: request, so a publisher of either reliability matches (DDS pairs a RELIABLE reader only with
+#: RELIABLE writers: a supervisor publishing its demand best-effort, e.g. with the sensor-data
+#: profile, was silently ignored and the controller tripped on a stale demand, h24u).  The
+#: inputs are levels whose newest value wins, so a sample lost on the way costs nothing the
+#: next one does not repair.  VOLATILE also accepts any writer (TRANSIENT_LOCAL ones too).  Not
+#: in lockstep: there each period waits for its demand, and a lost sample would stall the loop.
+INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
+                       durability=DurabilityPolicy.VOLATILE)
 #: writer history of a volatile topic while a recorder is part of the run (``recorded_topics``):
 #: samples a starved recorder has not acknowledged yet, which DDS re-sends once it runs again.
 #: The 1 kHz topics times the worst stall of the recorder process seen on the loaded 2-core
@@ -185,6 +199,25 @@ def declare_spec(node, spec, values=None, names: Iterable[str] | None = None) ->
                                                to_value=int(p.high if p.high is not None else 2**62), step=0)]
         default = p.default if values is None else values[p.name]
         node.declare_parameter(p.name, default, desc)
+
+
+def unknown_overrides(node) -> list[str]:
+    """Call after every declaration: the names a parameter file or ``-p`` set for this node
+    that it does not have, each logged as a warning with the closest declared name.  rclpy
+    drops such overrides without a word, so a typo in a technician's YAML
+    (``faults.resolver_timeout: 0.5``) left the default in force while the file said
+    otherwise (h24u).  Not an error: one ``/**`` file may serve several nodes."""
+    import difflib
+    declared = sorted(node._parameters)
+    # rclpy keeps the overrides that matched this node (its name, a wildcard) in one dict;
+    # no public accessor in Jazzy
+    unknown = sorted(n for n in getattr(node, "_parameter_overrides", {}) if n not in node._parameters)
+    for name in unknown:
+        close = difflib.get_close_matches(name, declared, n=1, cutoff=0.6)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        node.get_logger().warn(f"parameter {name!r} set by a parameter file or -p is not a parameter of this node: "
+                               f"ignored{hint}")
+    return unknown
 
 
 def handle_parameter_changes(node, spec, check, apply) -> None:

@@ -202,6 +202,7 @@ class PlantNode(Node):
     def __init__(self, **kwargs):
         super().__init__("plant", **kwargs)
         ri.declare_spec(self, PLANT_NODE_SPEC)
+        ri.unknown_overrides(self)           # typos in a parameter file: logged
         try:
             node_ps = PLANT_NODE_SPEC.defaults().replace(ri.read_spec(self, PLANT_NODE_SPEC))
             self.ps = PLANT_SPEC.pick(node_ps)
