@@ -137,6 +137,24 @@ def test_a_reading_below_the_least_friction_the_valve_can_have_is_a_load_and_cut
     assert ReferenceFeedforward.FLOOR_SCALE == ReferenceFeedforward.RAMP_MIN_SCALE == 0.5
 
 
+
+@pytest.mark.parametrize("bounds, cut", [((0.22, 0.54), None), ((0.46, 0.61), 0.46)])
+def test_the_floor_is_on_the_readings_midpoint(bounds, cut):
+    """The friction met lies between the last stuck period's reading and the first leaving one's;
+    their midpoint is its estimate: campaign seed 3021 read 0.22 / 0.54 x (a 5 N*m load helping
+    a valve of 1.15 x: no cut), the adaptation grid's valve of 0.5 x 0.46 / 0.61 x (cut at 0.46)."""
+    fl = MODEL.friction(P_MAX)
+    lo, up = (b * fl.valve_static_nm for b in bounds)
+    c = _comp()
+    for k in range(1, 9):
+        c.update(_ctx(START, lo * k / 8))
+    for k in range(1, 6):                  # one count a period: 1 count still stuck, then leaving
+        c.update(_ctx(START + k * COUNT, lo if k == 1 else up, speed=COUNT / T))
+    assert c.move_reading == pytest.approx(bounds, rel=1e-6)
+    ff = _sliding_ff(c)
+    assert ff == pytest.approx((c.scale(P_MAX)[1] if cut is None else cut) * fl.valve_coulomb_nm, rel=1e-6)
+
+
 def test_nothing_is_read_from_a_creep_a_sliding_start_or_with_the_option_off():
     fl = MODEL.friction(P_MAX)
     c = _comp()
