@@ -7,7 +7,8 @@ reading over the scheduled static level caps the valve's friction feed-forward f
 move (never above the learned level; it lapses with the move); once SLIDE_PERIODS estimates of the
 friction the sliding valve meets (coupling torque less J_L x its acceleration) are in, a cap below
 them is raised to them (h22g, §34); a reading below the least friction the valve can have
-(FLOOR_SCALE x the schedule) is a load helping the move and cuts nothing (h24g, §43).  Off by default (docs/control_results.md §31, §34).
+(FLOOR_SCALE x the schedule) is a load helping the move and cuts nothing (h24g, §43).  On by default since
+h24g (docs/control_results.md §31, §34, §43).
 The closed-loop figure (the 2 % step at friction x 0.5, max Δp) is at the end.
 """
 import pytest
@@ -234,8 +235,8 @@ def test_the_sliding_friction_is_the_coupling_torque_less_the_valves_inertia_tor
 # ===================================================== in the loop (step_small, the default mode)
 def _step_small(friction, stiffness=1.0, dp=P_MAX, read=True):
     """The 2 % step on a plant of ``friction`` x the nominal friction and ``stiffness`` x the
-    model's coupling at ``dp``, ``ff.read_breakaway`` = ``read`` (off by default, see
-    docs/control_results.md §31): (overshoot %, the move's breakaway reading)."""
+    model's coupling at ``dp``, ``ff.read_breakaway`` = ``read`` (on by default since
+    docs/control_results.md §43): (overshoot %, the move's breakaway reading)."""
     from fuel_valve_control.tools import sim
     from fuel_valve_control.tools.scenarios import load_scenario
     from fuel_valve_plant.physics.params import PLANT_SPEC
@@ -263,7 +264,7 @@ def _step_small(friction, stiffness=1.0, dp=P_MAX, read=True):
 
 def test_the_loop_reads_the_friction_the_valve_has_and_the_step_does_not_overshoot():
     """With the option on.  Friction x 0.5 at max Δp (the adaptation grid's cells that miss 10 %,
-    31-37 % without the reading, the default): the valve lets go at about half the scheduled static level, read as such (a lower
+    31-37 % without the reading, main 570f5b7's default): the valve lets go at about half the scheduled static level, read as such (a lower
     bound by the last stuck period's rise), and the 2 % step stays within 10 % (the grid's J +-20 %
     cells: test_closed_loop.py's box).  A valve x 3 does not let go within the move (nothing read);
     on a coupling of half the model's stiffness the same valve's twist reads above the schedule
@@ -271,7 +272,7 @@ def test_the_loop_reads_the_friction_the_valve_has_and_the_step_does_not_oversho
     overshoot, reading = _step_small(0.5)
     assert 0.4 <= reading[0] <= 0.55
     assert overshoot <= 10.0
-    assert _step_small(0.5, read=False) == (pytest.approx(35.7, abs=0.1), None)   # the default (main)
+    assert _step_small(0.5, read=False) == (pytest.approx(35.7, abs=0.1), None)   # the option off (main 570f5b7)
     assert _step_small(3.0)[1] is None
     assert _step_small(0.5, stiffness=0.5)[1][0] > 1.0
 
@@ -279,7 +280,7 @@ def test_the_loop_reads_the_friction_the_valve_has_and_the_step_does_not_oversho
 # ========================= the option's in-rating hunter, seed 1137 (h22g, docs/control_results.md §34)
 def test_the_reading_leaves_the_lugre_valve_of_campaign_seed_1137_without_hunting():
     """Full box seed 1137 (LuGre x 0.71, Stribeck 0.011 rad/s, 2.7 N*m toward closed, 0.72 counts
-    of valve-resolver noise): the default holds all 12 plateaus without hunting.  With the option
+    of valve-resolver noise): with the option off (main 570f5b7) it holds all 12 plateaus without hunting.  With the option
     on, the closing move at 4.33 s reads 0.36 / 0.54 of the scheduled static level (the coupling
     torque, net of the known and held loads, at the last period within half a breakaway of the
     start and the first beyond) while the coupling went on to carry 3.6 N*m (0.98 x) as the valve
@@ -287,14 +288,15 @@ def test_the_reading_leaves_the_lugre_valve_of_campaign_seed_1137_without_huntin
     drive rises 0.5-0.7 N*m a period, so neither bound is the friction it meets.  The move's
     feed-forward capped at 0.36 x left it 7.7 mrad short and the hold's corrections hunted
     (8 reversals, 33 mrad).  The sliding friction read after the slide (:meth:`_read_sliding`,
-    h22g) raises that cap to the level the sliding valve meets: no hunting (on main it hunts)."""
+    h22g) raised that cap to the level the sliding valve meets: no hunting (on 149ea55 it hunted).  Since h24g
+    neither move is cut at all: midpoints 0.25 / 0.45 x, below FLOOR_SCALE (§43)."""
     import sys
     from pathlib import Path
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     import robustness as rb
     from fuel_valve_control.core.params import DEFAULT_MODE
     case = rb.sample_case(1137)
-    assert not rb.run_case((case, DEFAULT_MODE, {}))["hunts"]                     # the default (main)
+    assert not rb.run_case((case, DEFAULT_MODE, {"ff.read_breakaway": False}))["hunts"]   # off (main 570f5b7)
     on = rb.run_case((case, DEFAULT_MODE, {"ff.read_breakaway": True}))
     assert not on["beyond_rating"]
     assert not on["hunts"]
