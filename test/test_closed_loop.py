@@ -202,9 +202,9 @@ _FLOOR = ("physics: the stick-slip jump 2(Ts-Tc)/K exceeds the 0.021 rad step, s
 # small step: where overshoot > 10 % (docs/control_results.md §2, benchmarks/control_quality.py)
 STEP_SHORTFALLS = {
     # (observer_fp, the default since h18s, as observer_ff within 1 %: the overshoot is the main law's move)
-    _corner(friction=0.5): "overshoot 35.7 %: " + _FF_LOW,
-    _corner(friction=0.5, inertia=0.8): "overshoot 31.3 %: " + _FF_LOW,
-    _corner(friction=0.5, inertia=1.2): "overshoot 37.4 %: " + _FF_LOW,
+    # (friction=0.5 with inertia x0.8 / 1 / 1.2 at max Δp) overshot 31-37 % (the feed-forward
+    # scheduled on the nominal friction) until the move's breakaway reading became the default
+    # (ff.read_breakaway, h21g/h22g/h24g, docs/control_results.md §31, §34, §43): 0.4-1.6 %
     # (friction=3.0 with inertia x0.8 / 1 / 1.2) overshot 43-45 % (the friction feed-forward a
     # third of the real breakaway torque, the stuck ramp wound the coupling to the real Ts and the
     # valve let go with the stored twist, jump 0.0137 rad > remaining error) until the jump

@@ -366,6 +366,15 @@ class ReferenceFeedforward(Compensator):
     #: scatters ~0.5 N*m (the second difference of a resolver with ~1 count of noise), and a
     #: 20 ms move that lets go 6 ms in slides ~10 periods before it decelerates
     SLIDE_PERIODS = 6
+    #: a clocked move's breakaway reading caps its feed-forward only if its midpoint is at least
+    #: this multiple of the scheduled static level, the least friction the valve can have (the SPEC
+    #: box's lowest friction scale, as RAMP_MIN_SCALE): below it the valve let go with less torque
+    #: on the coupling than any friction of the box holds, i.e. a load that neither the model nor the
+    #: hold knows helped the move, and the reading says nothing of the friction
+    #: (:meth:`_read_move_breakaway`; h24g, campaign seeds 1004, 1043, 3021: midpoints -2.6 ... 0.38 x
+    #: on valves of 1.15-2.2 x with 5-10 N*m of unlearned load helping their closing moves; the
+    #: adaptation grid's valves of 0.5 x read 0.54-0.61 x)
+    FLOOR_SCALE = RAMP_MIN_SCALE
     #: periods over which the wind-up reads the gear output's acceleration (a one-period
     #: difference of the velocity estimate scattered the small wind-ups at Δp 0: r² 0.25)
     ACCEL_WINDOW = 4
@@ -570,6 +579,11 @@ class ReferenceFeedforward(Compensator):
         (without the gate, a nominal valve read 0.89-1.01 x, lost up to 11 % of its Coulomb
         feed-forward, stopped short and the hold's jump overshot: nominal box seed 2032, 64.9 %).
         One that holds more than the schedule is left to the Friedland-Park update (a cap).
+        Nor is a reading whose midpoint is below FLOOR_SCALE x the scheduled static level, the
+        least friction the valve can have (h24g): a load neither the model nor the hold knows
+        helped that valve let go, and capped at max(reading, 0.1) its move was fed a tenth of the
+        schedule on valves of 1.2-2.2 x (campaign seeds 1004, 1043: hunting without the fault main
+        has; 3021: a plateau 15 mrad off instead of 6.6), see docs/control_results.md §43.
         A cap may then be raised, never lowered, to the friction the valve meets while it slides
         (:meth:`_read_sliding`): a presliding valve passes half a breakaway before its friction
         peaks and is read low (campaign seed 1137, h22g).
@@ -622,8 +636,21 @@ class ReferenceFeedforward(Compensator):
         if fl.valve_static_nm <= 0.0:
             return
         self.move_reading = (r.stuck_nm / fl.valve_static_nm, r.leaving_nm / fl.valve_static_nm)
-        if max(r.stuck_nm, r.leaving_nm) < fl.valve_coulomb_nm:     # else no cut is certain: nothing changes
-            self._move_cap = max(r.stuck_nm / fl.valve_static_nm, self.scale_bounds[0])
+        lower, upper = r.stuck_nm, max(r.stuck_nm, r.leaving_nm)
+        # a held load learned from one edge only may be off by up to the static level (its prior,
+        # :attr:`Context.held_load_known`): the friction met lies between the reading net of it and
+        # gross of it, and only what both say is certain (h24g: the adaptation grid's valve at Δp 0
+        # told max read 0.50 x net of a one-edge -3.2 N*m, -0.08 x gross, on a valve of 0.09 x)
+        spans = [(lower, upper)]
+        if not ctx.held_load_known:
+            spans.append((lower + s * ctx.held_load, upper + s * ctx.held_load))
+        # a cut only where the valve let go below the Coulomb level fed (even the upper bound:
+        # else no cut is certain) and the friction met (the bounds' midpoint, its best estimate)
+        # is one the valve can have (else what was read is a load helping the move, not friction:
+        # h24g, campaign seeds 1004, 1043, 3021)
+        if all(self.FLOOR_SCALE * fl.valve_static_nm <= 0.5 * (lo + up) and up < fl.valve_coulomb_nm
+               for lo, up in spans):
+            self._move_cap = max(max(lo for lo, _ in spans) / fl.valve_static_nm, self.scale_bounds[0])
 
     def _coupling_nm(self, ctx: Context, way: float) -> float:
         """The coupling torque ``K (θm/N - θL)`` from the two resolvers (the model's K over the

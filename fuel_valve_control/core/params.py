@@ -231,10 +231,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("ff.breakaway_start_fraction", 0.4, "", "observer_ff: the breakaway ramp starts at this fraction of "
           "the learned static-friction level (below the lowest friction expected, x 0.5 of nominal)",
           0.0, 1.0, runtime=True),
-    Param("ff.read_breakaway", False, "", "observer_ff, observer_fp: a clocked planned move reads the static "
+    Param("ff.read_breakaway", True, "", "observer_ff, observer_fp: a clocked planned move reads the static "
           "friction the valve lets go at from the coupling's twist (both resolvers); where it let go below the "
-          "scheduled Coulomb level, the valve's friction feed-forward for the rest of that move is capped at "
-          "the friction met (docs/control_results.md section 31: off, quick-campaign p95 worse)",
+          "scheduled Coulomb level but not below the least friction the valve can have (0.5 x the schedule, "
+          "net and gross of a held load known from one edge only), the valve's friction feed-forward for the "
+          "rest of that move is capped at the friction met (docs/control_results.md sections 31, 34, 43)",
           runtime=True),
     Param("ff.speed_window_periods", 4, "", "periods over which the valve speed is measured from the "
           "valve resolver", 1, 100),
