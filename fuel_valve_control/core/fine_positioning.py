@@ -353,6 +353,22 @@ class FinePositioner:
         wc = math.sqrt((kd * kd + math.sqrt(kd ** 4 + 4.0 * j1 * j1 * kp * kp)) / (2.0 * j1 * j1))
         return math.atan2(kd * wc, kp) - wc * period_s
 
+    @staticmethod
+    def swing_scale(model: NominalModel, ref_inertia_kgm2: float, ref_stiffness_nm_per_rad: float) -> float:
+        """The valve's half swing on its coupling ``π √(JL/K)`` over a reference valve's (the default model's:
+        1.76e-3 kg·m², 480 N·m/rad, 6.0 ms): the factor the servo-blended pulse's rise and fall times
+        (``fine.rise_time_s``, ``fine.fall_time_s``, set on the reference valve) take on this valve.
+        The pulse drives the twist across a fraction of the static band ``(T_s - T_c)/K`` in those times,
+        so the gear output's acceleration torque ``J1 Δφ / t²`` goes as ``J1 (T_s - T_c) / (K t²)``: with
+        ``t ∝ √(JL/K)`` it is ``J1 (T_s - T_c) / JL`` whatever K, and the valve's swing after breakaway
+        keeps the same share of the pulse.  Soft coupling (K 200, x1.55): with the reference's seconds the
+        30 A-capped pulses reached 0.0781 rad of twist against a learned breakaway planned up to 0.083,
+        each raised it (``fine.probe_step``) and the next preload, planned from it, broke the valve loose
+        a whole stick-slip jump, 27.6 % past a 2 % step; scaled, the first pulse moved it on target
+        (task h24s, docs §42).  Nominal valve: 1 exactly."""
+        return math.sqrt((model.valve_inertia_kgm2 / model.coupling_stiffness_nm_per_rad)
+                         / (ref_inertia_kgm2 / ref_stiffness_nm_per_rad))
+
     def reset(self, measurements: bool = True) -> None:
         """Back to idle; ``measurements=False`` (a new demand) keeps what the resolvers have
         shown: how long the valve has sat still and the twist of the last breakaway seen."""
