@@ -270,10 +270,9 @@ class PositionController:
 
     def _fine_config(self, ps: Mapping[str, Any]) -> FineConfig:
         per = self.period
-        # the pulse's times were set on the default model's valve: scaled with the told valve's half
-        # swing, its acceleration current is the same on any coupling (fine.swing_scaled_pulse)
-        swing = FinePositioner.swing_scale(self.model, CONTROLLER_SPEC.params["model.valve_inertia_kgm2"].default,
-                                           CONTROLLER_SPEC.params["model.coupling_stiffness_nm_per_rad"].default) \
+        # the pulse's times were set on the default model's coupling: lengthened on a softer one, its
+        # acceleration across the wider twist band is the default valve's (fine.swing_scaled_pulse)
+        swing = FinePositioner.swing_scale(self.model, NominalModel.from_params(CONTROLLER_SPEC.defaults())) \
             if ps["fine.swing_scaled_pulse"] else 1.0
         return FineConfig(ps["fine.tolerance_counts"] * RESOLVER_COUNT_RAD,
                           max(int(round(ps["fine.engage_time_s"] / per)), 1),
