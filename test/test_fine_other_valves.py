@@ -6,9 +6,11 @@
   preloading: the 2 % step overshot 23 % (fails on main).  The stage now stays out where the
   margin is not positive; the main law's hold keeps the plateau;
 * a soft coupling (K 200 N*m/rad): the main law stops ~half a 1.1e-2 rad jump short and the
-  servo-blended pulse's preload broke the valve loose a whole jump across (27.6 %): a known
-  shortfall with the defaults (strict xfail); ``fine.doublet_jump_fraction`` 0.5, off by
-  default, closes it with the doublet's staircase;
+  servo-blended pulse's preload broke the valve loose a whole jump across (27.6 %).  Traced (task
+  h24s, section 42): the pulse's rise and fall times, set for the nominal valve, asked the 30 A-capped
+  gear output for 2.4x the acceleration on the 2.4x wider twist band; they now grow by sqrt(K_default / K)
+  on a softer told coupling (default; the nominal valve's pulse bit for bit).
+  ``fine.doublet_jump_fraction`` 0.5, off by default, closes it too, with the doublet's staircase;
 * the nominal valve keeps its stage (the margin is positive on 1 and 2 kHz loops).
 """
 from __future__ import annotations
@@ -74,10 +76,40 @@ def test_nominal_step_keeps_the_stage():
     assert not _hunts(res)
 
 
-@pytest.mark.xfail(strict=True, reason="soft coupling K 200: the servo-blended pulse's preload breaks the valve "
-                   "loose a whole 1.1e-2 rad jump across (27.6 %); fine.doublet_jump_fraction is off by default")
 def test_soft_coupling_step_default():
-    assert _step("soft_coupling").metrics["overshoot_pct"] <= 10.0
+    """K 200 (told), 2 % step with the defaults: <= 10 % overshoot, within 8e-4 rad, no hunting.  On
+    main 27.6 %: the servo-blended pulse, timed for the nominal valve, could not
+    drive the 2.4x wider twist band within its 30 A cap; each pulse that fell short raised the
+    learned breakaway and a preload planned from it broke the valve loose a whole 1.1e-2 rad jump.
+    Its rise and fall times now grow by sqrt(K_default / K) on a softer told coupling (docs §42)."""
+    res = _step("soft_coupling")
+    assert res.metrics["overshoot_pct"] <= 10.0
+    assert res.metrics["steady_state_error_rad"] < 8e-4
+    assert not _hunts(res)
+
+
+def test_soft_coupling_step_with_the_seconds_as_given_overshoots():
+    """``fine.swing_scaled_pulse`` false (the nominal valve's seconds on K 200): the whole-jump
+    overshoot is back (27.6 %) -- the mechanism located."""
+    assert _step("soft_coupling", **{"fine.swing_scaled_pulse": False}).metrics["overshoot_pct"] > 20.0
+
+
+def test_pulse_times_lengthen_on_a_softer_coupling():
+    """The pulse's times grow by sqrt(K_default / K) on a softer coupling, never shrink: exactly 1 on
+    the nominal valve (its pulse bit for bit), on a stiffer coupling, a heavier valve, another gear or
+    more friction; sqrt(480/200) on the soft coupling."""
+    d = CONTROLLER_SPEC.defaults()
+    ref = NominalModel.from_params(d)
+
+    def scale(**over):
+        return FinePositioner.swing_scale(NominalModel.from_params({**d, **over}), ref)
+
+    assert scale() == 1.0
+    assert scale(**{"model.gear_ratio": 80.0}) == 1.0
+    assert scale(**{"model.coupling_stiffness_nm_per_rad": 1500.0}) == 1.0
+    assert scale(**{"model.valve_inertia_kgm2": 3 * d["model.valve_inertia_kgm2"]}) == 1.0
+    assert scale(**{k: 2.0 * d[k] for k in ("model.valve_static_nm", "model.valve_static_per_dp_nm")}) == 1.0
+    assert scale(**{"model.coupling_stiffness_nm_per_rad": 200.0}) == pytest.approx(math.sqrt(480.0 / 200.0))
 
 
 def test_soft_coupling_step_with_doublet_jump_fraction():

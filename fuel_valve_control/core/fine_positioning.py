@@ -353,6 +353,25 @@ class FinePositioner:
         wc = math.sqrt((kd * kd + math.sqrt(kd ** 4 + 4.0 * j1 * j1 * kp * kp)) / (2.0 * j1 * j1))
         return math.atan2(kd * wc, kp) - wc * period_s
 
+    @staticmethod
+    def swing_scale(model: NominalModel, reference: NominalModel) -> float:
+        """The factor (>= 1) the servo-blended pulse's rise and fall times (``fine.rise_time_s``,
+        ``fine.fall_time_s``, set on the ``reference`` valve: the default model) take on ``model``'s valve:
+        ``max(√(K_ref / K), 1)``.  The pulse drives the twist across a fraction of the static band
+        ``(T_s - T_c)/K``; on a softer coupling the same friction torques span a band ``K_ref/K`` times
+        wider, and the gear output's acceleration ``Δφ / t²`` -- the current the ``fine.peak_current_a``
+        cap limits -- grows with it at a given time.  Lengthened by the square root of the ratio, the
+        acceleration is the reference valve's (and the times keep their share of the valve's half swing
+        ``π √(JL/K)``, which grows the same way); on a stiffer coupling they stay (the pulse is within the
+        cap already).  Soft coupling (K 200, times x1.55): with the reference's seconds the capped pulses
+        reached 0.0781 rad of twist against a learned breakaway planned up to 0.083, each raised it
+        (``fine.probe_step``) and the next preload, planned from it, broke the valve loose a whole jump,
+        27.6 % past a 2 % step; lengthened, the first pulse moved it on target.  Measured and left out
+        (task h24s, docs §42): the times also shortened on a stiff coupling, or scaled with the half swing
+        on a heavy valve (worse campaigns there), or lengthened with the friction's band too (friction x2:
+        campaign better, startup and hold mixed).  Nominal valve: 1 exactly."""
+        return max(math.sqrt(reference.coupling_stiffness_nm_per_rad / model.coupling_stiffness_nm_per_rad), 1.0)
+
     def reset(self, measurements: bool = True) -> None:
         """Back to idle; ``measurements=False`` (a new demand) keeps what the resolvers have
         shown: how long the valve has sat still and the twist of the last breakaway seen."""

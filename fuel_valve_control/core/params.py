@@ -261,6 +261,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.rise_time_s", 0.002, "s", "pulse: preload to peak (sin^2 blend)", 0.001, 0.05, runtime=True),
     Param("fine.fall_time_s", 0.003, "s", "pulse: peak to the final twist, well inside the valve's 6 ms "
           "half swing so the swing is the one planned", 0.001, 0.05, runtime=True),
+    Param("fine.swing_scaled_pulse", True, "", "fine.rise_time_s and fine.fall_time_s are for the default model's "
+          "coupling; on a softer told coupling (stiffness K) they grow by sqrt(K_default / K), so the gear output's "
+          "acceleration across the wider twist band stays within what fine.peak_current_a allowed the default valve "
+          "(soft coupling K 200: x1.55; with the seconds as given its capped pulses fell short, the learned breakaway "
+          "climbed and a preload broke the valve loose a whole jump: 2 % step 27.6 -> 0.0 %, task h24s); never "
+          "shorter; false: the seconds as given", runtime=False),
     Param("fine.learn_gain", 0.7, "", "fraction of each measured correction taken into the learned twists",
           0.0, 1.0, runtime=True),
     Param("fine.max_pulses", 25, "", "pulses per plateau before the stage holds where it is", 1, 1000,

@@ -270,13 +270,17 @@ class PositionController:
 
     def _fine_config(self, ps: Mapping[str, Any]) -> FineConfig:
         per = self.period
+        # the pulse's times were set on the default model's coupling: lengthened on a softer one, its
+        # acceleration across the wider twist band is the default valve's (fine.swing_scaled_pulse)
+        swing = FinePositioner.swing_scale(self.model, NominalModel.from_params(CONTROLLER_SPEC.defaults())) \
+            if ps["fine.swing_scaled_pulse"] else 1.0
         return FineConfig(ps["fine.tolerance_counts"] * RESOLVER_COUNT_RAD,
                           max(int(round(ps["fine.engage_time_s"] / per)), 1),
                           max(int(round(ps["fine.observe_time_s"] / per)), 1),
                           max(int(round(ps["fine.park_time_s"] / per)), 1), ps["fine.park_speed_rad_s"],
                           ps["fine.overdrive_fraction"], ps["fine.preload_margin"],
-                          max(int(round(ps["fine.rise_time_s"] / per)), 1),
-                          max(int(round(ps["fine.fall_time_s"] / per)), 1),
+                          max(int(round(ps["fine.rise_time_s"] * swing / per)), 1),
+                          max(int(round(ps["fine.fall_time_s"] * swing / per)), 1),
                           ps["fine.learn_gain"], ps["fine.max_pulses"],
                           ps["fine.servo_hz"], ps["fine.max_move_rad"], ps["fine.peak_current_a"],
                           ps["fine.max_crossings"], ps["fine.probe_step"], ps["fine.min_move_fraction"],
