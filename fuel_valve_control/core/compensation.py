@@ -112,6 +112,10 @@ class Compensator:
         coupling it has met), or None when it has met nothing."""
         return None
 
+    #: motor torque (N*m) of this period's coupling-snap feed-forward, part of :meth:`update`'s
+    #: output (0: none; :meth:`ReferenceFeedforward._coupling_snap`)
+    snap_nm = 0.0
+
     def coupling_misfit(self, softness: float) -> None:
         """The law read the coupling at its holds as K_model / K = ``softness`` (1: the
         model's, or within the reading's scatter of it; :class:`HoldStiffness`)."""
@@ -905,7 +909,7 @@ class ReferenceFeedforward(Compensator):
             wm, wv = _non_friction_accels(m, ctx)
             self.motor.update(n * ctx.valve_speed_meas, wm)
             self.valve.update(ctx.valve_speed_meas, wv)
-        snap_nm = self._coupling_snap(ctx)
+        snap_nm = self.snap_nm = self._coupling_snap(ctx)
         at_rest = abs(ctx.valve_speed_meas) <= self.stuck_speed
         # breakaway help: static level while the reference pulls a valve at rest, i.e. when a
         # move starts (accelerating) or, holding, when the error is beyond the deadband

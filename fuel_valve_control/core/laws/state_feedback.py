@@ -66,7 +66,7 @@ class StateFeedbackLaw(ControlLaw):
     def __init__(self, name: str, model: NominalModel, period_s: float, feedback: StateFeedback,
                  observer_gain: np.ndarray, shaper: TrajectoryShaper, integral: IntegralPolicy,
                  compensator: Compensator, seating: Seating, speed_window: int = 4, delay_periods: int = 0,
-                 v2: bool = False, hold_on_friction_met: bool = False):
+                 v2: bool = False, hold_on_friction_met: bool = False, snap_peak_nm: float = math.inf):
         self.name = name
         #: issue 14 (h14c) behaviour of the v2 modes (observer_ff, observer_fp): breakaway jumps
         #: read from the tracking error, a settled relax not reset by speed-estimate flicker;
@@ -115,6 +115,10 @@ class StateFeedbackLaw(ControlLaw):
         self.stiffness = (HoldStiffness(model.coupling_stiffness_nm_per_rad, model.gear_ratio, model.motor_static_nm,
                                         RESOLVER_COUNT_RAD, rest_periods=max(round(0.02 / period_s), 1))
                           if v2 and integral.read_stiffness else None)
+        #: motor torque (N*m) beyond which the coupling-snap feed-forward of a coupling read soft
+        #: is cut (:meth:`update`): the fine stage's current cap (``fine.peak_current_a``, 30 A).
+        #: On K x 0.1 the 20 ms minimum move's snap asked 31-35 A (adaptation grid)
+        self.snap_peak_nm = snap_peak_nm
         #: static valve friction of the nominal model at Δp 0 (N*m): the least the schedule knows
         self._static_floor = model.friction(0.0).valve_static_nm
         self.xo = np.zeros(6)      # observer state [θ1, ω1, θL, ωL, d1, dL] at the sample's time
@@ -434,6 +438,9 @@ class StateFeedbackLaw(ControlLaw):
                 self._pending = math.copysign(max(abs(self._pending), ramp), error)
         known_load = load_nm - m.spring_rate_nm_per_rad * thl   # preload + flow
         self._d = known_load + (self._fl if self.compensator.feeds_observer else 0.0)
+        snap = self.compensator.snap_nm
+        if self.stiffness is not None and snap * u > 0.0 and abs(u) > self.snap_peak_nm:
+            u -= math.copysign(min(abs(u) - self.snap_peak_nm, abs(snap)), u)
         return u
 
     def _read_pull(self, pulling: bool, stuck: bool, valve: float, target: float, error: float, net_nm: float,
