@@ -164,6 +164,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "at the gear output > 0.2172; nominal 0.11, never on), give the stuck ramp's static-Coulomb surplus back "
           "once the valve breaks away (docs/control_results.md section 38: JL x3 startup worst plateau 4.6e-3 -> "
           "4.8e-4 rad, but its observer_fp campaign p95 1.4e-3 -> 2.4e-3: off)"),
+    Param("integral.read_stiffness", False, "", "observer_ff, observer_fp: read the coupling stiffness at every "
+          "hold (twist from the two resolvers against the drive at rest) and, beyond the reading's scatter, size the "
+          "hold's stick-slip jump and the planned moves' coupling-snap feed-forward on it (docs/control_results.md "
+          "section 41)"),
     Param("integral.deadband_min_rad", 2.9e-4, "rad", "smallest deadband (3 valve resolver counts)",
           0.0, 0.05, runtime=True),
     # --- the drive's supply (planned moves are designed for it, core/design.design_trajectory)

@@ -248,6 +248,7 @@ class PositionController:
                                   ps["ff.stuck_speed_rad_s"], ps["integral.stuck_ramp_time_s"],
                                   ps["integral.relax_time_s"],
                                   relieve_unarrested_swing=ps["integral.relieve_unarrested_swing"],
+                                  read_stiffness=ps["integral.read_stiffness"],
                                   # the learned steady load never exceeds what the drive can hold
                                   load_limit_nm=ps["limits.continuous_current_a"] * m.torque_constant_nm_per_a
                                   * m.gear_ratio)
@@ -262,7 +263,8 @@ class PositionController:
         main = StateFeedbackLaw(mode, m, period, feedback, gain, shaper, integral, self._compensator(mode, ps),
                                 seating, speed_window=ps["ff.speed_window_periods"],
                                 delay_periods=int(round(ps["resolver_delay_s"] / period)), v2=not legacy,
-                                hold_on_friction_met=mode in V2_MODES)
+                                hold_on_friction_met=mode in V2_MODES,
+                                snap_peak_nm=ps["fine.peak_current_a"] * m.torque_constant_nm_per_a)
         if mode != "observer_fp":
             return main
         return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner),

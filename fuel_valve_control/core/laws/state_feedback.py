@@ -11,7 +11,8 @@ from collections import deque
 
 import numpy as np
 
-from ..compensation import Compensator, Context
+from ...common.contract import RESOLVER_COUNT_RAD
+from ..compensation import Compensator, Context, HoldStiffness
 from ..design import StateFeedback
 from ..integral_policy import IntegralPolicy, JumpLearner, SlipEdges, SlipWatch
 from ..model import NominalModel
@@ -65,7 +66,7 @@ class StateFeedbackLaw(ControlLaw):
     def __init__(self, name: str, model: NominalModel, period_s: float, feedback: StateFeedback,
                  observer_gain: np.ndarray, shaper: TrajectoryShaper, integral: IntegralPolicy,
                  compensator: Compensator, seating: Seating, speed_window: int = 4, delay_periods: int = 0,
-                 v2: bool = False, hold_on_friction_met: bool = False):
+                 v2: bool = False, hold_on_friction_met: bool = False, snap_peak_nm: float = math.inf):
         self.name = name
         #: issue 14 (h14c) behaviour of the v2 modes (observer_ff, observer_fp): breakaway jumps
         #: read from the tracking error, a settled relax not reset by speed-estimate flicker;
@@ -105,6 +106,19 @@ class StateFeedbackLaw(ControlLaw):
         self.jumps = JumpLearner(cross_hold=self.met_hold,
                                  catch_up_periods=round(self.CATCH_UP_S / period_s) if v2 else 0,
                                  chain_periods=round(integral.settle_time_s / period_s) if self.met_hold else 0)
+        #: h24k: the coupling's stiffness read at every hold (``integral.read_stiffness``, v2
+        #: modes): K_model / K sizes the hold's jump and the planned moves' coupling-snap
+        #: feed-forward once it lies beyond the reading's scatter (:class:`HoldStiffness`).  A rest
+        #: of 20 ms is one reading: several half swings of the coupling mode (~6 ms nominal, ~18 ms
+        #: at the box's K x 0.1), so a stop's swing has died in the mean.  Kept across moves and
+        #: the fine stage's hand-backs, forgotten with the jump ratio (:meth:`forget`)
+        self.stiffness = (HoldStiffness(model.coupling_stiffness_nm_per_rad, model.gear_ratio, model.motor_static_nm,
+                                        RESOLVER_COUNT_RAD, rest_periods=max(round(0.02 / period_s), 1))
+                          if v2 and integral.read_stiffness else None)
+        #: motor torque (N*m) beyond which the coupling-snap feed-forward of a coupling read soft
+        #: is cut (:meth:`update`): the fine stage's current cap (``fine.peak_current_a``, 30 A).
+        #: On K x 0.1 the 20 ms minimum move's snap asked 31-35 A (adaptation grid)
+        self.snap_peak_nm = snap_peak_nm
         #: static valve friction of the nominal model at Δp 0 (N*m): the least the schedule knows
         self._static_floor = model.friction(0.0).valve_static_nm
         self.xo = np.zeros(6)      # observer state [θ1, ω1, θL, ωL, d1, dL] at the sample's time
@@ -145,6 +159,9 @@ class StateFeedbackLaw(ControlLaw):
 
     def forget(self) -> None:
         self.jumps.reset()
+        if self.stiffness is not None:
+            self.stiffness.reset()
+            self.compensator.coupling_misfit(1.0)
 
     def friction_rescheduled(self, pressure_kpa: float) -> None:
         # bumpless: the reference state and torque carry the known load (spring, preload and
@@ -311,6 +328,7 @@ class StateFeedbackLaw(ControlLaw):
         stuck = abs(valve_speed) <= self.integral.stuck_speed
         friction = m.friction(pressure_kpa)         # once per period: the jump, the drive test, the load learning and the stuck ramp read it
         nominal_jump = friction.stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
+        soft = self._read_stiffness(ref.moving, stuck, w1, meas)
         # the drive's torque on the valve beyond the load it holds, against half the lowest
         # static friction the valve can have (x 0.5 in the robustness box; at the box's edge a
         # genuine breakaway comes right at it, so half of it): less, and the valve was broken
@@ -333,6 +351,11 @@ class StateFeedbackLaw(ControlLaw):
         # v2: sized by the jump the valve makes toward the target (the jumps differ by direction)
         ratio = self.jumps.ratio_toward(target - thl) if self.v2 else self.jumps.ratio
         met = self.compensator.jump_ratio()     # the jump the friction met at breakaway implies
+        # the jump is at least the scheduled friction's on the coupling read at the holds
+        # (2 (Ts - Tc) / K; the learner's ratio is to the model's K): a floor, so a jump the
+        # learner has measured stays what it is
+        if soft != 1.0:
+            ratio = max(ratio, soft)
         if met is not None:
             ratio = max(ratio, met)
         self.deadband = self.integral.deadband(m, pressure_kpa, ratio)
@@ -415,6 +438,9 @@ class StateFeedbackLaw(ControlLaw):
                 self._pending = math.copysign(max(abs(self._pending), ramp), error)
         known_load = load_nm - m.spring_rate_nm_per_rad * thl   # preload + flow
         self._d = known_load + (self._fl if self.compensator.feeds_observer else 0.0)
+        snap = self.compensator.snap_nm
+        if self.stiffness is not None and snap * u > 0.0 and abs(u) > self.snap_peak_nm:
+            u -= math.copysign(min(abs(u) - self.snap_peak_nm, abs(snap)), u)
         return u
 
     def _read_pull(self, pulling: bool, stuck: bool, valve: float, target: float, error: float, net_nm: float,
@@ -498,7 +524,26 @@ class StateFeedbackLaw(ControlLaw):
         return self.deadband
 
     def learned_state(self) -> dict | None:
-        return {"held_load_nm": self.held_load, "jump_ratio": self.jumps.ratio}
+        out = {"held_load_nm": self.held_load, "jump_ratio": self.jumps.ratio}
+        if self.stiffness is not None:
+            out["coupling_softness"] = self.stiffness.softness     # K_model / K read at the holds
+        return out
+
+    def _read_stiffness(self, moving: bool, stuck: bool, w1: float, meas) -> float:
+        """K_model / K to act on this period (1 without ``integral.read_stiffness``): one
+        period of the hold reading (:class:`HoldStiffness`; at rest = no planned move, valve and
+        gear output still), and on a change of it the compensator told (the coupling-snap
+        feed-forward of planned moves)."""
+        if self.stiffness is None:
+            return 1.0
+        old = self.stiffness.misfit
+        at_rest = not moving and stuck and abs(w1) <= self.integral.stuck_speed
+        twist = meas.motor_rad / self.model.gear_ratio - meas.valve_rad
+        self.stiffness.update(at_rest, twist, self._applied)
+        new = self.stiffness.misfit
+        if new != old:
+            self.compensator.coupling_misfit(new)
+        return new
 
     def friction_trend(self) -> float | None:
         scale = self.compensator.scale(self._pressure) if self._pressure is not None else None
