@@ -113,7 +113,8 @@ class StateFeedbackLaw(ControlLaw):
         #: at the box's K x 0.1), so a stop's swing has died in the mean.  Kept across moves and
         #: the fine stage's hand-backs, forgotten with the jump ratio (:meth:`forget`)
         self.stiffness = (HoldStiffness(model.coupling_stiffness_nm_per_rad, model.gear_ratio, model.motor_static_nm,
-                                        RESOLVER_COUNT_RAD, rest_periods=max(round(0.02 / period_s), 1))
+                                        RESOLVER_COUNT_RAD, rest_periods=max(round(0.02 / period_s), 1),
+                                        tolerance=integral.stiffness_tolerance)
                           if v2 and integral.read_stiffness else None)
         #: motor torque (N*m) beyond which the coupling-snap feed-forward of a coupling read soft
         #: is cut (:meth:`update`): the fine stage's current cap (``fine.peak_current_a``, 30 A).
