@@ -352,11 +352,16 @@ class StateFeedbackLaw(ControlLaw):
         # v2: sized by the jump the valve makes toward the target (the jumps differ by direction)
         ratio = self.jumps.ratio_toward(target - thl) if self.v2 else self.jumps.ratio
         met = self.compensator.jump_ratio()     # the jump the friction met at breakaway implies
-        # the jump is at least the scheduled friction's on the coupling read at the holds
-        # (2 (Ts - Tc) / K; the learner's ratio is to the model's K): a floor, so a jump the
-        # learner has measured stays what it is
+        # the jump is at least the friction's on the coupling read at the holds (2 (Ts - Tc) / K;
+        # the learner's ratio is to the model's K): a floor, so a jump the learner has measured
+        # stays what it is.  Default mode (h25k): at the static friction the hold has met
+        # (``static``: the schedule lowered to the slip edges' band, never raised), not the
+        # schedule -- on a low-friction valve told max Δp the scheduled floor parked the valve
+        # further off (full box, option on: median 2.58e-3 -> 2.56e-3 rad, 1912 -> 1905 plateaus
+        # > 8e-4; the grids cell for cell the same: a single 2 % step meets no slip edges)
         if soft != 1.0:
-            ratio = max(ratio, soft)
+            ratio = max(ratio, soft * static / friction.valve_static_nm if self.met_hold and friction.valve_static_nm > 0.0
+                        else soft)
         if met is not None:
             ratio = max(ratio, met)
         self.deadband = self.integral.deadband(m, pressure_kpa, ratio)
