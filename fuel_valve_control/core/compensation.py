@@ -324,8 +324,14 @@ class HoldStiffness:
     :attr:`misfit` is the softness *used*: 1 while the estimate lies within ``tolerance`` plus
     the latest reading's scatter bound of the model's coupling (so a plant on the model's
     coupling is left exactly as it was: its readings lie within their bound of 1), else the
-    estimate.  ``tolerance`` is the snap feed-forward's (a 10 % misreading of K moved a 2 %
-    step's overshoot 0 -> 6 %, :meth:`ReferenceFeedforward._coupling_snap`).
+    estimate.  ``tolerance`` (``integral.stiffness_tolerance``): h24k used the snap
+    feed-forward's, 0.25 (a 10 % misreading of K moved a 2 % step's overshoot 0 -> 6 %,
+    :meth:`ReferenceFeedforward._coupling_snap`); h25k 0.5: the hold's readings scatter beyond
+    their bound from rest to rest (campaign seed 1195, K x 0.77 = softness 1.29: readings
+    1.21-1.42, bounds 0.07-0.14), and at 0.25 a softness of 1.29 sat on the gate -- its
+    estimate crossed at 1.40, the jump floor acted and the first plateau hunted (575 %
+    overshoot; main 98 %).  At 0.5 only a coupling softer than ~x 0.6 is acted on (the grid's
+    x 0.5 / 0.3 / 0.1 all are); between, the model-based loop holds as on main.
     """
 
     FRICTION_MARGIN = 3.0     # the box's highest friction scale (the gear's static friction too)
@@ -337,7 +343,7 @@ class HoldStiffness:
     BACKLASH_RAD = 2e-3
 
     def __init__(self, k_model: float, gear_ratio: float, motor_static_nm: float, count_rad: float,
-                 rest_periods: int = 20, max_bound: float = 0.5, tolerance: float = 0.25,
+                 rest_periods: int = 20, max_bound: float = 0.5, tolerance: float = 0.5,
                  bounds: tuple[float, float] = (0.5, 20.0)):
         self.k_model, self.n, self.motor_static_nm, self.count_rad = k_model, gear_ratio, motor_static_nm, count_rad
         self.rest_periods, self.max_bound, self.tolerance, self.bounds = rest_periods, max_bound, tolerance, bounds

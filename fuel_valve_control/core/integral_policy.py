@@ -47,6 +47,12 @@ class IntegralPolicy:
     #: h24k: read the coupling's stiffness at every hold and size the hold's jump and the planned
     #: moves' coupling-snap feed-forward on it (StateFeedbackLaw._read_stiffness; v2 modes)
     read_stiffness: bool = False
+    #: h25k: K_model / K read at the holds is acted on only beyond 1 + this + the reading's
+    #: scatter bound (HoldStiffness.tolerance).  0.25 (h24k, the snap feed-forward's own
+    #: tolerance) acted on campaign seed 1195's K x 0.77 (true 1.29, readings 1.21-1.42 for a
+    #: bound of 0.07-0.14: the estimate crossed the gate at 1.40 and hunted); a coupling within
+    #: x 0.67 of the model's is left to the model-based loop, which holds the full box there
+    stiffness_tolerance: float = 0.5
 
     @property
     def settle_time_s(self) -> float:

@@ -168,6 +168,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "hold (twist from the two resolvers against the drive at rest) and, beyond the reading's scatter, size the "
           "hold's stick-slip jump and the planned moves' coupling-snap feed-forward on it (docs/control_results.md "
           "section 41)"),
+    Param("integral.stiffness_tolerance", 0.5, "", "observer_ff, observer_fp with integral.read_stiffness: the "
+          "coupling read at the holds is acted on only when K_model / K lies beyond 1 + this + the reading's scatter "
+          "bound (docs/control_results.md sections 41, 45)", 0.0, 10.0),
     Param("integral.deadband_min_rad", 2.9e-4, "rad", "smallest deadband (3 valve resolver counts)",
           0.0, 0.05, runtime=True),
     # --- the drive's supply (planned moves are designed for it, core/design.design_trajectory)

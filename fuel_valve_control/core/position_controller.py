@@ -249,6 +249,7 @@ class PositionController:
                                   ps["integral.relax_time_s"],
                                   relieve_unarrested_swing=ps["integral.relieve_unarrested_swing"],
                                   read_stiffness=ps["integral.read_stiffness"],
+                                  stiffness_tolerance=ps["integral.stiffness_tolerance"],
                                   # the learned steady load never exceeds what the drive can hold
                                   load_limit_nm=ps["limits.continuous_current_a"] * m.torque_constant_nm_per_a
                                   * m.gear_ratio)

@@ -113,7 +113,8 @@ class StateFeedbackLaw(ControlLaw):
         #: at the box's K x 0.1), so a stop's swing has died in the mean.  Kept across moves and
         #: the fine stage's hand-backs, forgotten with the jump ratio (:meth:`forget`)
         self.stiffness = (HoldStiffness(model.coupling_stiffness_nm_per_rad, model.gear_ratio, model.motor_static_nm,
-                                        RESOLVER_COUNT_RAD, rest_periods=max(round(0.02 / period_s), 1))
+                                        RESOLVER_COUNT_RAD, rest_periods=max(round(0.02 / period_s), 1),
+                                        tolerance=integral.stiffness_tolerance)
                           if v2 and integral.read_stiffness else None)
         #: motor torque (N*m) beyond which the coupling-snap feed-forward of a coupling read soft
         #: is cut (:meth:`update`): the fine stage's current cap (``fine.peak_current_a``, 30 A).
@@ -351,11 +352,16 @@ class StateFeedbackLaw(ControlLaw):
         # v2: sized by the jump the valve makes toward the target (the jumps differ by direction)
         ratio = self.jumps.ratio_toward(target - thl) if self.v2 else self.jumps.ratio
         met = self.compensator.jump_ratio()     # the jump the friction met at breakaway implies
-        # the jump is at least the scheduled friction's on the coupling read at the holds
-        # (2 (Ts - Tc) / K; the learner's ratio is to the model's K): a floor, so a jump the
-        # learner has measured stays what it is
+        # the jump is at least the friction's on the coupling read at the holds (2 (Ts - Tc) / K;
+        # the learner's ratio is to the model's K): a floor, so a jump the learner has measured
+        # stays what it is.  Default mode (h25k): at the static friction the hold has met
+        # (``static``: the schedule lowered to the slip edges' band, never raised), not the
+        # schedule -- on a low-friction valve told max Δp the scheduled floor parked the valve
+        # further off (full box, option on: median 2.58e-3 -> 2.56e-3 rad, 1912 -> 1905 plateaus
+        # > 8e-4; the grids cell for cell the same: a single 2 % step meets no slip edges)
         if soft != 1.0:
-            ratio = max(ratio, soft)
+            ratio = max(ratio, soft * static / friction.valve_static_nm if self.met_hold and friction.valve_static_nm > 0.0
+                        else soft)
         if met is not None:
             ratio = max(ratio, met)
         self.deadband = self.integral.deadband(m, pressure_kpa, ratio)
