@@ -164,10 +164,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "at the gear output > 0.2172; nominal 0.11, never on), give the stuck ramp's static-Coulomb surplus back "
           "once the valve breaks away (docs/control_results.md section 38: JL x3 startup worst plateau 4.6e-3 -> "
           "4.8e-4 rad, but its observer_fp campaign p95 1.4e-3 -> 2.4e-3: off)"),
-    Param("integral.read_stiffness", False, "", "observer_ff, observer_fp: read the coupling stiffness at every "
+    Param("integral.read_stiffness", True, "", "observer_ff, observer_fp: read the coupling stiffness at every "
           "hold (twist from the two resolvers against the drive at rest) and, beyond the reading's scatter, size the "
           "hold's stick-slip jump and the planned moves' coupling-snap feed-forward on it (docs/control_results.md "
-          "section 41)"),
+          "sections 41, 45; default since stop 19: grids at K x 0.5 / 0.3 / 0.1 hunting 1 / 4 / 3 -> 0 / 3 / 0 cells, "
+          "the 3 at the stick-slip jump floor)"),
     Param("integral.stiffness_tolerance", 0.5, "", "observer_ff, observer_fp with integral.read_stiffness: the "
           "coupling read at the holds is acted on only when K_model / K lies beyond 1 + this + the reading's scatter "
           "bound (docs/control_results.md sections 41, 45)", 0.0, 10.0),
