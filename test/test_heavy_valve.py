@@ -84,3 +84,33 @@ def test_nominal_startup_keeps_working_with_the_relief():
     res = _startup("nominal", "observer_fp", True)
     assert _worst_plateau(res) == pytest.approx(_worst_plateau(_startup("nominal", "observer_fp")), abs=0.0)
     assert _worst_plateau(res) < 5e-4
+
+
+def _heavy_law(**extra):
+    from fuel_valve_control.core.position_controller import PositionController
+    _, ctrl = OV.overrides(OV.VALVES["heavy_valve"])
+    pc = PositionController(CONTROLLER_SPEC.load(None, {**ctrl, "mode": "observer_fp",
+                                                        "integral.relieve_unarrested_swing": True, **extra}))
+    law = pc.law.main                     # observer_fp: the fine stage around the state-feedback law
+    assert law.relieve_swing
+    return law
+
+
+@pytest.mark.parametrize("met", [True, False])
+def test_swing_relief_gives_back_the_surplus_the_valve_met(met):
+    """h25h (section 47): the give-back at breakaway is sized on the drive the valve broke away at
+    (the static friction met) times the schedule's 1 - Tc/Ts, not the scheduled Ts - Tc: a valve
+    that broke away at 6.3 N*m (the campaign's static scatter; Ts 5.5 scheduled, Tc 4.4) has
+    1.26 N*m of surplus to take back, not 1.1.  ``integral.relieve_met_surplus`` false: the
+    scheduled surplus (section 38)."""
+    law = _heavy_law(**{"integral.relieve_met_surplus": met})
+    fr = law.model.friction(law.model.pressure_max_kpa)
+    ts, tc = fr.valve_static_nm, fr.valve_coulomb_nm
+    drive = 1.15 * ts                     # toward the target (+), beyond the loads
+    law.zeta = 0.0
+    law._relieve_breakaway(0.5, True, True, False, 1e-2, fr, drive)          # stuck short, outside
+    law._relieve_breakaway(0.5 + 0.5 * law.jumps.min_jump, False, True, False, 1e-2, fr, drive)
+    assert law.zeta == 0.0                # not slid a jump yet
+    law._relieve_breakaway(0.5 + 1.01 * law.jumps.min_jump, False, True, False, 1e-2, fr, drive)
+    given = -law.zeta * law.fb.ki * law.model.gear_ratio                    # N*m at the valve
+    assert given == pytest.approx(drive * (ts - tc) / ts if met else ts - tc, rel=1e-9)

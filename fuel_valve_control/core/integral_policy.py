@@ -44,6 +44,9 @@ class IntegralPolicy:
     #: observer_fp too, on valves whose swing cannot arrest itself against it
     #: (StateFeedbackLaw.SWING_ARREST_RATIO; never the nominal valve)
     relieve_unarrested_swing: bool = False
+    #: h25h: size that give-back on the drive the valve broke away at (the static friction met)
+    #: times the schedule's 1 - Tc/Ts, instead of the scheduled Ts - Tc
+    relieve_met_surplus: bool = True
     #: h24k: read the coupling's stiffness at every hold and size the hold's jump and the planned
     #: moves' coupling-snap feed-forward on it (StateFeedbackLaw._read_stiffness; v2 modes)
     read_stiffness: bool = False

@@ -164,6 +164,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "at the gear output > 0.2172; nominal 0.11, never on), give the stuck ramp's static-Coulomb surplus back "
           "once the valve breaks away (docs/control_results.md section 38: JL x3 startup worst plateau 4.6e-3 -> "
           "4.8e-4 rad, but its observer_fp campaign p95 1.4e-3 -> 2.4e-3: off)"),
+    Param("integral.relieve_met_surplus", True, "", "with integral.relieve_unarrested_swing: size the give-back "
+          "on the drive the valve broke away at (the static friction met) times the schedule's 1 - Tc/Ts, not on "
+          "the scheduled Ts - Tc (docs/control_results.md section 47)"),
     Param("integral.read_stiffness", True, "", "observer_ff, observer_fp: read the coupling stiffness at every "
           "hold (twist from the two resolvers against the drive at rest) and, beyond the reading's scatter, size the "
           "hold's stick-slip jump and the planned moves' coupling-snap feed-forward on it (docs/control_results.md "

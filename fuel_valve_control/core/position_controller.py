@@ -248,6 +248,7 @@ class PositionController:
                                   ps["ff.stuck_speed_rad_s"], ps["integral.stuck_ramp_time_s"],
                                   ps["integral.relax_time_s"],
                                   relieve_unarrested_swing=ps["integral.relieve_unarrested_swing"],
+                                  relieve_met_surplus=ps["integral.relieve_met_surplus"],
                                   read_stiffness=ps["integral.read_stiffness"],
                                   stiffness_tolerance=ps["integral.stiffness_tolerance"],
                                   # the learned steady load never exceeds what the drive can hold

@@ -151,9 +151,9 @@ class StateFeedbackLaw(ControlLaw):
         #: (drive N*m beyond the known load, valve rad, way ±1, target rad) of the latest stuck
         #: period while the integrator pulls the valve toward its target (:meth:`_read_pull`)
         self._pull: tuple[float, float, float, float] | None = None
-        #: (valve angle rad, direction ±1 to the target) where a held valve stuck short of its
-        #: target, until it breaks away (modes whose compensator relieves the breakaway)
-        self._stuck_short: tuple[float, float] | None = None
+        #: (valve angle rad, direction ±1 to the target, drive N*m beyond the loads) where a held
+        #: valve stuck short of its target, until it breaks away (modes whose compensator relieves the breakaway)
+        self._stuck_short: tuple[float, float, float] | None = None
         self._cocked = False
         self.reference: Reference | None = None
         self._pressure: float | None = None   # kPa, Δp of the latest update
@@ -433,7 +433,7 @@ class StateFeedbackLaw(ControlLaw):
             self._relax_periods = 0
         if self.compensator.relieves_breakaway or self.relieve_swing:
             self._relieve_breakaway(meas.valve_rad, stuck, outside, self.compensator.reference_moves(ctx), error,
-                                    friction)
+                                    friction, drive_nm)
         if outside:
             self._pending = self.period * error
             if stuck:
@@ -488,7 +488,7 @@ class StateFeedbackLaw(ControlLaw):
             self.held_load = self.integral.learn_load(edge, way, static_nm, known_nm, opposite)
         self.slip_edges.met(edge, way)
 
-    def _relieve_breakaway(self, valve_rad, stuck, outside, moving, error, friction) -> None:
+    def _relieve_breakaway(self, valve_rad, stuck, outside, moving, error, friction, drive_nm=0.0) -> None:
         """Give back the breakaway surplus once a valve held stuck short of its target breaks
         away (``moving``: the reference moves, planned or followed; then nothing is done: a
         followed sine reversing through a stuck valve is tracking, not a hold).
@@ -500,15 +500,26 @@ class StateFeedbackLaw(ControlLaw):
         (140 / 200 N*m/rad at the valve, pole placement / LQR, against the coupling's 480)
         that is ~8e-3 rad past the breakaway point, and the 2 % step's second breakaway overshot 22-34 % (observer_fc,
         seeds 0-7).  Read from the valve resolver (three counts the error's way), once per
-        breakaway."""
+        breakaway.
+
+        ``drive_nm`` (N*m at the valve beyond the known and the learned load, this period) is
+        the breakaway reading: with ``integral.relieve_met_surplus`` (swing relief only) the
+        surplus is sized on the drive of the last stuck period, i.e. the static friction the
+        valve *met*, times the schedule's ``1 - Tc/Ts`` (the Coulomb level in the same
+        proportion), not on the scheduled ``Ts - Tc``: the campaign perturbs the friction and
+        Δp, and a scheduled give-back off the met one left (or over-took) the surplus a c > 0.2172
+        swing cannot arrest against (h25h, docs section 47)."""
         if moving or (stuck and not outside):
             self._stuck_short = None            # tracking, or at rest where it may stay
         elif stuck:
-            self._stuck_short = (valve_rad, 1.0 if error > 0.0 else -1.0)
+            self._stuck_short = (valve_rad, 1.0 if error > 0.0 else -1.0, drive_nm)
         elif self._stuck_short is not None:
-            start, sign = self._stuck_short
+            start, sign, drive0 = self._stuck_short
             if (valve_rad - start) * sign >= self.jumps.min_jump:
                 surplus = max(friction.valve_static_nm - friction.valve_coulomb_nm, 0.0)
+                if self.relieve_swing and self.integral.relieve_met_surplus and friction.valve_static_nm > 0.0:
+                    met = max(sign * drive0, 0.0)       # the drive the valve broke away at, toward the target
+                    surplus = met * surplus / friction.valve_static_nm
                 self.zeta -= sign * surplus / self.model.gear_ratio / self.fb.ki
                 self._stuck_short = None
 
