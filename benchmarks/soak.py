@@ -273,8 +273,8 @@ def main() -> int:
     rec = launcher.recording_losses()          # the one reader of the nodes' published counts
     excess = valve_excess(launcher.bag, end_ns)
     # drive disablements within the measured window (log lines are stamped with wall-clock s)
-    disabled = [faults for stamp, faults in re.findall(r"\[(\d+\.\d+)\] \[[^]]*\]: drive DISABLED: state \w+(?:, faults: (.*))?",
-                                                       launcher.log("controller")) if float(stamp) * 1e9 <= end_ns]
+    disabled = [faults for stamp, faults in re.findall(r"\[(\d+\.\d+)\] \[[^]]*\]: drive DISABLED: state \w+(?:, faults: (.*?)(?:: clear the cause.*)?)?$",
+                                                       launcher.log("controller"), re.M) if float(stamp) * 1e9 <= end_ns]
     from fuel_valve_control.tools.bag_io import read_bag
     diag = read_bag(launcher.bag, ["/diagnostics"]).diagnostics
     plant_diag = next((v for k, v in diag.items() if k.endswith("plant: loop") or "plant" in k), {})

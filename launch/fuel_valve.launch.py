@@ -33,6 +33,14 @@ Launch arguments:
   supervisor drives it through ``<namespace>/controller/change_state`` (lifecycle_msgs).
 * ``demand_profile`` -- overrides the demand node's ``profile`` (empty: the one in
   ``config/demand.yaml``).
+* ``learned_state_file`` -- the controller's ``learned_state_file``, one file per valve:
+  ``{namespace}`` in it becomes the valve's namespace (slashes inside it as ``_``), e.g.
+  ``learned_state_file:=~/fuel_valve/{namespace}.json``; ``per_valve`` is
+  ``$ROS_HOME/fuel_valve/{namespace}.json`` (``~/.ros`` without ``ROS_HOME``).  Empty (default):
+  the one in ``config/controller.yaml`` ('': not persisted, so a lockstep run does not start
+  from the previous run's learning).  With several ``valves`` a path without ``{namespace}`` is
+  refused at launch: the valves would share one file, and each controller refuses a file
+  another valve owns (h24u).
 
 Boolean arguments accept ``true``/``false`` (any case) and ``1``/``0``.
 """
@@ -60,7 +68,11 @@ ARGUMENTS = (
     ('bag', 'fuel_valve_bag', 'bag directory written by the recorder (record:=true)'),
     ('demand_profile', '', 'demand profile: constant, step, ramp, sine, chirp, points, startup, '
                            'csv (empty: config/demand.yaml)'),
+    ('learned_state_file', '', "controller learned_state_file, '{namespace}' replaced by the valve's namespace; "
+                               "per_valve: $ROS_HOME/fuel_valve/{namespace}.json (empty: config/controller.yaml)"),
 )
+#: ``learned_state_file:=per_valve``: under ROS_HOME (rcl's own per-user directory, ~/.ros)
+PER_VALVE_STATE = os.path.join('{ros_home}', 'fuel_valve', '{namespace}.json')
 
 
 def _flag(context, name):
@@ -81,9 +93,25 @@ def _namespaces(context):
     return valves or [LaunchConfiguration('namespace').perform(context)]
 
 
+def learned_state_file(text, namespace):
+    """The controller's learned-state file of the valve in ``namespace`` for the launch argument
+    ``text`` ('' : none given; ``per_valve``: :data:`PER_VALVE_STATE`; else ``{namespace}``
+    replaced).  The controller expands ``~`` and ``$VARS`` itself."""
+    text = text.strip()
+    if text == 'per_valve':
+        text = PER_VALVE_STATE.replace('{ros_home}', os.environ.get('ROS_HOME') or '~/.ros')
+    name = namespace.strip('/').replace('/', '_') or 'root'
+    return text.replace('{namespace}', name)
+
+
 def _nodes(context, *args, **kwargs):
     """The nodes of every valve, once the launch arguments are known."""
     namespaces = _namespaces(context)
+    state = LaunchConfiguration('learned_state_file').perform(context).strip()
+    if state and len(namespaces) > 1 and '{namespace}' not in state and state != 'per_valve':
+        raise ValueError(f"launch argument 'learned_state_file' ({state}) would be one file for the valves "
+                         f"{', '.join(namespaces)}, and each controller refuses a file another valve owns: "
+                         "put '{namespace}' in it (or use per_valve)")
     return [node for namespace in namespaces
             for node in _valve(context, namespace, bag_suffix=f'_{namespace.strip("/")}' if len(namespaces) > 1 else '')]
 
@@ -114,6 +142,9 @@ def _valve(context, namespace, bag_suffix=''):
         controller['mode'] = mode
     if profile:
         demand['profile'] = profile
+    state = learned_state_file(LaunchConfiguration('learned_state_file').perform(context), namespace)
+    if state:
+        controller['learned_state_file'] = state
 
     # the valve's own simulated clock (what fuel_valve_control.tools.launcher.clock_remap gives)
     ns = namespace.strip('/')

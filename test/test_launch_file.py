@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = ROOT / "launch" / "fuel_valve.launch.py"
 CONFIG_FILES = {"plant": "plant.yaml", "controller": "controller.yaml", "demand": "demand.yaml"}
 ARGUMENTS = {"namespace": "fuel_valve", "valves": "", "mode": "", "lockstep": "false", "record": "false",
-             "autostart": "true", "bag": "fuel_valve_bag", "demand_profile": ""}
+             "autostart": "true", "bag": "fuel_valve_bag", "demand_profile": "", "learned_state_file": ""}
 # rclpy declares use_sim_time on every node
 ROS_PARAMS = {"use_sim_time"}
 # keyword arguments of the real launch_ros Node / launch ExecuteProcess that the file may use
@@ -301,3 +301,22 @@ def test_valves_start_one_complete_stack_per_namespace_each_on_its_own_clock(des
     assert {n.kwargs["namespace"] for n in _all_nodes(description, valves=" ")} == {"fuel_valve"}
     with pytest.raises(ValueError, match="twice"):
         _all_nodes(description, valves="v1,/v1")
+
+
+def test_learned_state_file_is_per_valve(description, monkeypatch):
+    """Two valves must not share a learned-state file (each controller refuses the other's, h24u):
+    ``{namespace}`` / ``per_valve`` give one per valve; a shared path is refused at launch;
+    empty keeps config/controller.yaml's (not persisted)."""
+    nodes = _all_nodes(description, valves="valve1,/plant/valve2", learned_state_file="~/fv/{namespace}.json")
+    files = {n.kwargs["namespace"]: _overrides(n)["learned_state_file"] for n in nodes if n.executable == "controller"}
+    assert files == {"valve1": "~/fv/valve1.json", "/plant/valve2": "~/fv/plant_valve2.json"}
+    monkeypatch.setenv("ROS_HOME", "/var/ros")
+    nodes = _all_nodes(description, valves="a,b", learned_state_file="per_valve")
+    assert sorted(_overrides(n)["learned_state_file"] for n in nodes if n.executable == "controller") == [
+        "/var/ros/fuel_valve/a.json", "/var/ros/fuel_valve/b.json"]
+    with pytest.raises(ValueError, match="one file for the valves"):
+        _all_nodes(description, valves="a,b", learned_state_file="/tmp/shared.json")
+    single = _all_nodes(description, learned_state_file="/tmp/one.json")      # one valve: any path
+    assert [_overrides(n)["learned_state_file"] for n in single if n.executable == "controller"] == ["/tmp/one.json"]
+    default = _all_nodes(description)
+    assert all("learned_state_file" not in _overrides(n) for n in default)

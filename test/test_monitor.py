@@ -77,3 +77,34 @@ def test_demo_summary_explains_the_loop_and_its_priority():
         assert "worst driver status: OK" in text
         assert "ticked 20000 times at 1 kHz; in 0.20 % of the ticks" in text
         assert f"loop priority: {expect}" in text
+
+
+def test_monitor_shows_a_best_effort_supervisors_demand():
+    """A supervisor publishing the demand best-effort (which the controller hears since h24u):
+    the monitor must show it (a reliable subscription matched no such publisher)."""
+    import rclpy
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+    from fuel_valve_control.common import contract
+    from fuel_valve_control.tools.monitor import Monitor
+
+    mon = Monitor(NS + "_be", lockstep=False)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node("supervisor", namespace=NS + "_be", context=ctx)
+    try:
+        pub = node.create_publisher(Float64, contract.DEMAND, QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+        end = time.monotonic() + 5.0
+        while pub.get_subscription_count() < 1:
+            assert time.monotonic() < end, "the monitor never matched a best-effort demand publisher"
+            time.sleep(0.05)
+        end = time.monotonic() + 5.0
+        while mon.demand != 0.37:
+            assert time.monotonic() < end, mon.demand
+            pub.publish(Float64(data=0.37))
+            mon.spin_for(0.05)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        mon.close()

@@ -65,7 +65,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "the measured Δp is missing, stale or implausible (0: the lowest friction, which cannot "
           "over-compensate and hunt)", 0.0, PRESSURE_MAX_KPA, runtime=True),
     Param("pressure.timeout_s", 0.1, "s", "a measured Δp older than this is stale (also: none received "
-          "this long after the loop started)", 0.005, 60.0, runtime=True),
+          "this long after the loop started): the contract rate is >= 50 Hz (the plant: 100 Hz), so 5 periods "
+          "at the slowest; a source slower than the contract needs >= 3 of its periods here", 0.005, 60.0,
+          runtime=True),
     Param("pressure.range_margin_kpa", 310.0, "kPa", "readings beyond 0..pressure max by more than this "
           "are implausible (within it they are clamped)", 0.0, PRESSURE_MAX_KPA, runtime=True),
     Param("pressure.max_rate_kpa_s", 5.0e5, "kPa/s", "a change between two readings faster than this is "

@@ -87,6 +87,33 @@ def locked(method):
     return wrapper
 
 
+def drive_off_log(out) -> tuple[str, str]:
+    """``(severity, text)`` of the log line for a drive switched off by the loop (``out``: the
+    period's :class:`~fuel_valve_control.core.driver.DriverOutput`): the severity says what the
+    operator must do.
+
+    * ``error``: a latched fault -- the valve is off until someone clears the cause and calls
+      ``~/reset``;
+    * ``info``: waiting with a demand and a measurement in hand -- the loop is letting the valve
+      come to rest after the drive's own command watchdog tripped (a late loop, §40) and re-arms
+      by itself; expected under load, nothing to do (it read "drive DISABLED" at ERROR before);
+      or ``inactive`` (deactivated / inhibited: someone asked for it);
+    * ``warn``: waiting for a demand or a resolver sample -- check the supervisor / the plant if
+      it lasts.
+    """
+    if out.faults or out.state == "fault":
+        return "error", (f"drive DISABLED: state {out.state}, faults: {'; '.join(out.faults.values())}: "
+                         "clear the cause, then call ~/reset")
+    if out.state == "inactive":
+        return "info", "drive off: state inactive (deactivated or inhibited)"
+    if out.state == "waiting" and out.demand_pct is not None and out.position_pct is not None:
+        return "info", ("drive off: the drive's own watchdog tripped (late loop); waiting for the valve to "
+                        "come to rest, then it re-arms by itself")
+    missing = " and ".join(name for name, value in (("a valid demand", out.demand_pct),
+                                                     ("a resolver sample", out.position_pct)) if value is None)
+    return "warn", f"drive off: state {out.state}, waiting for {missing or 'the loop'}"
+
+
 def transition(method):
     """A lifecycle transition callback under the node's lock; an exception is logged (rclpy
     swallows it) and returns ERROR, so :meth:`ControllerNode.on_error` disables the drive."""
@@ -585,8 +612,13 @@ class ControllerNode(LifecycleNode):
                 if out.enable:
                     self.get_logger().info(f"drive enabled: state {out.state}")
                 else:
-                    self.get_logger().error(f"drive DISABLED: state {out.state}"
-                                            + (f", faults: {'; '.join(out.faults.values())}" if out.faults else ""))
+                    severity, text = drive_off_log(out)
+                    if severity == "error":
+                        self.get_logger().error(text)
+                    elif severity == "warn":
+                        self.get_logger().warn(text)
+                    else:
+                        self.get_logger().info(text)
             self._last_enable = out.enable
 
     # ------------------------------------------------------------------ services

@@ -15,7 +15,9 @@ and estimate (100 Hz each) and ``/clock`` (every lockstep period) are read with 
 each take finds at most the newest sample per topic, which is all a status line once a second
 needs.  Following every message cost this process a wake-up per message, ~400 a second:
 8 % of a core against 1-3 % sampled (benchmarks/ros_loop.py --main, ``monitor_cpu_fraction``).
-``/diagnostics`` keeps its depth (every status counts for the worst level).  Service and
+The demand is read BEST_EFFORT: that matches a reliable publisher (the demand node) and a
+supervisor publishing best-effort alike (the controller hears both since h24u; a reliable
+subscription would show no demand from such a supervisor).  ``/diagnostics`` keeps its depth (every status counts for the worst level).  Service and
 parameter calls are asynchronous: in lockstep an event lands within a few control periods of
 its time, not exactly on it (the offline simulator applies events exactly).
 """
@@ -78,8 +80,12 @@ class Monitor:
         latest = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ri.TELEMETRY_QOS.reliability,
                             durability=ri.TELEMETRY_QOS.durability)
         self._latest_qos = latest
+        from rclpy.qos import ReliabilityPolicy
+        # the demand: best effort, which every publisher matches (module docstring)
+        any_publisher = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
+                                   durability=ri.TELEMETRY_QOS.durability)
         #: (subscription, publishers it must have matched) before a lockstep run may start
-        self._watch = [(ri.quiet_subscription(n, Float64, contract.DEMAND, self._on_demand, latest), 1),
+        self._watch = [(ri.quiet_subscription(n, Float64, contract.DEMAND, self._on_demand, any_publisher), 1),
                        (ri.quiet_subscription(n, Float64, contract.POSITION, self._on_position, latest), 1),
                        (ri.quiet_subscription(n, JointState, contract.ESTIMATE, self._on_estimate, latest), 1),
                        # plant and controller

@@ -15,8 +15,16 @@ public ``Writer.write`` (what rosbag2's own recorder does).  The queue is bounde
 logged at the end lists per topic the messages written and any dropped.  The executor is the
 suite's (:mod:`fuel_valve_control.ros.node_runner`, rclpy's events executor).
 
-Subscriptions are RELIABLE, KEEP_LAST ``DEPTH``; ``drive_enable`` is TRANSIENT_LOCAL like its
-publisher so a recorder started late still gets the latched state.  No message is lost to
+Subscriptions are KEEP_LAST ``DEPTH`` and adapt to the publishers, as ``ros2 bag record``'s
+adaptive QoS does (:func:`adapted_qos`): RELIABLE unless a publisher offers BEST_EFFORT (a
+supervisor publishing the demand or Δp best-effort, which the controller hears since h24u: a
+reliable subscription would match none of its samples and the bag would lack the demand);
+``drive_enable`` is TRANSIENT_LOCAL like its publisher so a recorder started late still gets
+the latched state, VOLATILE once a volatile publisher appears.  The publishers are read at
+start and every ``QOS_RECHECK_S``; a subscription that no longer matches them all is re-made
+with the weaker profile (only ever weaker, never back: no churn, no replayed latched samples),
+logged; that topic then misses what is published during the new subscription's discovery
+(tens of ms), once.  No message is lost to
 start-up or to a stalled recorder when the suite's nodes know a recorder is in the run
 (``recorded_topics``, set by the launcher and the launch file): they publish once it has
 matched and keep deep writer histories for its re-sends (``interface.RecorderGate``,
@@ -97,6 +105,9 @@ DRAIN_IDLE_S = 0.05
 #: ros2 launch escalates to SIGTERM 5 s after its SIGINT and to SIGKILL 5 s later; closing the
 #: bag, tearing down and exiting need the rest
 STOP_BUDGET_S = 2.0
+#: how often the publishers of every recorded topic are re-read to adapt the subscriptions'
+#: QoS, s (a best-effort publisher that appears is recorded from at most this much later)
+QOS_RECHECK_S = 0.5
 
 
 class RecorderError(Exception):
@@ -162,6 +173,24 @@ def subscription_qos(name: str) -> QoSProfile:
     base = name.rstrip("/").rsplit("/", 1)[-1]
     durability = ri.qos_for(base).durability if base in contract.TOPIC_TYPES else DurabilityPolicy.VOLATILE
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=durability)
+
+
+def adapted_qos(current: QoSProfile, offered) -> QoSProfile:
+    """The subscription profile that matches every offered publisher profile (``offered``:
+    rclpy QoSProfiles, from ``get_publishers_info_by_topic``), starting from ``current``:
+    BEST_EFFORT if any publisher is best-effort, VOLATILE if any is volatile (a reliable or
+    transient-local request does not match a weaker offer), else ``current`` unchanged --
+    rosbag2's adaptive QoS, restricted to weakening so a subscription is re-made at most twice."""
+    reliability, durability = current.reliability, current.durability
+    offered = list(offered)
+    if any(p.reliability == ReliabilityPolicy.BEST_EFFORT for p in offered):
+        reliability = ReliabilityPolicy.BEST_EFFORT
+    if any(p.durability == DurabilityPolicy.VOLATILE for p in offered):
+        durability = DurabilityPolicy.VOLATILE
+    if reliability == current.reliability and durability == current.durability:
+        return current
+    return QoSProfile(history=current.history, depth=current.depth, reliability=reliability,
                       durability=durability)
 
 
@@ -396,13 +425,49 @@ class Recorder(Node):
         self.received = 0             # messages taken from DDS (written + dropped + queued)
         self.dropped: dict[str, int] = {}
 
+        #: topic name -> (subscription, its QoS profile)
+        self._subs: dict[str, tuple[object, QoSProfile]] = {}
         for topic in self._topics.values():
-            sub = self.create_subscription(message_class(topic.msgtype), topic.name, partial(self._on_message, topic),
-                                           subscription_qos(topic.name), raw=True,
-                                           event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
-            self._check_hash(topic, sub)
+            qos = adapted_qos(subscription_qos(topic.name), self._offered(topic.name))
+            self._subs[topic.name] = (self._subscribe(topic, qos), qos)
+            self._check_hash(topic, self._subs[topic.name][0])
         self.get_logger().info(f"recording {len(self._topics)} topics to {self.path} ({storage}): "
                                + ", ".join(sorted(self._topics)))
+        for name, (_, qos) in sorted(self._subs.items()):
+            if qos != subscription_qos(name):
+                self._log_adapted(name, qos)
+        self._qos_timer = self.create_timer(QOS_RECHECK_S, self._adapt_qos)
+
+    def _subscribe(self, topic: _Topic, qos: QoSProfile):
+        return self.create_subscription(message_class(topic.msgtype), topic.name, partial(self._on_message, topic),
+                                        qos, raw=True,
+                                        event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+
+    def _offered(self, name: str) -> list:
+        """The QoS profiles the topic's publishers offer (our graph view; [] if the query fails)."""
+        try:
+            return [info.qos_profile for info in self.get_publishers_info_by_topic(name)]
+        except Exception:  # the graph query is best effort: keep the current subscription
+            return []
+
+    def _log_adapted(self, name: str, qos: QoSProfile) -> None:
+        self.get_logger().info(f"{name}: a publisher offers {qos.reliability.name.lower()} / "
+                               f"{qos.durability.name.lower()}: recording with that QoS (adaptive, as ros2 bag record)")
+
+    def _adapt_qos(self) -> None:
+        """Timer: re-make every subscription that no longer matches all the topic's publishers."""
+        if self._bag is None:
+            return
+        for topic in self._topics.values():
+            sub, qos = self._subs[topic.name]
+            new = adapted_qos(qos, self._offered(topic.name))
+            if new is qos:
+                continue
+            # the old one goes first: kept while the new one is discovered, both would record
+            # the same samples (duplicates in the bag); a gap of one discovery, once, instead
+            self.destroy_subscription(sub)
+            self._subs[topic.name] = (self._subscribe(topic, new), new)
+            self._log_adapted(topic.name, new)
 
     @property
     def total(self) -> int:
