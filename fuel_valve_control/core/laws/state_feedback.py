@@ -272,12 +272,13 @@ class StateFeedbackLaw(ControlLaw):
         # ---- disturbance observer (current estimator)
         self._inputs.append((self._u_net, self._d))       # what the period just ended applied
         u_old, d_old = self._inputs[0]
-        x_bar = self.ao @ self.xo + self.bu[:, 0] * u_old + self.bd[:, 0] * d_old
+        ao, bu, bd = self.ao, self.bu[:, 0], self.bd[:, 0]     # hoisted: the same arrays, sliced once
+        x_bar = ao @ self.xo + bu * u_old + bd * d_old
         self.xo = x_bar + self.obs_gain @ (np.array([meas.motor_rad / n, meas.valve_rad]) - self.co @ x_bar)
         x_now = self.xo
         for i in range(1, len(self._inputs)):              # predict over the resolver delay
             u_i, d_i = self._inputs[i]
-            x_now = self.ao @ x_now + self.bu[:, 0] * u_i + self.bd[:, 0] * d_i
+            x_now = ao @ x_now + bu * u_i + bd * d_i
         self.x_now = x_now
         th1, w1, thl, wl = x_now[:4].tolist()      # Python floats: the same values, cheaper arithmetic
         hist = self._valve_history
