@@ -105,7 +105,8 @@ class NominalModel:
         """Known load on the valve toward closed: spring + nominal flow torque, N*m."""
         frac = min(max(valve_angle / self.stroke_rad, 0.0), 1.0)
         return (self.spring_preload_nm + self.spring_rate_nm_per_rad * valve_angle
-                + self.flow_torque_max_nm * self.pressure_fraction(pressure_kpa) * math.sin(math.pi * frac))
+                + self.flow_torque_max_nm * min(max(pressure_kpa / self.pressure_max_kpa, 0.0), 1.0)   # pressure_fraction, inlined
+                * math.sin(math.pi * frac))
 
     # ---- state space --------------------------------------------------------------------
     def continuous(self):
