@@ -321,6 +321,8 @@ class FineConfig:
     learn_kick_rise: bool = False  # doublet: plan each preload against the kick's rise learned from the stage's
                                    # own apexes (:meth:`FinePositioner._kick_rise`) instead of ``kick_rise_rad``
     first_kick_fraction: float = 1.0  # doublet: a staircase's first stair kicks with this fraction of kick_current_a
+    preload_cap: bool = False     # a servo-blended pulse's preload at most the furthest twist an unmoved pulse reached
+                                  # at this stop
     probe_reached: bool = False   # an unmoved pulse raises the learned breakaway only to probe_step x the band
                                   # beyond the twist it reached (not beyond the learned level it fell short of)
     doublet_jump_fraction: float = 0.0  # doublet also for errors up to this fraction of the nominal stick-slip
@@ -392,6 +394,8 @@ class FinePositioner:
         self._steady = 0
         self._new_plateau()
         self._stair = None
+        self._safe = None             # fine.preload_cap: the furthest twist toward the move an unmoved pulse reached
+                                      # at this stop, rad (None: none yet)
         self._push = 0.0              # fine.probe_reached: rad of twist (>= 0, toward the move) the next servo-blended
                                       # pulse's planned peak climbs beyond the learned breakaway's, at this stop
         self._stair_step = 0.0        # the last stair's climb, rad of twist (the level lies within it below the apex)
@@ -621,6 +625,10 @@ class FinePositioner:
             peak = final
         if d * (pre - final) > 0.0:
             pre = final
+        if cfg.preload_cap and self._safe is not None and d * (pre - self._safe) > 0.0:
+            # the learned level may have climbed past what the unmoved pulses proved (the probe ratchet): a
+            # preload beyond the furthest twist they reached at this stop is not known to hold the valve
+            pre = self._safe
         self._dir, self._band = d, band
         self._thl0 = thl
         if self._anchor is None or self._anchor[1] != d or d * (thl - self._anchor[0]) > 0.0:
@@ -969,6 +977,7 @@ class FinePositioner:
         if abs(move) > 0.5 * cfg.tolerance_rad:
             self._stair = None                 # a new stop: a new breakaway level
             self._push = 0.0
+            self._safe = None
             self._early_breaks += 0 if pulsed else 1
             if self._cold:
                 # the first breakaway of a cold engagement is the evidence the main law's would have
@@ -1037,6 +1046,8 @@ class FinePositioner:
                     self._climbed_out = True
             else:
                 step = cfg.doublet_probe_step if self._doublet else cfg.probe_step
+                if self._safe is None or d * self._peak_seen > d * self._safe:
+                    self._safe = self._peak_seen
                 if cfg.probe_reached:
                     # an unmoved pulse proves only that the level at this stop lies beyond the apex the
                     # twist really reached: a pulse that fell short of the learned level (the servo
