@@ -342,6 +342,8 @@ class FinePositioner:
         self.kd = 2.0 * 0.8 * w * j1       # N*m*s/rad
         self.ki = self.kp * w / 8.0        # slow integral: removes the feed-forward's error
         self.timeable = self.servo_margin_rad(j1, self.kp, self.kd, period_s) > 0.0
+        self._pushes = {}                  # fine.probe_reached: {(direction, Δp band): rad of twist (>= 0, toward the
+                                           # move) a servo-blended pulse's planned peak lies beyond the learned level's}
         self.reset()
 
     @staticmethod
@@ -396,8 +398,6 @@ class FinePositioner:
         self._stair = None
         self._safe = None             # fine.preload_cap: the furthest twist toward the move an unmoved pulse reached
                                       # at this stop, rad (None: none yet)
-        self._push = 0.0              # fine.probe_reached: rad of twist (>= 0, toward the move) the next servo-blended
-                                      # pulse's planned peak climbs beyond the learned breakaway's, at this stop
         self._stair_step = 0.0        # the last stair's climb, rad of twist (the level lies within it below the apex)
         self._rise_seen = [0.0, 0.0]  # mean twist a doublet's kick raised above its planned preload, rad (0: none
                                       # yet), [later stairs, a staircase's first stair]
@@ -620,7 +620,7 @@ class FinePositioner:
         aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
         final = phi_e + aim / 2.0
         pre = phi_b - d * cfg.preload_margin * gap
-        peak = phi_b + d * (cfg.overdrive_fraction * gap + self._push)
+        peak = phi_b + d * (cfg.overdrive_fraction * gap + self._pushes.get((d, band), 0.0))
         if d * (final - peak) > 0.0:
             peak = final
         if d * (pre - final) > 0.0:
@@ -976,7 +976,8 @@ class FinePositioner:
         curb = self.learn.breakaway[d][b]
         if abs(move) > 0.5 * cfg.tolerance_rad:
             self._stair = None                 # a new stop: a new breakaway level
-            self._push = 0.0
+            if not self._doublet:
+                self._pushes[(d, b)] = (1.0 - MOVE_GAIN) * self._pushes.get((d, b), 0.0)
             self._safe = None
             self._early_breaks += 0 if pulsed else 1
             if self._cold:
@@ -1056,10 +1057,12 @@ class FinePositioner:
                     # planned from it broke the valve loose a whole jump (task h24s/h25p).  The learned
                     # level takes only what the reached apex proves; the next pulse's planned peak (not
                     # its preload) still climbs by the old step, so a servo that falls short of its plan
-                    # reaches further each time (:attr:`_push`, this stop only)
+                    # reaches further each time (:attr:`_pushes`: per direction and Δp band, kept across
+                    # stops -- the servo's shortfall is the loop's, not the stop's -- and decayed x0.7 at each
+                    # servo-blended move; reset per stop, it measured worse, task h25p)
                     ratchet = d * max(d * (b0 + curb), d * self._peak_seen) + d * step * gap0
                     new_b = d * max(d * (b0 + curb), d * self._peak_seen + step * gap0)
-                    self._push += d * (ratchet - new_b)
+                    self._pushes[(d, b)] = self._pushes.get((d, b), 0.0) + d * (ratchet - new_b)
                 else:
                     new_b = d * max(d * (b0 + curb), d * self._peak_seen) + d * step * gap0
                 self.learn.set("breakaway", d, b, new_b - b0)
