@@ -854,3 +854,62 @@ def test_a_first_stair_may_kick_smaller_and_the_next_stairs_kick_whole(direction
             break
     assert not fine._first_stair
     assert kicks[0] == pytest.approx(direction * ps["fine.kick_current_a"] * kt)
+
+
+def _unmoved_short_pulse(direction, error_rad=None, **changes):
+    """A servo-blended pulse whose twist stayed at its preload (0.3 x the static band below the learned
+    breakaway) and did not move the valve; returns the stage at its next pulse's preload, the pulse's
+    (preload, planned peak), the learned breakaway before it, the Δp band and ``fine.probe_step`` x the
+    nominal static band (rad)."""
+    ps = CONTROLLER_SPEC.defaults()
+    fine, m = _stage(**changes)
+    p = m.pressure_max_kpa
+    b = fine.learn.band(m.pressure_fraction(p))
+    err = direction * (error_rad or 2.0 * ps["fine.doublet_max_error_rad"])
+    _torques_until_observe(fine, err, p)
+    assert not fine._doublet and fine.phase == "observe"
+    before = fine.learn.breakaway[direction][b]
+    pre, peak = fine._pre, fine._peak_planned
+    assert direction * (fine._peak_seen - pre) <= 1e-12           # the twist stayed at its preload
+    thl, th1 = 0.5, 0.5 + pre
+    for _ in range(100):
+        fine.update(0.5 + err, th1, thl, True, 0.3, p)
+        if fine.phase == "park":
+            break
+    assert fine.phase == "park" and not fine._doublet
+    e0, b0 = fine._nominal(0.5, p, direction)
+    return fine, pre, peak, before, b, ps["fine.probe_step"] * abs(b0 - e0)
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_pulse_that_fell_short_of_the_learned_breakaway_does_not_raise_it(direction):
+    """An unmoved pulse proves only that the breakaway level at this stop lies beyond the twist it
+    reached.  ``fine.probe_reached``: a servo-blended pulse whose twist stayed at its preload, 0.3 x
+    the static band below the learned breakaway, leaves the learned level where it was (the ratchet
+    raised it 0.1 band beyond it: on the nominal box 93 % of the unmoved pulses had fallen short of
+    it, task h25p), and the next pulse keeps its preload while its planned peak climbs the step."""
+    for reached in (False, True):
+        fine, pre, peak, before, b, step = _unmoved_short_pulse(direction, **{"fine.probe_reached": reached})
+        raised = direction * (fine.learn.breakaway[direction][b] - before)
+        if reached:
+            assert raised == pytest.approx(0.0, abs=1e-12)
+            assert fine._pre == pytest.approx(pre, abs=1e-12)              # the preload did not climb ...
+            assert direction * (fine._peak_planned - peak) == pytest.approx(step, rel=1e-6)  # ... the peak did
+        else:
+            assert raised == pytest.approx(step, rel=1e-6)      # the ratchet
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_capped_preload_goes_no_further_than_an_unmoved_pulse_reached(direction):
+    """``fine.preload_cap``: the ratchet still raises the learned breakaway (and the next planned peak)
+    the step beyond the level, but the next preload stays at the furthest twist an unmoved pulse reached
+    at this stop -- uncapped it climbs the step with the learned level."""
+    for cap in (False, True):
+        # an error large enough that the preload is planned from the learned level (0.3 band below it),
+        # not clipped to the swing's end
+        fine, pre, peak, before, b, step = _unmoved_short_pulse(direction, 8e-3, **{"fine.preload_cap": cap})
+        assert direction * (fine.learn.breakaway[direction][b] - before) == pytest.approx(step, rel=1e-6)
+        if cap:
+            assert fine._pre == pytest.approx(pre, abs=1e-12)
+        else:
+            assert direction * (fine._pre - pre) > 0.5 * step           # 0.7 step: the band widens too

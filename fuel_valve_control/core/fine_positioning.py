@@ -321,6 +321,10 @@ class FineConfig:
     learn_kick_rise: bool = False  # doublet: plan each preload against the kick's rise learned from the stage's
                                    # own apexes (:meth:`FinePositioner._kick_rise`) instead of ``kick_rise_rad``
     first_kick_fraction: float = 1.0  # doublet: a staircase's first stair kicks with this fraction of kick_current_a
+    preload_cap: bool = False     # a servo-blended pulse's preload at most the furthest twist an unmoved pulse reached
+                                  # at this stop
+    probe_reached: bool = False   # an unmoved pulse raises the learned breakaway only to probe_step x the band
+                                  # beyond the twist it reached (not beyond the learned level it fell short of)
     doublet_jump_fraction: float = 0.0  # doublet also for errors up to this fraction of the nominal stick-slip
                                         # jump 2 (T_s - T_c(Δp)) / K (0: only up to doublet_max_error_rad)
 
@@ -338,6 +342,8 @@ class FinePositioner:
         self.kd = 2.0 * 0.8 * w * j1       # N*m*s/rad
         self.ki = self.kp * w / 8.0        # slow integral: removes the feed-forward's error
         self.timeable = self.servo_margin_rad(j1, self.kp, self.kd, period_s) > 0.0
+        self._pushes = {}                  # fine.probe_reached: {(direction, Δp band): rad of twist (>= 0, toward the
+                                           # move) a servo-blended pulse's planned peak lies beyond the learned level's}
         self.reset()
 
     @staticmethod
@@ -390,6 +396,8 @@ class FinePositioner:
         self._steady = 0
         self._new_plateau()
         self._stair = None
+        self._safe = None             # fine.preload_cap: the furthest twist toward the move an unmoved pulse reached
+                                      # at this stop, rad (None: none yet)
         self._stair_step = 0.0        # the last stair's climb, rad of twist (the level lies within it below the apex)
         self._rise_seen = [0.0, 0.0]  # mean twist a doublet's kick raised above its planned preload, rad (0: none
                                       # yet), [later stairs, a staircase's first stair]
@@ -612,11 +620,15 @@ class FinePositioner:
         aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
         final = phi_e + aim / 2.0
         pre = phi_b - d * cfg.preload_margin * gap
-        peak = phi_b + d * cfg.overdrive_fraction * gap
+        peak = phi_b + d * (cfg.overdrive_fraction * gap + self._pushes.get((d, band), 0.0))
         if d * (final - peak) > 0.0:
             peak = final
         if d * (pre - final) > 0.0:
             pre = final
+        if cfg.preload_cap and self._safe is not None and d * (pre - self._safe) > 0.0:
+            # the learned level may have climbed past what the unmoved pulses proved (the probe ratchet): a
+            # preload beyond the furthest twist they reached at this stop is not known to hold the valve
+            pre = self._safe
         self._dir, self._band = d, band
         self._thl0 = thl
         if self._anchor is None or self._anchor[1] != d or d * (thl - self._anchor[0]) > 0.0:
@@ -964,6 +976,9 @@ class FinePositioner:
         curb = self.learn.breakaway[d][b]
         if abs(move) > 0.5 * cfg.tolerance_rad:
             self._stair = None                 # a new stop: a new breakaway level
+            if not self._doublet:
+                self._pushes[(d, b)] = (1.0 - MOVE_GAIN) * self._pushes.get((d, b), 0.0)
+            self._safe = None
             self._early_breaks += 0 if pulsed else 1
             if self._cold:
                 # the first breakaway of a cold engagement is the evidence the main law's would have
@@ -1032,7 +1047,24 @@ class FinePositioner:
                     self._climbed_out = True
             else:
                 step = cfg.doublet_probe_step if self._doublet else cfg.probe_step
-                new_b = d * max(d * (b0 + curb), d * self._peak_seen) + d * step * gap0
+                if self._safe is None or d * self._peak_seen > d * self._safe:
+                    self._safe = self._peak_seen
+                if cfg.probe_reached:
+                    # an unmoved pulse proves only that the level at this stop lies beyond the apex the
+                    # twist really reached: a pulse that fell short of the learned level (the servo
+                    # reaches 60-75 % of a planned overdrive) proves nothing above it -- raised anyway,
+                    # 10 such pulses climbed 0.0782 -> 0.0831 rad on the soft coupling, and the preload
+                    # planned from it broke the valve loose a whole jump (task h24s/h25p).  The learned
+                    # level takes only what the reached apex proves; the next pulse's planned peak (not
+                    # its preload) still climbs by the old step, so a servo that falls short of its plan
+                    # reaches further each time (:attr:`_pushes`: per direction and Δp band, kept across
+                    # stops -- the servo's shortfall is the loop's, not the stop's -- and decayed x0.7 at each
+                    # servo-blended move; reset per stop, it measured worse, task h25p)
+                    ratchet = d * max(d * (b0 + curb), d * self._peak_seen) + d * step * gap0
+                    new_b = d * max(d * (b0 + curb), d * self._peak_seen + step * gap0)
+                    self._pushes[(d, b)] = self._pushes.get((d, b), 0.0) + d * (ratchet - new_b)
+                else:
+                    new_b = d * max(d * (b0 + curb), d * self._peak_seen) + d * step * gap0
                 self.learn.set("breakaway", d, b, new_b - b0)
         err = self._target - thl
         if d * err < 0.0:

@@ -294,6 +294,13 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "before the stage holds where it is", 1, 1000, runtime=True),
     Param("fine.probe_step", 0.1, "", "a pulse that did not move the valve raises the learned breakaway this "
           "fraction of the static band beyond the twist it reached", 0.0, 1.0, runtime=True),
+    Param("fine.probe_reached", False, "", "a pulse that did not move the valve raises the learned breakaway only to "
+          "fine.probe_step beyond the twist it reached: one that fell short of the learned level leaves it, and the "
+          "step goes to the planned peak of the next servo-blended pulses instead (a per direction / Δp band offset, "
+          "x0.7 at each of their moves) (off: beyond the larger of the two, the probe ratchet; task h25p)", runtime=True),
+    Param("fine.preload_cap", False, "", "a servo-blended pulse's preload goes no further than the furthest twist a pulse "
+          "that did not move the valve reached at this stop (the ratchet may have raised the learned level, and the "
+          "preload planned from it, past what they proved; task h25p)", runtime=True),
     Param("fine.min_move_fraction", 0.5, "", "no pulse for an error below this fraction of the learned smallest "
           "move a pulse makes (0.5: a move m improves an error e only if m < 2|e|; 0 = pulse regardless)",
           0.0, 2.0, runtime=True),
