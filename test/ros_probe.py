@@ -47,6 +47,48 @@ def stop_spinning(thread: threading.Thread, stop: threading.Event, executor) -> 
     thread.join(timeout=30.0)
     executor.shutdown(timeout_sec=2.0)
 
+def wait_for(predicate, timeout: float, what: str = "condition", detail=None):
+    """Poll ``predicate`` every 10 ms until it returns a true value (returned) or ``timeout`` s
+    pass (AssertionError naming ``what``, and ``detail()`` if given)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.01)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}" + (f"; {detail()}" if detail else ""))
+
+
+@contextlib.contextmanager
+def in_process_controller(namespace: str, overrides: dict):
+    """The controller node (real time) spinning on a thread of this process in the nodes' own
+    timed EventsExecutor loop (``node_runner.spin``), so a test can reach into its driver and
+    law; ``overrides``: parameter name -> value.  Yields ``(node, thread)``; tears it down."""
+    from rclpy.parameter import Parameter
+
+    from fuel_valve_control.ros.controller_node import ControllerNode
+    from fuel_valve_control.ros.node_runner import make_executor, spin
+
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    node = ControllerNode(context=context, namespace=namespace,
+                          parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
+    executor = make_executor(context=context)
+    executor.add_node(node)
+    stop = threading.Event()
+    thread = threading.Thread(target=spin, args=(executor, context, stop.is_set), daemon=True)
+    thread.start()
+    try:
+        yield node, thread
+    finally:
+        stop.set()
+        thread.join(timeout=5.0)
+        executor.remove_node(node)
+        node.destroy_node()
+        executor.shutdown()
+        rclpy.try_shutdown(context=context)
+
+
 class Probe:
     def __init__(self, namespace: str, keep_all: tuple[str, ...] = (), lockstep: bool = False):
         from diagnostic_msgs.msg import DiagnosticArray
@@ -191,14 +233,9 @@ class Probe:
         return {} if st is None else {kv.key: kv.value for kv in st.values}
 
     def wait_for(self, predicate, timeout: float, what: str = "condition"):
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            value = predicate()
-            if value:
-                return value
-            time.sleep(0.01)
-        raise AssertionError(f"timed out after {timeout} s waiting for {what}; driver status: "
-                             f"{getattr(self.driver_status(), 'message', None)!r}")
+        """:func:`wait_for`, the timeout's message carrying the driver's status."""
+        return wait_for(predicate, timeout, what,
+                        lambda: f"driver status: {getattr(self.driver_status(), 'message', None)!r}")
 
     # ---------------------------------------------------------------- services
     def _client(self, srv_type, service: str, timeout: float):

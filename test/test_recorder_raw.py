@@ -5,7 +5,9 @@
 * offered QoS: metadata.yaml lists, per topic, the QoS its publisher offered (RELIABLE /
   TRANSIENT_LOCAL for the latched ``drive_enable``, VOLATILE for the rest), and
   ``ros_distro: jazzy``;
-* the writer thread's queue is bounded and a message that does not fit is counted as dropped.
+* the writer thread's queue is bounded and a message that does not fit is counted as dropped;
+* adaptive QoS (as ``ros2 bag record``): best-effort and volatile publishers are recorded too, and
+  the subscription's profile is only ever weakened.
 """
 from __future__ import annotations
 
@@ -21,13 +23,18 @@ pytest.importorskip("rosbags")
 pytestmark = [pytest.mark.ros]
 
 NS = "/fv_raw"
+NS_QOS = "/fv_qos"
 
 
-def test_raw_bytes_counts_qos_and_distro(tmp_path):
+def _record(tmp_path, ns: str, sent, demand_qos=None, enable_qos=None, pace_s: float = 0.0):
+    """Record ``sent`` (std_msgs/Float64 on ``demand``) and one ``Bool(True)`` on ``drive_enable``
+    through a :class:`Recorder` in this process; the publishers are a node of the same context
+    that comes up after the recorder (QoS None: the suite's own profile for the topic), matched
+    before anything is sent; ``pace_s`` between demand samples.  Returns ``(recorder, counts,
+    metadata, raw demand bytes in the bag)``."""
     import rclpy
-    from rclpy.serialization import serialize_message
     from rclpy.parameter import Parameter
-    from std_msgs.msg import Bool, Float64
+    from std_msgs.msg import Bool, Float64  # noqa: F401 (the sent messages' type)
     from rosbags.highlevel import AnyReader
 
     from fuel_valve_control.common import contract
@@ -39,24 +46,29 @@ def test_raw_bytes_counts_qos_and_distro(tmp_path):
     context = rclpy.Context()
     rclpy.init(context=context)
     try:
-        recorder = Recorder(context=context, namespace=NS, parameter_overrides=[
+        recorder = Recorder(context=context, namespace=ns, parameter_overrides=[
             Parameter("output", value=str(bag)),
             Parameter("topics", value=[contract.DEMAND, contract.DRIVE_ENABLE])])
         assert all(sub.raw for sub in recorder.subscriptions)
-        source = rclpy.create_node("source", namespace=NS, context=context)
-        pub_demand = ri.quiet_publisher(source, Float64, contract.DEMAND)
-        pub_enable = ri.quiet_publisher(source, Bool, contract.DRIVE_ENABLE)
         executor = node_runner.make_executor(context=context)
         executor.add_node(recorder)
+        executor.spin_once(timeout_sec=0.1)
+        source = rclpy.create_node("source", namespace=ns, context=context)
+        pub_demand = ri.quiet_publisher(source, Float64, contract.DEMAND, demand_qos)
+        pub_enable = ri.quiet_publisher(source, Bool, contract.DRIVE_ENABLE, enable_qos)
         end = time.monotonic() + 10.0
         while pub_demand.get_subscription_count() < 1 or pub_enable.get_subscription_count() < 1:
-            assert time.monotonic() < end, "recorder never matched"
+            assert time.monotonic() < end, (
+                f"recorder never matched the source: demand {pub_demand.get_subscription_count()}, "
+                f"drive_enable {pub_enable.get_subscription_count()}")
             executor.spin_once(timeout_sec=0.05)
-        sent = [Float64(data=0.1 * i + 1e-9) for i in range(300)]
+        time.sleep(0.2)                                   # both ends of the match known
         pub_enable.publish(Bool(data=True))
         for msg in sent:
             pub_demand.publish(msg)
             executor.spin_once(timeout_sec=0.0)
+            if pace_s:
+                time.sleep(pace_s)
         end = time.monotonic() + 5.0
         while recorder.received < len(sent) + 1 and time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)
@@ -66,19 +78,73 @@ def test_raw_bytes_counts_qos_and_distro(tmp_path):
         recorder.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    with AnyReader([bag]) as reader:
+        raw = [data for conn, _, data in reader.messages() if conn.topic == f"{ns}/demand"]
+    return recorder, counts, meta, raw
 
+
+def _offered_qos(meta) -> dict:
+    """Topic name -> the QoS profiles its publishers offered, as metadata.yaml lists them."""
+    return {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"]
+            for t in meta["topics_with_message_count"]}
+
+
+def test_raw_bytes_counts_qos_and_distro(tmp_path):
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Float64
+
+    sent = [Float64(data=0.1 * i + 1e-9) for i in range(300)]
+    recorder, counts, meta, raw = _record(tmp_path, NS, sent)
     assert counts == {f"{NS}/demand": len(sent), f"{NS}/drive_enable": 1}
     assert recorder.dropped == {}
-    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert meta["ros_distro"] == "jazzy"
-    topics = {t["topic_metadata"]["name"]: t for t in meta["topics_with_message_count"]}
-    assert {n: t["message_count"] for n, t in topics.items()} == counts
-    qos = {n: t["topic_metadata"]["offered_qos_profiles"] for n, t in topics.items()}
+    assert {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]} == counts
+    qos = _offered_qos(meta)
     assert [(q["reliability"], q["durability"]) for q in qos[f"{NS}/drive_enable"]] == [("reliable", "transient_local")]
     assert [(q["reliability"], q["durability"]) for q in qos[f"{NS}/demand"]] == [("reliable", "volatile")]
-    with AnyReader([bag]) as reader:
-        raw = [data for conn, _, data in reader.messages() if conn.topic == f"{NS}/demand"]
     assert raw == [serialize_message(m) for m in sent]
+
+
+def test_best_effort_and_volatile_publishers_are_recorded(tmp_path):
+    """The recorder's adaptive QoS (as ``ros2 bag record``, h25r): a supervisor that publishes the
+    demand best-effort -- which the controller hears since h24u -- and a volatile ``drive_enable``
+    (the suite's is transient-local), both coming up after the recorder, are matched within a
+    few ``QOS_RECHECK_S`` and every sample published after that is recorded, raw, once.  Before,
+    the recorder subscribed RELIABLE / TRANSIENT_LOCAL only and recorded nothing of either."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Float64
+
+    best_effort = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                             reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+    volatile = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                          reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+    sent = [Float64(data=0.01 * i) for i in range(100)]
+    _, counts, meta, raw = _record(tmp_path, NS_QOS, sent, best_effort, volatile,
+                                   pace_s=0.001)          # best effort: a pace the reader keeps
+    assert counts == {f"{NS_QOS}/demand": len(sent), f"{NS_QOS}/drive_enable": 1}
+    qos = _offered_qos(meta)
+    assert [q["reliability"] for q in qos[f"{NS_QOS}/demand"]] == ["best_effort"]
+    assert [q["durability"] for q in qos[f"{NS_QOS}/drive_enable"]] == ["volatile"]
+    assert raw == [serialize_message(m) for m in sent]
+
+
+def test_adapted_qos_only_weakens():
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    from fuel_valve_control.tools.recorder import adapted_qos
+
+    start = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    best_effort = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+    assert adapted_qos(start, []) is start
+    assert adapted_qos(start, [latched]) is start
+    weak = adapted_qos(start, [latched, best_effort])
+    assert (weak.reliability, weak.durability, weak.depth) == (ReliabilityPolicy.BEST_EFFORT,
+                                                               DurabilityPolicy.VOLATILE, 5000)
+    assert adapted_qos(weak, [latched]) is weak          # never back: no replayed latched samples
 
 
 class _SlowWriter:

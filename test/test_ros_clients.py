@@ -12,11 +12,10 @@ from __future__ import annotations
 
 import json
 import threading
-import time
 
 import pytest
 
-from ros_probe import spin_in_thread, stop_spinning  # noqa: E402
+from ros_probe import in_process_controller, spin_in_thread, stop_spinning, wait_for  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -81,41 +80,11 @@ class Client:
         rclpy.shutdown(context=self.context)
 
 
-def wait_for(predicate, timeout: float, what: str):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.02)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-
-
 @pytest.fixture(scope="module")
 def controller():
     """The controller node (real time, autostart, /diagnostics at 10 Hz) spinning in this process."""
-    from rclpy.parameter import Parameter
-    from fuel_valve_control.ros.controller_node import ControllerNode
-    from fuel_valve_control.ros.node_runner import make_executor, spin
-
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
-    node = ControllerNode(context=ctx, namespace=NS, parameter_overrides=[
-        Parameter("diagnostics_rate_hz", value=10.0), Parameter("demand_timeout_s", value=60.0)])
-    executor = make_executor(context=ctx)
-    executor.add_node(node)
-    stop = threading.Event()
-    thread = threading.Thread(target=spin, args=(executor, ctx, stop.is_set), daemon=True)
-    thread.start()
-    try:
+    with in_process_controller(NS, {"diagnostics_rate_hz": 10.0, "demand_timeout_s": 60.0}) as (node, _thread):
         yield node
-    finally:
-        stop.set()
-        thread.join(timeout=5.0)
-        executor.remove_node(node)
-        node.destroy_node()
-        executor.shutdown()
-        rclpy.try_shutdown(context=ctx)
 
 
 @pytest.fixture(scope="module")

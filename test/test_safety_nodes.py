@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import os
 import signal
-import threading
 import time
 
 import pytest
 
-from ros_probe import Probe
+from ros_probe import Probe, in_process_controller
 
 from fuel_valve_control.common import contract
 from fuel_valve_control.common.contract import STROKE_RAD
@@ -231,34 +230,18 @@ def test_short_controller_stalls_at_a_hold_the_drive_reports_and_the_controller_
 @pytest.fixture
 def inprocess(tmp_path):
     """Plant as a process, the controller node in this process (so its law can be broken)."""
-    import rclpy
-    from rclpy.parameter import Parameter
-    from fuel_valve_control.ros.controller_node import ControllerNode
-    from fuel_valve_control.ros.node_runner import make_executor, spin
-
     plan = plan_run(None, REAL_TIME)
     s = Launcher(plan, "/inproc", tmp_path)
     s.start(("plant",))
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
-    node = ControllerNode(context=ctx, namespace="/inproc", parameter_overrides=[
-        Parameter("faults.resolver_timeout_s", value=1.0), Parameter("diagnostics_rate_hz", value=10.0)])
-    executor = make_executor(context=ctx)
-    executor.add_node(node)
-    stop = threading.Event()
-    thread = threading.Thread(target=spin, args=(executor, ctx, stop.is_set), daemon=True)
-    thread.start()
-    probe = Probe("/inproc")
     try:
-        yield node, probe, thread
+        with in_process_controller("/inproc", {"faults.resolver_timeout_s": 1.0, "diagnostics_rate_hz": 10.0}) as (
+                node, thread):
+            probe = Probe("/inproc")
+            try:
+                yield node, probe, thread
+            finally:
+                probe.close()
     finally:
-        probe.close()
-        stop.set()
-        thread.join(timeout=5.0)
-        executor.remove_node(node)
-        node.destroy_node()
-        executor.shutdown()
-        rclpy.try_shutdown(context=ctx)
         s.stop()
 
 
