@@ -234,6 +234,16 @@ class StictionGain(Compensator):
         return self.gain * ts / self.model.gear_ratio * _sat(ctx.error / self.error_scale), 0.0, 0.0
 
 
+def _merged_softness(reading: float, estimate: float, readings: int,
+                     bounds: tuple[float, float]) -> tuple[float, float]:
+    """A coupling reading (K_model / K) clipped to ``bounds``, and the persistent estimate it
+    makes: the first plausible reading sets it, each later one moves its logarithm halfway (the
+    coupling does not change from move to move or hold to hold; one reading's scatter is halved).
+    Returns ``(clipped reading, new estimate)``."""
+    reading = min(max(reading, bounds[0]), bounds[1])
+    return reading, (reading if readings == 0 else math.sqrt(estimate * reading))
+
+
 class CouplingStiffness:
     """The coupling's stiffness read in breakaway wind-ups, as ``softness`` = K_model / K.
 
@@ -295,8 +305,7 @@ class CouplingStiffness:
         if vxx < (self.min_span_rad ** 2) * n / 12.0 or vxy <= 0.0 or vyy <= 0.0 \
                 or vxy * vxy < self.min_r2 * vxx * vyy:
             return None          # too little twist (a uniform spread of min_span has variance span²/12), or no line
-        reading = min(max(k_model * vxx / vxy, self.bounds[0]), self.bounds[1])
-        self.softness = reading if self.readings == 0 else math.sqrt(self.softness * reading)
+        reading, self.softness = _merged_softness(k_model * vxx / vxy, self.softness, self.readings, self.bounds)
         self.readings += 1
         self.last = reading
         return reading
@@ -386,8 +395,8 @@ class HoldStiffness:
                  + (self.COUNT_MARGIN * self.count_rad + 0.5 * self.BACKLASH_RAD) / abs(twist))
         if bound > self.max_bound:
             return None
-        reading = min(max(self.k_model * twist / drive, self.bounds[0]), self.bounds[1])
-        self.softness = reading if self.readings == 0 else math.sqrt(self.softness * reading)
+        reading, self.softness = _merged_softness(self.k_model * twist / drive, self.softness, self.readings,
+                                                  self.bounds)
         self.readings += 1
         self.last = (reading, bound)
         return reading
