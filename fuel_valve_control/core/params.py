@@ -442,8 +442,8 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "this many periods later than the loop's usual latency (its age, arrival minus stamp, beyond the least age "
           "seen lately) is stale: its period commands the torque that holds the valve where it was measured instead "
           "of a law period computed for a valve that has moved on (the law skips it).  Offline starved step "
-          "52.4 -> 47.3 % at 1.5; on the nodes beside two CPU hogs no better (8 + 8 interleaved stall-test runs: 2 "
-          "failed with it, 1 without): most of the lateness there is on the command's way to the drive, which "
+          "52.4 -> 47.3 % at 1.5; on the nodes beside two CPU hogs no better (16 + 16 interleaved stall-test runs: 2 "
+          "failed with it, 3 without): most of the lateness there is on the command's way to the drive, which "
           "the loop cannot see (docs/control_results.md section 54); 0 = off (default)", 0.0, 1000.0, runtime=True),
     Param("faults.i2t_fault_time_s", 2.0, "s", "time the loop may ask for more than the I2t limit allows "
           "(jam / overload) before the fault latches", 0.05, 60.0, runtime=True),
