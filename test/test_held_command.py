@@ -92,9 +92,86 @@ def test_the_re_armed_laws_lurch_held_for_the_drives_watchdog_keeps_the_valve_wi
 
 
 @pytest.mark.xfail(strict=True, reason="a command acting 13 ms (the drive's own watchdog late: a starved "
-                                       "plant) throws the valve to 56 % -- the stall test's flake; §49")
+                                       "plant) throws the valve to 56 %; §49.  Not what the nodes do: the plant "
+                                       "node's watchdog bounded every command to 5.9-7.4 ms in 10 runs beside two "
+                                       "hogs (§54); a stale sample's command is the case there (test below)")
 def test_a_command_held_13_ms_at_the_end_of_a_move_keeps_the_valve_within_demand_plus_2():
     # offset 30: the valve 0.4 % below demand, the main law's hold command 16.4 A (below
     # §40.5's proposed cap of 17.1 A) held for the whole 13 ms stall
     peak, _ = _double_stall(30, GAP)
     assert peak <= DEMAND + 2.0, peak
+
+
+# ------------------------------------------------------------------ stale samples (§54)
+def _starved(stale_periods: float, periods: int = 700) -> tuple[float, float, int]:
+    """The 45.8 -> 47.5 % step on a starved real-time loop as the nodes showed it beside two
+    CPU hogs (§54): the loop answers after 3 periods the sample 2 periods old (the DDS receive
+    thread behind), then twice at once a fresh one; the drive applies each answer until the
+    next (within its 5 ms watchdog: no trip).  Returns (peak, final valve, % of stroke; stale
+    samples counted)."""
+    plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": 0.0}))
+    drv = D.ValveDriver(load_controller_params(overrides={"faults.stale_sample_periods": stale_periods}))
+    drv.drive_status(0.0, contract.DRIVE_STATE_ENABLED)
+    loop(drv, plant, 0.0, 1500, lambda t: START)
+    period = drv.period
+    t, peak, samples, wait, i = 1.5, 0.0, [], 0, 0
+    pattern = ((3, 2), (1, 0), (1, 0))          # (periods to the answer, age of its sample)
+    for k in range(periods):
+        s = plant.resolver()
+        samples.append((t, s.motor_rad, s.valve_rad))
+        wait += 1
+        every, age = pattern[i % len(pattern)]
+        if wait >= every:
+            stamp, motor, valve = samples[-1 - age]
+            drv.demand_percent(t, DEMAND)
+            drv.resolver(stamp, motor, valve, now=t)
+            drv.loop_timing(stamp, t)            # the node's real-time call: stamp vs arrival
+            out = drv.step(t)
+            plant.set_command(out.current_a, out.enable)
+            wait, i = 0, i + 1
+        plant.advance(period)
+        t += period
+        peak = max(peak, plant.truth().valve_angle)
+    assert not drv.last.faults, drv.last.faults
+    return 100.0 * peak / STROKE_RAD, 100.0 * plant.truth().valve_angle / STROKE_RAD, drv.stale_samples
+
+
+#: ``faults.stale_sample_periods`` as measured in §54 (an option, off by default: no better on the nodes)
+STALE_PERIODS = 1.5
+
+
+@pytest.fixture(scope="module")
+def starved():
+    """The starved step with the stale-sample rule off (the default) and on."""
+    assert load_controller_params()["faults.stale_sample_periods"] == 0.0      # off by default (§54)
+    return {"off": _starved(0.0), "on": _starved(STALE_PERIODS)}
+
+
+def test_a_starved_loop_answering_stale_samples_overshoots_without_the_stale_sample_rule(starved):
+    # the case is the nodes' mechanism: commands for samples 2 ms old, held 3 ms, throw the
+    # valve past demand + 2 % (52.4 %) -- guards that the next test measures something
+    peak, _, stale = starved["off"]
+    assert peak > DEMAND + 2.0 and stale == 0, (peak, stale)
+
+
+def test_a_stale_samples_period_holds_the_valve_and_the_step_still_arrives(starved):
+    # the stale samples' periods command the holding torque: no overshoot (47.3 %), and the
+    # law, not re-armed by them, still brings the valve to its demand (within 0.5 % of stroke)
+    peak, final, stale = starved["on"]
+    assert stale > 100, stale
+    assert peak <= DEMAND + 2.0, peak
+    assert abs(final - DEMAND) < 0.5, final
+
+
+def test_the_stale_sample_rule_reads_the_age_beyond_the_usual_latency_not_a_clock_offset():
+    drv = D.ValveDriver(load_controller_params(overrides={"faults.stale_sample_periods": STALE_PERIODS}))
+    period = drv.period
+    offset = 0.05                                # the drive's clock 50 ms behind the loop's
+    for k in range(100):                         # a constant latency: never stale
+        drv.loop_timing(k * period, k * period + offset + 2e-4)
+        assert not drv._stale_sample
+    assert drv.sample_late_s < 1e-6
+    drv.loop_timing(100 * period, 100 * period + offset + 2e-4 + 2.0 * period)     # 2 periods late
+    assert drv._stale_sample and abs(drv.sample_late_s - 2.0 * period) < 1e-6
+    drv.loop_timing(101 * period, 101 * period + offset + 2e-4 + 1.0 * period)     # 1: within 1.5
+    assert not drv._stale_sample

@@ -73,6 +73,10 @@ FAULT_CODES = (DEMAND_SIGNAL, DEMAND_STALE, RESOLVER_STALE, RESOLVER_IMPLAUSIBLE
 #: the longest loop gap counted as time by the duty counters (NE107 inputs), periods: a stalled
 #: loop's gap is not operating time
 STALL_REARM_PERIODS = 20
+#: the least sample age (:meth:`ValveDriver.loop_timing`) creeps up by this fraction of a period
+#: per sample (1 ms per second at 1 kHz): an offset between the two clocks that grows (a clock
+#: step, a drift) is absorbed within seconds, while a burst of late samples stands out
+AGE_FLOOR_CREEP = 1e-3
 #: resolver samples over which a drive-off re-arm judges the valve's speed (about the observer's
 #: settling: the re-armed observer starts at rest and learns the real speed within a few periods)
 REST_WINDOW_SAMPLES = 10
@@ -169,6 +173,15 @@ class ValveDriver:
         #: known, offline) and the loop time the drive last reported itself enabled (diagnostics)
         self._sample_age: float | None = None
         self._enabled_since: float | None = None
+        #: stale samples (:meth:`loop_timing`, ``faults.stale_sample_periods``): the least age seen
+        #: lately (s; creeps up by :data:`AGE_FLOOR_CREEP` of a period per sample), the latest
+        #: sample's age beyond it (s), whether this period's sample is stale, how many were, and
+        #: the largest excess age seen (diagnostics)
+        self._age_floor: float | None = None
+        self.sample_late_s = 0.0
+        self._stale_sample = False
+        self.stale_samples = 0
+        self.sample_late_max_s = 0.0
         self._stalled = False
         #: the drive's state word (:meth:`drive_status`): None until a drive reports one (then
         #: the reports, not the loop gap, say when the drive switched itself off)
@@ -430,6 +443,17 @@ class ValveDriver:
         29 A kick held ~7 ms instead of ~4 ms moved a held valve 6.5e-2 rad, beside two CPU
         hogs), so the stage stands aside for ``fine.late_loop_holdoff_s`` after
         (:meth:`_stage_aside`)."""
+        # the sample's age beyond the loop's usual latency: age minus the least age seen lately,
+        # so an offset between the drive's clock and the loop's does not count (the floor
+        # creeps up slowly, so a clock step is absorbed within seconds)
+        age = now - stamp
+        floor = self._age_floor
+        floor = age if floor is None else min(age, floor + AGE_FLOOR_CREEP * self.period)
+        self._age_floor = floor
+        self.sample_late_s = age - floor
+        self.sample_late_max_s = max(self.sample_late_max_s, self.sample_late_s)
+        stale = self.ps["faults.stale_sample_periods"]
+        self._stale_sample = stale > 0.0 and self.sample_late_s > stale * self.period
         prev, self._timing_prev = self._timing_prev, (stamp, now)
         if prev is None:
             return
@@ -790,6 +814,22 @@ class ValveDriver:
             if self.friction_check is not None:
                 self.friction_check.reset()   # the valve moved with the drive off: not friction
             self._friction_override = None   # the law was reset for the reading's Δp
+        if self._stale_sample:
+            # a sample that reached the loop late (faults.stale_sample_periods): a law period
+            # computed from it is a command for a valve that has moved on, and a starved loop
+            # holds it until its next answer (offline, answers every 3-4 ms to samples 2-3 ms old:
+            # 50-56 % for a 45.8 -> 47.5 % step, section 54).  This period commands the torque
+            # that holds the valve where it was measured (spring and Δp load, no friction): it
+            # injects nothing, friction brakes a moving valve.  The law does not run on the
+            # stale sample and is not re-armed: its next period, on a fresh sample, continues
+            # (re-arming at every stale sample kept a loop with a third of its samples stale
+            # from ever breaking the valve loose: 42.6 % after 1.5 s for 47.5 %, offline)
+            self._stale_sample = False
+            self.stale_samples += 1
+            self._loop_late(t, f"a resolver sample {self.sample_late_s * 1e3:.1f} ms late")
+            self.last = DriverOutput(self._holding_torque(pressure) / self.controller.model.torque_constant_nm_per_a,
+                                     True, "running", self._demand_pct, position_pct, {}, dict(self.warnings))
+            return self.last
         pressure = self.pressure_kpa = self._friction_checked(pressure)
         applied = self.controller.last_current     # what the drive applied since the sample before
         current = self.controller.update(t, demand_rad, self._meas, pressure)
@@ -938,6 +978,8 @@ class ValveDriver:
             "i2t_budget_used": self.controller.i2t_budget_fraction,
             "stall_rearms": self.stall_rearms,
             "late_loop_events": self.late_loop_events,
+            "stale_samples": self.stale_samples,
+            "sample_late_max_ms": 1e3 * self.sample_late_max_s,
             "fine_stage_aside": self._stage_aside(self._t) if self._t is not None else "",
             "drive_state": "unreported" if self.drive_state is None else DRIVE_STATE_NAMES[self.drive_state],
             "law_swaps": self.law_swaps, "params_pending": self.params_pending,

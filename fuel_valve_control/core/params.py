@@ -438,6 +438,13 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "does not report its state (no drive_status): a loop gap longer than this switched the drive off, so "
           "the loop re-arms from the measurement with the torque holding the valve there and re-enables it; 0: the drive has no "
           "command watchdog.  A drive that reports its state is followed instead (driver.py)", 0.0, 1.0),
+    Param("faults.stale_sample_periods", 0.0, "", "real time: a resolver sample that reaches the loop more than "
+          "this many periods later than the loop's usual latency (its age, arrival minus stamp, beyond the least age "
+          "seen lately) is stale: its period commands the torque that holds the valve where it was measured instead "
+          "of a law period computed for a valve that has moved on (the law skips it).  Offline starved step "
+          "52.4 -> 47.3 % at 1.5; on the nodes beside two CPU hogs no better (16 + 16 interleaved stall-test runs: 2 "
+          "failed with it, 3 without): most of the lateness there is on the command's way to the drive, which "
+          "the loop cannot see (docs/control_results.md section 54); 0 = off (default)", 0.0, 1000.0, runtime=True),
     Param("faults.i2t_fault_time_s", 2.0, "s", "time the loop may ask for more than the I2t limit allows "
           "(jam / overload) before the fault latches", 0.05, 60.0, runtime=True),
     # --- valve health: NAMUR NE107 status and duty counters (core/health.py, issue 12) ---------

@@ -229,6 +229,14 @@ class PlantNode(Node):
         self._fault: str | None = None
         self._state_reported: int | None = None     # the drive state word last published
         self._state_lock = threading.Lock()         # published from the loop thread and callbacks
+        # how long one command acted (real time, /diagnostics): commands received (a count the
+        # tick compares), the plant time the one in force has been applied with the drive on,
+        # the longest such time and the commands applied longer than two periods
+        self._commands_received = 0
+        self._held_command = 0
+        self._held_s = 0.0
+        self._held_max_s = 0.0
+        self._held_long = 0
 
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Bool, Float64, Float64MultiArray, UInt8
@@ -351,6 +359,7 @@ class PlantNode(Node):
         else:
             self._iq, self._command_rejected = float(value), False
         self.stats.commands += 1
+        self._commands_received += 1
         if self._last_publish_mono is not None and not self._got_command:
             self.stats.add_rtt(time.monotonic() - self._last_publish_mono)
         self._got_command = True
@@ -429,6 +438,7 @@ class PlantNode(Node):
                 if not self._got_command:
                     self.stats.missed += 1
                 self._check_watchdog(elapsed)
+                self._count_held(elapsed)
             if self._awaiting_since is None:
                 # the sample about to be published (plant time): marked before the
                 # publish, so an answer that arrives at once clears it (marked after
@@ -436,6 +446,22 @@ class PlantNode(Node):
                 # as unanswered)
                 self._awaiting_since = self.plant.time + elapsed
             self.step_and_publish(elapsed, stamp)
+
+    def _count_held(self, elapsed: float) -> None:
+        """Real time, each tick about to apply the command in force for ``elapsed`` s of plant
+        time: how long one command has acted with the drive on.  A starved loop's command acts
+        until its next answer (up to the watchdog's ``command_timeout_s`` plus the tick that
+        finds it), whatever sample it answered: the integrator's measure of a loop that keeps
+        the drive on but answers late (docs/control_results.md section 54)."""
+        if self._commands_received != self._held_command:
+            self._held_command, self._held_s = self._commands_received, 0.0
+        if not (self._enable and not self._watchdog_off and self._fault is None):
+            self._held_s = 0.0
+            return
+        before, self._held_s = self._held_s, self._held_s + elapsed
+        if before <= 2.0 * self.period < self._held_s:
+            self._held_long += 1
+        self._held_max_s = max(self._held_max_s, self._held_s)
 
     def stop(self) -> None:
         if not self.lockstep:
@@ -578,6 +604,9 @@ class PlantNode(Node):
                   "watchdog_trips": str(self._watchdog_trips)}
         if self.lockstep:
             values["lockstep_ticks_republished"] = str(self.republished)
+        else:
+            values["command_held_max_ms"] = f"{self._held_max_s * 1e3:.3f}"
+            values["commands_held_over_2_periods"] = str(self._held_long)
         values.update({k: f"{v:.6g}" if isinstance(v, float) else str(v) for k, v in s.items()})
         if not self.lockstep:
             values["timer_slack_ns"] = str(getattr(self, "timer_slack_ns", None))
