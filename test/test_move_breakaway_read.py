@@ -330,23 +330,25 @@ def test_a_valve_at_dp_0_told_max_is_read_for_the_friction_it_has_with_the_optio
         c = _comp_wrong_dp(on)
         _move(c, met)
         assert c.move_reading[0] == pytest.approx(met / fl.valve_static_nm, rel=1e-6)
+        ff = _sliding_ff(c)
         cap = max(met / fl.valve_static_nm, c.scale_bounds[0]) if on else c.scale(P_MAX)[1]
-        assert _sliding_ff(c) == pytest.approx(cap * fl.valve_coulomb_nm, rel=1e-6)
+        assert ff == pytest.approx(cap * fl.valve_coulomb_nm, rel=1e-6)
     assert c.scale_bounds[0] == 0.1
 
 
 @pytest.mark.parametrize("direction, scale, cut", [
     (1.0, -0.5, False),     # opening: below the least a Δp misread explains (0.25 - 1.17 N*m): a load (1004, 1043)
     (1.0, -0.1, True),      # -0.55 N*m: a valve at Δp 0 told max explains it
-    (-1.0, -0.1, False),    # closing: a Δp read too high *hinders* closing moves (least 0.25 + 1.17 N*m)
-    (-1.0, 0.2, False),     # 1.1 N*m: still below it
-    (-1.0, 0.3, True),      # 1.65 N*m: above it
+    (-1.0, -0.1, False),    # closing: a Δp read too high *hinders* closing moves: only the h24g floor
+    (-1.0, 0.3, False),     # 1.65 N*m: above 0.25 + 1.17 N*m, but a load helping closing reads so too (1013, 3021)
+    (-1.0, 0.45, False),
 ])
 def test_what_no_dp_explains_is_still_a_load(direction, scale, cut):
     """The least a reading can be where friction holds the valve, over every Δp the transducer may
-    have misread (:meth:`_least_friction_nm`): FLOOR_SCALE x that Δp's static level, with the
-    difference of the flow torques the move's way.  Below it the h24g floor stands (a load helping
-    the move: campaign seeds 1004, 1043 read -2.7 ... -0.4 x)."""
+    have misread whose flow torque helps the move (:meth:`_least_friction_nm`): FLOOR_SCALE x that
+    Δp's static level, with the difference of the flow torques the move's way.  Below it the h24g
+    floor stands (a load helping the move: campaign seeds 1004, 1043 read -2.7 ... -0.4 x); the way
+    a misread flow torque hinders keeps the h24g floor (campaign seeds 1013, 3021, §53)."""
     fl = MODEL.friction(P_MAX)
     c = _comp_wrong_dp()
     _move(c, scale * fl.valve_static_nm, direction=direction)
@@ -357,20 +359,20 @@ def test_what_no_dp_explains_is_still_a_load(direction, scale, cut):
 def test_readings_both_ways_that_the_told_dp_explains_confirm_it():
     """A steady load cancels in the mean of the two ways' readings (gross of the held load): once
     it is a friction the Δp told explains (>= FLOOR_SCALE of its schedule), only that Δp's floor
-    stands -- a 5 N*m load helping closing moves (campaign seed 3021) reads low closing and high
-    opening.  The record survives the compensator's reset (the fine stage's hand-back, every plateau)
-    but not a Δp reschedule (the readings were against the old schedule)."""
+    stands -- a load helping opening moves reads low opening and high closing.  The record survives
+    the compensator's reset (the fine stage's hand-back, every plateau) but not a Δp reschedule (the
+    readings were against the old schedule)."""
     fl = MODEL.friction(P_MAX)
     c = _comp_wrong_dp()
-    _move(c, 2.0 * fl.valve_static_nm)                   # opening, above the Coulomb level: no cut, recorded
+    _move(c, 2.0 * fl.valve_static_nm, direction=-1.0)   # closing, above the Coulomb level: no cut, recorded
     c.update(_ctx(START, 0.0, moving=False))
     c.reset(MODEL, P_MAX)                                # the fine stage's hand-back
-    _move(c, 0.3 * fl.valve_static_nm, direction=-1.0)   # closing 0.3 x: the mean 1.15 x confirms max Δp
-    assert _sliding_ff(c, -1.0) == pytest.approx(-c.scale(P_MAX)[1] * fl.valve_coulomb_nm, rel=1e-6)
+    _move(c, -0.1 * fl.valve_static_nm)                  # opening -0.1 x: the mean 0.95 x confirms max Δp
+    assert _sliding_ff(c) == pytest.approx(c.scale(P_MAX)[1] * fl.valve_coulomb_nm, rel=1e-6)
     c.update(_ctx(START, 0.0, moving=False))
-    c.rescheduled(MODEL, P_MAX, P_MAX, START)            # forgotten: the same closing reading is cut again
-    _move(c, 0.3 * fl.valve_static_nm, direction=-1.0)
-    assert _sliding_ff(c, -1.0) == pytest.approx(-0.3 * fl.valve_coulomb_nm, rel=1e-6)
+    c.rescheduled(MODEL, P_MAX, P_MAX, START)            # forgotten: the same opening reading is cut again
+    _move(c, -0.1 * fl.valve_static_nm)
+    assert _sliding_ff(c) == pytest.approx(0.1 * fl.valve_coulomb_nm, rel=1e-6)
 
 
 def test_the_option_is_off_by_default():

@@ -783,9 +783,9 @@ class ReferenceFeedforward(Compensator):
         told, N*m) can be where the valve's friction, not a load, holds it (``ff.read_breakaway_wrong_dp``,
         h26d): FLOOR_SCALE x the scheduled static level at the Δp told -- and, until the moves'
         readings both ways confirm that Δp, the least over every Δp the transducer may have misread
-        (0 ... max), where the real flow torque differs from the known one by
-        ``load(θ, p) - load(θ, told)`` and the friction is FLOOR_SCALE x that Δp's.  A reading
-        above it caps the move as any other (:meth:`_read_move_breakaway`).
+        (0 ... max) whose flow torque helps the move, where the real flow torque differs from the
+        known one by ``load(θ, p) - load(θ, told)`` and the friction is FLOOR_SCALE x that Δp's.
+        A reading above it caps the move as any other (:meth:`_read_move_breakaway`).
 
         Why: a Δp read above the real one schedules friction the valve does not have (x 11 from
         Δp 0 to max) *and* a flow torque toward closed it does not carry, which helps every
@@ -805,9 +805,15 @@ class ReferenceFeedforward(Compensator):
         if len(ways) == 2 and 0.5 * sum(ways) >= self.FLOOR_SCALE:
             return floor
         known = m.load_torque(ctx.valve_meas, told)
-        return min([floor] + [self.FLOOR_SCALE * m.friction(p).valve_static_nm
-                              + way * (m.load_torque(ctx.valve_meas, p) - known)
-                              for p in (0.0, m.pressure_max_kpa)])
+        # only a misread flow torque that helps the move (way x (load(p) - known) < 0): one that
+        # hinders it reads 0.5 Ts(p) + |that| or more, the range a load helping the move reads on a
+        # valve at the Δp told (campaign seeds 1013, 3021: closing moves at 0.38 x midpoints under
+        # 5 N*m helping closing, cut there, their plateaus ended up to 4 mrad further off), and the
+        # schedule's Coulomb level fed overshoots it by less than half as much
+        helps = [self.FLOOR_SCALE * m.friction(p).valve_static_nm + way * (m.load_torque(ctx.valve_meas, p) - known)
+                 for p in (0.0, m.pressure_max_kpa)
+                 if way * (m.load_torque(ctx.valve_meas, p) - known) < 0.0]
+        return min([floor] + helps)
 
     def _coupling_nm(self, ctx: Context, way: float) -> float:
         """The coupling torque ``K (θm/N - θL)`` from the two resolvers (the model's K over the
