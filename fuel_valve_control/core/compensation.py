@@ -796,8 +796,8 @@ class ReferenceFeedforward(Compensator):
         read far below what any Δp explains (campaign seeds 1004, 1043: -2.7 ... -0.4 x, 5-10 N*m),
         and a steady load cancels in the mean of the two ways' readings, so once both ways were
         read and their mean is a friction the Δp told explains, the Δp is taken as confirmed and
-        only its own floor stands (seed 3021: a 5 N*m load helping closing moves read 0.13-0.44 x
-        closing, well above it opening)."""
+        only its own floor stands (a load helping opening moves reads low opening and high
+        closing)."""
         m = self.model
         told = ctx.pressure_kpa
         floor = self.FLOOR_SCALE * m.friction(told).valve_static_nm

@@ -253,8 +253,8 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("ff.read_breakaway_wrong_dp", False, "", "observer_ff, observer_fp, with ff.read_breakaway: until the "
           "moves' readings both ways confirm the Δp told, a move's breakaway reading is taken as friction (and "
           "caps the move) down to the least friction the valve can show at any Δp the transducer may have "
-          "misread (0.5 x that Δp's schedule, with the flow torque of the Δp told taken off the move's way), "
-          "not only down to 0.5 x the schedule at the Δp told (docs/control_results.md section 53)",
+          "misread whose flow torque helps the move (0.5 x that Δp's schedule less the flow torque the known load "
+          "carries beyond it), not only down to 0.5 x the schedule at the Δp told (docs/control_results.md section 53)",
           runtime=True),
     Param("ff.speed_window_periods", 4, "", "periods over which the valve speed is measured from the "
           "valve resolver", 1, 100),
