@@ -12,7 +12,9 @@ that box are the same plants.
 Per cell: overshoot %, settling time s (SPEC §5), final error rad, peak current A, and the
 hunting reading: peak-to-peak of the true valve angle over the last second (after the step
 has settled) against the allowance ``jump + 2 counts`` (the cell's own stick-slip jump
-2 (Ts - Tc)/K); ``floor %`` is the overshoot a single quasi-static breakaway cannot avoid.
+2 (Ts - Tc)/K), and the reversals there (moves > 1 count; the summary's ``hunting_2_reversals``
+counts the cells over the allowance with >= 2 of them, the campaign's "sustained"); ``floor %``
+is the overshoot a single quasi-static breakaway cannot avoid.
 
 observer_ff's move started on breakaway is off by default (``trajectory.breakaway_wait_s`` =
 0); ``--set controller.trajectory.breakaway_wait_s=0.25`` runs the grid with it on.
@@ -79,7 +81,8 @@ def run_cell(mode: str, cell: dict, told_dp_kpa: float | None = None, seed: int 
         "mode": mode, "cell": cell, "cell_name": corner_name(cell), "told_dp_kpa": told_dp_kpa,
         "overshoot_pct": m.get("overshoot_pct"), "settling_time_s": m.get("settling_time_s"),
         "final_error_rad": float(abs(dem[-1] - pos[-1])), "peak_current_a": m.get("peak_current_a"),
-        "tail_pp_rad": pp, "jump_rad": jump, "hunting_allowance_rad": allowance,
+        "tail_pp_rad": pp, "tail_reversals": metrics.reversals(tail), "jump_rad": jump,
+        "hunting_allowance_rad": allowance,
         "hunts": pp > allowance, "floor_pct": overshoot_floor_pct(jump, abs(step_rad)),
         "fault": bool(res.fault.any()) if res.fault.size else False,
         "wall_time_s": round(res.wall_time_s, 3)})
@@ -91,8 +94,8 @@ def _job(args):
 
 def table(rows: list[dict]) -> str:
     head = ("| mode | cell | told Δp | OS % | floor % | settle s | final err rad | tail p-p / allowance | "
-            "peak A | verdict |")
-    out = [head, "|" + "---|" * 10]
+            "tail reversals | peak A | verdict |")
+    out = [head, "|" + "---|" * 11]
     for r in rows:
         os_ = r["overshoot_pct"]
         told = "" if r["told_dp_kpa"] is None else f"{r['told_dp_kpa']:g}"
@@ -102,7 +105,8 @@ def table(rows: list[dict]) -> str:
             verdict.append("FAULT")
         out.append(f"| {r['mode']} | {r['cell_name']} | {told} | {_fmt(os_)} | {_fmt(r['floor_pct'])} | "
                    f"{_fmt(r['settling_time_s'])} | {_fmt(r['final_error_rad'])} | "
-                   f"{r['tail_pp_rad'] / r['hunting_allowance_rad']:.2f} | {_fmt(r['peak_current_a'])} | "
+                   f"{r['tail_pp_rad'] / r['hunting_allowance_rad']:.2f} | {r['tail_reversals']} | "
+                   f"{_fmt(r['peak_current_a'])} | "
                    f"{', '.join(verdict)} |")
     return "\n".join(out)
 
@@ -111,7 +115,10 @@ def summary(rows: list[dict]) -> dict:
     os_ = [r["overshoot_pct"] or 0.0 for r in rows]
     return {"cells": len(rows), "max_overshoot_pct": max(os_),
             "cells_over_10_pct": sum(o > 10.0 for o in os_), "cells_over_5_pct": sum(o > 5.0 for o in os_),
-            "hunting": sum(r["hunts"] for r in rows), "faults": sum(r["fault"] for r in rows),
+            "hunting": sum(r["hunts"] for r in rows),
+            # the campaign's definition of sustained (robustness.py): >= 2 reversals as well
+            "hunting_2_reversals": sum(r["hunts"] and r["tail_reversals"] >= 2 for r in rows),
+            "faults": sum(r["fault"] for r in rows),
             "max_peak_current_a": max(r["peak_current_a"] for r in rows)}
 
 

@@ -491,12 +491,21 @@ class ReferenceFeedforward(Compensator):
                  stuck_speed: float, static_start: bool = True, fraction: float = 1.0, period_s: float = 1e-3,
                  ramp_time: float = 0.05, ramp_start: float = 0.4, scale_bounds: tuple[float, float] = (0.1, 30.0),
                  retreat_periods: int = 0, count_rad: float = RESOLVER_COUNT_RAD, read_breakaway: bool = False,
-                 breakaway_rad: float = 3.0 * RESOLVER_COUNT_RAD):
+                 breakaway_rad: float = 3.0 * RESOLVER_COUNT_RAD, read_wrong_dp: bool = False):
         self.motor, self.valve = motor, valve
         #: clocked planned moves: read the static friction the valve lets go at from the coupling's
         #: twist and cap the move's valve level at it (:meth:`_read_move_breakaway`, h21g)
         self.read_breakaway = read_breakaway
         self.breakaway_rad = breakaway_rad
+        #: a move's reading below the least friction the valve can have at the Δp told is a Δp
+        #: reading above the real one too, not only a load, while the moves' readings both ways
+        #: have not confirmed the told Δp (:meth:`_least_friction_nm`, h26d)
+        self.read_wrong_dp = read_wrong_dp
+        #: the latest clocked move's reading per direction (+1 opening, -1 closing): the midpoint
+        #: of its bounds gross of the held load over the scheduled static level then (None before
+        #: one).  Kept across :meth:`reset` (the fine stage's hand-back resets the compensator every
+        #: plateau), forgotten on :meth:`rescheduled`
+        self._way_reading: dict[float, float | None] = {1.0: None, -1.0: None}
         #: the clocked move under way's breakaway reading; None outside planned moves
         self._move_read: _MoveRead | None = None
         #: the cap (x the schedule) on the valve's level for the rest of the move under way, None
@@ -753,6 +762,8 @@ class ReferenceFeedforward(Compensator):
             return
         self.move_reading = (r.stuck_nm / fl.valve_static_nm, r.leaving_nm / fl.valve_static_nm)
         lower, upper = r.stuck_nm, max(r.stuck_nm, r.leaving_nm)
+        self._way_reading[s] = (0.5 * (lower + upper) + s * ctx.held_load) / fl.valve_static_nm
+        floor = self._least_friction_nm(ctx, s) if self.read_wrong_dp else self.FLOOR_SCALE * fl.valve_static_nm
         # a held load learned from one edge only may be off by up to the static level (its prior,
         # :attr:`Context.held_load_known`): the friction met lies between the reading net of it and
         # gross of it, and only what both say is certain (h24g: the adaptation grid's valve at Δp 0
@@ -764,9 +775,45 @@ class ReferenceFeedforward(Compensator):
         # else no cut is certain) and the friction met (the bounds' midpoint, its best estimate)
         # is one the valve can have (else what was read is a load helping the move, not friction:
         # h24g, campaign seeds 1004, 1043, 3021)
-        if all(self.FLOOR_SCALE * fl.valve_static_nm <= 0.5 * (lo + up) and up < fl.valve_coulomb_nm
-               for lo, up in spans):
+        if all(floor <= 0.5 * (lo + up) and up < fl.valve_coulomb_nm for lo, up in spans):
             self._move_cap = max(max(lo for lo, _ in spans) / fl.valve_static_nm, self.scale_bounds[0])
+
+    def _least_friction_nm(self, ctx: Context, way: float) -> float:
+        """The least a move ``way``'s reading (the coupling torque beyond the known load at the Δp
+        told, N*m) can be where the valve's friction, not a load, holds it (``ff.read_breakaway_wrong_dp``,
+        h26d): FLOOR_SCALE x the scheduled static level at the Δp told -- and, until the moves'
+        readings both ways confirm that Δp, the least over every Δp the transducer may have misread
+        (0 ... max) whose flow torque helps the move, where the real flow torque differs from the
+        known one by ``load(θ, p) - load(θ, told)`` and the friction is FLOOR_SCALE x that Δp's.
+        A reading above it caps the move as any other (:meth:`_read_move_breakaway`).
+
+        Why: a Δp read above the real one schedules friction the valve does not have (x 11 from
+        Δp 0 to max) *and* a flow torque toward closed it does not carry, which helps every
+        opening move; the reading of the first move after it is then below FLOOR_SCALE at the Δp
+        told, the h24g floor took it for a load and the move was fed the schedule's Coulomb level:
+        the adaptation grid's valves at Δp 0 told max overshot the 2 % step 38-95 % (read -0.08 ...
+        0.1 x gross of the held load; docs/control_results.md §53).  The loads that floor is for
+        read far below what any Δp explains (campaign seeds 1004, 1043: -2.7 ... -0.4 x, 5-10 N*m),
+        and a steady load cancels in the mean of the two ways' readings, so once both ways were
+        read and their mean is a friction the Δp told explains, the Δp is taken as confirmed and
+        only its own floor stands (a load helping opening moves reads low opening and high
+        closing)."""
+        m = self.model
+        told = ctx.pressure_kpa
+        floor = self.FLOOR_SCALE * m.friction(told).valve_static_nm
+        ways = [r for r in self._way_reading.values() if r is not None]
+        if len(ways) == 2 and 0.5 * sum(ways) >= self.FLOOR_SCALE:
+            return floor
+        known = m.load_torque(ctx.valve_meas, told)
+        # only a misread flow torque that helps the move (way x (load(p) - known) < 0): one that
+        # hinders it reads 0.5 Ts(p) + |that| or more, the range a load helping the move reads on a
+        # valve at the Δp told (campaign seeds 1013, 3021: closing moves at 0.38 x midpoints under
+        # 5 N*m helping closing, cut there, their plateaus ended up to 4 mrad further off), and the
+        # schedule's Coulomb level fed overshoots it by less than half as much
+        helps = [self.FLOOR_SCALE * m.friction(p).valve_static_nm + way * (m.load_torque(ctx.valve_meas, p) - known)
+                 for p in (0.0, m.pressure_max_kpa)
+                 if way * (m.load_torque(ctx.valve_meas, p) - known) < 0.0]
+        return min([floor] + helps)
 
     def _coupling_nm(self, ctx: Context, way: float) -> float:
         """The coupling torque ``K (θm/N - θL)`` from the two resolvers (the model's K over the
@@ -898,6 +945,7 @@ class ReferenceFeedforward(Compensator):
         ratio = self.breakaway_ratio
         softness, readings = self.coupling.softness, self.coupling.readings
         self.reset(model, new_kpa)
+        self._way_reading = {1.0: None, -1.0: None}     # read against the old schedule (h26d)
         self.coupling.softness, self.coupling.readings = softness, readings
         if ratio is None or new_static <= 0.0:
             return

@@ -332,6 +332,7 @@ class PositionController:
                                         retreat_periods=int(round(2.0 * math.pi * math.sqrt(
                                             m.valve_inertia_kgm2 / m.coupling_stiffness_nm_per_rad) / period)),
                                         read_breakaway=ps["ff.read_breakaway"],
+                                        read_wrong_dp=ps["ff.read_breakaway_wrong_dp"],
                                         breakaway_rad=ps["trajectory.breakaway_counts"] * RESOLVER_COUNT_RAD)
         return FriedlandPark(*fps, ps["fp.compensation_fraction"], ps["ff.stuck_speed_rad_s"])
 
