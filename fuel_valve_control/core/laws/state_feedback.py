@@ -497,7 +497,11 @@ class StateFeedbackLaw(ControlLaw):
         where it does not: the error is within ``learned_rad`` (the deadband of the jumps this
         valve has shown and the friction its moves met, without the floor: the hold stays), or
         beyond the deadband in force (the stuck ramp pushes as ever), or within
-        :data:`PROBE_EDGE_COUNTS` of it (the hold relaxes as before).
+        :data:`PROBE_EDGE_COUNTS` of it (the hold relaxes as before), or once the hold has seen this
+        valve jump at all (:attr:`JumpLearner.directed`: its jumps are then known, not guessed, and
+        the cap's quasi-static promise no longer needed; probing on, K x 0.3 friction x 0.5 max Δp
+        jumped 1.1-1.2e-2 rad, 1.5x quasi-static, and crossed the target three times, 5.9 / 5.2 /
+        6.8e-3 rad, before the learner's deadband held it).
 
         The floor is the jump ``2 (Ts - Tc) / K_read`` at the static friction ``static_nm`` (the
         schedule, lowered to the friction the hold has met) -- a guess before the valve has
@@ -514,7 +518,8 @@ class StateFeedbackLaw(ControlLaw):
         1.1-1.45x quasi-static, so a probe near the deadband's edge may land beyond the target by
         more than the error it started from (K x 0.3, friction x 0.5, max Δp: 5.8e-3 -> 5.1e-3 rad,
         across)."""
-        if error_rad <= learned_rad or error_rad >= self.deadband - self.PROBE_EDGE_COUNTS * RESOLVER_COUNT_RAD:
+        if (self.jumps.directed or error_rad <= learned_rad
+                or error_rad >= self.deadband - self.PROBE_EDGE_COUNTS * RESOLVER_COUNT_RAD):
             return None
         return static_nm * error_rad / self.deadband
 
