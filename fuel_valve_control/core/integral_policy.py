@@ -61,7 +61,7 @@ class IntegralPolicy:
     #: still pushes toward the target, but only up to the friction whose jump on the coupling read
     #: would leave the error at the deadband's edge (StateFeedbackLaw._probe_cap_nm): a valve with
     #: less friction than the schedule lets go and lands within that jump, one with more stays
-    probe_soft_floor: bool = False
+    probe_soft_floor: bool = False      # (the schema's default: true since h26k)
 
     @property
     def settle_time_s(self) -> float:
