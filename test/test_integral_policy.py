@@ -264,3 +264,49 @@ def test_a_dp_reschedule_keeps_the_held_load_and_the_band():
     assert law.held_load > 9.1                           # less flow torque known: more held
     assert law.slip_edges.static_nm == pytest.approx(static) and law.slip_edges.known == known
     assert law.slip_edges.edges[1] - law.held_load == pytest.approx(11.2 - 9.1)
+
+
+# ------------------------------------------------------------------ the soft coupling's floor probed (h26k)
+def _soft_step(friction: float, probe: bool):
+    """The adaptation grid's 2 % step (benchmarks/adaptation_grid.py) at max Δp on a coupling of
+    K x 0.1, the controller not told: (metrics, step rad, tail peak-to-peak rad over the last
+    second, hunting allowance rad)."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from control_quality import NOMINAL, corner_overrides, hunting_allowance
+
+    from fuel_valve_control.tools import sim
+    from fuel_valve_control.tools.scenarios import load_scenario
+    sc = load_scenario("step_small")
+    plant, _ = corner_overrides({**NOMINAL, "friction": friction, "stiffness": 0.1})
+    p, c = sim.build(sc, plant, {"integral.probe_soft_floor": probe})
+    res = sim.simulate(sc, p, c)
+    step = [g for g in res.segments if g["kind"] == "step"][-1]
+    t, pos = res.column("t"), res.column("position_rad")
+    tail = pos[t >= t[-1] - 1.0]
+    return res.metrics, step["to_rad"] - step["from_rad"], float(tail.max() - tail.min()), hunting_allowance(p)[1]
+
+
+def test_a_low_friction_valve_on_a_soft_coupling_follows_the_step_with_the_probe():
+    """K x 0.1, friction x 0.5, max Δp: the hold's jump floor read at the scheduled friction
+    (2.56e-2 rad) exceeds the 2 % step (2.09e-2), so without the probe the valve never moves (its
+    error the whole step; docs section 52); the probe's cap (4.5 N*m) is above this valve's
+    breakaway (2.75 N*m): it lets go, lands 23 % beyond (floor 9.4 %) and stays, no hunting."""
+    off, step, _, _ = _soft_step(0.5, probe=False)
+    assert off["steady_state_error_rad"] == pytest.approx(step, rel=0.01)         # the cost measured
+    on, step, tail, allowance = _soft_step(0.5, probe=True)
+    assert on["steady_state_error_rad"] < 0.3 * step
+    assert on["overshoot_pct"] < 30.0
+    assert tail <= allowance
+    assert on["peak_current_a"] <= 30.0
+
+
+def test_the_probe_does_not_break_loose_a_valve_whose_jump_would_not_fit():
+    """K x 0.1, friction x 1, max Δp: the valve's jump (4.6e-2 rad) is 2.2x the step, so letting it
+    go could only land it farther beyond (119 % overshoot, main before the stiffness reading);
+    the probe's cap (4.5 N*m) stays below its breakaway (5.5 N*m) and the valve stays."""
+    on, step, tail, _ = _soft_step(1.0, probe=True)
+    assert on["overshoot_pct"] == 0.0
+    assert on["steady_state_error_rad"] == pytest.approx(step, rel=0.01)
+    assert tail < 1e-3

@@ -56,6 +56,12 @@ class IntegralPolicy:
     #: bound of 0.07-0.14: the estimate crossed the gate at 1.40 and hunted); a coupling within
     #: x 0.67 of the model's is left to the model-based loop, which holds the full box there
     stiffness_tolerance: float = 0.5
+    #: h26k: where only the soft coupling's jump floor holds the valve (its error beyond the
+    #: deadband the jumps learned and met would give, inside the floor's), the hold's stuck ramp
+    #: still pushes toward the target, but only up to the friction whose jump on the coupling read
+    #: would leave the error at the deadband's edge (StateFeedbackLaw._probe_cap_nm): a valve with
+    #: less friction than the schedule lets go and lands within that jump, one with more stays
+    probe_soft_floor: bool = False      # (the schema's default: true since h26k)
 
     @property
     def settle_time_s(self) -> float:

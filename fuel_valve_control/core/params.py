@@ -177,6 +177,13 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("integral.stiffness_tolerance", 0.5, "", "observer_ff, observer_fp with integral.read_stiffness: the "
           "coupling read at the holds is acted on only when K_model / K lies beyond 1 + this + the reading's scatter "
           "bound (docs/control_results.md sections 41, 45)", 0.0, 10.0),
+    Param("integral.probe_soft_floor", True, "", "observer_ff, observer_fp with integral.read_stiffness: where "
+          "only the read coupling's jump floor holds the valve (its error beyond the deadband the jumps learned "
+          "would give), the hold's stuck ramp still pushes toward the target, but only up to the static friction "
+          "whose jump on the coupling read would leave the error at the deadband's edge: a valve with less friction "
+          "than the schedule lets go within a jump that fits (docs/control_results.md section 52; default since "
+          "h26k: adaptation grid K x 0.1 friction x 0.5 max Δp final error 2.09e-2 (never moved) -> 3.7-5.6e-3 rad, "
+          "full box p95 unchanged, median 2.56 -> 2.50e-3 rad)"),
     Param("integral.deadband_min_rad", 2.9e-4, "rad", "smallest deadband (3 valve resolver counts)",
           0.0, 0.05, runtime=True),
     # --- the drive's supply (planned moves are designed for it, core/design.design_trajectory)

@@ -62,6 +62,12 @@ class StateFeedbackLaw(ControlLaw):
     #: 6.4 ms, 3.75e-3 rad ≈ the quasi-static 2 (Ts - Tc) / K); JL x3 0.33 (no arrest: the
     #: slide ran 1.07e-2 rad for a 3.6e-3 rad error until the position loop took it back)
     SWING_ARREST_RATIO = 0.2172
+    #: valve resolver counts inside the deadband's edge where the hold's bounded probe
+    #: (:meth:`_probe_cap_nm`) stops: the estimate's ~1 count rms noise flickers the error across
+    #: the edge there, each flicker outside ramps the drive unbounded, and a probe holding the
+    #: drive near its cap instead of relaxing it let the flickers carry the valve over
+    #: (K x 0.3, Δp 0, adaptation grid: a 1.8e-3 rad crossing in the tail, 1.13x the allowance)
+    PROBE_EDGE_COUNTS = 2.0
 
     def __init__(self, name: str, model: NominalModel, period_s: float, feedback: StateFeedback,
                  observer_gain: np.ndarray, shaper: TrajectoryShaper, integral: IntegralPolicy,
@@ -154,6 +160,9 @@ class StateFeedbackLaw(ControlLaw):
         #: (valve angle rad, direction ±1 to the target, drive N*m beyond the loads) where a held
         #: valve stuck short of its target, until it breaks away (modes whose compensator relieves the breakaway)
         self._stuck_short: tuple[float, float, float] | None = None
+        #: (valve angle rad, way ±1, drive N*m toward the target) of the latest stuck period of the
+        #: hold's bounded probe (``integral.probe_soft_floor``), until the valve lets go
+        self._probe_stuck: tuple[float, float, float] | None = None
         self._cocked = False
         self.reference: Reference | None = None
         self._pressure: float | None = None   # kPa, Δp of the latest update
@@ -260,6 +269,7 @@ class StateFeedbackLaw(ControlLaw):
         self._relax_periods = self._outside_periods = 0
         self._pull = None
         self._stuck_short = None
+        self._probe_stuck = None
         self._d = m.load_torque(meas.valve_rad, pressure_kpa) - m.spring_rate_nm_per_rad * meas.valve_rad
         self._inputs.clear()
         self._inputs.extend([(torque_nm, self._d)] * (self._inputs.maxlen - 1))   # at rest before
@@ -362,6 +372,7 @@ class StateFeedbackLaw(ControlLaw):
         # schedule -- on a low-friction valve told max Δp the scheduled floor parked the valve
         # further off (full box, option on: median 2.58e-3 -> 2.56e-3 rad, 1912 -> 1905 plateaus
         # > 8e-4; the grids cell for cell the same: a single 2 % step meets no slip edges)
+        learned = ratio if met is None else max(ratio, met)     # the jumps this valve has shown
         if soft != 1.0:
             ratio = max(ratio, soft * static / friction.valve_static_nm if self.met_hold and friction.valve_static_nm > 0.0
                         else soft)
@@ -370,6 +381,12 @@ class StateFeedbackLaw(ControlLaw):
         self.deadband = self.integral.deadband(m, pressure_kpa, ratio)
         error = ref.position - thl
         outside = abs(target - thl) > self.deadband and not ref.moving
+        # h26k: inside the floor but beyond what the jumps learned would hold: a bounded probe
+        probe_cap = (self._probe_cap_nm(abs(target - thl), static, self.integral.deadband(m, pressure_kpa, learned))
+                     if self.integral.probe_soft_floor and soft != 1.0 and not outside and not ref.moving else None)
+        if probe_cap is not None:
+            # the probe's breakaway is the drive's, not a relaxing drive's slip
+            self.slip_watch.reset()
         # ---- friction compensation
         ctx = Context(pressure_kpa, th1, w1, thl, wl, valve_speed, self._applied, ref.velocity, ref.acceleration,
                       ref.moving, error, outside, ref.armed, ref.broke_away, self.held_load,
@@ -397,7 +414,7 @@ class StateFeedbackLaw(ControlLaw):
             self.slip_watch.reset()
         self._outside_periods = self._outside_periods + 1 if outside else 0
         if self.met_hold:
-            self._read_pull(outside and not ref.moving, stuck, valve, target, target - thl,
+            self._read_pull((outside or probe_cap is not None) and not ref.moving, stuck, valve, target, target - thl,
                             n * self._applied - load_nm, friction.valve_static_nm, load_nm)
         slip = None if ref.moving else self.slip_watch.left(valve)
         if ref.moving:
@@ -415,7 +432,7 @@ class StateFeedbackLaw(ControlLaw):
                     load_nm if self.v2 else 0.0, self.slip_edges.opposite(moved) if self.met_hold else None)
                 self.slip_edges.met(net0, moved)
         relaxing = False
-        if not outside and not ref.moving and stuck and self.integral.relax_time_s > 0.0:
+        if not outside and probe_cap is None and not ref.moving and stuck and self.integral.relax_time_s > 0.0:
             # settled: relax the drive to the middle of the static-friction band.  The valve
             # torque is the applied motor torque times N less the known load (robust to the
             # coupling stiffness, which may be far from nominal); shrinking it cannot break the
@@ -427,7 +444,7 @@ class StateFeedbackLaw(ControlLaw):
             if self._relax_periods * self.period >= self.integral.settle_time_s:
                 self.slip_watch.settled(net, valve)   # where and with what drive it had settled
             self._pending = -(net - self.held_load) / n * self.period / self.integral.relax_time_s / self.fb.ki
-        if (outside or ref.moving) if self.v2 else not relaxing:
+        if (outside or ref.moving or probe_cap is not None) if self.v2 else not relaxing:
             # a settled valve stays settled through a period the speed estimate calls moving:
             # with ~1 count rms resolver noise the 4-period speed flickers across the stuck
             # threshold, the count never reached settle_time, a load beyond the static friction
@@ -445,12 +462,66 @@ class StateFeedbackLaw(ControlLaw):
                 rate = static / self.integral.stuck_ramp_time_s
                 ramp = rate / n * self.period / self.fb.ki
                 self._pending = math.copysign(max(abs(self._pending), ramp), error)
+        elif probe_cap is not None:
+            # the stuck ramp toward the target, the drive (valve side, beyond the known and the
+            # learned load) held at the cap; nothing more once the valve slides: the twist stored
+            # at breakaway carries it the quasi-static jump, the least it can make
+            way = 1.0 if target > thl else -1.0
+            headroom = max(probe_cap - way * drive_nm, 0.0) / n / self.fb.ki
+            ramp = static / self.integral.stuck_ramp_time_s / n * self.period / self.fb.ki
+            self._pending = way * min(ramp, headroom) if stuck else 0.0
+            if stuck:
+                self._probe_stuck = (meas.valve_rad, way, way * drive_nm)
+            elif self._probe_stuck is not None and (meas.valve_rad - self._probe_stuck[0]) * self._probe_stuck[1] \
+                    >= self.jumps.min_jump:
+                # let go: give the static-Coulomb surplus of the drive it let go at back, so the
+                # gear output does not follow the relaxing coupling and carry the valve further
+                _, w0, d0 = self._probe_stuck
+                if friction.valve_static_nm > 0.0 and d0 > 0.0:
+                    surplus = d0 * (1.0 - friction.valve_coulomb_nm / friction.valve_static_nm)
+                    self.zeta -= w0 * surplus / n / self.fb.ki
+                self._probe_stuck = None
+        if probe_cap is None and self._probe_stuck is not None and stuck:
+            self._probe_stuck = None
         known_load = load_nm - m.spring_rate_nm_per_rad * thl   # preload + flow
         self._d = known_load + (self._fl if self.compensator.feeds_observer else 0.0)
         snap = self.compensator.snap_nm
         if self.stiffness is not None and snap * u > 0.0 and abs(u) > self.snap_peak_nm:
             u -= math.copysign(min(abs(u) - self.snap_peak_nm, abs(snap)), u)
         return u
+
+    def _probe_cap_nm(self, error_rad: float, static_nm: float, learned_rad: float) -> float | None:
+        """The drive (N*m at the valve beyond the known and the learned load, toward the target)
+        up to which the hold may push a valve ``error_rad`` (rad, > 0) from its target while the
+        soft coupling's jump floor alone holds it (``integral.probe_soft_floor``; h26k), or None
+        where it does not: the error is within ``learned_rad`` (the deadband of the jumps this
+        valve has shown and the friction its moves met, without the floor: the hold stays), or
+        beyond the deadband in force (the stuck ramp pushes as ever), or within
+        :data:`PROBE_EDGE_COUNTS` of it (the hold relaxes as before), or once the hold has seen this
+        valve jump at all (:attr:`JumpLearner.directed`: its jumps are then known, not guessed, and
+        the cap's quasi-static promise no longer needed; probing on, K x 0.3 friction x 0.5 max Δp
+        jumped 1.1-1.2e-2 rad, 1.5x quasi-static, and crossed the target three times, 5.9 / 5.2 /
+        6.8e-3 rad, before the learner's deadband held it).
+
+        The floor is the jump ``2 (Ts - Tc) / K_read`` at the static friction ``static_nm`` (the
+        schedule, lowered to the friction the hold has met) -- a guess before the valve has
+        slipped: the box's friction runs x 0.5 ... 3 of it.  A quasi-static breakaway at a drive
+        ``D`` jumps ``2 D (1 - Tc/Ts) / K``, i.e. the floor's jump times ``D / static_nm``; so a
+        valve that lets go at ``D <= static_nm * error / deadband`` lands within the jump whose
+        deadband just holds this error, no farther beyond the target than
+        ``(1 / jump_fraction - 1) x error`` if the jump were quasi-static, and one that does not
+        stays where the floor held it.  K x 0.1, friction x 0.5, max Δp (adaptation grid): the floor
+        (2.56e-2 rad at the scheduled 5.5 N*m) held the valve at the whole 2 % step (2.09e-2 rad)
+        for ever; with the probe (cap 4.5 N*m) it lets go at 2.75 N*m and jumps 2.58e-2 rad, 1.13x
+        the quasi-static 2.29e-2 (the gear output follows the relaxing coupling): 23 % overshoot
+        against the 9.4 % floor, 4.8e-3 rad off at the end.  The jumps on soft couplings run
+        1.1-1.45x quasi-static, so a probe near the deadband's edge may land beyond the target by
+        more than the error it started from (K x 0.3, friction x 0.5, max Δp: 5.8e-3 -> 5.1e-3 rad,
+        across)."""
+        if (self.jumps.directed or error_rad <= learned_rad
+                or error_rad >= self.deadband - self.PROBE_EDGE_COUNTS * RESOLVER_COUNT_RAD):
+            return None
+        return static_nm * error_rad / self.deadband
 
     def _read_pull(self, pulling: bool, stuck: bool, valve: float, target: float, error: float, net_nm: float,
                    static_nm: float, known_nm: float) -> None:
