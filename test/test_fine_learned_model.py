@@ -47,7 +47,7 @@ def _engages(fine, thl, p, err, scale, load=0.0) -> bool:
 
 
 def _read(fine, thl, p, scale, load=0.0):
-    for d in (1, -1, 1):
+    for d in (1, -1, 1, -1):
         _break(fine, thl, p, d, scale, load)
 
 

@@ -165,10 +165,12 @@ FRESH_WAIT = 10
 #: samples (0.25 count rms noise, quantised) it counted up to 236 reversals on nominal-box plateaus
 #: where the metric (true angle) counts 0, and held 46 of 82 plateaus > 8e-4 rad for them
 REVERSAL_MEAN_PERIODS = 8
-#: fine.learned_scale_*: weight of each main-law breakaway in the per-direction mean of its twist's
-#: friction ratio (the first taken whole), the samples per direction before the valve's scale is read,
-#: and the change of the read scale (or load offset, in T_s units) that re-plans the stage's model
-SCALE_GAIN, SCALE_SAMPLES, SCALE_REPLAN = 0.3, 1, 0.1
+#: fine.learned_scale_*: the main-law breakaways per direction whose friction ratios are kept (their median
+#: is the direction's reading; two are read as their mean when they agree within fine.breakaway_fit -- one
+#: alone is not: a nominal-box valve showed an opening "breakaway" at -0.40 among seven at +-0.84..1.10, and
+#: read from it the stage planned from friction x0.76; task h26f), and the change of the read scale (or load
+#: offset, in T_s units) that re-plans the stage's model
+SCALE_SAMPLES, SCALE_REPLAN = 3, 0.1
 #: ... and on the scale read the stage stays out of a move whose planned breakaway twist takes more than this
 #: fraction of the continuous current to hold: its pulses on top of such a hold heat the I2t budget (h18g, docs
 #: §19: a loaded valve near its rating latched the fault; friction x2 at 90 % open, ~14 of 15 A, task h26f: the
@@ -567,15 +569,15 @@ class FinePositioner:
         self.m = self.m0
         self.applied_scale = None           # (friction scale, load offset in T_s units) the stage plans from, or None
         self._time_scale = 1.0              # the servo-blended pulse's rise and fall times x this
-        self._ratios = {1: [0.0, 0], -1: [0.0, 0]}   # per direction: mean friction ratio, samples
+        self._ratios = {1: [], -1: []}      # per direction: the last SCALE_SAMPLES friction ratios
 
     def _observe_scale(self, d: int, phi: float, thl: float, pressure_kpa: float) -> None:
         """Read the valve's friction scale from a main-law breakaway from rest toward ``d`` at twist
         ``phi`` (rad), valve ``thl`` (rad), Δp ``pressure_kpa`` (``fine.learned_scale_min/max``; off
         at 1, 1).  Its ratio ``r = (phi K - load(θ, Δp)) / T_s(Δp)`` (told model) is ``d s + l``: a valve
         with friction x s (or a coupling 1/s as stiff, or a Δp reading 1/s off in T_s) and an unknown
-        steady load ``l T_s``.  With ``SCALE_SAMPLES`` breakaways each way (exponentially weighted,
-        ``SCALE_GAIN``) ``s = (r+ - r-) / 2``, ``l = (r+ + r-) / 2``.  Where the told model already fits
+        steady load ``l T_s``.  Read each way (:meth:`_reading`: a median of the last ``SCALE_SAMPLES``)
+        ``s = (r+ - r-) / 2``, ``l = (r+ + r-) / 2``.  Where the told model already fits
         them (``|s - 1| + |l|`` within ``fine.breakaway_fit``: every breakaway within its fit) or ``s``
         lies outside [min, max], the stage plans from the told model (today's behaviour); else from
         :class:`LearnedModel` ``(s, l T_s)`` -- every check, preload, step and prior of the stage is then
@@ -589,10 +591,9 @@ class FinePositioner:
         if ts <= 0.0:
             return
         r = (phi * m0.coupling_stiffness_nm_per_rad - m0.load_torque(thl, pressure_kpa)) / ts
-        mean, n = self._ratios[d]
-        self._ratios[d] = [r if n == 0 else mean + SCALE_GAIN * (r - mean), n + 1]
-        (rp, np_), (rm, nm) = self._ratios[1], self._ratios[-1]
-        if min(np_, nm) < SCALE_SAMPLES:
+        self._ratios[d] = (self._ratios[d] + [r])[-SCALE_SAMPLES:]
+        rp, rm = self._reading(1), self._reading(-1)
+        if rp is None or rm is None:
             return
         s, l = 0.5 * (rp - rm), 0.5 * (rp + rm)
         want = None if (abs(s - 1.0) + abs(l) <= cfg.breakaway_fit
@@ -614,6 +615,16 @@ class FinePositioner:
             for dd in (1, -1):
                 for b in range(self.learn.bands):
                     self.learn.set(table, dd, b, 0.0)
+
+    def _reading(self, d: int) -> float | None:
+        """The friction ratio of the main law's breakaways toward ``d`` (:meth:`_observe_scale`): the median
+        of the last ``SCALE_SAMPLES``, the mean of two that agree within ``fine.breakaway_fit``, else None."""
+        x = sorted(self._ratios[d])
+        if len(x) >= 3:
+            return x[len(x) // 2]
+        if len(x) == 2 and x[1] - x[0] <= self.cfg.breakaway_fit:
+            return 0.5 * (x[0] + x[1])
+        return None
 
     def _near_rating(self, thl: float, pressure_kpa: float, direction: int) -> bool:
         """On a scale read (``fine.learned_scale_*``): whether the planned breakaway twist toward
@@ -1172,6 +1183,20 @@ class FinePositioner:
         err = self._target - thl
         if d * err < 0.0:
             self.crossings_this_plateau += 1
+            if self.applied_scale is not None:
+                # on a scale read (fine.learned_scale_*) a move across the target ends the engagement: the
+                # move back unwinds the twist across the whole static band, s times the told one, and its
+                # preloads broke the valve loose back across (full box seeds 1013 and 1199, friction x1.4 on
+                # K x0.78-0.86 with a load: 3.5e-3 over, 5.7e-3 back, 1.2e-2 over again -- hunting; task h26f).
+                # It holds there if the move left the valve closer than it found it, else the main law takes
+                # the plateau back
+                if abs(err) <= self._err0:
+                    self._judge(failed=False)
+                    self.phase = HOLD
+                    self._hold_ref = th1
+                else:
+                    self._hand_back()
+                return
         if d * move < -2.0 * cfg.tolerance_rad or abs(err) > cfg.max_move_rad or self._early_breaks >= EARLY_BREAKS \
                 or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1) \
                 or not self._twist_fits(th1 - thl, thl, pressure_kpa):
