@@ -364,6 +364,7 @@ class FineConfig:
     learned_scale_max: float = 1.0  # show when that scale lies in [min, max] and the told model does not fit them
                                     # (:meth:`FinePositioner._observe_scale`; 1, 1: the told model only)
     continuous_current_a: float = math.inf  # the drive's continuous rating, A (SCALE_HOLD_FRACTION)
+    learned_load_max: float = math.inf  # ... and the steady load read beyond the told one is at most this x T_s
 
 
 class FinePositioner:
@@ -578,8 +579,8 @@ class FinePositioner:
         with friction x s (or a coupling 1/s as stiff, or a Δp reading 1/s off in T_s) and an unknown
         steady load ``l T_s``.  Read each way (:meth:`_reading`: a median of the last ``SCALE_SAMPLES``)
         ``s = (r+ - r-) / 2``, ``l = (r+ + r-) / 2``.  Where the told model already fits
-        them (``|s - 1| + |l|`` within ``fine.breakaway_fit``: every breakaway within its fit) or ``s``
-        lies outside [min, max], the stage plans from the told model (today's behaviour); else from
+        them (``|s - 1| + |l|`` within ``fine.breakaway_fit``: every breakaway within its fit), ``s``
+        lies outside [min, max] or ``|l|`` beyond ``fine.learned_load_max``, the stage plans from the told model (today's behaviour); else from
         :class:`LearnedModel` ``(s, l T_s)`` -- every check, preload, step and prior of the stage is then
         the told one on that model, and its learned twists (offsets from the model's) start over.  A
         change of ``s`` or ``l`` by more than ``SCALE_REPLAN`` x s re-plans (only while idle)."""
@@ -596,7 +597,7 @@ class FinePositioner:
         if rp is None or rm is None:
             return
         s, l = 0.5 * (rp - rm), 0.5 * (rp + rm)
-        want = None if (abs(s - 1.0) + abs(l) <= cfg.breakaway_fit
+        want = None if (abs(s - 1.0) + abs(l) <= cfg.breakaway_fit or abs(l) > cfg.learned_load_max
                         or not cfg.learned_scale_min <= s <= cfg.learned_scale_max) else (s, l)
         have = self.applied_scale
         if want is None and have is None:
