@@ -71,10 +71,11 @@ def test_the_stage_reads_the_friction_scale_and_load_its_valve_breaks_loose_at(s
         on.reset(), off.reset()
 
 
-@pytest.mark.parametrize("scale, load", [(2.8, 0.0), (0.4, 0.0), (1.1, 0.1)])
+@pytest.mark.parametrize("scale, load", [(2.8, 0.0), (0.4, 0.0), (1.1, 0.1), (1.5, 1.5)])
 def test_the_stage_keeps_the_told_model_outside_the_range_or_where_it_fits(scale, load):
     """Friction x2.8 or x0.4 lies outside [0.5, 2]; x1.1 with a small load fits the told model (every
-    breakaway within ``fine.breakaway_fit`` x T_s/K): the stage plans from the told model, as today."""
+    breakaway within ``fine.breakaway_fit`` x T_s/K); a load of 1.5 T_s beyond the told one exceeds
+    ``fine.learned_load_max``: the stage plans from the told model, as today."""
     fine = _stage(**ON)
     _read(fine, 0.1, 6000.0, scale, load)
     assert fine.applied_scale is None and fine.m is fine.m0

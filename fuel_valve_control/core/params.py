@@ -380,9 +380,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "1 and 1: the told model only (task h26f, docs §50)", 0.2, 1.0, runtime=True),
     Param("fine.learned_scale_max", 1.0, "", "upper end of the friction scale the stage plans from "
           "(fine.learned_scale_min; 1: the told model only)", 1.0, 5.0, runtime=True),
-    Param("fine.learned_load_max", 1.0e3, "", "... and only while the steady load read beyond the told one is at most "
-          "this x T_s(dp) (the breakaways' (r+ + r-) / 2; task h26f: reads of 1.4-3 T_s on loaded full-box valves "
-          "with backlash made their plateaus worse)", 0.0, 1.0e3, runtime=True),
+    Param("fine.learned_load_max", 1.0, "", "... and only while the steady load read beyond the told one is at most "
+          "this x T_s(dp) (the breakaways' (r+ + r-) / 2; task h26f, docs §50: with any load, reads of 1.4-5.7 T_s on "
+          "loaded full-box valves made their plateaus worse and one run hunt; 1: full box median -1 %, p95 and hunters "
+          "unchanged)", 0.0, 1.0e3, runtime=True),
     Param("fine.cold_start", False, "", "the stage engages before any breakaway has been seen (a run's first "
           "steps too small for the main law's hold to move the valve): after FRESH_WAIT engage times at rest with "
           "the twist at rest inside the nominal static band, it judges the valve by its own first doublets (a "
