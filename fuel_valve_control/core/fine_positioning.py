@@ -135,7 +135,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 from ..common.hunting import HUNT_REVERSALS, ReversalCounter
@@ -165,6 +165,39 @@ FRESH_WAIT = 10
 #: samples (0.25 count rms noise, quantised) it counted up to 236 reversals on nominal-box plateaus
 #: where the metric (true angle) counts 0, and held 46 of 82 plateaus > 8e-4 rad for them
 REVERSAL_MEAN_PERIODS = 8
+#: fine.learned_scale_*: the main-law breakaways per direction whose friction ratios are kept (their median
+#: is the direction's reading; two are read as their mean when they agree within fine.breakaway_fit -- one
+#: alone is not: a nominal-box valve showed an opening "breakaway" at -0.40 among seven at +-0.84..1.10, and
+#: read from it the stage planned from friction x0.76; task h26f), and the change of the read scale (or load
+#: offset, in T_s units) that re-plans the stage's model
+SCALE_SAMPLES, SCALE_REPLAN = 3, 0.1
+#: ... and on the scale read the stage stays out of a move whose planned breakaway twist takes more than this
+#: fraction of the continuous current to hold: its pulses on top of such a hold heat the I2t budget (h18g, docs
+#: §19: a loaded valve near its rating latched the fault; friction x2 at 90 % open, ~14 of 15 A, task h26f: the
+#: hold's twist sagged between the pulses and they never reached the breakaway)
+SCALE_HOLD_FRACTION = 0.8
+
+
+@dataclass(frozen=True)
+class LearnedModel(NominalModel):
+    """The told model with the valve friction scaled by ``friction_scale`` (Coulomb and static,
+    their Δp slopes too) and a steady load ``load_offset_nm`` (N*m, valve side, + toward closed)
+    added to the known one: the twists ``(load ± s T(Δp)) / K`` a valve whose main-law breakaways
+    were read shows (:meth:`FinePositioner._observe_scale`).  The coupling stiffness, inertias and
+    gear are the told model's (a soft coupling reads as a larger friction twist: the same band)."""
+
+    friction_scale: float = 1.0
+    load_offset_nm: float = 0.0
+
+    @classmethod
+    def of(cls, model: NominalModel, scale: float, load_offset_nm: float) -> "LearnedModel":
+        base = {f.name: getattr(model, f.name) for f in fields(NominalModel)}
+        for name in ("valve_coulomb_nm", "valve_coulomb_per_dp_nm", "valve_static_nm", "valve_static_per_dp_nm"):
+            base[name] *= scale
+        return cls(**base, friction_scale=scale, load_offset_nm=load_offset_nm)
+
+    def load_torque(self, valve_angle: float, pressure_kpa: float) -> float:
+        return super().load_torque(valve_angle, pressure_kpa) + self.load_offset_nm
 
 
 class FineLearner:
@@ -327,6 +360,11 @@ class FineConfig:
                                   # beyond the twist it reached (not beyond the learned level it fell short of)
     doublet_jump_fraction: float = 0.0  # doublet also for errors up to this fraction of the nominal stick-slip
                                         # jump 2 (T_s - T_c(Δp)) / K (0: only up to doublet_max_error_rad)
+    learned_scale_min: float = 1.0  # the stage plans from the friction scale and load its valve's main-law breakaways
+    learned_scale_max: float = 1.0  # show when that scale lies in [min, max] and the told model does not fit them
+                                    # (:meth:`FinePositioner._observe_scale`; 1, 1: the told model only)
+    continuous_current_a: float = math.inf  # the drive's continuous rating, A (SCALE_HOLD_FRACTION)
+    learned_load_max: float = math.inf  # ... and the steady load read beyond the told one is at most this x T_s
 
 
 class FinePositioner:
@@ -335,6 +373,8 @@ class FinePositioner:
 
     def __init__(self, model: NominalModel, period_s: float, cfg: FineConfig, learner: FineLearner):
         self.m, self.period, self.cfg, self.learn = model, period_s, cfg, learner
+        self.m0 = model                    # the told model (self.m: the one the stage plans from)
+        self.forget_scale()
         self._last_engage = None
         w = 2.0 * math.pi * cfg.servo_hz
         j1 = model.j1
@@ -474,6 +514,7 @@ class FinePositioner:
                 self._breakaway_seen = (1 if thl > v else -1, phi, v, p)
                 self._fresh = True
                 self._rest_point = None
+                self._observe_scale(self._breakaway_seen[0], phi, v, p)
                 if self._breakaway_fits():
                     # the main law's breakaways from rest sample the same level the doublet
                     # climbs to (quasi-static: no overdrive), one per move, for free
@@ -503,7 +544,8 @@ class FinePositioner:
             if not self.timeable or not holding or self._rest < cfg.engage_periods \
                     or self._steady < cfg.engage_periods or abs(err) <= cfg.tolerance_rad \
                     or abs(err) > cfg.max_move_rad or self._spent() or self._below_min_move(err, pressure_kpa) \
-                    or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1):
+                    or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1) \
+                    or self._near_rating(thl, pressure_kpa, 1 if err > 0 else -1):
                 return None
             cold = self._cold_ready(err, pressure_kpa)
             if not cold and not math.isinf(cfg.breakaway_fit) and (self._breakaway_seen is None or (
@@ -522,6 +564,79 @@ class FinePositioner:
             self._cold = cold
             self._engage(target, th1, thl, torque_now, pressure_kpa)
         return self._run(th1, w1, thl, pressure_kpa)
+
+    def forget_scale(self) -> None:
+        """Back to the told model: no friction scale read (``fine.learned_scale_*``)."""
+        self.m = self.m0
+        self.applied_scale = None           # (friction scale, load offset in T_s units) the stage plans from, or None
+        self._time_scale = 1.0              # the servo-blended pulse's rise and fall times x this
+        self._ratios = {1: [], -1: []}      # per direction: the last SCALE_SAMPLES friction ratios
+
+    def _observe_scale(self, d: int, phi: float, thl: float, pressure_kpa: float) -> None:
+        """Read the valve's friction scale from a main-law breakaway from rest toward ``d`` at twist
+        ``phi`` (rad), valve ``thl`` (rad), Δp ``pressure_kpa`` (``fine.learned_scale_min/max``; off
+        at 1, 1).  Its ratio ``r = (phi K - load(θ, Δp)) / T_s(Δp)`` (told model) is ``d s + l``: a valve
+        with friction x s (or a coupling 1/s as stiff, or a Δp reading 1/s off in T_s) and an unknown
+        steady load ``l T_s``.  Read each way (:meth:`_reading`: a median of the last ``SCALE_SAMPLES``)
+        ``s = (r+ - r-) / 2``, ``l = (r+ + r-) / 2``.  Where the told model already fits
+        them (``|s - 1| + |l|`` within ``fine.breakaway_fit``: every breakaway within its fit), ``s``
+        lies outside [min, max] or ``|l|`` beyond ``fine.learned_load_max``, the stage plans from the told model (today's behaviour); else from
+        :class:`LearnedModel` ``(s, l T_s)`` -- every check, preload, step and prior of the stage is then
+        the told one on that model, and its learned twists (offsets from the model's) start over.  A
+        change of ``s`` or ``l`` by more than ``SCALE_REPLAN`` x s re-plans (only while idle)."""
+        cfg = self.cfg
+        if cfg.learned_scale_min >= 1.0 >= cfg.learned_scale_max:
+            return
+        m0 = self.m0
+        ts = m0.friction(pressure_kpa).valve_static_nm
+        if ts <= 0.0:
+            return
+        r = (phi * m0.coupling_stiffness_nm_per_rad - m0.load_torque(thl, pressure_kpa)) / ts
+        self._ratios[d] = (self._ratios[d] + [r])[-SCALE_SAMPLES:]
+        rp, rm = self._reading(1), self._reading(-1)
+        if rp is None or rm is None:
+            return
+        s, l = 0.5 * (rp - rm), 0.5 * (rp + rm)
+        want = None if (abs(s - 1.0) + abs(l) <= cfg.breakaway_fit or abs(l) > cfg.learned_load_max
+                        or not cfg.learned_scale_min <= s <= cfg.learned_scale_max) else (s, l)
+        have = self.applied_scale
+        if want is None and have is None:
+            return
+        if want is not None and have is not None and abs(want[0] - have[0]) <= SCALE_REPLAN * have[0] \
+                and abs(want[1] - have[1]) <= SCALE_REPLAN * have[0]:
+            return
+        self.applied_scale = want
+        self.m = self.m0 if want is None else LearnedModel.of(self.m0, s, l * ts)
+        # the pulse drives the twist across a band s times the told one: its times x sqrt(s) keep the gear
+        # output's acceleration (the current the cap limits) the told valve's, as fine.swing_scaled_pulse
+        # does for a softer coupling (friction x2 with the told times: the capped pulses' apexes fell
+        # 3-10e-3 rad of twist short of the planned peak, below the breakaway, task h26f)
+        self._time_scale = 1.0 if want is None else max(math.sqrt(s), 1.0)
+        for table in ("equilibrium", "breakaway", "scatter"):
+            for dd in (1, -1):
+                for b in range(self.learn.bands):
+                    self.learn.set(table, dd, b, 0.0)
+
+    def _reading(self, d: int) -> float | None:
+        """The friction ratio of the main law's breakaways toward ``d`` (:meth:`_observe_scale`): the median
+        of the last ``SCALE_SAMPLES``, the mean of two that agree within ``fine.breakaway_fit``, else None."""
+        x = sorted(self._ratios[d])
+        if len(x) >= 3:
+            return x[len(x) // 2]
+        if len(x) == 2 and x[1] - x[0] <= self.cfg.breakaway_fit:
+            return 0.5 * (x[0] + x[1])
+        return None
+
+    def _near_rating(self, thl: float, pressure_kpa: float, direction: int) -> bool:
+        """On a scale read (``fine.learned_scale_*``): whether the planned breakaway twist toward
+        ``direction`` takes more than ``SCALE_HOLD_FRACTION`` x the continuous current to hold (the
+        coupling torque at the told stiffness, at the motor).  On the told model: never (today's rule)."""
+        if self.applied_scale is None or math.isinf(self.cfg.continuous_current_a):
+            return False
+        m = self.m
+        phi_b = self._twists(thl, pressure_kpa, direction)[1]
+        amps = abs(m.coupling_stiffness_nm_per_rad * phi_b) / (m.gear_ratio * m.torque_constant_nm_per_a)
+        return amps > SCALE_HOLD_FRACTION * self.cfg.continuous_current_a
 
     def _cold_ready(self, err: float, pressure_kpa: float) -> bool:
         """Whether to engage *cold*: no breakaway seen yet this run (the run's first steps, too
@@ -776,7 +891,7 @@ class FinePositioner:
         if self.phase == PULSE:
             # shaped pulse of the gear output: rise past breakaway, then fall to the final twist
             t = self._k * per
-            t_rise, t_fall = cfg.rise_periods * per, cfg.fall_periods * per
+            t_rise, t_fall = cfg.rise_periods * per * self._time_scale, cfg.fall_periods * per * self._time_scale
             if t < t_rise:
                 x, v, a = self._blend(self._pre, self._peak_planned, t, t_rise)
             else:
@@ -1069,6 +1184,20 @@ class FinePositioner:
         err = self._target - thl
         if d * err < 0.0:
             self.crossings_this_plateau += 1
+            if self.applied_scale is not None:
+                # on a scale read (fine.learned_scale_*) a move across the target ends the engagement: the
+                # move back unwinds the twist across the whole static band, s times the told one, and its
+                # preloads broke the valve loose back across (full box seeds 1013 and 1199, friction x1.4 on
+                # K x0.78-0.86 with a load: 3.5e-3 over, 5.7e-3 back, 1.2e-2 over again -- hunting; task h26f).
+                # It holds there if the move left the valve closer than it found it, else the main law takes
+                # the plateau back
+                if abs(err) <= self._err0:
+                    self._judge(failed=False)
+                    self.phase = HOLD
+                    self._hold_ref = th1
+                else:
+                    self._hand_back()
+                return
         if d * move < -2.0 * cfg.tolerance_rad or abs(err) > cfg.max_move_rad or self._early_breaks >= EARLY_BREAKS \
                 or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1) \
                 or not self._twist_fits(th1 - thl, thl, pressure_kpa):

@@ -306,7 +306,10 @@ class PositionController:
                           cold_start=ps["fine.cold_start"], learn_kick_rise=ps["fine.learn_kick_rise"],
                           first_kick_fraction=ps["fine.first_kick_fraction"],
                           probe_reached=ps["fine.probe_reached"], preload_cap=ps["fine.preload_cap"],
-                          doublet_jump_fraction=ps["fine.doublet_jump_fraction"])
+                          doublet_jump_fraction=ps["fine.doublet_jump_fraction"],
+                          learned_scale_min=ps["fine.learned_scale_min"], learned_scale_max=ps["fine.learned_scale_max"],
+                          continuous_current_a=ps["limits.continuous_current_a"],
+                          learned_load_max=ps["fine.learned_load_max"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period

@@ -112,7 +112,9 @@ class FinePositioningLaw(ControlLaw):
 
     def forget(self) -> None:
         # the fine stage's learned twists live in the controller's FineLearner, which
-        # PositionController.reset_learning resets together with this
+        # PositionController.reset_learning resets together with this; the friction scale it read
+        # (fine.learned_scale_*) goes with them
+        self.fine.forget_scale()
         self.main.forget()
 
     def stand_aside(self, on: bool) -> None:
