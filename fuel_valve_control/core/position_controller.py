@@ -305,7 +305,8 @@ class PositionController:
                           cold_start=ps["fine.cold_start"], learn_kick_rise=ps["fine.learn_kick_rise"],
                           first_kick_fraction=ps["fine.first_kick_fraction"],
                           probe_reached=ps["fine.probe_reached"], preload_cap=ps["fine.preload_cap"],
-                          doublet_jump_fraction=ps["fine.doublet_jump_fraction"])
+                          doublet_jump_fraction=ps["fine.doublet_jump_fraction"],
+                          stair_far_sigmas=ps["fine.stair_far_sigmas"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
