@@ -365,6 +365,8 @@ class FineConfig:
                                     # (:meth:`FinePositioner._observe_scale`; 1, 1: the told model only)
     continuous_current_a: float = math.inf  # the drive's continuous rating, A (SCALE_HOLD_FRACTION)
     learned_load_max: float = math.inf  # ... and the steady load read beyond the told one is at most this x T_s
+    stair_far_sigmas: float = 0.0  # doublet: stairs of up to kick_rise_rad while the apex lies more than this many
+                                   # learned scatters below the learned breakaway (0: every stair the floor)
 
 
 class FinePositioner:
@@ -1155,6 +1157,18 @@ class FinePositioner:
                 # learned breakaway, far below it where the level seldom lies, took 30 % fewer
                 # doublets but made larger moves: nominal box 40 runs, 2-3 runs hunting vs 0.)
                 self._stair_step = self._fitting_stair(self._target - thl, pressure_kpa, gap0)
+                far = cfg.stair_far_sigmas * self._scatter(d, b, gap0)
+                if cfg.stair_far_sigmas > 0.0 and self._stair > far:
+                    # (task h27s) the staircase starts fine.doublet_sigmas learned scatters below the learned
+                    # level in stairs of 0.03 band at 24 periods each, and 33 of the nominal box's 67 plateaus
+                    # > 8e-4 rad ended with it still climbing.  Until the apex is within fine.stair_far_sigmas
+                    # scatters of the level, a stair climbs up to fine.kick_rise_rad (the largest that keeps
+                    # the next preload below the apex this stair reached), never past that bound.  Measured
+                    # (1: unmoved stairs before a move median 10.5 -> 5) no better: the larger overdrive at the
+                    # stair that lets go makes the move larger (p90 2.6 -> 3.2e-3 rad), 67 -> 71 plateaus
+                    # > 8e-4, p95 1.32 -> 1.49e-3 rad (docs §55): off by default
+                    self._stair_step = max(self._stair_step, min(max(cfg.kick_rise_rad, self._stair_step),
+                                                                 self._stair - far))
                 self._stair -= self._stair_step
                 if d * curb - (self._kick_rise() + self._stair) > self._plausible_offset_rad(pressure_kpa):
                     # the next stair's preload would lie beyond the nominal breakaway b0 by more

@@ -314,6 +314,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.preload_cap", False, "", "a servo-blended pulse's preload goes no further than the furthest twist a pulse "
           "that did not move the valve reached at this stop (the ratchet may have raised the learned level, and the "
           "preload planned from it, past what they proved; task h25p)", runtime=True),
+    Param("fine.stair_far_sigmas", 0.0, "", "doublet: while a staircase's apex lies more than this many learned rms "
+          "scatters of the breakaway twist below the learned breakaway, a stair that did not move the valve is followed "
+          "by one up to fine.kick_rise_rad higher (the largest that keeps the next preload below the apex reached), "
+          "never past that bound; nearer, fine.doublet_probe_step x the band (0 = every stair that; task h27s)",
+          0.0, 10.0, runtime=True),
     Param("fine.min_move_fraction", 0.5, "", "no pulse for an error below this fraction of the learned smallest "
           "move a pulse makes (0.5: a move m improves an error e only if m < 2|e|; 0 = pulse regardless)",
           0.0, 2.0, runtime=True),

@@ -309,7 +309,8 @@ class PositionController:
                           doublet_jump_fraction=ps["fine.doublet_jump_fraction"],
                           learned_scale_min=ps["fine.learned_scale_min"], learned_scale_max=ps["fine.learned_scale_max"],
                           continuous_current_a=ps["limits.continuous_current_a"],
-                          learned_load_max=ps["fine.learned_load_max"])
+                          learned_load_max=ps["fine.learned_load_max"],
+                          stair_far_sigmas=ps["fine.stair_far_sigmas"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period

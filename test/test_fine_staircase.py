@@ -1,0 +1,61 @@
+"""The doublet staircase's climb where the breakaway level seldom lies (task h27s, docs §55).
+
+``fine.stair_far_sigmas`` (off by default: measured no better on the nominal box, §55): while a
+staircase's apex lies more than that many learned scatters below the learned breakaway, a stair that
+did not move the valve is followed by one up to ``fine.kick_rise_rad`` higher instead of
+``fine.doublet_probe_step`` x the band -- never past that bound, and nearer the learned level the
+fixed stairs again.  The stage runs on a valve that never moves (a stiff servo: the gear output is
+where the stage wants it), so each test costs a few thousand stage periods, no plant."""
+
+import pytest
+
+from test_fine_positioning import _stage, _torques_until_observe
+
+
+def _stuck_staircase(fine, err, p, stairs):
+    """The stage's doublet staircase on a valve that never moves, ``err`` short of a steady target:
+    (periods spent, the staircase's depth ``_stair`` below the learned level at its first stair and after
+    each stair, rad of twist)."""
+    _torques_until_observe(fine, err, p)
+    assert fine._doublet
+    thl, periods, depths = 0.5, 0, [fine._stair]
+    while len(depths) <= stairs:
+        th1 = thl + (fine._pre if fine.phase == "park" else fine._final)
+        fine.update(thl + err, th1, thl, True, 0.3, p)
+        periods += 1
+        if fine._stair != depths[-1]:
+            depths.append(fine._stair)
+        assert fine.phase not in ("hold", "idle")
+    return periods, depths
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_far_stairs_climb_up_to_the_kick_rise_and_fixed_stairs_near_the_learned_level(direction):
+    sigmas = 1.0
+    fixed, m = _stage()
+    p = m.pressure_max_kpa
+    far, _ = _stage(**{"fine.stair_far_sigmas": sigmas})
+    err = direction * 0.6e-3
+    n_fixed, d_fixed = _stuck_staircase(fixed, err, p, stairs=10)
+    n_far, d_far = _stuck_staircase(far, err, p, stairs=10)
+    c_fixed = [a - b for a, b in zip(d_fixed, d_fixed[1:])]
+    c_far = [a - b for a, b in zip(d_far, d_far[1:])]
+    floor = c_fixed[0]
+    assert all(c == pytest.approx(floor) for c in c_fixed)
+    cfg = far.cfg
+    band = far.learn.band(m.pressure_fraction(p))
+    e0, b0 = far._nominal(0.5, p, direction)
+    bound = sigmas * far._scatter(direction, band, abs(b0 - e0))
+    # both start at the same depth, fine.doublet_sigmas (2) scatters below the learned level: below the bound
+    assert d_far[0] == pytest.approx(d_fixed[0]) and d_far[0] > bound + cfg.kick_rise_rad
+    # far below: stairs of the kick's rise (larger than the floor), the last one cut at the bound, never
+    # past it; from within a floor of the bound on, the fixed stairs
+    k = next(i for i, c in enumerate(c_far) if c == pytest.approx(floor))
+    assert k >= 2
+    assert all(c == pytest.approx(cfg.kick_rise_rad) for c in c_far[:k - 1])
+    assert floor < c_far[k - 1] <= cfg.kick_rise_rad + 1e-12
+    assert bound - 1e-12 <= d_far[k] < bound + floor
+    assert all(c == pytest.approx(floor) for c in c_far[k:])
+    # the same ten stairs climb further, each taking about as long
+    assert d_far[0] - d_far[-1] > d_fixed[0] - d_fixed[-1] + (k - 1) * (cfg.kick_rise_rad - floor)
+    assert n_far <= 1.1 * n_fixed
