@@ -229,7 +229,9 @@ STEP_SHORTFALLS = {
         "20 ms move; clipped there, the command rings +-30 A at 4-6 ms, the valve is dragged 8 mrad back before it "
         "is thrown forward and stops 2.49e-3 short, inside the 5.2e-3 rad deadband the start-up swing taught "
         "(jumps 22-28x nominal in the first 70 ms, before the first stiffness reading); the compensator not told "
-        "the reading (no snap): 4.7 %, 9.8e-4 rad",
+        "the reading (no snap): 4.7 %, 9.8e-4 rad.  With ff.snap_fit_cap (off; section 57: the term from the plan, "
+        "a period earlier and its first positive snap fed; the cap fit's factor is 0.998 here): 0 %, 1.33e-3 rad, "
+        "within; kept off for the full box's plateaus > 8e-4 (1881 -> 1904)",
     **{_corner(friction=0.5, stiffness=0.1, inertia=j): (
         f"overshoot {pct} % against a physical floor of 9.4 % (the valve's jump 2.3e-2 rad > the 2.1e-2 rad step), "
         f"end error {err} rad: the valve follows the step since the hold's floor is probed "
@@ -240,7 +242,8 @@ STEP_SHORTFALLS = {
         "overshoot 13.4 % since the hold's stiffness reading became the default (stop 19, integral.read_stiffness; "
         "before 8.5-8.8 %).  Traced (docs section 52): the coupling-snap feed-forward of a coupling read 10x soft, "
         "~10x the 30 A cap on the 20 ms move and clipped there: the compensator not told the reading, 0 % and "
-        "9.9e-5 rad; but the K x 0.1 Δp-0 friction x 1 cell needs it (25.1 -> 8.0 %)",
+        "9.9e-5 rad; but the K x 0.1 Δp-0 friction x 1 cell needs it (25.1 -> 8.0 %).  With ff.snap_fit_cap (off, "
+        "section 57): 18.0 %, worse",
     # (friction=3.0, dp=0.0, stiffness=0.1, inertia=1.2) overshot 20-28 % until the observers
     # started in equilibrium with the measured twist (h14a): the soft coupling's initial twist
     # had read as a 10x torque; now 8.8 / 8.8 / 8.5 % over seeds 0-2

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from ..common.contract import RESOLVER_COUNT_RAD
 from .friction_observer import FrictionObserver
 from .model import NominalModel
-from .trajectory import TrajectoryShaper
+from .trajectory import Move, TrajectoryShaper
 
 #: a clocked move's breakaway is read as the shaper reads a waiting move's: a slide
 TRAJECTORY_BREAKAWAY_WINDOW = TrajectoryShaper.BREAKAWAY_WINDOW
@@ -60,6 +60,11 @@ class Context:
     #: the coupling's twist from the two resolvers, motor angle / N - valve angle, rad
     #: (+ winds toward open; None: not given)
     twist_meas: float | None = None
+    #: the planned move under way (:class:`~.trajectory.Move`; None: none, or not given) and the
+    #: time into it its acceleration is sampled at this period (the shaper's clock plus its
+    #: feed-forward lead), s: the coupling-snap feed-forward's plan (``ff.snap_fit_cap``, h27k)
+    move: Move | None = None
+    move_time: float = 0.0
 
 
 @dataclass
@@ -491,8 +496,19 @@ class ReferenceFeedforward(Compensator):
                  stuck_speed: float, static_start: bool = True, fraction: float = 1.0, period_s: float = 1e-3,
                  ramp_time: float = 0.05, ramp_start: float = 0.4, scale_bounds: tuple[float, float] = (0.1, 30.0),
                  retreat_periods: int = 0, count_rad: float = RESOLVER_COUNT_RAD, read_breakaway: bool = False,
-                 breakaway_rad: float = 3.0 * RESOLVER_COUNT_RAD, read_wrong_dp: bool = False):
+                 breakaway_rad: float = 3.0 * RESOLVER_COUNT_RAD, read_wrong_dp: bool = False,
+                 snap_fit_cap: bool = False, snap_cap_nm: float = math.inf):
         self.motor, self.valve = motor, valve
+        #: ``ff.snap_fit_cap`` (h27k): a planned move's coupling-snap term is taken from its plan
+        #: (no history lag, its first, positive snap fed) and scaled by one factor for the whole
+        #: move so its planned peak plus the move's friction feed-forward fits ``snap_cap_nm``
+        #: (motor N*m, the law's current cap), instead of being clipped sample by sample
+        #: (:meth:`_coupling_snap`)
+        self.snap_fit_cap = snap_fit_cap
+        self.snap_cap_nm = snap_cap_nm
+        self._snap_move: Move | None = None   # the move the factor below was decided for
+        #: the factor (0...1) on the snap term of the move under way (diagnostics and tests)
+        self.snap_factor = 1.0
         #: clocked planned moves: read the static friction the valve lets go at from the coupling's
         #: twist and cap the move's valve level at it (:meth:`_read_move_breakaway`, h21g)
         self.read_breakaway = read_breakaway
@@ -1051,8 +1067,45 @@ class ReferenceFeedforward(Compensator):
         else:
             excess = self.coupling.softness - 1.0
             excess = math.copysign(max(abs(excess) - self.SNAP_TOLERANCE, 0.0), excess)
+        m = self.model
+        gain = m.j1 * m.valve_inertia_kgm2 * excess / m.coupling_stiffness_nm_per_rad / m.gear_ratio
+        if self.snap_fit_cap and ctx.move is not None:
+            return self._planned_snap(ctx, gain) if excess != 0.0 else 0.0
         if len(self._acc) < 3 or excess == 0.0:
             return 0.0
-        m = self.model
         snap = (self._acc[2] - 2.0 * self._acc[1] + self._acc[0]) / (self.period * self.period)
-        return m.j1 * m.valve_inertia_kgm2 * excess / m.coupling_stiffness_nm_per_rad * snap / m.gear_ratio
+        return gain * snap
+
+    @staticmethod
+    def _plan_acc(move: Move, t: float) -> float:
+        """The planned acceleration (rad/s²) ``t`` s into ``move``: 0 at rest before and after it."""
+        return move.sample(t)[2] if 0.0 < t < move.duration else 0.0
+
+    def _planned_snap(self, ctx: Context, gain: float) -> float:
+        """``ff.snap_fit_cap``: the snap term (motor N*m) from the plan, ``gain`` (motor N*m per
+        rad/s⁴ at the valve) times the plan's central second difference of its acceleration at the
+        sampled time, times one factor for the move.
+
+        The factor is decided on the move's first clocked period from its planned peak snap (a sin²
+        ramp ``a_pk sin²(π t / t_a)`` has a second difference of at most
+        ``a_pk (1 - cos(2π h / t_a)) / h²``, at its start, middle and end): the peak term plus the
+        move's static friction feed-forward (motor N*m) must fit ``snap_cap_nm``.  On K x 0.1 a
+        20 ms move's term asks ~10 x the cap: clipped period by period it rang -19 ... +30 A and
+        dragged the valve backward (h26k, §52); scaled, the term keeps its shape."""
+        mv, h = ctx.move, self.period
+        if mv is not self._snap_move:
+            self._snap_move = mv
+            ta = mv.accel_time
+            peak = 0.0
+            if ta > 0.0:
+                a_pk = 2.0 * mv.peak_velocity / ta
+                peak = abs(gain) * a_pk * (1.0 - math.cos(2.0 * math.pi * h / ta)) / (h * h)
+            m = self.model
+            fl = m.friction(ctx.pressure_kpa)
+            sm, sv = self.scale(ctx.pressure_kpa)
+            friction = self.fraction * (sm * fl.motor_static_nm + sv * fl.valve_static_nm / m.gear_ratio)
+            room = max(self.snap_cap_nm - friction, 0.0)
+            self.snap_factor = min(1.0, room / peak) if peak > 0.0 else 1.0
+        t = ctx.move_time
+        snap = (self._plan_acc(mv, t + h) - 2.0 * self._plan_acc(mv, t) + self._plan_acc(mv, t - h)) / (h * h)
+        return self.snap_factor * gain * snap

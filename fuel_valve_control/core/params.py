@@ -263,6 +263,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "misread whose flow torque helps the move (0.5 x that Δp's schedule less the flow torque the known load "
           "carries beyond it), not only down to 0.5 x the schedule at the Δp told (docs/control_results.md section 53)",
           runtime=True),
+    Param("ff.snap_fit_cap", False, "", "observer_ff, observer_fp, on a coupling read softer than the model: a "
+          "planned move's coupling-snap feed-forward is taken from its plan and scaled by one factor for the whole "
+          "move, decided at its start, so its planned peak plus the move's static friction feed-forward fits the "
+          "current cap (fine.peak_current_a), instead of being clipped period by period (docs/control_results.md "
+          "section 57)", runtime=True),
     Param("ff.speed_window_periods", 4, "", "periods over which the valve speed is measured from the "
           "valve resolver", 1, 100),
     # --- observer_fp: fine positioning of a stuck valve (issue 14) ---------------------------

@@ -338,6 +338,8 @@ class PositionController:
                                             m.valve_inertia_kgm2 / m.coupling_stiffness_nm_per_rad) / period)),
                                         read_breakaway=ps["ff.read_breakaway"],
                                         read_wrong_dp=ps["ff.read_breakaway_wrong_dp"],
+                                        snap_fit_cap=ps["ff.snap_fit_cap"],
+                                        snap_cap_nm=ps["fine.peak_current_a"] * m.torque_constant_nm_per_a,
                                         breakaway_rad=ps["trajectory.breakaway_counts"] * RESOLVER_COUNT_RAD)
         return FriedlandPark(*fps, ps["fp.compensation_fraction"], ps["ff.stuck_speed_rad_s"])
 

@@ -391,7 +391,9 @@ class StateFeedbackLaw(ControlLaw):
         ctx = Context(pressure_kpa, th1, w1, thl, wl, valve_speed, self._applied, ref.velocity, ref.acceleration,
                       ref.moving, error, outside, ref.armed, ref.broke_away, self.held_load,
                       self.met_hold and self.slip_edges.known, valve if self.v2 else None,
-                      meas.valve_rad, meas.motor_rad / n - meas.valve_rad)
+                      meas.valve_rad, meas.motor_rad / n - meas.valve_rad,
+                      # the planned move and the time its acceleration is sampled at (ff.snap_fit_cap)
+                      self.shaper._move if ref.moving else None, self.shaper._tau + self.shaper.lead)
         comp, self._fm, self._fl = self.compensator.update(ctx)
         if ref.armed and self.compensator.wait_over():
             self.shaper.start_clock()           # the valve did not let go where expected (h17b)
