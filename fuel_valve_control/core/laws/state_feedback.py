@@ -376,6 +376,8 @@ class StateFeedbackLaw(ControlLaw):
                       self.met_hold and self.slip_edges.known, valve if self.v2 else None,
                       meas.valve_rad, meas.motor_rad / n - meas.valve_rad)
         comp, self._fm, self._fl = self.compensator.update(ctx)
+        if self.met_hold and not ref.moving:
+            self._reprior_held_load(load_nm if self.v2 else 0.0)
         if ref.armed and self.compensator.wait_over():
             self.shaper.start_clock()           # the valve did not let go where expected (h17b)
         # ---- state feedback around the dynamically consistent reference state
@@ -451,6 +453,19 @@ class StateFeedbackLaw(ControlLaw):
         if self.stiffness is not None and snap * u > 0.0 and abs(u) > self.snap_peak_nm:
             u -= math.copysign(min(abs(u) - self.snap_peak_nm, abs(snap)), u)
         return u
+
+    def _reprior_held_load(self, known_nm: float) -> None:
+        """A move's reading said the Δp told is misread (``ff.read_breakaway_wrong_dp``): a held
+        load learned from one slip edge only took the told schedule's static level as its prior;
+        re-learn it on the level at the Δp that explains the reading
+        (:meth:`~..integral_policy.IntegralPolicy.learn_load`, :attr:`~..compensation.ReferenceFeedforward.wrong_dp_static_nm`)."""
+        static = getattr(self.compensator, "wrong_dp_static_nm", None)
+        if static is None:
+            return
+        self.compensator.wrong_dp_static_nm = None
+        if len(self.slip_edges.edges) == 1:
+            way, edge = next(iter(self.slip_edges.edges.items()))
+            self.held_load = self.integral.learn_load(edge, way, static, known_nm, None)
 
     def _read_pull(self, pulling: bool, stuck: bool, valve: float, target: float, error: float, net_nm: float,
                    static_nm: float, known_nm: float) -> None:
