@@ -254,7 +254,8 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "moves' readings both ways confirm the Δp told, a move's breakaway reading is taken as friction (and "
           "caps the move) down to the least friction the valve can show at any Δp the transducer may have "
           "misread whose flow torque helps the move (0.5 x that Δp's schedule less the flow torque the known load "
-          "carries beyond it), not only down to 0.5 x the schedule at the Δp told (docs/control_results.md section 53)",
+          "carries beyond it), not only down to 0.5 x the schedule at the Δp told; a held load the hold learned from one slip edge "
+          "is then re-learned on that Δp's static level (docs/control_results.md sections 53, 56)",
           runtime=True),
     Param("ff.speed_window_periods", 4, "", "periods over which the valve speed is measured from the "
           "valve resolver", 1, 100),
