@@ -823,16 +823,20 @@ class ReferenceFeedforward(Compensator):
         return min([floor] + helps)
 
     def _explaining_static_nm(self, ctx: Context, way: float, reading_nm: float) -> float:
-        """The scheduled static level (N*m) at the Δp (0 or max) whose misread flow torque helps a
-        move ``way`` and explains ``reading_nm`` (its floor is at or below it; the lowest such if both)."""
+        """The static friction (N*m) a move ``way``'s breakaway reading ``reading_nm`` (N*m beyond
+        the known load at the Δp told, gross of the held load) shows where a misread Δp explains
+        it: the reading less the flow torque ``d`` that Δp (0 or max) would add the move's way
+        beyond the known one (``d`` < 0: it helps; the larger estimate if both explain it), never
+        above the schedule at the Δp told (the one-edge prior it replaces)."""
         m = self.model
-        known = m.load_torque(ctx.valve_meas, ctx.pressure_kpa)
+        told = ctx.pressure_kpa
+        known = m.load_torque(ctx.valve_meas, told)
         cands = []
         for p in (0.0, m.pressure_max_kpa):
             d = way * (m.load_torque(ctx.valve_meas, p) - known)
             if d < 0.0 and self.FLOOR_SCALE * m.friction(p).valve_static_nm + d <= reading_nm:
-                cands.append(m.friction(p).valve_static_nm)
-        return min(cands) if cands else m.friction(ctx.pressure_kpa).valve_static_nm
+                cands.append(reading_nm - d)
+        return min(max(cands), m.friction(told).valve_static_nm) if cands else m.friction(told).valve_static_nm
 
     def _coupling_nm(self, ctx: Context, way: float) -> float:
         """The coupling torque ``K (θm/N - θL)`` from the two resolvers (the model's K over the
