@@ -375,9 +375,11 @@ def test_readings_both_ways_that_the_told_dp_explains_confirm_it():
     assert _sliding_ff(c) == pytest.approx(0.1 * fl.valve_coulomb_nm, rel=1e-6)
 
 
-def test_the_option_is_off_by_default():
-    assert PS["ff.read_breakaway_wrong_dp"] is False
-    assert _comp().read_wrong_dp is False
+def test_the_option_is_on_by_default():
+    """Default since h27d (§56): the one-edge held load re-learned on the friction the reading shows
+    quieted the two grid cells that had kept it off (§53)."""
+    assert PS["ff.read_breakaway_wrong_dp"] is True
+    assert _comp().read_wrong_dp is False      # the compensator's own default: the unit tests' main path
 
 
 @pytest.mark.parametrize("friction", [0.5, 1.0, 3.0])
@@ -418,7 +420,7 @@ def test_the_grids_wrong_dp_cells_with_the_option_on(friction, inertia, main_os,
     from conftest import load_benchmark
     grid = load_benchmark("adaptation_grid")
     cell = {**grid.NOMINAL, "friction": friction, "inertia": inertia, "dp_kpa": 0.0, "stiffness": 1.0}
-    off = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX)
+    off = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={"ff.read_breakaway_wrong_dp": False})
     on = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={"ff.read_breakaway_wrong_dp": True})
     assert off["overshoot_pct"] == pytest.approx(main_os, abs=0.1)
     assert on["overshoot_pct"] == pytest.approx(on_os, abs=0.1)
