@@ -426,3 +426,20 @@ def test_the_grids_wrong_dp_cells_with_the_option_on(friction, inertia, main_os,
     assert on["overshoot_pct"] == pytest.approx(on_os, abs=0.1)
     assert not on["fault"]
     assert not on["hunts"] and on["tail_reversals"] == 0
+
+
+def test_campaign_seed_1010s_pull_edge_is_not_re_learned_as_a_held_load():
+    """Full box seed 1010 (LuGre x 0.58, a 1.6 N*m load helping opening, Δp missing: told 6206 kPa,
+    real 5695): its opening readings (0.47-0.50 x) are cut as a misread Δp.  At 3.49 s the hold's
+    only edge was the integrator's closing *pull* edge (-4.9 N*m), which is stored, not learned (the
+    held load was 0): re-learned on the reading's friction it put -2.6 N*m of load on the hold and
+    the last four plateaus ended 2-3 mrad off (sum of the 12 final errors 17.1 mrad).  Only a held
+    load that is the one-edge prior is re-learned (h27d, §56): 13.8 mrad, main's 15.2."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import robustness as rb
+    from fuel_valve_control.core.params import DEFAULT_MODE
+    on = rb.run_case((rb.sample_case(1010), DEFAULT_MODE, {"ff.read_breakaway_wrong_dp": True}))
+    assert not on["hunts"]
+    assert sum(p["final_error_rad"] for p in on["plateaus"]) < 15.2e-3
