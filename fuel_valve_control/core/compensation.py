@@ -514,9 +514,10 @@ class ReferenceFeedforward(Compensator):
         #: (lower, upper bound of the static friction met) / scheduled static level of the latest
         #: clocked move's breakaway reading (diagnostics and tests; None before one)
         self.move_reading: tuple[float, float] | None = None
-        #: (``ff.read_breakaway_wrong_dp``) the scheduled static level (N*m) at the misread Δp that
-        #: explains a move's reading the told Δp does not (a cut the h24g floor alone would not make),
-        #: for the hold's one-edge held-load prior; None: none since the law last took it
+        #: (``ff.read_breakaway_wrong_dp``) the static friction (N*m) a move's reading shows at the
+        #: misread Δp that explains it where the told Δp does not (a cut the h24g floor alone would not
+        #: make; :meth:`_explaining_static_nm`), for the hold's one-edge held-load prior
+        #: (:meth:`.laws.state_feedback.StateFeedbackLaw._reprior_held_load`); None: none since the law took it
         self.wrong_dp_static_nm: float | None = None
         #: the coupling stiffness met in the wind-ups (K_model / K; persistent, plausibility-checked)
         self.coupling = CouplingStiffness(self.WINDUP_START_COUNTS * count_rad, self.WINDUP_MIN_COUNTS * count_rad,
