@@ -530,6 +530,11 @@ class ReferenceFeedforward(Compensator):
         #: (lower, upper bound of the static friction met) / scheduled static level of the latest
         #: clocked move's breakaway reading (diagnostics and tests; None before one)
         self.move_reading: tuple[float, float] | None = None
+        #: (``ff.read_breakaway_wrong_dp``) the static friction (N*m) a move's reading shows at the
+        #: misread Δp that explains it where the told Δp does not (a cut the h24g floor alone would not
+        #: make; :meth:`_explaining_static_nm`), for the hold's one-edge held-load prior
+        #: (:meth:`.laws.state_feedback.StateFeedbackLaw._reprior_held_load`); None: none since the law took it
+        self.wrong_dp_static_nm: float | None = None
         #: the coupling stiffness met in the wind-ups (K_model / K; persistent, plausibility-checked)
         self.coupling = CouplingStiffness(self.WINDUP_START_COUNTS * count_rad, self.WINDUP_MIN_COUNTS * count_rad,
                                           bounds=self.SOFT_BOUNDS)
@@ -793,6 +798,9 @@ class ReferenceFeedforward(Compensator):
         # h24g, campaign seeds 1004, 1043, 3021)
         if all(floor <= 0.5 * (lo + up) and up < fl.valve_coulomb_nm for lo, up in spans):
             self._move_cap = max(max(lo for lo, _ in spans) / fl.valve_static_nm, self.scale_bounds[0])
+            if self.read_wrong_dp and not all(self.FLOOR_SCALE * fl.valve_static_nm <= 0.5 * (lo + up)
+                                              for lo, up in spans):
+                self.wrong_dp_static_nm = self._explaining_static_nm(ctx, s, min(0.5 * (lo + up) for lo, up in spans))
 
     def _least_friction_nm(self, ctx: Context, way: float) -> float:
         """The least a move ``way``'s reading (the coupling torque beyond the known load at the Δp
@@ -830,6 +838,22 @@ class ReferenceFeedforward(Compensator):
                  for p in (0.0, m.pressure_max_kpa)
                  if way * (m.load_torque(ctx.valve_meas, p) - known) < 0.0]
         return min([floor] + helps)
+
+    def _explaining_static_nm(self, ctx: Context, way: float, reading_nm: float) -> float:
+        """The static friction (N*m) a move ``way``'s breakaway reading ``reading_nm`` (N*m beyond
+        the known load at the Δp told, gross of the held load) shows where a misread Δp explains
+        it: the reading less the flow torque ``d`` that Δp (0 or max) would add the move's way
+        beyond the known one (``d`` < 0: it helps; the larger estimate if both explain it), never
+        above the schedule at the Δp told (the one-edge prior it replaces)."""
+        m = self.model
+        told = ctx.pressure_kpa
+        known = m.load_torque(ctx.valve_meas, told)
+        cands = []
+        for p in (0.0, m.pressure_max_kpa):
+            d = way * (m.load_torque(ctx.valve_meas, p) - known)
+            if d < 0.0 and self.FLOOR_SCALE * m.friction(p).valve_static_nm + d <= reading_nm:
+                cands.append(reading_nm - d)
+        return min(max(cands), m.friction(told).valve_static_nm) if cands else m.friction(told).valve_static_nm
 
     def _coupling_nm(self, ctx: Context, way: float) -> float:
         """The coupling torque ``K (θm/N - θL)`` from the two resolvers (the model's K over the
@@ -962,6 +986,7 @@ class ReferenceFeedforward(Compensator):
         softness, readings = self.coupling.softness, self.coupling.readings
         self.reset(model, new_kpa)
         self._way_reading = {1.0: None, -1.0: None}     # read against the old schedule (h26d)
+        self.wrong_dp_static_nm = None
         self.coupling.softness, self.coupling.readings = softness, readings
         if ratio is None or new_static <= 0.0:
             return

@@ -92,7 +92,12 @@ class IntegralPolicy:
         learned load flipped −3.2 / +0.5 / −3.0 / +0.7 N*m and the hold hunted 5-8 mrad).  An
         opposite edge that lies beyond this one (``(net − opposite) * direction <= 0``: the band
         has moved since, or one of the two was no edge of it) is not used, and the load so learned
-        is not *known* (:attr:`SlipEdges.known`).  Measured and not kept (h19b): aiming the relax at
+        is not *known* (:attr:`SlipEdges.known`).  With ``ff.read_breakaway_wrong_dp`` a move
+        whose breakaway reading only a misread Δp explains re-learns a one-edge load with
+        ``static_nm`` the level scheduled at that Δp (h27d: the grid's valve at Δp 0 told max,
+        one opening edge at −0.42 N*m: −3.17 N*m on the told 5.5 N*m, −0.67 on Δp 0's 0.5, the
+        valve's −1.18; on −3.17 the hold slid the valve 5.8 mrad back after the move).
+        Measured and not kept (h19b): aiming the relax at
         the centre of the two contradictory readings instead.  It held campaign seed 1029 (a
         closing edge at 3.27 N*m, then the integrator's pull read as an opening one at 1.71 N*m,
         true band 2.1…4.3 N*m: the prior from the newer, false, edge put the load at 1.33 N*m),

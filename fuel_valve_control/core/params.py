@@ -257,11 +257,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "net and gross of a held load known from one edge only), the valve's friction feed-forward for the "
           "rest of that move is capped at the friction met (docs/control_results.md sections 31, 34, 43)",
           runtime=True),
-    Param("ff.read_breakaway_wrong_dp", False, "", "observer_ff, observer_fp, with ff.read_breakaway: until the "
+    Param("ff.read_breakaway_wrong_dp", True, "", "observer_ff, observer_fp, with ff.read_breakaway: until the "
           "moves' readings both ways confirm the Δp told, a move's breakaway reading is taken as friction (and "
           "caps the move) down to the least friction the valve can show at any Δp the transducer may have "
           "misread whose flow torque helps the move (0.5 x that Δp's schedule less the flow torque the known load "
-          "carries beyond it), not only down to 0.5 x the schedule at the Δp told (docs/control_results.md section 53)",
+          "carries beyond it), not only down to 0.5 x the schedule at the Δp told; a held load the hold learned from one slip edge "
+          "is then re-learned on that Δp's static level (docs/control_results.md sections 53, 56)",
           runtime=True),
     Param("ff.snap_fit_cap", False, "", "observer_ff, observer_fp, on a coupling read softer than the model: a "
           "planned move's coupling-snap feed-forward is taken from its plan and scaled by one factor for the whole "

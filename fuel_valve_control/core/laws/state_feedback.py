@@ -395,6 +395,8 @@ class StateFeedbackLaw(ControlLaw):
                       # the planned move and the time its acceleration is sampled at (ff.snap_fit_cap)
                       self.shaper._move if ref.moving else None, self.shaper._tau + self.shaper.lead)
         comp, self._fm, self._fl = self.compensator.update(ctx)
+        if self.met_hold and not ref.moving:
+            self._reprior_held_load(load_nm if self.v2 else 0.0, friction.valve_static_nm)
         if ref.armed and self.compensator.wait_over():
             self.shaper.start_clock()           # the valve did not let go where expected (h17b)
         # ---- state feedback around the dynamically consistent reference state
@@ -524,6 +526,25 @@ class StateFeedbackLaw(ControlLaw):
                 or error_rad >= self.deadband - self.PROBE_EDGE_COUNTS * RESOLVER_COUNT_RAD):
             return None
         return static_nm * error_rad / self.deadband
+
+    def _reprior_held_load(self, known_nm: float, scheduled_nm: float) -> None:
+        """A move's reading said the Δp told is misread (``ff.read_breakaway_wrong_dp``): a held
+        load learned from one relax slip edge took the told schedule's static level
+        (``scheduled_nm``, N*m) as its prior; re-learn it on the friction the reading shows
+        (:meth:`~..integral_policy.IntegralPolicy.learn_load`,
+        :attr:`~..compensation.ReferenceFeedforward.wrong_dp_static_nm`; h27d, §56).  Only a held
+        load that *is* that prior (the integrator's pull edge alone is only stored, h20s: campaign
+        seed 1010 read a closing pull edge at -4.9 N*m and the re-prior put -2.6 N*m on a valve
+        the hold had held at 0); ``known_nm``: the known load at the valve, N*m (the bounds)."""
+        static = getattr(self.compensator, "wrong_dp_static_nm", None)
+        if static is None:
+            return
+        self.compensator.wrong_dp_static_nm = None
+        if len(self.slip_edges.edges) != 1:
+            return
+        way, edge = next(iter(self.slip_edges.edges.items()))
+        if abs(self.held_load - self.integral.learn_load(edge, way, scheduled_nm, known_nm)) < 1e-9:
+            self.held_load = self.integral.learn_load(edge, way, static, known_nm, None)
 
     def _read_pull(self, pulling: bool, stuck: bool, valve: float, target: float, error: float, net_nm: float,
                    static_nm: float, known_nm: float) -> None:
