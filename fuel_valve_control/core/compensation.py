@@ -81,6 +81,9 @@ class _MoveRead:
     slide: list = field(default_factory=list)
     #: the valve's friction while sliding, coupling torque less J_L x its acceleration, N*m
     sliding_nm: list = field(default_factory=list)
+    #: (``ff.slide_lowers_wrong_dp_cap``) the least cap (x the schedule) the sliding reading may set
+    #: when the move's cap was a cut only a misread Δp explains; None: the sliding reading only raises
+    slide_floor: float | None = None
 
 
 def _sat(x: float) -> float:
@@ -497,7 +500,12 @@ class ReferenceFeedforward(Compensator):
                  ramp_time: float = 0.05, ramp_start: float = 0.4, scale_bounds: tuple[float, float] = (0.1, 30.0),
                  retreat_periods: int = 0, count_rad: float = RESOLVER_COUNT_RAD, read_breakaway: bool = False,
                  breakaway_rad: float = 3.0 * RESOLVER_COUNT_RAD, read_wrong_dp: bool = False,
-                 snap_fit_cap: bool = False, snap_cap_nm: float = math.inf):
+                 snap_fit_cap: bool = False, snap_cap_nm: float = math.inf,
+                 slide_lowers_wrong_dp_cap: bool = False):
+        #: ``ff.slide_lowers_wrong_dp_cap`` (h28d): a move cut because a misread Δp explains its
+        #: reading (``read_wrong_dp``) takes the friction it meets while sliding as its cap, lower
+        #: or higher, down to the least friction the valve can have at any Δp (:meth:`_read_sliding`)
+        self.slide_lowers_wrong_dp_cap = slide_lowers_wrong_dp_cap
         self.motor, self.valve = motor, valve
         #: ``ff.snap_fit_cap`` (h27k): a planned move's coupling-snap term is taken from its plan
         #: (no history lag, its first, positive snap fed) and scaled by one factor for the whole
@@ -801,6 +809,13 @@ class ReferenceFeedforward(Compensator):
             if self.read_wrong_dp and not all(self.FLOOR_SCALE * fl.valve_static_nm <= 0.5 * (lo + up)
                                               for lo, up in spans):
                 self.wrong_dp_static_nm = self._explaining_static_nm(ctx, s, min(0.5 * (lo + up) for lo, up in spans))
+                if self.slide_lowers_wrong_dp_cap:
+                    # the least friction the valve can have at any Δp over the schedule told
+                    # (0.5 Ts(0) / Ts(told), 0.045 x at max Δp), never above the usual bound
+                    least = min(self.FLOOR_SCALE * m.friction(0.0).valve_static_nm / fl.valve_static_nm,
+                                self.scale_bounds[0])
+                    r.slide_floor = least
+                    self._move_cap = max(max(lo for lo, _ in spans) / fl.valve_static_nm, least)
 
     def _least_friction_nm(self, ctx: Context, way: float) -> float:
         """The least a move ``way``'s reading (the coupling torque beyond the known load at the Δp
@@ -889,7 +904,11 @@ class ReferenceFeedforward(Compensator):
             return
         fl = m.friction(ctx.pressure_kpa)
         if fl.valve_coulomb_nm > 0.0:
-            self._move_cap = max(self._move_cap, sum(r.sliding_nm) / len(r.sliding_nm) / fl.valve_coulomb_nm)
+            slid = sum(r.sliding_nm) / len(r.sliding_nm) / fl.valve_coulomb_nm
+            # a cut a misread Δp explains (h28d): the static reading's lower bound lags a low friction
+            # by the drive's rise per period (~0.5 N*m, 2-3 x a 0.25 N*m valve's friction), the sliding
+            # reading measures what the move needs beyond the known load (Tc plus the misread flow torque)
+            self._move_cap = max(slid, r.slide_floor) if r.slide_floor is not None else max(self._move_cap, slid)
 
     def _confirm(self, ctx: Context) -> None:
         """Keep the latest breakaway reading only if the valve really let go: its filtered

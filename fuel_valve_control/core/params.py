@@ -264,6 +264,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "carries beyond it), not only down to 0.5 x the schedule at the Δp told; a held load the hold learned from one slip edge "
           "is then re-learned on that Δp's static level (docs/control_results.md sections 53, 56)",
           runtime=True),
+    Param("ff.slide_lowers_wrong_dp_cap", True, "", "observer_ff, observer_fp, with ff.read_breakaway_wrong_dp: "
+          "a move whose breakaway reading was cut because only a misread Δp explains it takes the friction it meets "
+          "while sliding (coupling torque less J_L x acceleration, beyond the known load) as its cap, lowering it "
+          "too, down to the least friction the valve can have at any Δp (0.5 x the schedule at Δp 0 over the one "
+          "told) instead of 0.1 x (docs/control_results.md section 60)", runtime=True),
     Param("ff.snap_fit_cap", False, "", "observer_ff, observer_fp, on a coupling read softer than the model: a "
           "planned move's coupling-snap feed-forward is taken from its plan and scaled by one factor for the whole "
           "move, decided at its start, so its planned peak plus the move's static friction feed-forward fits the "
