@@ -59,3 +59,29 @@ def test_far_stairs_climb_up_to_the_kick_rise_and_fixed_stairs_near_the_learned_
     # the same ten stairs climb further, each taking about as long
     assert d_far[0] - d_far[-1] > d_fixed[0] - d_fixed[-1] + (k - 1) * (cfg.kick_rise_rad - floor)
     assert n_far <= 1.1 * n_fixed
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_unmoved_doublet_observe_holds_the_gear_output_near_the_preload(direction):
+    """``fine.retreat_stop_unmoved`` (task h28r, §58; off by default): once a doublet's valve is seen not to
+    have moved, the observe servo's twist reference is the preload less ``fine.park_approach_rad``, not the
+    move's final twist (off: the final twist, the retreat's deep trough)."""
+    for on in (False, True):
+        fine, m = _stage(**{"fine.retreat_stop_unmoved": on})
+        p = m.pressure_max_kpa
+        err = direction * 0.6e-3
+        refs = []
+        servo = fine._servo
+
+        def spy(ref, *a, **k):
+            if fine.phase == "observe" and fine._doublet and fine._pulsed:
+                want = fine._pre - fine._dir * fine.cfg.park_approach_rad if on else fine._final
+                refs.append((ref - fine._thl0, want, abs(fine._pre - fine._final)))
+            return servo(ref, *a, **k)
+
+        fine._servo = spy
+        _stuck_staircase(fine, err, p, stairs=2)
+        assert refs
+        for ref, want, apart in refs:
+            assert ref == pytest.approx(want, abs=1e-12)
+            assert apart > 2.0 * fine.cfg.park_approach_rad   # the two references differ

@@ -365,6 +365,8 @@ class FineConfig:
                                     # (:meth:`FinePositioner._observe_scale`; 1, 1: the told model only)
     continuous_current_a: float = math.inf  # the drive's continuous rating, A (SCALE_HOLD_FRACTION)
     learned_load_max: float = math.inf  # ... and the steady load read beyond the told one is at most this x T_s
+    retreat_unmoved_fraction: float = 0.5  # doublet: the half retreat period's current (x cap, backwards) if unmoved
+    retreat_stop_unmoved: bool = False  # doublet: an unmoved valve's observe holds near the preload (task h28r)
     stair_far_sigmas: float = 0.0  # doublet: stairs of up to kick_rise_rad while the apex lies more than this many
                                    # learned scatters below the learned breakaway (0: every stair the floor)
 
@@ -889,6 +891,7 @@ class FinePositioner:
             self._track_peak(th1 - thl)
             if self._k == 1:
                 self._hold_torque = self._servo_torque
+            self._unmoved_now = abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad
             return self._doublet_torque()
         if self.phase == PULSE:
             # shaped pulse of the gear output: rise past breakaway, then fall to the final twist
@@ -916,7 +919,14 @@ class FinePositioner:
                 self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed)
                 if self.phase == IDLE:
                     return None
-            return self._servo(base + self._final, 0.0, th1, w1, thl)
+            ref = self._final
+            if cfg.retreat_stop_unmoved and self._doublet and self._pulsed \
+                    and abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad:
+                # (h28r) the valve has not let go (yet): hold the gear output just short of the preload
+                # proven to hold, not at the move's final twist -- the retreat's trough (5.7e-3 rad below
+                # the preload, §55.1) is what the next stair's slow park has to climb back
+                ref = self._pre - self._dir * cfg.park_approach_rad
+            return self._servo(base + ref, 0.0, th1, w1, thl)
         # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
 
@@ -962,7 +972,9 @@ class FinePositioner:
         elif self._k <= 1 + max(cfg.retreat_full_periods, 1):
             torque = self._hold_torque - d * cap
         else:
-            torque = self._hold_torque - d * 0.5 * cap
+            # (h28r, ``fine.retreat_unmoved_fraction``) a valve not yet moved by now may get less of it
+            frac = cfg.retreat_unmoved_fraction if getattr(self, "_unmoved_now", False) else 0.5
+            torque = self._hold_torque - d * frac * cap
             self.phase, self._k, self._pulsed = OBSERVE, 0, True
         return min(max(torque, -cap), cap)
 

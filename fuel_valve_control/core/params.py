@@ -325,6 +325,13 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.preload_cap", False, "", "a servo-blended pulse's preload goes no further than the furthest twist a pulse "
           "that did not move the valve reached at this stop (the ratchet may have raised the learned level, and the "
           "preload planned from it, past what they proved; task h25p)", runtime=True),
+    Param("fine.retreat_stop_unmoved", False, "", "doublet: once the valve is seen not to have moved after the "
+          "retreat, the observe servo holds the gear output at the preload less fine.park_approach_rad instead of the "
+          "move's final twist (a shallower trough for the next stair's park; task h28r)", runtime=True),
+    Param("fine.retreat_unmoved_fraction", 0.5, "", "doublet: the current of the retreat's last period (the "
+          "half one) as a fraction of fine.peak_current_a backwards when the valve has not moved a half count by "
+          "then (0.5: as when it has; less: a shallower trough for the next stair's park; task h28r)", -1.0, 1.0,
+          runtime=True),
     Param("fine.stair_far_sigmas", 0.0, "", "doublet: while a staircase's apex lies more than this many learned rms "
           "scatters of the breakaway twist below the learned breakaway, a stair that did not move the valve is followed "
           "by one up to fine.kick_rise_rad higher (the largest that keeps the next preload below the apex reached), "

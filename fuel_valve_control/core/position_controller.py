@@ -310,7 +310,9 @@ class PositionController:
                           learned_scale_min=ps["fine.learned_scale_min"], learned_scale_max=ps["fine.learned_scale_max"],
                           continuous_current_a=ps["limits.continuous_current_a"],
                           learned_load_max=ps["fine.learned_load_max"],
-                          stair_far_sigmas=ps["fine.stair_far_sigmas"])
+                          stair_far_sigmas=ps["fine.stair_far_sigmas"],
+                          retreat_stop_unmoved=ps["fine.retreat_stop_unmoved"],
+                          retreat_unmoved_fraction=ps["fine.retreat_unmoved_fraction"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
