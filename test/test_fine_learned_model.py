@@ -121,3 +121,36 @@ def test_a_low_friction_valves_plateaus_are_finished_by_the_stage(robustness_ben
     err = {name: np.median([pl["final_error_rad"] for pl in r["plateaus"]]) for name, r in runs.items()}
     assert err["on"] < 0.5 * err["off"]
     assert not runs["on"]["hunts"] and not runs["on"]["fault"]
+
+
+ONE = {**ON, "fine.learned_one_sample": True}
+
+
+@pytest.mark.parametrize("scale, load", [(0.6, 0.0), (1.7, 0.2)])
+def test_with_fine_learned_one_sample_one_breakaway_each_way_is_read(scale, load):
+    """``fine.learned_one_sample`` (task h28f): the first breakaway each way is read when plausible --
+    without it two each way are needed (the median read, docs §50)."""
+    p, thl = 6000.0, 0.1
+    two, one = _stage(**ON), _stage(**ONE)
+    for fine in (two, one):
+        _break(fine, thl, p, 1, scale, load)
+        _break(fine, thl, p, -1, scale, load)
+    assert two.applied_scale is None
+    s, l = one.applied_scale
+    assert s == pytest.approx(scale, abs=1e-6) and l == pytest.approx(load, abs=1e-6)
+
+
+def test_with_fine_learned_one_sample_an_opening_ratio_below_the_closing_one_is_not_read():
+    """Run 1036's outlier (docs §50): an opening "breakaway" at -0.40 against a closing one at -1.0 reads
+    friction x0.3, outside the range; one below the closing one (-1.2) is no breakaway toward opening at
+    all: the stage keeps the told model until more breakaways agree."""
+    p, thl = 6000.0, 0.1
+    fine = _stage(**ONE)
+    _break(fine, thl, p, -1, 1.0)                        # closing at -1.0 T_s
+    _break(fine, thl, p, 1, -1.0, 0.6)                   # "opening" at -1.0 + 0.6 = -0.4
+    assert fine.applied_scale is None and fine.m is fine.m0
+    fine = _stage(**ONE)
+    _break(fine, thl, p, -1, 1.0)
+    _break(fine, thl, p, 1, -1.0, -0.2)                  # "opening" at -1.2, below the closing -1.0
+    assert not fine._plausible_ratio(1, fine._ratios[1][0])
+    assert fine.applied_scale is None and fine.m is fine.m0

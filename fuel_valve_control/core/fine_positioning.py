@@ -367,6 +367,8 @@ class FineConfig:
     learned_load_max: float = math.inf  # ... and the steady load read beyond the told one is at most this x T_s
     retreat_unmoved_fraction: float = 0.5  # doublet: the half retreat period's current (x cap, backwards) if unmoved
     retreat_stop_unmoved: bool = False  # doublet: an unmoved valve's observe holds near the preload (task h28r)
+    learned_one_sample: bool = False  # the scale read from one breakaway each way when it is plausible
+                                      # (:meth:`FinePositioner._reading`; task h28f, docs §59)
     stair_far_sigmas: float = 0.0  # doublet: stairs of up to kick_rise_rad while the apex lies more than this many
                                    # learned scatters below the learned breakaway (0: every stair the floor)
 
@@ -629,7 +631,36 @@ class FinePositioner:
             return x[len(x) // 2]
         if len(x) == 2 and x[1] - x[0] <= self.cfg.breakaway_fit:
             return 0.5 * (x[0] + x[1])
+        if len(x) == 1 and self.cfg.learned_one_sample and self._plausible_ratio(d, x[0]):
+            return x[0]
         return None
+
+    def _plausible_ratio(self, d: int, r: float) -> bool:
+        """``fine.learned_one_sample``: whether a lone friction ratio ``r`` toward ``d`` may stand for its
+        direction.  A breakaway toward ``d`` needs the twist beyond the other way's: ``d (r - r_other) > 0``
+        for every ratio seen the other way (an opening ratio below a closing one is not a breakaway -- the
+        nominal-box run 1036's opening -0.40 among closings at -1.0, task h26f); and it must lie within
+        ``fine.breakaway_fit`` of the told edge ``d + l`` shifted by no more load than ``fine.learned_load_max``
+        allows, i.e. ``|d r - 1| <= learned_scale_max - 1 + fit`` below and above -- the scatter friction
+        explains, not a stop the main law ended on a load transient."""
+        other = self._ratios[-d]
+        if not other:
+            return False
+        if any(d * (r - q) <= 0.0 for q in other):
+            return False
+        cfg = self.cfg
+        # a friction scale (or a softer coupling) moves both edges the same sense: |r| - 1 off the told edge
+        # by more than fine.breakaway_fit one way AND every ratio the other way off the same sense.  A lone
+        # misfit one way against a fitting other way is a stop the main law ended early, not a scale
+        # (nominal-box run 1027: closing -0.48 against openings 0.90, 1.08, then -0.97, -0.94...; read as
+        # friction x0.74 the box p95 went 1.32 -> 1.46e-3, task h28f)
+        m = d * r - 1.0
+        if abs(m) <= cfg.breakaway_fit or any(abs(-d * q - 1.0) <= cfg.breakaway_fit or (-d * q - 1.0) * m <= 0.0
+                                               for q in other):
+            return False
+        lo = cfg.learned_scale_min - cfg.learned_load_max - cfg.breakaway_fit
+        hi = cfg.learned_scale_max + cfg.learned_load_max + cfg.breakaway_fit
+        return lo <= d * r <= hi
 
     def _near_rating(self, thl: float, pressure_kpa: float, direction: int) -> bool:
         """On a scale read (``fine.learned_scale_*``): whether the planned breakaway twist toward

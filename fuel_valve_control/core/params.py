@@ -420,6 +420,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "this x T_s(dp) (the breakaways' (r+ + r-) / 2; task h26f, docs §50: with any load, reads of 1.4-5.7 T_s on "
           "loaded full-box valves made their plateaus worse and one run hunt; 1: full box median -1 %, p95 and hunters "
           "unchanged)", 0.0, 1.0e3, runtime=True),
+    Param("fine.learned_one_sample", False, "", "with fine.learned_scale_min/max: a direction's friction ratio is read "
+          "from its first breakaway when that is plausible (beyond every ratio seen the other way, and within "
+          "[learned_scale_min - learned_load_max - breakaway_fit, learned_scale_max + learned_load_max + breakaway_fit]); "
+          "later breakaways take the median as before (task h28f, docs §59)", runtime=True),
     Param("fine.cold_start", False, "", "the stage engages before any breakaway has been seen (a run's first "
           "steps too small for the main law's hold to move the valve): after FRESH_WAIT engage times at rest with "
           "the twist at rest inside the nominal static band, it judges the valve by its own first doublets (a "
