@@ -410,19 +410,17 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "the valve loose lies within this fraction of T_s(dp)/K of the nominal breakaway twist (load +- T_s) / K "
           "(measured: within 0.15 on the nominal plant with friction scatter, 0.5-2.7 off on valves the model does "
           "not describe)", 0.0, 10.0, runtime=True),
-    Param("fine.learned_scale_min", 0.5, "", "the stage plans from the friction scale s and steady load its "
+    Param("fine.learned_scale_min", 1.0, "", "the stage plans from the friction scale s and steady load its "
           "valve's main-law breakaways show (two each way: s = (r+ - r-) / 2 of the ratios (twist K - load) / T_s) "
           "when the told model does not fit them and s lies in [fine.learned_scale_min, fine.learned_scale_max]; "
-          "1 and 1: the told model only (task h26f, docs §50; 0.5 ... 2 with fine.learned_one_sample the default since "
-          "stop 20, docs §59: full box 1877 -> 1876 plateaus > 8e-4, quick 279 -> 276, the rest identical)", 0.2, 1.0,
-          runtime=True),
-    Param("fine.learned_scale_max", 2.0, "", "upper end of the friction scale the stage plans from "
+          "1 and 1: the told model only (task h26f, docs §50)", 0.2, 1.0, runtime=True),
+    Param("fine.learned_scale_max", 1.0, "", "upper end of the friction scale the stage plans from "
           "(fine.learned_scale_min; 1: the told model only)", 1.0, 5.0, runtime=True),
     Param("fine.learned_load_max", 1.0, "", "... and only while the steady load read beyond the told one is at most "
           "this x T_s(dp) (the breakaways' (r+ + r-) / 2; task h26f, docs §50: with any load, reads of 1.4-5.7 T_s on "
           "loaded full-box valves made their plateaus worse and one run hunt; 1: full box median -1 %, p95 and hunters "
           "unchanged)", 0.0, 1.0e3, runtime=True),
-    Param("fine.learned_one_sample", True, "", "with fine.learned_scale_min/max: a direction's friction ratio is read "
+    Param("fine.learned_one_sample", False, "", "with fine.learned_scale_min/max: a direction's friction ratio is read "
           "from its first breakaway when that is plausible (beyond every ratio seen the other way, and within "
           "[learned_scale_min - learned_load_max - breakaway_fit, learned_scale_max + learned_load_max + breakaway_fit]); "
           "later breakaways take the median as before (task h28f, docs §59)", runtime=True),
