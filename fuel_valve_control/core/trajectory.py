@@ -180,6 +180,17 @@ class TrajectoryShaper:
     def moving(self) -> bool:
         return self._move is not None
 
+    @property
+    def move(self) -> Move | None:
+        """The planned move under way (None: none)."""
+        return self._move
+
+    @property
+    def sample_time(self) -> float:
+        """The time into the move (s) its reference is sampled at this period: the clock plus the
+        feed-forward lead."""
+        return self._tau + self.lead
+
     def arrived(self, target: float) -> bool:
         """At rest on ``target`` (a planned move has ended there)."""
         return self._move is None and self._p == target

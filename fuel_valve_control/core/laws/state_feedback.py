@@ -393,7 +393,7 @@ class StateFeedbackLaw(ControlLaw):
                       self.met_hold and self.slip_edges.known, valve if self.v2 else None,
                       meas.valve_rad, meas.motor_rad / n - meas.valve_rad,
                       # the planned move and the time its acceleration is sampled at (ff.snap_fit_cap)
-                      self.shaper._move if ref.moving else None, self.shaper._tau + self.shaper.lead)
+                      self.shaper.move if ref.moving else None, self.shaper.sample_time)
         comp, self._fm, self._fl = self.compensator.update(ctx)
         if self.met_hold and not ref.moving:
             self._reprior_held_load(load_nm if self.v2 else 0.0, friction.valve_static_nm)
