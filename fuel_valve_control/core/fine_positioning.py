@@ -371,6 +371,8 @@ class FineConfig:
                                       # (:meth:`FinePositioner._reading`; task h28f, docs §59)
     stair_far_sigmas: float = 0.0  # doublet: stairs of up to kick_rise_rad while the apex lies more than this many
                                    # learned scatters below the learned breakaway (0: every stair the floor)
+    drop_rest_at_engage: bool = False  # the rest the main law's next breakaway is read from is dropped when the stage
+                                       # engages: the stage's own moves are no breakaway from that rest (task h29a)
 
 
 class FinePositioner:
@@ -734,6 +736,14 @@ class FinePositioner:
         self.learn.set("misfit", d, b, (1.0 - w) * self.learn.misfit[d][b] + w * (1.0 if failed else 0.0))
 
     def _engage(self, target, th1, thl, torque_now, pressure_kpa):
+        if self.cfg.drop_rest_at_engage:
+            # (h29a) the rest point is recorded only while the stage is idle, so the one held now dates from before
+            # this engagement; kept, the first idle period after it (a hand-back, a new demand mid-staircase) read
+            # the valve's displacement by the stage's own pulses as a main-law breakaway from that rest, at the twist
+            # of that rest -- the twist the main law had held the valve with *before* the stage moved it, often in the
+            # other direction's half of the band (nominal box seed 1003 #1: a "closing breakaway" at +2.0 T_s/K from
+            # the nominal one, unfit: the stage stayed out and the plateau ended 2.9e-3 rad off)
+            self._rest_point = None
         self._err0 = abs(target - thl)
         self._judged = (1 if target > thl else -1, self.learn.band(self.m.pressure_fraction(pressure_kpa)))
         self._target = target
