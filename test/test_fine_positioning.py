@@ -950,12 +950,12 @@ def test_the_peak_push_outlives_the_stop_and_shrinks_at_each_servo_blended_move(
 def test_the_stages_own_move_is_no_main_law_breakaway_from_the_rest_before_it(direction, drop):
     """The stage reads the main law's breakaway from the twist of the last rest it saw while idle.  A rest seen
     before the stage engaged is stale once the stage's own pulses have moved the valve: with
-    ``fine.drop_rest_at_engage`` (the default) it is dropped at the engagement, and a new demand that arrives after the stage
-    moved the valve (a staircase out of plateau, a hand-back) leaves the main law's last breakaway -- which fits
-    -- the evidence, so the stage engages on the next plateau.  Without it (main ae79cb2) the stage's move is read
-    as a main-law breakaway at the stale twist (here the load's, a whole T_s/K from the breakaway twist toward the
-    move), which does not fit, and the stage stays out of that plateau (nominal box seed 1003 #1: a "closing
-    breakaway" read at +2.0 T_s/K, the plateau left 2.9e-3 rad off; task h29a, docs §63)."""
+    ``fine.drop_rest_at_engage`` (the default) it is dropped at the engagement, and a new demand that arrives
+    after the stage moved the valve (a staircase out of plateau, a hand-back) leaves the main law's last
+    breakaway -- which fits -- the evidence, so the stage engages on the next plateau.  Without it (main ae79cb2)
+    the stage's move is read as a main-law breakaway at the stale twist (here the load's, a whole T_s/K from the
+    breakaway twist toward the move), which does not fit, and the stage stays out of that plateau (nominal box
+    seed 1003 #1: a "closing breakaway" read at +2.0 T_s/K, the plateau left 2.9e-3 rad off; task h29a, docs §63)."""
     assert CONTROLLER_SPEC.defaults()["fine.drop_rest_at_engage"] is True
     fine, m = _stage(**{"fine.drop_rest_at_engage": drop})
     p = m.pressure_max_kpa
