@@ -943,3 +943,37 @@ def test_the_peak_push_outlives_the_stop_and_shrinks_at_each_servo_blended_move(
         phi_e, phi_b, _ = fine._twists(0.5, p, direction)
         over = fine.cfg.overdrive_fraction * direction * (phi_b - phi_e)
         assert direction * (fine._peak_planned - phi_b) - over == pytest.approx(push, rel=1e-6, abs=1e-12)
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+@pytest.mark.parametrize("drop", [True, False])
+def test_the_stages_own_move_is_no_main_law_breakaway_from_the_rest_before_it(direction, drop):
+    """The stage reads the main law's breakaway from the twist of the last rest it saw while idle.  A rest seen
+    before the stage engaged is stale once the stage's own pulses have moved the valve: with
+    ``fine.drop_rest_at_engage`` (the default) it is dropped at the engagement, and a new demand that arrives
+    after the stage moved the valve (a staircase out of plateau, a hand-back) leaves the main law's last
+    breakaway -- which fits -- the evidence, so the stage engages on the next plateau.  Without it (main ae79cb2)
+    the stage's move is read as a main-law breakaway at the stale twist (here the load's, a whole T_s/K from the
+    breakaway twist toward the move), which does not fit, and the stage stays out of that plateau (nominal box
+    seed 1003 #1: a "closing breakaway" read at +2.0 T_s/K, the plateau left 2.9e-3 rad off; task h29a, docs §63)."""
+    assert CONTROLLER_SPEC.defaults()["fine.drop_rest_at_engage"] is True
+    fine, m = _stage(**{"fine.drop_rest_at_engage": drop})
+    p = m.pressure_max_kpa
+    thl = 0.5
+    _break_loose(fine, thl, p)                      # the main law's breakaway (toward open): it fits
+    assert fine._breakaway_fits()
+    target = thl + direction * 1e-3
+    for _ in range(_patience(fine)):                # at rest on the load's twist: the stage engages
+        if fine.update(target, thl + _rest_twist(fine, thl, p), thl, True, 0.3, p) is not None:
+            break
+    assert fine.phase == "park"
+    moved = thl + direction * 0.8e-3                # the stage's own move (more than 2 tolerances)
+    assert abs(moved - thl) > 2.0 * fine.cfg.tolerance_rad
+    th1 = moved + _rest_twist(fine, moved, p)
+    fine.update(target, th1, moved, True, 0.3, p)
+    new = moved + direction * 1e-3                  # a new demand while the stage observes its move
+    engaged = any(fine.update(new, th1, moved, True, 0.3, p) is not None for _ in range(_patience(fine)))
+    assert engaged is drop
+    d, phi = fine._breakaway_seen[:2]
+    assert (d, phi) == ((1, pytest.approx(fine._nominal(thl, p, 1)[1], abs=1e-9)) if drop
+                        else (direction, pytest.approx(_rest_twist(fine, thl, p), abs=1e-9)))

@@ -371,6 +371,10 @@ class FineConfig:
                                       # (:meth:`FinePositioner._reading`; task h28f, docs §59)
     stair_far_sigmas: float = 0.0  # doublet: stairs of up to kick_rise_rad while the apex lies more than this many
                                    # learned scatters below the learned breakaway (0: every stair the floor)
+    preload_sigmas: float = 0.0   # a servo-blended pulse's preload at least this many learned breakaway scatters below
+                                  # the learned breakaway (0: fine.preload_margin x the band only; task h29a)
+    drop_rest_at_engage: bool = False  # the rest the main law's next breakaway is read from is dropped when the stage
+                                       # engages: the stage's own moves are no breakaway from that rest (task h29a)
 
 
 class FinePositioner:
@@ -734,6 +738,14 @@ class FinePositioner:
         self.learn.set("misfit", d, b, (1.0 - w) * self.learn.misfit[d][b] + w * (1.0 if failed else 0.0))
 
     def _engage(self, target, th1, thl, torque_now, pressure_kpa):
+        if self.cfg.drop_rest_at_engage:
+            # (h29a) the rest point is recorded only while the stage is idle, so the one held now dates from before
+            # this engagement; kept, the first idle period after it (a hand-back, a new demand mid-staircase) read
+            # the valve's displacement by the stage's own pulses as a main-law breakaway from that rest, at the twist
+            # of that rest -- the twist the main law had held the valve with *before* the stage moved it, often in the
+            # other direction's half of the band (nominal box seed 1003 #1: a "closing breakaway" at +2.0 T_s/K from
+            # the nominal one, unfit: the stage stayed out and the plateau ended 2.9e-3 rad off)
+            self._rest_point = None
         self._err0 = abs(target - thl)
         self._judged = (1 if target > thl else -1, self.learn.band(self.m.pressure_fraction(pressure_kpa)))
         self._target = target
@@ -770,6 +782,13 @@ class FinePositioner:
         aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
         final = phi_e + aim / 2.0
         pre = phi_b - d * cfg.preload_margin * gap
+        if cfg.preload_sigmas > 0.0 and self.learn.scatter[d][band] > 0.0:
+            # (h29a) the level is drawn anew at every stop: a preload fine.preload_margin x the band (0.69e-3 rad at
+            # max Δp) below the learned level is 1-2 learned scatters on the nominal box's valves, and 86 of 2697
+            # servo-blended pulses broke the valve loose a whole jump in their preload (two on a plateau hand it
+            # back: 13 of its 117 plateaus > 8e-4 rad, seeds 1000-1039 / 2000-2039) -- at least as many scatters
+            # below it as the doublet's staircase starts
+            pre = phi_b - d * max(cfg.preload_margin * gap, cfg.preload_sigmas * self.learn.scatter[d][band])
         peak = phi_b + d * (cfg.overdrive_fraction * gap + self._pushes.get((d, band), 0.0))
         if d * (final - peak) > 0.0:
             peak = final

@@ -424,6 +424,14 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "from its first breakaway when that is plausible (beyond every ratio seen the other way, and within "
           "[learned_scale_min - learned_load_max - breakaway_fit, learned_scale_max + learned_load_max + breakaway_fit]); "
           "later breakaways take the median as before (task h28f, docs §59)", runtime=True),
+    Param("fine.preload_sigmas", 0.0, "", "a servo-blended pulse's preload lies at least this many learned rms "
+          "scatters of the breakaway twist below the learned breakaway, besides fine.preload_margin x the static band "
+          "(0 = the band's fraction only; task h29a, docs §63)", 0.0, 10.0, runtime=True),
+    Param("fine.drop_rest_at_engage", True, "", "the rest the stage reads the main law's next breakaway from "
+          "(the twist holding the valve after the engage time at rest, while the stage is idle) is dropped when the "
+          "stage engages: kept, the valve's displacement by the stage's own pulses read as a main-law breakaway from "
+          "the rest before them, at that rest's twist, after a hand-back or a new demand mid-staircase (task h29a, "
+          "docs §63)", runtime=True),
     Param("fine.cold_start", False, "", "the stage engages before any breakaway has been seen (a run's first "
           "steps too small for the main law's hold to move the valve): after FRESH_WAIT engage times at rest with "
           "the twist at rest inside the nominal static band, it judges the valve by its own first doublets (a "
