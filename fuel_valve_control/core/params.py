@@ -424,6 +424,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "from its first breakaway when that is plausible (beyond every ratio seen the other way, and within "
           "[learned_scale_min - learned_load_max - breakaway_fit, learned_scale_max + learned_load_max + breakaway_fit]); "
           "later breakaways take the median as before (task h28f, docs §59)", runtime=True),
+    Param("fine.learned_agree", False, "", "with fine.learned_scale_min/max: a direction's kept friction ratios "
+          "(its last three main-law breakaways) are read only while they spread no more than fine.breakaway_fit "
+          "(friction scatter: < 0.15 on the nominal plant); wider, they read nothing, as two that disagree "
+          "(task h29f, docs §64)", runtime=True),
     Param("fine.cold_start", False, "", "the stage engages before any breakaway has been seen (a run's first "
           "steps too small for the main law's hold to move the valve): after FRESH_WAIT engage times at rest with "
           "the twist at rest inside the nominal static band, it judges the valve by its own first doublets (a "
