@@ -9,7 +9,9 @@ from fuel_valve_control.core.fine_positioning import SCALE_HOLD_FRACTION
 from fuel_valve_control.core.params import CONTROLLER_SPEC
 from fuel_valve_control.core.position_controller import PositionController
 
-ON = {"fine.learned_scale_min": 0.5, "fine.learned_scale_max": 2.0}
+#: the option as §50 measured it (the median read); OFF: the told model only (main before task h29f)
+ON = {"fine.learned_scale_min": 0.5, "fine.learned_scale_max": 2.0, "fine.learned_one_sample": False}
+OFF = {"fine.learned_scale_min": 1.0, "fine.learned_scale_max": 1.0, "fine.learned_one_sample": False}
 
 
 def _stage(**changes):
@@ -57,7 +59,7 @@ def test_the_stage_reads_the_friction_scale_and_load_its_valve_breaks_loose_at(s
     of the main law's breakaways are ``±s + l``; read both ways, the stage plans from friction x s and the
     load, and engages on a valve whose breakaways the told model puts 0.4-1 T_s/K off (today it stays out)."""
     p = 6000.0
-    off, on = _stage(), _stage(**ON)
+    off, on = _stage(**OFF), _stage(**ON)
     thl = 0.1
     for fine in (off, on):
         _read(fine, thl, p, scale, load)
@@ -117,7 +119,7 @@ def test_a_low_friction_valves_plateaus_are_finished_by_the_stage(robustness_ben
     (median); planning from the scale it reads, the stage ends them closer, without hunting or a fault."""
     case = {**robustness_bench.sample_case(2000, "nominal"), "friction_scale": 0.6}
     runs = {name: robustness_bench.run_case((case, "observer_fp", sets)) for name, sets in
-            (("off", {}), ("on", ON))}
+            (("off", OFF), ("on", ON))}
     err = {name: np.median([pl["final_error_rad"] for pl in r["plateaus"]]) for name, r in runs.items()}
     assert err["on"] < 0.5 * err["off"]
     assert not runs["on"]["hunts"] and not runs["on"]["fault"]
@@ -154,3 +156,33 @@ def test_with_fine_learned_one_sample_an_opening_ratio_below_the_closing_one_is_
     _break(fine, thl, p, 1, -1.0, -0.2)                  # "opening" at -1.2, below the closing -1.0
     assert not fine._plausible_ratio(1, fine._ratios[1][0])
     assert fine.applied_scale is None and fine.m is fine.m0
+
+
+def test_by_default_the_stage_plans_only_from_a_friction_scale_above_the_told_one():
+    """Task h29f (docs §64): the default reads the scale both ways (one breakaway each, as ``fine.learned_one_sample``)
+    but plans from it only for s in [1, 2]: on the full box the seven runs whose read lay below 1 (1010: LuGre
+    x0.58, read 0.57 -- the scale was right; 1112, 1183, 1137, 1162 ...) summed +25.7e-3 rad of plateau error,
+    the four above 1 -36e-3.  Friction x0.6 keeps the told model, x1.7 with a load 0.2 T_s is read."""
+    p, thl = 6000.0, 0.1
+    low, high = _stage(), _stage()
+    for fine, scale, load in ((low, 0.6, 0.0), (high, 1.7, 0.2)):
+        _break(fine, thl, p, 1, scale, load)
+        _break(fine, thl, p, -1, scale, load)
+    assert low.applied_scale is None and low.m is low.m0
+    s, l = high.applied_scale
+    assert s == pytest.approx(1.7, abs=1e-6) and l == pytest.approx(0.2, abs=1e-6)
+
+
+@pytest.mark.parametrize("agree", [False, True])
+def test_with_fine_learned_agree_ratios_spread_wider_than_friction_scatter_read_nothing(agree):
+    """``fine.learned_agree`` (task h29f): full box 1112's closing ratios 0.68, 0.15, 0.30 (openings 1.46-1.59)
+    were read as their median; spread 0.53 T_s, wider than ``fine.breakaway_fit``, they are not one edge."""
+    fine = _stage(**{**ON, "fine.learned_agree": agree})
+    p, thl = 6000.0, 0.1
+    for r_open, r_close in ((1.46, 0.68), (1.57, 0.15), (1.48, 0.30)):     # ratios (φ K - load) / T_s
+        _break(fine, thl, p, 1, 0.0, r_open)
+        _break(fine, thl, p, -1, 0.0, r_close)
+    if agree:
+        assert fine.applied_scale is None and fine.m is fine.m0
+    else:                                                               # the median: s 0.59, l 0.89
+        assert fine.applied_scale == pytest.approx((0.59, 0.89), abs=1e-6)

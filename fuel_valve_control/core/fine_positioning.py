@@ -369,6 +369,8 @@ class FineConfig:
     retreat_stop_unmoved: bool = False  # doublet: an unmoved valve's observe holds near the preload (task h28r)
     learned_one_sample: bool = False  # the scale read from one breakaway each way when it is plausible
                                       # (:meth:`FinePositioner._reading`; task h28f, docs §59)
+    learned_agree: bool = False  # a direction's kept friction ratios are read only while they agree within
+                                 # breakaway_fit (:meth:`FinePositioner._reading`; task h29f, docs §64)
     stair_far_sigmas: float = 0.0  # doublet: stairs of up to kick_rise_rad while the apex lies more than this many
                                    # learned scatters below the learned breakaway (0: every stair the floor)
     preload_sigmas: float = 0.0   # a servo-blended pulse's preload at least this many learned breakaway scatters below
@@ -632,6 +634,14 @@ class FinePositioner:
         of the last ``SCALE_SAMPLES``, the mean of two that agree within ``fine.breakaway_fit``, else None."""
         x = sorted(self._ratios[d])
         if len(x) >= 3:
+            # fine.learned_agree: friction scatter spreads a valve's breakaways from rest by < 0.15 T_s (the
+            # nominal plant, fine.breakaway_fit's measurement); kept ratios spread wider are not one valve's
+            # edge but stops the main law ended off it (full box 1112, friction x0.59 with a 2.2 N*m load and
+            # backlash 0.6e-3: closing ratios 0.68, 0.15, 0.30, then 0.45 ... 1.26 against openings 1.46-1.59;
+            # their median read s 0.59, l 0.89 and the stage's move of -10.5e-3 left the run's plateaus 22.6 ->
+            # 31.3e-3 rad in sum, task h29f) -- as two ratios that disagree, they read nothing
+            if self.cfg.learned_agree and x[-1] - x[0] > self.cfg.breakaway_fit:
+                return None
             return x[len(x) // 2]
         if len(x) == 2 and x[1] - x[0] <= self.cfg.breakaway_fit:
             return 0.5 * (x[0] + x[1])

@@ -413,14 +413,16 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.learned_scale_min", 1.0, "", "the stage plans from the friction scale s and steady load its "
           "valve's main-law breakaways show (two each way: s = (r+ - r-) / 2 of the ratios (twist K - load) / T_s) "
           "when the told model does not fit them and s lies in [fine.learned_scale_min, fine.learned_scale_max]; "
-          "1 and 1: the told model only (task h26f, docs §50)", 0.2, 1.0, runtime=True),
-    Param("fine.learned_scale_max", 1.0, "", "upper end of the friction scale the stage plans from "
-          "(fine.learned_scale_min; 1: the told model only)", 1.0, 5.0, runtime=True),
+          "1 and 1: the told model only (task h26f, docs §50); 1 (default, with fine.learned_scale_max 2: task h29f, "
+          "docs §64): below the told friction the full box's seven runs that read s 0.5-1 (1010: LuGre x0.58, read "
+          "0.57 -- right; 1112, 1183, 1137 ...) ended their plateaus +25.7e-3 rad worse in sum, the four above 1 -36e-3", 0.2, 1.0, runtime=True),
+    Param("fine.learned_scale_max", 2.0, "", "upper end of the friction scale the stage plans from "
+          "(fine.learned_scale_min; 1: the told model only; 2 by default, task h29f, docs §64)", 1.0, 5.0, runtime=True),
     Param("fine.learned_load_max", 1.0, "", "... and only while the steady load read beyond the told one is at most "
           "this x T_s(dp) (the breakaways' (r+ + r-) / 2; task h26f, docs §50: with any load, reads of 1.4-5.7 T_s on "
           "loaded full-box valves made their plateaus worse and one run hunt; 1: full box median -1 %, p95 and hunters "
           "unchanged)", 0.0, 1.0e3, runtime=True),
-    Param("fine.learned_one_sample", False, "", "with fine.learned_scale_min/max: a direction's friction ratio is read "
+    Param("fine.learned_one_sample", True, "", "with fine.learned_scale_min/max: a direction's friction ratio is read "
           "from its first breakaway when that is plausible (beyond every ratio seen the other way, and within "
           "[learned_scale_min - learned_load_max - breakaway_fit, learned_scale_max + learned_load_max + breakaway_fit]); "
           "later breakaways take the median as before (task h28f, docs §59)", runtime=True),
@@ -432,6 +434,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "stage engages: kept, the valve's displacement by the stage's own pulses read as a main-law breakaway from "
           "the rest before them, at that rest's twist, after a hand-back or a new demand mid-staircase (task h29a, "
           "docs §63)", runtime=True),
+    Param("fine.learned_agree", False, "", "with fine.learned_scale_min/max: a direction's kept friction ratios "
+          "(its last three main-law breakaways) are read only while they spread no more than fine.breakaway_fit "
+          "(friction scatter: < 0.15 on the nominal plant); wider, they read nothing, as two that disagree "
+          "(task h29f, docs §64)", runtime=True),
     Param("fine.cold_start", False, "", "the stage engages before any breakaway has been seen (a run's first "
           "steps too small for the main law's hold to move the valve): after FRESH_WAIT engage times at rest with "
           "the twist at rest inside the nominal static band, it judges the valve by its own first doublets (a "

@@ -313,6 +313,7 @@ class PositionController:
                           continuous_current_a=ps["limits.continuous_current_a"],
                           learned_load_max=ps["fine.learned_load_max"],
                           learned_one_sample=ps["fine.learned_one_sample"],
+                          learned_agree=ps["fine.learned_agree"],
                           stair_far_sigmas=ps["fine.stair_far_sigmas"],
                           retreat_stop_unmoved=ps["fine.retreat_stop_unmoved"],
                           retreat_unmoved_fraction=ps["fine.retreat_unmoved_fraction"])
