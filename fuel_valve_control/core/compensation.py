@@ -65,6 +65,10 @@ class Context:
     #: feed-forward lead), s: the coupling-snap feed-forward's plan (``ff.snap_fit_cap``, h27k)
     move: Move | None = None
     move_time: float = 0.0
+    #: the static valve friction the hold has met, half the width of the static band its relax slips
+    #: showed from both edges, consistently (N*m, friction alone: a steady load cancels; None: the
+    #: band is not known; :attr:`~.integral_policy.SlipEdges.static_nm`)
+    hold_static_nm: float | None = None
 
 
 @dataclass
@@ -501,7 +505,14 @@ class ReferenceFeedforward(Compensator):
                  retreat_periods: int = 0, count_rad: float = RESOLVER_COUNT_RAD, read_breakaway: bool = False,
                  breakaway_rad: float = 3.0 * RESOLVER_COUNT_RAD, read_wrong_dp: bool = False,
                  snap_fit_cap: bool = False, snap_cap_nm: float = math.inf,
-                 slide_lowers_wrong_dp_cap: bool = False):
+                 slide_lowers_wrong_dp_cap: bool = False, band_start: bool = False):
+        #: ``ff.band_starts_wrong_dp_move`` (h29d): while a clocked planned move's valve still sticks,
+        #: its valve level is at most the static friction the hold's band showed (``ctx.hold_static_nm``)
+        #: where that is below the least the valve can have at the Δp told (:meth:`_start_cap`)
+        self.band_start = band_start
+        #: the cap (x the schedule) the latest move started under (:meth:`_start_cap`; None: none;
+        #: diagnostics and tests)
+        self.start_cap: float | None = None
         #: ``ff.slide_lowers_wrong_dp_cap`` (h28d): a move cut because a misread Δp explains its
         #: reading (``read_wrong_dp``) takes the friction it meets while sliding as its cap, lower
         #: or higher, down to the least friction the valve can have at any Δp (:meth:`_read_sliding`)
@@ -817,6 +828,30 @@ class ReferenceFeedforward(Compensator):
                     r.slide_floor = least
                     self._move_cap = max(max(lo for lo, _ in spans) / fl.valve_static_nm, least)
 
+    def _start_cap(self, ctx: Context, static_nm: float) -> float | None:
+        """``ff.band_starts_wrong_dp_move`` (h29d): the cap (x the scheduled static level
+        ``static_nm``, N*m) on the valve's friction level while a clocked planned move's valve still
+        sticks (its breakaway not read yet), or None: the static friction the hold's band showed
+        from both edges (``ctx.hold_static_nm``) over the schedule, where that is below FLOOR_SCALE,
+        the least friction the valve can have at the Δp told -- a valve whose band is that narrow
+        is not at the Δp told (a misread Δp), and the band is this valve's friction, measured.  Never
+        below the least friction the valve can have at any Δp (FLOOR_SCALE x Ts(0) / Ts(told), the
+        bound of h28d's cut).  From the move's breakaway reading on, that reading's cap rules.
+
+        Why (h29d, docs/control_results.md §65): the adaptation grid's friction x 0.5 valve at Δp 0
+        told max (static 0.25 N*m; band read 0.39 N*m) was fed the schedule's Coulomb level, 4.4 N*m,
+        for the 4 periods its coupling took to reach breakaway; the drivetrain wound up by that drive
+        carried the valve 3.5 mrad past a 20.9 mrad step (17.6 %) whatever the cap set after it."""
+        r = self._move_read
+        if r is None or r.done or ctx.hold_static_nm is None or static_nm <= 0.0:
+            return None
+        band = ctx.hold_static_nm / static_nm
+        if band >= self.FLOOR_SCALE:
+            return None
+        least = self.FLOOR_SCALE * self.model.friction(0.0).valve_static_nm / static_nm
+        self.start_cap = max(band, least)
+        return self.start_cap
+
     def _least_friction_nm(self, ctx: Context, way: float) -> float:
         """The least a move ``way``'s reading (the coupling torque beyond the known load at the Δp
         told, N*m) can be where the valve's friction, not a load, holds it (``ff.read_breakaway_wrong_dp``,
@@ -1076,6 +1111,10 @@ class ReferenceFeedforward(Compensator):
         tm = sm * (fl.motor_static_nm if breakaway else fl.motor_coulomb_nm)
         if self._move_cap is not None:      # this move's breakaway showed less (h21g)
             sv = min(sv, self._move_cap)
+        elif self.band_start:
+            start = self._start_cap(ctx, fl.valve_static_nm)
+            if start is not None:
+                sv = min(sv, start)
         tv = sv * (fl.valve_static_nm if breakaway else fl.valve_coulomb_nm)
         if self._retreat_periods > 0 and not at_rest:
             # only from a valve that slides: a "breakaway" that was a creep (LuGre presliding
