@@ -65,10 +65,12 @@ def test_a_band_below_the_least_friction_at_the_dp_told_caps_the_stuck_moves_lev
     assert c.start_cap == pytest.approx(band / TS_MAX)
 
 
-@pytest.mark.parametrize("band", [None, 0.5 * TS_MAX, 0.9 * TS_MAX])
+@pytest.mark.parametrize("band", [None, 0.3 * TS_MAX, 0.5 * TS_MAX, 0.9 * TS_MAX])
 def test_a_band_the_dp_told_explains_or_none_changes_nothing(band):
-    """A band of at least 0.5 x the schedule (the least friction at the Δp told) is a valve the Δp
-    told explains: its moves start as on main; so do they without a band known both ways."""
+    """A band of at least half the least friction at the Δp told (0.25 x the schedule) is a valve the
+    Δp told may explain -- the relax slips read the band low: campaign seeds 1052, 1137, 1183 read
+    0.33-0.50 x on valves of 0.50-0.77 x -- and its moves start as on main; so do they without a band
+    known both ways."""
     c = _comp()
     assert _stuck_ff(c, band) == pytest.approx(TC_MAX)
     assert c.start_cap is None

@@ -274,6 +274,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "the static friction the hold's relax slips showed from both edges of the band, where that is below the least "
           "the valve can have at the Δp told (0.5 x the schedule: only a misread Δp explains it), not below 0.5 x the "
           "schedule at Δp 0 (docs/control_results.md section 65)", runtime=True),
+    Param("ff.unconfirmed_dp_start", False, "", "observer_ff, observer_fp, with ff.read_breakaway_wrong_dp: "
+          "while the Δp told is unconfirmed (the moves' readings both ways have not confirmed it) and a misread Δp "
+          "would help a clocked move, its friction feed-forward starts, while the valve still sticks, at the least "
+          "friction any Δp explains (0.5 x the schedule at Δp 0) and rises to the schedule over a quarter of the "
+          "valve's period on the coupling (docs/control_results.md section 65)", runtime=True),
     Param("ff.snap_fit_cap", False, "", "observer_ff, observer_fp, on a coupling read softer than the model: a "
           "planned move's coupling-snap feed-forward is taken from its plan and scaled by one factor for the whole "
           "move, decided at its start, so its planned peak plus the move's static friction feed-forward fits the "
