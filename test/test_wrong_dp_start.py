@@ -114,3 +114,51 @@ def test_the_grids_f05_wrong_dp_cell_with_the_option(grid):
     assert on["overshoot_pct"] < 1.0
     assert on["final_error_rad"] < 3e-4
     assert not on["fault"] and not on["hunts"] and on["tail_reversals"] == 0
+
+
+# ============ ff.unconfirmed_dp_start: the stuck move's level rises from the least friction any Δp explains
+def _comp_rise(on=True, told=P_MAX):
+    c = _comp(on=False)
+    c.unconfirmed_start = on
+    c.reset(MODEL, told)
+    return c
+
+
+def _ctx_at(told, valve, direction=1.0, speed=0.0):
+    twist = MODEL.load_torque(valve, told) / K
+    return Context(told, valve + twist, 0.0, valve, 0.0, speed, 0.0, direction * 0.5, direction * 100.0, True,
+                   0.0, False, valve_filtered=valve, valve_meas=valve, twist_meas=twist)
+
+
+#: a quarter of the valve's period on the model's coupling, in periods (3.0 at the defaults)
+QUARTER = 0.5 * 3.141592653589793 * (MODEL.valve_inertia_kgm2 / K) ** 0.5 / T
+
+
+def test_an_unconfirmed_dp_starts_the_stuck_move_at_the_least_friction_and_rises_in_a_quarter_period():
+    assert 2.5 < QUARTER < 3.5
+    c = _comp_rise()
+    levels = [c.update(_ctx_at(P_MAX, START))[2] / TC_MAX for _ in range(5)]
+    # the level computed in the k-th period is applied through the next: the rise's at its end
+    expect = [min(LEAST + (1.0 - LEAST) * (k + 1) / QUARTER, 1.0) for k in range(1, 6)]
+    assert levels == pytest.approx(expect)
+    assert levels[0] < 0.7 and levels[-1] == pytest.approx(1.0)
+    off = _comp_rise(on=False)
+    assert off.update(_ctx_at(P_MAX, START))[2] == pytest.approx(TC_MAX)
+
+
+def test_a_move_no_misread_dp_helps_or_a_confirmed_dp_starts_at_the_schedule():
+    """Told Δp 0, an opening move: no Δp adds a flow torque that helps it (a higher one hinders it), so
+    it starts at the schedule; and once the moves' readings both ways confirmed the Δp told (h26d),
+    every move does."""
+    c = _comp_rise(told=0.0)
+    tc0 = MODEL.friction(0.0).valve_coulomb_nm
+    assert c.update(_ctx_at(0.0, START))[2] == pytest.approx(tc0)
+    assert c.start_cap is None
+    c = _comp_rise()
+    c._way_reading = {1.0: 0.9, -1.0: 1.1}      # both ways read, mean 1.0 x: confirmed
+    assert c.update(_ctx_at(P_MAX, START))[2] == pytest.approx(TC_MAX)
+    assert c.start_cap is None
+
+
+def test_the_unconfirmed_start_option_is_off_by_default():
+    assert PS["ff.unconfirmed_dp_start"] is False
