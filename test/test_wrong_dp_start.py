@@ -94,8 +94,8 @@ def test_the_cap_lapses_once_the_breakaway_is_read():
     assert ff == pytest.approx(c._move_cap * TC_MAX)
 
 
-def test_the_option_is_off_by_default():
-    assert PS["ff.band_starts_wrong_dp_move"] is False
+def test_the_option_is_on_by_default():
+    assert PS["ff.band_starts_wrong_dp_move"] is True
 
 
 @pytest.fixture(scope="module")
@@ -105,10 +105,10 @@ def grid():
 
 
 def test_the_grids_f05_wrong_dp_cell_with_the_option(grid):
-    """``adaptation_grid.py --dp-error``, F x 0.5 J 0, Δp 0 told max: the default overshoots 17.6 %
+    """``adaptation_grid.py --dp-error``, F x 0.5 J 0, Δp 0 told max: without the option it overshoots 17.6 %
     (§60: the 4 periods at 4.4 N*m before the valve lets go), the option 0.0 % and ends within 0.2 mrad."""
     cell = {**grid.NOMINAL, "friction": 0.5, "inertia": 1.0, "dp_kpa": 0.0, "stiffness": 1.0}
-    off = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX)
+    off = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={"ff.band_starts_wrong_dp_move": False})
     on = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={"ff.band_starts_wrong_dp_move": True})
     assert off["overshoot_pct"] == pytest.approx(17.6, abs=0.1)
     assert on["overshoot_pct"] < 1.0

@@ -269,7 +269,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "while sliding (coupling torque less J_L x acceleration, beyond the known load) as its cap, lowering it "
           "too, down to the least friction the valve can have at any Δp (0.5 x the schedule at Δp 0 over the one "
           "told) instead of 0.1 x (docs/control_results.md section 60)", runtime=True),
-    Param("ff.band_starts_wrong_dp_move", False, "", "observer_ff, observer_fp, with ff.read_breakaway: while a "
+    Param("ff.band_starts_wrong_dp_move", True, "", "observer_ff, observer_fp, with ff.read_breakaway: while a "
           "clocked planned move's valve still sticks (its breakaway not read yet), its friction feed-forward is at most "
           "the static friction the hold's relax slips showed from both edges of the band, where that is below the least "
           "the valve can have at the Δp told (0.5 x the schedule: only a misread Δp explains it), not below 0.5 x the "
