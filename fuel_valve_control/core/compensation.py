@@ -839,9 +839,11 @@ class ReferenceFeedforward(Compensator):
         """``ff.band_starts_wrong_dp_move`` (h29d): the cap (x the scheduled static level
         ``static_nm``, N*m) on the valve's friction level while a clocked planned move's valve still
         sticks (its breakaway not read yet), or None: the static friction the hold's band showed
-        from both edges (``ctx.hold_static_nm``) over the schedule, where that is below FLOOR_SCALE,
-        the least friction the valve can have at the Δp told -- a valve whose band is that narrow
-        is not at the Δp told (a misread Δp), and the band is this valve's friction, measured.  Never
+        from both edges (``ctx.hold_static_nm``) over the schedule, where that is below half of
+        FLOOR_SCALE, the least friction the valve can have at the Δp told -- a valve whose band is that
+        narrow is not at the Δp told (a misread Δp), and the band is this valve's friction, measured.
+        With ``ff.unconfirmed_dp_start`` (off), otherwise, while the Δp told is unconfirmed and a
+        misread Δp would help the move: a rise from the least friction at any Δp to the schedule.  Never
         below the least friction the valve can have at any Δp (FLOOR_SCALE x Ts(0) / Ts(told), the
         bound of h28d's cut).  From the move's breakaway reading on, that reading's cap rules.
 

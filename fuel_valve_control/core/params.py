@@ -271,9 +271,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "told) instead of 0.1 x (docs/control_results.md section 60)", runtime=True),
     Param("ff.band_starts_wrong_dp_move", True, "", "observer_ff, observer_fp, with ff.read_breakaway: while a "
           "clocked planned move's valve still sticks (its breakaway not read yet), its friction feed-forward is at most "
-          "the static friction the hold's relax slips showed from both edges of the band, where that is below the least "
-          "the valve can have at the Δp told (0.5 x the schedule: only a misread Δp explains it), not below 0.5 x the "
-          "schedule at Δp 0 (docs/control_results.md section 65)", runtime=True),
+          "the static friction the hold's relax slips showed from both edges of the band, where that is below half the "
+          "least the valve can have at the Δp told (0.25 x the schedule: only a misread Δp explains it), not below 0.5 x "
+          "the schedule at Δp 0 (docs/control_results.md section 65)", runtime=True),
     Param("ff.unconfirmed_dp_start", False, "", "observer_ff, observer_fp, with ff.read_breakaway_wrong_dp: "
           "while the Δp told is unconfirmed (the moves' readings both ways have not confirmed it) and a misread Δp "
           "would help a clocked move, its friction feed-forward starts, while the valve still sticks, at the least "
