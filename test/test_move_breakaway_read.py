@@ -504,8 +504,11 @@ def test_the_grids_f05_wrong_dp_cell_with_the_slide_lowers_option():
     from conftest import load_benchmark
     grid = load_benchmark("adaptation_grid")
     cell = {**grid.NOMINAL, "friction": 0.5, "inertia": 1.0, "dp_kpa": 0.0, "stiffness": 1.0}
-    off = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={"ff.slide_lowers_wrong_dp_cap": False})
-    on = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={"ff.slide_lowers_wrong_dp_cap": True})
+    # without h29d's band start (default since §65, which takes this cell to 0 %: test_wrong_dp_start.py),
+    # so the move's first periods are fed as §60 measured them
+    band = {"ff.band_starts_wrong_dp_move": False}
+    off = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={**band, "ff.slide_lowers_wrong_dp_cap": False})
+    on = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={**band, "ff.slide_lowers_wrong_dp_cap": True})
     assert off["overshoot_pct"] == pytest.approx(20.4, abs=0.1)
     assert on["overshoot_pct"] == pytest.approx(17.6, abs=0.1)
     assert not on["fault"] and not on["hunts"] and on["tail_reversals"] == 0

@@ -65,6 +65,10 @@ class Context:
     #: feed-forward lead), s: the coupling-snap feed-forward's plan (``ff.snap_fit_cap``, h27k)
     move: Move | None = None
     move_time: float = 0.0
+    #: the static valve friction the hold has met, half the width of the static band its relax slips
+    #: showed from both edges, consistently (N*m, friction alone: a steady load cancels; None: the
+    #: band is not known; :attr:`~.integral_policy.SlipEdges.static_nm`)
+    hold_static_nm: float | None = None
 
 
 @dataclass
@@ -84,6 +88,8 @@ class _MoveRead:
     #: (``ff.slide_lowers_wrong_dp_cap``) the least cap (x the schedule) the sliding reading may set
     #: when the move's cap was a cut only a misread Δp explains; None: the sliding reading only raises
     slide_floor: float | None = None
+    #: periods of the move read so far with the valve still within half a breakaway of its start
+    stuck_periods: int = 0
 
 
 def _sat(x: float) -> float:
@@ -501,7 +507,18 @@ class ReferenceFeedforward(Compensator):
                  retreat_periods: int = 0, count_rad: float = RESOLVER_COUNT_RAD, read_breakaway: bool = False,
                  breakaway_rad: float = 3.0 * RESOLVER_COUNT_RAD, read_wrong_dp: bool = False,
                  snap_fit_cap: bool = False, snap_cap_nm: float = math.inf,
-                 slide_lowers_wrong_dp_cap: bool = False):
+                 slide_lowers_wrong_dp_cap: bool = False, band_start: bool = False, unconfirmed_start: bool = False):
+        #: ``ff.unconfirmed_dp_start`` (h29d): while the Δp told is unconfirmed and a misread Δp would
+        #: help a clocked move, its stuck valve's level starts at the least friction any Δp explains and
+        #: rises to the schedule over a quarter of the valve's period on the coupling (:meth:`_start_cap`)
+        self.unconfirmed_start = unconfirmed_start
+        #: ``ff.band_starts_wrong_dp_move`` (h29d): while a clocked planned move's valve still sticks,
+        #: its valve level is at most the static friction the hold's band showed (``ctx.hold_static_nm``)
+        #: where that is below the least the valve can have at the Δp told (:meth:`_start_cap`)
+        self.band_start = band_start
+        #: the cap (x the schedule) the latest move started under (:meth:`_start_cap`; None: none;
+        #: diagnostics and tests)
+        self.start_cap: float | None = None
         #: ``ff.slide_lowers_wrong_dp_cap`` (h28d): a move cut because a misread Δp explains its
         #: reading (``read_wrong_dp``) takes the friction it meets while sliding as its cap, lower
         #: or higher, down to the least friction the valve can have at any Δp (:meth:`_read_sliding`)
@@ -779,6 +796,7 @@ class ReferenceFeedforward(Compensator):
         met = self._coupling_nm(ctx, s)
         if travel <= 0.5 * self.breakaway_rad:
             r.stuck_nm, r.leaving_nm = met, None    # still stuck: the lower bound
+            r.stuck_periods += 1
             return
         if r.leaving_nm is None:
             r.leaving_nm = met              # the first period seen leaving: the upper bound
@@ -816,6 +834,50 @@ class ReferenceFeedforward(Compensator):
                                 self.scale_bounds[0])
                     r.slide_floor = least
                     self._move_cap = max(max(lo for lo, _ in spans) / fl.valve_static_nm, least)
+
+    def _start_cap(self, ctx: Context, static_nm: float) -> float | None:
+        """``ff.band_starts_wrong_dp_move`` (h29d): the cap (x the scheduled static level
+        ``static_nm``, N*m) on the valve's friction level while a clocked planned move's valve still
+        sticks (its breakaway not read yet), or None: the static friction the hold's band showed
+        from both edges (``ctx.hold_static_nm``) over the schedule, where that is below half of
+        FLOOR_SCALE, the least friction the valve can have at the Δp told -- a valve whose band is that
+        narrow is not at the Δp told (a misread Δp), and the band is this valve's friction, measured.
+        With ``ff.unconfirmed_dp_start`` (off), otherwise, while the Δp told is unconfirmed and a
+        misread Δp would help the move: a rise from the least friction at any Δp to the schedule.  Never
+        below the least friction the valve can have at any Δp (FLOOR_SCALE x Ts(0) / Ts(told), the
+        bound of h28d's cut).  From the move's breakaway reading on, that reading's cap rules.
+
+        Why (h29d, docs/control_results.md §65): the adaptation grid's friction x 0.5 valve at Δp 0
+        told max (static 0.25 N*m; band read 0.39 N*m) was fed the schedule's Coulomb level, 4.4 N*m,
+        for the 4 periods its coupling took to reach breakaway; the drivetrain wound up by that drive
+        carried the valve 3.5 mrad past a 20.9 mrad step (17.6 %) whatever the cap set after it."""
+        r = self._move_read
+        if r is None or r.done or static_nm <= 0.0:
+            return None
+        least = self.FLOOR_SCALE * self.model.friction(0.0).valve_static_nm / static_nm
+        # below half the least friction the valve can have at the Δp told, as the hold's drive test
+        # judges a breakaway (:class:`~.laws.state_feedback.StateFeedbackLaw`): the relax slips read the
+        # band's edges low (presliding, ripple: campaign seeds 1052, 1137, 1183 read 0.33-0.50 x on
+        # valves of 0.50-0.77 x at the Δp told, and their moves started under a cap at those lost
+        # up to 12 mrad over their plateaus)
+        if self.band_start and ctx.hold_static_nm is not None \
+                and ctx.hold_static_nm / static_nm < 0.5 * self.FLOOR_SCALE:
+            self.start_cap = max(ctx.hold_static_nm / static_nm, least)
+            return self.start_cap
+        if self.unconfirmed_start and self.read_wrong_dp and r.way \
+                and self._least_friction_nm(ctx, r.way) < self.FLOOR_SCALE * static_nm:
+            m = self.model
+            # a quarter of the valve's period on the coupling (the model's, over the softness the
+            # wind-ups read): the time the coupling takes to carry a step of the drive to the valve.
+            # The level computed in the move's k-th period is applied through the next one, so it is
+            # the rise's at the end of that period, (k + 1) / quarter (k / quarter, measured: the told
+            # grid's J -20 % cell overshot 4.1 % against main's 3.8 %; docs/control_results.md §65)
+            quarter = 0.5 * math.pi * math.sqrt(m.valve_inertia_kgm2 * self.coupling.softness
+                                                / m.coupling_stiffness_nm_per_rad) / self.period
+            rise = min((r.stuck_periods + 1) / max(quarter, 1.0), 1.0)
+            self.start_cap = least + (1.0 - least) * rise
+            return self.start_cap
+        return None
 
     def _least_friction_nm(self, ctx: Context, way: float) -> float:
         """The least a move ``way``'s reading (the coupling torque beyond the known load at the Δp
@@ -1076,6 +1138,10 @@ class ReferenceFeedforward(Compensator):
         tm = sm * (fl.motor_static_nm if breakaway else fl.motor_coulomb_nm)
         if self._move_cap is not None:      # this move's breakaway showed less (h21g)
             sv = min(sv, self._move_cap)
+        elif self.band_start or self.unconfirmed_start:
+            start = self._start_cap(ctx, fl.valve_static_nm)
+            if start is not None:
+                sv = min(sv, start)
         tv = sv * (fl.valve_static_nm if breakaway else fl.valve_coulomb_nm)
         if self._retreat_periods > 0 and not at_rest:
             # only from a valve that slides: a "breakaway" that was a creep (LuGre presliding

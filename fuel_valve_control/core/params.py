@@ -269,6 +269,16 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "while sliding (coupling torque less J_L x acceleration, beyond the known load) as its cap, lowering it "
           "too, down to the least friction the valve can have at any Δp (0.5 x the schedule at Δp 0 over the one "
           "told) instead of 0.1 x (docs/control_results.md section 60)", runtime=True),
+    Param("ff.band_starts_wrong_dp_move", True, "", "observer_ff, observer_fp, with ff.read_breakaway: while a "
+          "clocked planned move's valve still sticks (its breakaway not read yet), its friction feed-forward is at most "
+          "the static friction the hold's relax slips showed from both edges of the band, where that is below half the "
+          "least the valve can have at the Δp told (0.25 x the schedule: only a misread Δp explains it), not below 0.5 x "
+          "the schedule at Δp 0 (docs/control_results.md section 65)", runtime=True),
+    Param("ff.unconfirmed_dp_start", False, "", "observer_ff, observer_fp, with ff.read_breakaway_wrong_dp: "
+          "while the Δp told is unconfirmed (the moves' readings both ways have not confirmed it) and a misread Δp "
+          "would help a clocked move, its friction feed-forward starts, while the valve still sticks, at the least "
+          "friction any Δp explains (0.5 x the schedule at Δp 0) and rises to the schedule over a quarter of the "
+          "valve's period on the coupling (docs/control_results.md section 65)", runtime=True),
     Param("ff.snap_fit_cap", False, "", "observer_ff, observer_fp, on a coupling read softer than the model: a "
           "planned move's coupling-snap feed-forward is taken from its plan and scaled by one factor for the whole "
           "move, decided at its start, so its planned peak plus the move's static friction feed-forward fits the "

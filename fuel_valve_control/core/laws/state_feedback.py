@@ -393,7 +393,9 @@ class StateFeedbackLaw(ControlLaw):
                       self.met_hold and self.slip_edges.known, valve if self.v2 else None,
                       meas.valve_rad, meas.motor_rad / n - meas.valve_rad,
                       # the planned move and the time its acceleration is sampled at (ff.snap_fit_cap)
-                      self.shaper.move if ref.moving else None, self.shaper.sample_time)
+                      self.shaper.move if ref.moving else None, self.shaper.sample_time,
+                      # the static friction the hold's band showed (ff.band_starts_wrong_dp_move)
+                      self.slip_edges.static_nm if self.met_hold and self.slip_edges.known else None)
         comp, self._fm, self._fl = self.compensator.update(ctx)
         if self.met_hold and not ref.moving:
             self._reprior_held_load(load_nm if self.v2 else 0.0, friction.valve_static_nm)
