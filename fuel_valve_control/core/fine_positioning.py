@@ -842,9 +842,10 @@ class FinePositioner:
         fine.park_speed_rad_s`` -- then a cubic from there to the preload, arriving at rest over the approach's
         periods (it does not stop at the approach point: the gear output stopped there stuck in its friction and
         jumped 0.3e-3 rad past the preload when the approach pulled it loose).  Sign: rad and rad/s of twist,
-        positive toward the preload when ``_dir`` is +1.  Measured (§61): the park 17 -> 14 periods, its
-        breakaways 25 -> 10, but the moved doublets' moves median 0.86 -> 1.15e-3 rad and the nominal box's p95
-        1.32 -> 1.85e-3 rad: off by default."""
+        positive toward the preload when ``_dir`` is +1.  Measured (§61): the park 17 -> 15 periods, its
+        breakaways 25 -> 10, nominal box plateaus > 8e-4 rad 67 -> 62 / 50 -> 41 (seeds 1000 / 2000), but the
+        moved doublets' moves median 0.86 -> 1.05e-3 rad, p95 1.32 -> 1.49e-3 rad on seed 1000 and the worst
+        step overshoot 16.6 -> 40.1 %: off by default."""
         d = self._dir
         x0 = self._phi_start
         gap = d * (self._park_mid - x0)
@@ -857,11 +858,13 @@ class FinePositioner:
         n1 = max(int(t_want / per), 1)
         t = n1 * per
         self._repark = (x0, d * v0, d * v_app, t)
-        # the servo's integral back to what it held at the preload before the kick: the feed-forward's error
-        # there.  The observe servo's pull on the trough (~5e-3 rad for 3-4 periods) wound it ~0.6 A further
-        # toward the move; the park from rest unwound that while the twist ran ahead of its reference, but a
-        # reference that follows the rebound leaves it wound and the twist settled 0.3-0.8e-3 rad past the
-        # preload (seed 1000)
+        # the servo's integral back to the whole static correction (integral and proportional part) that held
+        # the preload before the kick: the feed-forward's error there.  The observe servo's pull on the trough
+        # (~5e-3 rad for 3-4 periods) wound it ~0.6 A further toward the move; the park from rest unwound that
+        # while the twist ran ahead of its reference, but a reference that follows the rebound leaves it wound
+        # and the twist settled 0.3-0.8e-3 rad past the preload (seed 1000).  The integral alone restored, the
+        # park's end error stayed in the proportional part and the integral drifted ~0.13 A toward the move
+        # over a staircase (the park ends 0.9e-4 rad past the preload, median); with it, 0.3e-4 (§61)
         held = getattr(self, "_integral_held", None)
         if held is not None:
             self._integral = held
@@ -1001,7 +1004,9 @@ class FinePositioner:
             self._track_peak(th1 - thl)
             if self._k == 1:
                 self._hold_torque = self._servo_torque
-                self._integral_held = self._integral   # (fine.repark_from_state) the servo's integral settled
+                # (fine.repark_from_state) the servo's whole static correction at the preload it held, its
+                # proportional part moved into the integral: the re-park restores it (:meth:`_plan_repark`)
+                self._integral_held = self._integral + self.kp * (self._thl0 + self._pre - th1) / self.ki
             self._unmoved_now = abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad
             return self._doublet_torque()
         if self.phase == PULSE:
