@@ -85,3 +85,54 @@ def test_unmoved_doublet_observe_holds_the_gear_output_near_the_preload(directio
         for ref, want, apart in refs:
             assert ref == pytest.approx(want, abs=1e-12)
             assert apart > 2.0 * fine.cfg.park_approach_rad   # the two references differ
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_repark_follows_the_rebound_from_the_trough_and_arrives_at_the_preload_at_rest(direction):
+    """``fine.repark_from_state`` (task h29r, §61; off by default): after a stair that did not move the valve,
+    the next park's twist reference starts on the twist and twist rate the retreat's trough left (here a
+    rebound at ~1.75 rad/s toward the preload), in the very period the stair is judged, and climbs
+    monotonically to the preload, where it arrives at rest -- in fewer periods than the park planned from rest
+    at the trough's twist (off: the observe servo's final-twist reference in that period, at rate 0)."""
+    periods, firsts = {}, {}
+    for on in (False, True):
+        fine, m = _stage(**{"fine.repark_from_state": on})
+        p = m.pressure_max_kpa
+        d = direction
+        _torques_until_observe(fine, d * 0.6e-3, p)
+        assert fine._doublet and fine.phase == "observe"
+        thl, pre = 0.5, fine._pre
+        refs = []
+        servo = fine._servo
+
+        def spy(ref, a_ref, th1, w1, thl_, v_ref=0.0):
+            refs.append((fine.phase, ref - thl_, v_ref, w1))
+            return servo(ref, a_ref, th1, w1, thl_, v_ref)
+
+        fine._servo = spy
+        # the retreat's swing: down to 5e-3 rad below the preload, then rebounding at 1 rad/s (backward difference)
+        trough = [2.0e-3, 4.5e-3, 5.0e-3, 4.0e-3]
+        for depth in trough:
+            fine.update(thl + d * 0.6e-3, thl + pre - d * depth, thl, True, 0.3, p)
+        assert fine.phase == "park" and fine._pre != pre          # judged unmoved: the next stair's park
+        judged = refs[-1]
+        x0 = pre - d * trough[-1]
+        n, ref_prev = 0, x0
+        while fine.phase == "park":
+            th1 = thl + ref_prev                                   # a stiff servo: the gear output on its reference
+            fine.update(thl + d * 0.6e-3, th1, thl, True, 0.3, p)
+            n += 1
+            if fine.phase == "park":
+                assert d * (refs[-1][1] - ref_prev) >= -1e-12      # never back toward the trough
+                ref_prev = refs[-1][1]
+            assert n < 200
+        periods[on], firsts[on] = n, judged
+        if on:
+            # in the judging period already: on the measured twist, at the measured rate (no feedback)
+            assert judged[0] == "park" and judged[1] == pytest.approx(x0, abs=1e-12)
+            assert judged[2] == pytest.approx(judged[3]) and d * judged[2] > 0.5
+            # ... and the park ends on the preload planned, at rest
+            assert ref_prev == pytest.approx(fine._pre, abs=1e-12)
+            assert refs[-2][2] == pytest.approx(0.0, abs=0.05)
+    assert firsts[False][2] == 0.0                                 # off: the observe servo, rate reference 0
+    assert periods[True] < periods[False]

@@ -377,6 +377,8 @@ class FineConfig:
                                   # the learned breakaway (0: fine.preload_margin x the band only; task h29a)
     drop_rest_at_engage: bool = False  # the rest the main law's next breakaway is read from is dropped when the stage
                                        # engages: the stage's own moves are no breakaway from that rest (task h29a)
+    repark_from_state: bool = False  # doublet: a staircase's next park planned from the twist and twist rate the
+                                     # unmoved stair's retreat left (:meth:`_plan_repark`; task h29r, docs §61)
 
 
 class FinePositioner:
@@ -850,13 +852,92 @@ class FinePositioner:
         if extra > 0:
             self._park_n2 += extra
         self._park_n = self._park_n1 + self._park_n2
+        self._repark = None
+        if cfg.repark_from_state and self._doublet and not self._first_stair:
+            self._plan_repark(per)
+
+    def _plan_repark(self, per: float) -> None:
+        """(task h29r, ``fine.repark_from_state``, off by default) The fast part of a staircase's next park
+        planned from the state the unmoved stair's retreat left, not from rest at the twist it was judged at.  The
+        retreat's momentum swings the gear output ~5.7e-3 rad below the preload, and the observe servo (pulling
+        toward the move's final twist) already throws it back up at ~2 rad/s when the stair is judged unmoved
+        (nominal box, seed 1000: twist 5.4e-3 below the level, rising ~2 rad/s); the park planned from rest at that
+        twist started its reference at 0.25 rad/s, the servo braked the rebound 3-4e-3 rad above its reference and
+        the reference took 8-9 periods to catch the twist up (§55.1, §61).  Planned here instead: the twist
+        reference leaves the measured twist ``x0`` (rad) at the estimated twist rate ``v0`` (rad/s, the backward
+        difference extrapolated half a period: the sample's own instant), already in the judging period, and
+        arrives at the approach point ``_park_mid`` at the approach rate ``v_app`` -- a cubic, monotonic toward the
+        preload for ``T <= 3 Δ / (v0 + v_app)`` (``Δ`` the way to go); a slow rebound gets ``T = 1.5 Δ /
+        fine.park_speed_rad_s`` -- then a cubic from there to the preload, arriving at rest over the approach's
+        periods (it does not stop at the approach point: the gear output stopped there stuck in its friction and
+        jumped 0.3e-3 rad past the preload when the approach pulled it loose).  Sign: rad and rad/s of twist,
+        positive toward the preload when ``_dir`` is +1.  Measured (§61): the park 17 -> 15 periods, its
+        breakaways 25 -> 10, nominal box plateaus > 8e-4 rad 67 -> 62 / 50 -> 41 (seeds 1000 / 2000), but the
+        moved doublets' moves median 0.86 -> 1.05e-3 rad, p95 1.32 -> 1.49e-3 rad on seed 1000 and the worst
+        step overshoot 16.6 -> 40.1 %: off by default."""
+        d = self._dir
+        x0 = self._phi_start
+        gap = d * (self._park_mid - x0)
+        if gap <= 0.0 or self._park_n1 <= 0:
+            return
+        w1, w1_prev = getattr(self, "_w1_now", 0.0), getattr(self, "_w1_prev", 0.0)
+        v0 = max(d * (1.5 * w1 - 0.5 * w1_prev), 0.0)
+        v_app = min(self.cfg.park_approach_speed, self.cfg.park_speed)
+        t_want = 3.0 * gap / max(v0 + v_app, 2.0 * self.cfg.park_speed)
+        n1 = max(int(t_want / per), 1)
+        t = n1 * per
+        self._repark = (x0, d * v0, d * v_app, t)
+        # the servo's integral back to the whole static correction (integral and proportional part) that held
+        # the preload before the kick: the feed-forward's error there.  The observe servo's pull on the trough
+        # (~5e-3 rad for 3-4 periods) wound it ~0.6 A further toward the move; the park from rest unwound that
+        # while the twist ran ahead of its reference, but a reference that follows the rebound leaves it wound
+        # and the twist settled 0.3-0.8e-3 rad past the preload (seed 1000).  The integral alone restored, the
+        # park's end error stayed in the proportional part and the integral drifted ~0.13 A toward the move
+        # over a staircase (the park ends 0.9e-4 rad past the preload, median); with it, 0.3e-4 (§61)
+        held = getattr(self, "_integral_held", None)
+        if held is not None:
+            self._integral = held
+        self._park_n1 = n1
+        self._park_n2 = max(self._park_n2, self.cfg.park_periods - n1)
+        self._park_n = self._park_n1 + self._park_n2
 
     def _park_ref(self, k: int) -> tuple[float, float, float]:
         """The preload twist reference in period ``k`` of the park: (rad, rad/s, rad/s²)."""
         per = self.period
+        if getattr(self, "_repark", None) is not None:
+            return self._repark_ref(k)
         if k <= self._park_n1:
             return self._blend(self._phi_start, self._park_mid, k * per, self._park_n1 * per)
         return self._blend(self._park_mid, self._pre, (k - self._park_n1) * per, self._park_n2 * per)
+
+    @staticmethod
+    def _hermite(x0: float, v0: float, x1: float, v1: float, t: float, tau: float) -> tuple[float, float]:
+        """Cubic from (x0 rad, v0 rad/s) to (x1, v1) over ``t`` s at time ``tau`` (clipped to [0, t]): (x, a)."""
+        s = min(max(tau / t, 0.0), 1.0)
+        dx = x1 - x0
+        c2 = 3.0 * dx - (2.0 * v0 + v1) * t
+        c3 = -2.0 * dx + (v0 + v1) * t
+        return x0 + v0 * t * s + c2 * s * s + c3 * s ** 3, (2.0 * c2 + 6.0 * c3 * s) / (t * t) if s < 1.0 else 0.0
+
+    def _repark_ref(self, k: int) -> tuple[float, float, float]:
+        """(fine.repark_from_state) The planned re-park's reference in period ``k`` (0: the period it was
+        planned in): the cubic from the measured state to the approach point, arriving at the approach rate,
+        then the cubic from there to the preload, arriving at rest.  The rate handed to the servo is the plan's
+        backward difference over the last period, as the measured rate it is compared with is (in the plan's
+        first period the measured rate itself: it starts on the measured state, no feedback)."""
+        per = self.period
+        x0, v0, v_app, t1 = self._repark
+        t2 = self._park_n2 * per
+
+        def at(kk):
+            tau = kk * per
+            if tau <= t1:
+                return self._hermite(x0, v0, self._park_mid, v_app, t1, tau)
+            return self._hermite(self._park_mid, v_app, self._pre, 0.0, t2, tau - t1)
+
+        x, a = at(k)
+        v = (x - at(k - 1)[0]) / per if k > 0 else self._w1_now
+        return x, v, a
 
     def hold_torque(self, th1: float, thl: float) -> float | None:
         """Motor torque (N*m) that holds the present twist ``th1 - thl`` statically (the engage
@@ -919,6 +1000,7 @@ class FinePositioner:
             self._hand_back()
             return None
         self._k += 1
+        self._w1_prev, self._w1_now = getattr(self, "_w1_now", w1), w1    # (fine.repark_from_state)
         base = self._thl0
         if self.phase == PARK:
             x, v, a = self._park_ref(self._k)
@@ -951,6 +1033,9 @@ class FinePositioner:
             self._track_peak(th1 - thl)
             if self._k == 1:
                 self._hold_torque = self._servo_torque
+                # (fine.repark_from_state) the servo's whole static correction at the preload it held, its
+                # proportional part moved into the integral: the re-park restores it (:meth:`_plan_repark`)
+                self._integral_held = self._integral + self.kp * (self._thl0 + self._pre - th1) / self.ki
             self._unmoved_now = abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad
             return self._doublet_torque()
         if self.phase == PULSE:
@@ -979,6 +1064,11 @@ class FinePositioner:
                 self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed)
                 if self.phase == IDLE:
                     return None
+                if self.phase == PARK and getattr(self, "_repark", None) is not None:
+                    # (fine.repark_from_state) the planned re-park takes over in this period already: the
+                    # observe servo pulling on toward the final twist is what throws the rebound past the plan
+                    x, v, a = self._park_ref(0)
+                    return self._servo(self._thl0 + x, a, th1, w1, thl, v)
             ref = self._final
             if cfg.retreat_stop_unmoved and self._doublet and self._pulsed \
                     and abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad:

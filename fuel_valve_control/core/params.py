@@ -342,6 +342,13 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "half one) as a fraction of fine.peak_current_a backwards when the valve has not moved a half count by "
           "then (0.5: as when it has; less: a shallower trough for the next stair's park; task h28r)", -1.0, 1.0,
           runtime=True),
+    Param("fine.repark_from_state", False, "", "doublet: the park after a stair that did not move the valve is "
+          "planned from the twist and twist rate the retreat left (the servo's rebound from the trough): a cubic to "
+          "fine.park_approach_rad short of the preload, passed at fine.park_approach_speed_rad_s, then one to the "
+          "preload at rest, with the servo's integral back at the whole static correction that held the last preload "
+          "-- instead of from rest at the trough's twist at fine.park_speed_rad_s (stair 24 -> 22 periods, nominal "
+          "box plateaus > 8e-4 rad 67 -> 62 / 50 -> 41, but p95 1.32 -> 1.49e-3 rad on seed 1000: the valves that "
+          "let go move further; task h29r, docs/control_results.md section 61)", runtime=True),
     Param("fine.stair_far_sigmas", 0.0, "", "doublet: while a staircase's apex lies more than this many learned rms "
           "scatters of the breakaway twist below the learned breakaway, a stair that did not move the valve is followed "
           "by one up to fine.kick_rise_rad higher (the largest that keeps the next preload below the apex reached), "

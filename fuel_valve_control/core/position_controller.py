@@ -315,6 +315,7 @@ class PositionController:
                           learned_one_sample=ps["fine.learned_one_sample"],
                           learned_agree=ps["fine.learned_agree"],
                           stair_far_sigmas=ps["fine.stair_far_sigmas"],
+                          repark_from_state=ps["fine.repark_from_state"],
                           retreat_stop_unmoved=ps["fine.retreat_stop_unmoved"],
                           retreat_unmoved_fraction=ps["fine.retreat_unmoved_fraction"])
 
