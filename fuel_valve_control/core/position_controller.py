@@ -312,6 +312,7 @@ class PositionController:
                           learned_load_max=ps["fine.learned_load_max"],
                           learned_one_sample=ps["fine.learned_one_sample"],
                           stair_far_sigmas=ps["fine.stair_far_sigmas"],
+                          start_quantile=ps["fine.start_quantile"], start_step_sigmas=ps["fine.start_step_sigmas"],
                           retreat_stop_unmoved=ps["fine.retreat_stop_unmoved"],
                           retreat_unmoved_fraction=ps["fine.retreat_unmoved_fraction"])
 
