@@ -88,3 +88,21 @@ def test_a_first_stair_that_did_not_move_the_valve_starts_the_next_staircase_sha
         ratio = fine._stair / depths[0]
         assert ratio == pytest.approx((z0 - q * step) / z0 if on else 1.0, rel=1e-6)
     assert math.isclose(ratio * z0, learned)
+
+
+def test_the_main_laws_breakaways_count_fine_main_sample_weight_of_a_doublets():
+    """``fine.main_sample_weight`` w (1 by default): a main-law breakaway from rest moves the learned breakaway
+    w x ``fine.scatter_gain`` of its deviation (its samples are unbiased but ±7e-4 rad p10/p90 off the true
+    level on the nominal box, a moved doublet's 1.6e-4 wide; task h29q)."""
+    from test_fine_positioning import _break_loose
+    ps = CONTROLLER_SPEC.defaults()
+    moved = {}
+    for w in (1.0, 0.5):
+        fine, m = _stage(**{"fine.main_sample_weight": w})
+        p = m.pressure_max_kpa
+        band = fine.learn.band(m.pressure_fraction(p))
+        _break_loose(fine, 0.5, p, offset=0.1)
+        moved[w] = fine.learn.breakaway[1][band]
+        x = 0.1 * m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
+        assert moved[w] == pytest.approx(w * ps["fine.scatter_gain"] * x, rel=1e-6)
+    assert moved[0.5] == pytest.approx(0.5 * moved[1.0])

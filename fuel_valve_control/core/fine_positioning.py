@@ -399,6 +399,8 @@ class FineConfig:
     start_quantile: float = 0.0   # doublet: the staircase starts where this fraction of first stairs let the valve go,
                                   # learned from their outcomes (FineLearner.observe_start; 0: doublet_sigmas scatters)
     start_step_sigmas: float = 0.5  # ... the tracker's step, learned scatters
+    main_sample_weight: float = 1.0  # the main law's breakaway samples count this much of a doublet's in the learned
+                                     # breakaway and scatter (task h29q: unbiased, but +-7e-4 rad p10/p90 off the true level)
 
 
 class FinePositioner:
@@ -554,7 +556,8 @@ class FinePositioner:
                     # climbs to (quasi-static: no overdrive), one per move, for free
                     d = self._breakaway_seen[0]
                     e0, b0 = self._nominal(v, p, d)
-                    self._learn_breakaway(d, self.learn.band(self.m.pressure_fraction(p)), phi - b0, abs(b0 - e0))
+                    self._learn_breakaway(d, self.learn.band(self.m.pressure_fraction(p)), phi - b0, abs(b0 - e0),
+                                          cfg.main_sample_weight)
         # a demand that keeps changing (ramps, sweeps, noise) is followed by the main law
         same = self._last_target is not None and abs(target - self._last_target) <= 1e-12
         self._steady = self._steady + 1 if same else 0
@@ -1369,10 +1372,11 @@ class FinePositioner:
         cfg = self.cfg
         return self.learn.scatter[d][b] or cfg.doublet_margin * gap / max(cfg.doublet_sigmas, 1e-9)
 
-    def _learn_breakaway(self, d: int, b: int, x: float, gap: float) -> None:
+    def _learn_breakaway(self, d: int, b: int, x: float, gap: float, weight: float = 1.0) -> None:
         """One sample ``x`` (rad) of the breakaway twist's offset from its nominal value
-        (:meth:`FineLearner.observe_breakaway`, the prior scatter :meth:`_scatter`'s)."""
-        self.learn.observe_breakaway(d, b, x, self.cfg.scatter_gain, self._scatter(d, b, gap))
+        (:meth:`FineLearner.observe_breakaway`, the prior scatter :meth:`_scatter`'s), taken with
+        ``weight`` x ``fine.scatter_gain`` (the main law's samples: ``fine.main_sample_weight``)."""
+        self.learn.observe_breakaway(d, b, x, self.cfg.scatter_gain * weight, self._scatter(d, b, gap))
 
     def _hand_back(self) -> None:
         """Leave the plateau to the main law (which restarts from :meth:`hold_torque`): the

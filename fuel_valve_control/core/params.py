@@ -343,6 +343,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "(0 = always fine.doublet_sigmas; task h29q)", 0.0, 0.5, runtime=True),
     Param("fine.start_step_sigmas", 0.5, "", "fine.start_quantile: the tracker's step, learned scatters (a let-go "
           "moves the start (1 - quantile) x this deeper, a miss quantile x this shallower)", 0.0, 5.0, runtime=True),
+    Param("fine.main_sample_weight", 1.0, "", "the main law's breakaways from rest count this fraction of a doublet's "
+          "breakaway in the learned breakaway twist and scatter (fine.scatter_gain x this; nominal box: unbiased but "
+          "p10/p90 +-7e-4 rad off the plant's true level, a moved doublet's 1.6e-4 wide; task h29q)", 0.0, 1.0,
+          runtime=True),
     Param("fine.min_move_fraction", 0.5, "", "no pulse for an error below this fraction of the learned smallest "
           "move a pulse makes (0.5: a move m improves an error e only if m < 2|e|; 0 = pulse regardless)",
           0.0, 2.0, runtime=True),

@@ -313,6 +313,7 @@ class PositionController:
                           learned_one_sample=ps["fine.learned_one_sample"],
                           stair_far_sigmas=ps["fine.stair_far_sigmas"],
                           start_quantile=ps["fine.start_quantile"], start_step_sigmas=ps["fine.start_step_sigmas"],
+                          main_sample_weight=ps["fine.main_sample_weight"],
                           retreat_stop_unmoved=ps["fine.retreat_stop_unmoved"],
                           retreat_unmoved_fraction=ps["fine.retreat_unmoved_fraction"])
 
