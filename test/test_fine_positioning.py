@@ -82,7 +82,7 @@ def test_a_version_3_file_loads_with_the_breakaway_scatter_unlearned():
     b.from_dict(doc)
     assert b.breakaway == a.breakaway and b.misfit == a.misfit
     assert b.scatter == {1: [0.0] * 4, -1: [0.0] * 4}
-    assert FineLearner.VERSION == 4 and "scatter" in a.to_dict() and "margin" not in a.to_dict()
+    assert FineLearner.VERSION == 5 and "scatter" in a.to_dict() and "margin" not in a.to_dict()
 
 
 def test_breakaway_samples_learn_its_mean_and_scatter():

@@ -176,6 +176,10 @@ SCALE_SAMPLES, SCALE_REPLAN = 3, 0.1
 #: §19: a loaded valve near its rating latched the fault; friction x2 at 90 % open, ~14 of 15 A, task h26f: the
 #: hold's twist sagged between the pulses and they never reached the breakaway)
 SCALE_HOLD_FRACTION = 0.8
+#: fine.start_quantile (task h29q): the learned staircase start, in learned scatters below the learned breakaway,
+#: stays within [START_SIGMAS_MIN, START_SIGMAS_MAX] (the floor keeps 0 meaning "not learned yet"; the ceiling is
+#: fine.doublet_sigmas' own range)
+START_SIGMAS_MIN, START_SIGMAS_MAX = 1e-3, 10.0
 
 
 @dataclass(frozen=True)
@@ -210,20 +214,23 @@ class FineLearner:
     ``0..limit_rad``); ``scatter[d][b]``: the rms scatter of the breakaway twist about
     ``breakaway`` from stop to stop (0 = not yet learned; bounded to ``0..limit_rad``): the
     doublet's staircase starts ``fine.doublet_sigmas`` of it below the learned breakaway;
-    ``misfit[d][b]``: the
+    ``start[d][b]``: with ``fine.start_quantile`` the staircase's start, in learned scatters below the
+    learned breakaway (0 = not yet learned: ``fine.doublet_sigmas``), tracked from the first stairs'
+    outcomes (:meth:`observe_start`); ``misfit[d][b]``: the
     stage's recent record on this valve, 0..1 (an exponentially weighted fraction of its
     engagements that failed: handed back, or left the valve further off than it found it;
     above ``fine.misfit_limit`` the stage stays out, decaying per plateau it stays out of).
     :meth:`reset` returns to the nominal model (all 0).
     """
 
-    VERSION = 4
-    TABLES = ("equilibrium", "breakaway", "min_move", "scatter", "misfit")
+    VERSION = 5
+    TABLES = ("equilibrium", "breakaway", "min_move", "scatter", "misfit", "start")
     #: tables of sizes (never negative), and the version each came with (version 2-3 files held a
     #: ``margin`` table, the staircase start adapted by x1.5 / x0.9 steps: version 4 learns the
-    #: breakaway scatter it stood in for, and an older file loads with the scatter not yet learned)
-    SIZES = ("min_move", "scatter", "misfit")
-    SINCE = {"min_move": 2, "scatter": 4, "misfit": 3}
+    #: breakaway scatter it stood in for, and an older file loads with the scatter not yet learned; version 5
+    #: added the staircase start ``start``, in scatters, and a version 1-4 file loads with it not yet learned)
+    SIZES = ("min_move", "scatter", "misfit", "start")
+    SINCE = {"min_move": 2, "scatter": 4, "misfit": 3, "start": 5}
 
     def __init__(self, bands: int, limit_rad: float):
         self.bands = max(int(bands), 1)
@@ -236,12 +243,15 @@ class FineLearner:
         self.min_move = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
         self.scatter = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
         self.misfit = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
+        self.start = {1: [0.0] * self.bands, -1: [0.0] * self.bands}
         self.pulses = 0
 
     def band(self, pressure_fraction: float) -> int:
         return min(int(max(pressure_fraction, 0.0) * self.bands), self.bands - 1)
 
     def _clip(self, table: str, x: float) -> float:
+        if table == "start":
+            return min(max(x, START_SIGMAS_MIN), START_SIGMAS_MAX) if x > 0.0 else 0.0
         return min(max(x, 0.0 if table in self.SIZES else -self.limit), 1.0 if table == "misfit" else self.limit)
 
     def set(self, table: str, direction: int, band: int, value: float) -> None:
@@ -262,6 +272,21 @@ class FineLearner:
         self.set("breakaway", d, b, mu + gain * dev)
         self.set("scatter", d, b, math.sqrt((1.0 - gain) * sigma * sigma + gain * dev * dev))
 
+    def observe_start(self, direction: int, band: int, let_go: bool, quantile: float, step: float,
+                      prior: float) -> None:
+        """Take one staircase's first-stair outcome into its learned start (``start``, in learned scatters of
+        the breakaway twist below the learned breakaway; ``prior`` before the first outcome): a censored
+        sample of the level drawn at that stop -- ``let_go`` (the valve broke loose in the first stair's
+        preload or kick): the level lay below the first apex; not: above it.  A stochastic-approximation
+        quantile tracker (Robbins-Monro): the start goes ``step`` x (1 - ``quantile``) scatters deeper after a
+        let-go and ``step`` x ``quantile`` shallower after a miss, so that at equilibrium a fraction
+        ``quantile`` of first stairs let the valve go.  It needs no model of the kick's real rise, the
+        doublet's dynamic let-go or the scatter's shape: the first stair's outcome is measured at the apex
+        the plan really reaches.  Bounded (:meth:`set`)."""
+        z = self.start[direction][band] or prior
+        z += step * ((1.0 - quantile) if let_go else -quantile)
+        self.set("start", direction, band, max(z, START_SIGMAS_MIN))
+
     # ---- persistence ---------------------------------------------------------------------
     def to_dict(self) -> dict:
         return {"version": self.VERSION, "bands": self.bands, "limit_rad": self.limit,
@@ -271,8 +296,8 @@ class FineLearner:
     def from_dict(self, doc: dict) -> None:
         """Load learned values (validated: shape, finiteness; values are clipped to the bound).
         An older file loads with the tables it lacks not yet learned (version 1: no move sizes,
-        versions 1-2: no misfit record, versions 1-3: no breakaway scatter)."""
-        if doc.get("version") not in (1, 2, 3, self.VERSION) or int(doc.get("bands", -1)) != self.bands:
+        versions 1-2: no misfit record, versions 1-3: no breakaway scatter, versions 1-4: no staircase start)."""
+        if doc.get("version") not in (1, 2, 3, 4, self.VERSION) or int(doc.get("bands", -1)) != self.bands:
             raise ValueError(f"learned friction file: needs version {self.VERSION} with {self.bands} bands")
         new = {}
         for table in self.TABLES:
@@ -379,6 +404,11 @@ class FineConfig:
                                        # engages: the stage's own moves are no breakaway from that rest (task h29a)
     repark_from_state: bool = False  # doublet: a staircase's next park planned from the twist and twist rate the
                                      # unmoved stair's retreat left (:meth:`_plan_repark`; task h29r, docs §61)
+    start_quantile: float = 0.0   # doublet: the staircase starts where this fraction of first stairs let the valve go,
+                                  # learned from their outcomes (FineLearner.observe_start; 0: doublet_sigmas scatters)
+    start_step_sigmas: float = 0.5  # ... the tracker's step, learned scatters
+    main_sample_weight: float = 1.0  # the main law's breakaway samples count this much of a doublet's in the learned
+                                     # breakaway and scatter (task h29q: unbiased, but +-7e-4 rad p10/p90 off the true level)
 
 
 class FinePositioner:
@@ -534,7 +564,8 @@ class FinePositioner:
                     # climbs to (quasi-static: no overdrive), one per move, for free
                     d = self._breakaway_seen[0]
                     e0, b0 = self._nominal(v, p, d)
-                    self._learn_breakaway(d, self.learn.band(self.m.pressure_fraction(p)), phi - b0, abs(b0 - e0))
+                    self._learn_breakaway(d, self.learn.band(self.m.pressure_fraction(p)), phi - b0, abs(b0 - e0),
+                                          cfg.main_sample_weight)
         # a demand that keeps changing (ramps, sweeps, noise) is followed by the main law
         same = self._last_target is not None and abs(target - self._last_target) <= 1e-12
         self._steady = self._steady + 1 if same else 0
@@ -825,12 +856,20 @@ class FinePositioner:
             # drawn anew at every stop, and one that breaks while preloading jumps the whole way
             self._first_stair = self._stair is None
             if self._stair is None:
-                self._stair = cfg.doublet_sigmas * self._scatter(d, band, gap)
+                self._stair = self._start_sigmas(d, band) * self._scatter(d, band, gap)
                 self._stair_step = cfg.doublet_probe_step * self._nominal_gap(thl, pressure_kpa, d)
             self._pre = phi_b - d * (self._kick_rise() + self._stair)
         self._plan_park()
         self.phase = PARK
         self._peak_seen = th1 - thl
+
+    def _start_sigmas(self, d: int, b: int) -> float:
+        """How many learned scatters below the learned breakaway a new staircase starts (its first preload
+        lies this far, and the kick's rise, below it): ``fine.doublet_sigmas``, or with ``fine.start_quantile``
+        the start learned from the first stairs' outcomes (:meth:`FineLearner.observe_start`) once one was."""
+        if self.cfg.start_quantile > 0.0 and self.learn.start[d][b] > 0.0:
+            return self.learn.start[d][b]
+        return self.cfg.doublet_sigmas
 
     def _plan_park(self) -> None:
         """Plan the preload from ``_phi_start`` to ``_pre``: quasi-statically (a fast unwind
@@ -1253,6 +1292,14 @@ class FinePositioner:
         e0, b0 = self._nominal(self._thl0, pressure_kpa, d)
         gap0 = abs(b0 - e0)
         curb = self.learn.breakaway[d][b]
+        if cfg.start_quantile > 0.0 and self._doublet and self._first_stair and not self._cold \
+                and (pulsed or abs(move) > 0.5 * cfg.tolerance_rad):
+            # (task h29q) the first stair's outcome is a censored sample of the level this stop drew: below
+            # its apex (broke loose in the kick or the preload) or above it.  The learned mean is not biased
+            # (nominal box, the plant's true level at each first stair: median 1.7e-5 rad above the learned
+            # one), but the start, fine.doublet_sigmas scatters below it, is where the staircase's time goes
+            self.learn.observe_start(d, b, abs(move) > 0.5 * cfg.tolerance_rad, cfg.start_quantile,
+                                     cfg.start_step_sigmas, cfg.doublet_sigmas)
         if abs(move) > 0.5 * cfg.tolerance_rad:
             self._stair = None                 # a new stop: a new breakaway level
             if not self._doublet:
@@ -1444,10 +1491,11 @@ class FinePositioner:
         cfg = self.cfg
         return self.learn.scatter[d][b] or cfg.doublet_margin * gap / max(cfg.doublet_sigmas, 1e-9)
 
-    def _learn_breakaway(self, d: int, b: int, x: float, gap: float) -> None:
+    def _learn_breakaway(self, d: int, b: int, x: float, gap: float, weight: float = 1.0) -> None:
         """One sample ``x`` (rad) of the breakaway twist's offset from its nominal value
-        (:meth:`FineLearner.observe_breakaway`, the prior scatter :meth:`_scatter`'s)."""
-        self.learn.observe_breakaway(d, b, x, self.cfg.scatter_gain, self._scatter(d, b, gap))
+        (:meth:`FineLearner.observe_breakaway`, the prior scatter :meth:`_scatter`'s), taken with
+        ``weight`` x ``fine.scatter_gain`` (the main law's samples: ``fine.main_sample_weight``)."""
+        self.learn.observe_breakaway(d, b, x, self.cfg.scatter_gain * weight, self._scatter(d, b, gap))
 
     def _hand_back(self) -> None:
         """Leave the plateau to the main law (which restarts from :meth:`hold_torque`): the

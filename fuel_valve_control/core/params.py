@@ -354,6 +354,16 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "by one up to fine.kick_rise_rad higher (the largest that keeps the next preload below the apex reached), "
           "never past that bound; nearer, fine.doublet_probe_step x the band (0 = every stair that; task h27s)",
           0.0, 10.0, runtime=True),
+    Param("fine.start_quantile", 0.0, "", "doublet: a new staircase starts where this fraction of first stairs let "
+          "the valve go (in the kick or the preload), learned per direction and dp band from their outcomes by a "
+          "quantile tracker in learned scatters below the learned breakaway, starting from fine.doublet_sigmas "
+          "(0 = always fine.doublet_sigmas; task h29q)", 0.0, 0.5, runtime=True),
+    Param("fine.start_step_sigmas", 0.5, "", "fine.start_quantile: the tracker's step, learned scatters (a let-go "
+          "moves the start (1 - quantile) x this deeper, a miss quantile x this shallower)", 0.0, 5.0, runtime=True),
+    Param("fine.main_sample_weight", 1.0, "", "the main law's breakaways from rest count this fraction of a doublet's "
+          "breakaway in the learned breakaway twist and scatter (fine.scatter_gain x this; nominal box: unbiased but "
+          "p10/p90 +-7e-4 rad off the plant's true level, a moved doublet's 1.6e-4 wide; task h29q)", 0.0, 1.0,
+          runtime=True),
     Param("fine.min_move_fraction", 0.5, "", "no pulse for an error below this fraction of the learned smallest "
           "move a pulse makes (0.5: a move m improves an error e only if m < 2|e|; 0 = pulse regardless)",
           0.0, 2.0, runtime=True),

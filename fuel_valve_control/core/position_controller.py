@@ -316,6 +316,8 @@ class PositionController:
                           learned_agree=ps["fine.learned_agree"],
                           stair_far_sigmas=ps["fine.stair_far_sigmas"],
                           repark_from_state=ps["fine.repark_from_state"],
+                          start_quantile=ps["fine.start_quantile"], start_step_sigmas=ps["fine.start_step_sigmas"],
+                          main_sample_weight=ps["fine.main_sample_weight"],
                           retreat_stop_unmoved=ps["fine.retreat_stop_unmoved"],
                           retreat_unmoved_fraction=ps["fine.retreat_unmoved_fraction"])
 

@@ -1,0 +1,108 @@
+"""The doublet staircase's start learned from censored outcomes (task h29q, docs §62).
+
+``fine.start_quantile`` (off by default, 0): each staircase's first stair is a censored sample of the
+breakaway level drawn at its stop -- the valve let go in the first stair's preload or kick (the level
+lay below the first apex) or it did not (above).  A Robbins-Monro quantile tracker
+(:meth:`FineLearner.observe_start`) moves the start, in learned scatters below the learned breakaway,
+``fine.start_step_sigmas`` x (1 - q) deeper after a let-go and x q shallower after a miss, so that a
+fraction q of first stairs let go.  No plant: the learner alone, and the stage on a valve that never
+moves (a few hundred stage periods)."""
+import math
+
+import numpy as np
+import pytest
+
+from fuel_valve_control.core.fine_positioning import START_SIGMAS_MAX, START_SIGMAS_MIN, FineLearner
+from fuel_valve_control.core.params import CONTROLLER_SPEC
+from test_fine_positioning import _stage
+from test_fine_staircase import _stuck_staircase
+
+
+@pytest.mark.parametrize("q", [0.1, 0.3])
+def test_the_start_settles_where_that_fraction_of_first_stairs_let_go(q):
+    """Levels drawn N(0, 1.4 σ) about the learned mean (the nominal box's spread about it, σ the learned
+    scatter): from the prior 2 σ the tracker settles where a fraction q of first apexes lie above the level
+    -- at the level's q-quantile, -1.4 Φ⁻¹(1-q) σ -- whatever the prior and without knowing the spread."""
+    rng = np.random.default_rng(7)
+    lr = FineLearner(4, 0.01)
+    spread, outcomes, depths = 1.4, [], []
+    for level in rng.normal(0.0, spread, 6000):
+        z = lr.start[1][3] or 2.0
+        let_go = level <= -z                       # the first apex lies z scatters below the mean
+        lr.observe_start(1, 3, bool(let_go), q, 0.5, prior=2.0)
+        outcomes.append(let_go)
+        depths.append(z)
+    assert np.mean(outcomes[2000:]) == pytest.approx(q, abs=0.03)
+    want = {0.1: 1.2816, 0.3: 0.5244}[q] * spread
+    assert np.mean(depths[2000:]) == pytest.approx(want, abs=0.15)
+    assert lr.start[-1] == [0.0] * 4 and lr.start[1][:3] == [0.0] * 3   # per direction and Δp band
+
+
+def test_the_learned_start_is_bounded_and_never_reads_as_unlearned():
+    lr = FineLearner(2, 0.01)
+    for _ in range(200):                               # misses only: as shallow as allowed, still learned
+        lr.observe_start(1, 0, False, 0.5, 1.0, prior=2.0)
+    assert lr.start[1][0] == START_SIGMAS_MIN > 0.0
+    for _ in range(200):                               # let-gos only: no deeper than the bound
+        lr.observe_start(-1, 1, True, 0.1, 1.0, prior=2.0)
+    assert lr.start[-1][1] == START_SIGMAS_MAX
+    lr.reset()
+    assert lr.start == {1: [0.0, 0.0], -1: [0.0, 0.0]}
+
+
+def test_the_learned_start_survives_a_restart_and_a_version_4_file_loads_without_it(tmp_path):
+    a = FineLearner(4, 0.1)
+    a.set("breakaway", 1, 1, 3e-3)
+    a.observe_start(-1, 2, True, 0.2, 0.5, prior=2.0)
+    assert a.start[-1][2] == pytest.approx(2.4)
+    path = tmp_path / "valve_friction.json"
+    a.save(path)
+    b = FineLearner(4, 0.1)
+    b.load(path)
+    assert b.to_dict() == a.to_dict() and b.to_dict()["version"] == 5
+    old = a.to_dict()
+    old["version"] = 4
+    del old["start"]
+    c = FineLearner(4, 0.1)
+    c.from_dict(old)
+    assert c.breakaway[1][1] == 3e-3 and c.start == {1: [0.0] * 4, -1: [0.0] * 4}
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_first_stair_that_did_not_move_the_valve_starts_the_next_staircase_shallower(direction):
+    """With ``fine.start_quantile`` q the first stair's miss lifts the learned start q x
+    ``fine.start_step_sigmas`` scatters and the next staircase starts that much higher; off, nothing is
+    learned and every staircase starts ``fine.doublet_sigmas`` scatters below the learned level."""
+    ps = CONTROLLER_SPEC.defaults()
+    q, step, z0 = 0.2, ps["fine.start_step_sigmas"], ps["fine.doublet_sigmas"]
+    for on in (False, True):
+        fine, m = _stage(**({"fine.start_quantile": q} if on else {}))
+        p = m.pressure_max_kpa
+        band = fine.learn.band(m.pressure_fraction(p))
+        _, depths = _stuck_staircase(fine, direction * 0.6e-3, p, stairs=2)
+        learned = fine.learn.start[direction][band]
+        assert learned == (pytest.approx(z0 - q * step) if on else 0.0)
+        # a new stop: the next staircase's first depth below the learned level
+        fine._stair = None
+        fine._start_pulse(fine._thl0 + fine._pre, fine._thl0, p)
+        ratio = fine._stair / depths[0]
+        assert ratio == pytest.approx((z0 - q * step) / z0 if on else 1.0, rel=1e-6)
+    assert math.isclose(ratio * z0, learned)
+
+
+def test_the_main_laws_breakaways_count_fine_main_sample_weight_of_a_doublets():
+    """``fine.main_sample_weight`` w (1 by default): a main-law breakaway from rest moves the learned breakaway
+    w x ``fine.scatter_gain`` of its deviation (its samples are unbiased but ±7e-4 rad p10/p90 off the true
+    level on the nominal box, a moved doublet's 1.6e-4 wide; task h29q)."""
+    from test_fine_positioning import _break_loose
+    ps = CONTROLLER_SPEC.defaults()
+    moved = {}
+    for w in (1.0, 0.5):
+        fine, m = _stage(**{"fine.main_sample_weight": w})
+        p = m.pressure_max_kpa
+        band = fine.learn.band(m.pressure_fraction(p))
+        _break_loose(fine, 0.5, p, offset=0.1)
+        moved[w] = fine.learn.breakaway[1][band]
+        x = 0.1 * m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
+        assert moved[w] == pytest.approx(w * ps["fine.scatter_gain"] * x, rel=1e-6)
+    assert moved[0.5] == pytest.approx(0.5 * moved[1.0])
