@@ -61,3 +61,45 @@ def test_a_cold_stage_on_a_low_friction_valve_jumps_across_the_target_without_hu
     after = t >= 0.3
     assert np.max(direction * (valve[after] - target[after])) > 2e-3     # the cold preload's jump
     assert not plateaus[-1]["hunts"]
+
+
+def _gated_stage(gate: bool):
+    from fuel_valve_control.core.params import CONTROLLER_SPEC
+    from fuel_valve_control.core.position_controller import PositionController
+    pc = PositionController(CONTROLLER_SPEC.defaults().replace(
+        {"mode": "observer_fp", "fine.cold_start": True, "fine.cold_band_gate": gate}))
+    return pc.law.fine, pc.model
+
+
+@pytest.mark.parametrize("gate", [False, True])
+def test_the_band_gate_lets_a_cold_stage_engage_only_on_a_static_band_the_hold_measured_near_the_told_one(gate):
+    """``fine.cold_band_gate`` (h30c, docs §67): before any breakaway the stage engages cold only if the
+    main law's hold has met both slip edges of a static band within ``fine.breakaway_fit`` x T_s of the
+    told static friction.  A band of 0.6 or 2.77 x (the low- and high-friction valves the cold start
+    jumped on / hunted on, §29.3) or none at all (every cold first plateau traced on the nominal box,
+    quick 1000 and quick 3000: the hold had met no slip edge yet) keeps the stage waiting, as on main."""
+    fine, m = _gated_stage(gate)
+    p = PRESSURE_MAX_KPA
+    ts = m.friction(p).valve_static_nm
+    fine._steady = 10 ** 6                      # the demand held long enough; no breakaway seen yet
+    err = 1.5e-3                                # inside half the nominal jump
+    verdicts = {}
+    for band in (None, 0.6 * ts, ts, 1.1 * ts, 2.77 * ts):
+        fine.hold_static_nm = band
+        verdicts[band] = fine._cold_ready(err, p)
+    if not gate:
+        assert all(verdicts.values())           # ungated: the cold start ignores the band
+    else:
+        assert verdicts == {None: False, 0.6 * ts: False, ts: True, 1.1 * ts: True, 2.77 * ts: False}
+
+
+def test_the_band_gated_cold_stage_does_not_jump_a_low_friction_valve_across_its_target():
+    """Friction x0.6, the same first step the ungated cold start jumps > 2e-3 rad across
+    (:func:`test_a_cold_stage_on_a_low_friction_valve_jumps_across_the_target_without_hunting`): with the
+    band gate the hold has measured no band before the step, so the stage waits as on main (the step is
+    left to the main law: 1.5e-3 rad off, never past the target)."""
+    plateaus, log = _first_step(1.5e-3, friction_scale=0.6, **{"fine.cold_start": True, "fine.cold_band_gate": True})
+    t, target, valve = log[:, 0], log[:, 1], log[:, 2]
+    after = t >= 0.3
+    assert np.max(valve[after] - target[after]) < 5e-4
+    assert not plateaus[-1]["hunts"]

@@ -376,6 +376,8 @@ class FineConfig:
     retreat_full_periods: int = 1  # doublet: periods of the whole current backwards after the kick (then one of half)
     cold_start: bool = False      # engage before any breakaway was seen, judging the valve by the stage's own
                                   # first doublets (:meth:`FinePositioner._cold_ready`)
+    cold_band_gate: bool = False  # a cold engagement also needs the main law's hold to have measured the static
+                                  # band (both slip edges) within breakaway_fit of the nominal T_s (h30c)
     learn_kick_rise: bool = False  # doublet: plan each preload against the kick's rise learned from the stage's
                                    # own apexes (:meth:`FinePositioner._kick_rise`) instead of ``kick_rise_rad``
     first_kick_fraction: float = 1.0  # doublet: a staircase's first stair kicks with this fraction of kick_current_a
@@ -487,6 +489,8 @@ class FinePositioner:
                                       # yet), [later stairs, a staircase's first stair]
         self._first_stair = False     # this doublet is its staircase's first stair
         self._kick_apex = 0.0         # the largest twist since this pulse left its preload, rad
+        self.hold_static_nm = None    # the static friction the main law's hold band measured (N*m, valve side;
+                                      # set by the law each period; None: not both edges), fine.cold_band_gate
         self._cold = False            # engaged before any breakaway was seen: doublets only, until the first
         self._judged = None           # (direction, band) of an engagement whose outcome is not yet judged
         self._osc, self._osc_sign = 0.0, 0   # the servo's limit-cycle watch (leaky count of reversals)
@@ -738,7 +742,23 @@ class FinePositioner:
         cfg = self.cfg
         return (cfg.cold_start and self._breakaway_seen is None and not math.isinf(cfg.breakaway_fit)
                 and self._steady >= FRESH_WAIT * cfg.engage_periods
-                and abs(err) <= 0.5 * self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad))
+                and abs(err) <= 0.5 * self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad)
+                and (not cfg.cold_band_gate or self._cold_band_fits(pressure_kpa)))
+
+    def _cold_band_fits(self, pressure_kpa: float) -> bool:
+        """``fine.cold_band_gate``: whether the static band the main law's hold has measured (half
+        the width between its relax slips' two edges, N*m valve side, :attr:`hold_static_nm`, set by
+        the law every period; None until both edges are met) lies within ``fine.breakaway_fit`` x
+        T_s(Δp) of the told static friction.  A valve whose hold met both edges of a band this wide
+        before any breakaway is a valve of about the told friction: the cold staircase, planned from
+        the told breakaway, neither breaks a low-friction valve loose in its first preload (friction
+        x0.6-0.85, §29.3: a whole jump across the target) nor climbs toward a level far above it
+        (quick 3000 seed 3010, x2.77: hunted).  No band measured: no cold engagement (main's
+        behaviour).  Traced (h30c, docs §67): on the nominal box the hold has met no slip edge at all
+        before a run's first breakaway, so this gate, as measured, leaves the cold start off there."""
+        band = self.hold_static_nm
+        ts = self.m.friction(pressure_kpa).valve_static_nm
+        return band is not None and ts > 0.0 and abs(band / ts - 1.0) <= self.cfg.breakaway_fit
 
     def _breakaway_fits(self) -> bool:
         """Whether the twist at which the main law last broke the valve loose fits the nominal

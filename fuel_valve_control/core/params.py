@@ -470,6 +470,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "the twist at rest inside the nominal static band, it judges the valve by its own first doublets (a "
           "staircase from fine.doublet_margin below the nominal breakaway) and hands back when the first "
           "breakaway they find lies beyond fine.breakaway_fit x T_s/K of nominal", runtime=True),
+    Param("fine.cold_band_gate", False, "", "with fine.cold_start: a cold engagement also needs the main law's hold "
+          "to have met both slip edges of the static band, half their difference within fine.breakaway_fit x T_s of "
+          "the told static friction (a valve of about the told friction: the cold staircase neither breaks a "
+          "low-friction valve loose in its first preload nor climbs toward a far higher level); no band measured, no "
+          "cold engagement (task h30c, docs §67)", runtime=True),
     Param("fine.min_jump_rad", 1.0e-3, "rad", "the stage engages only where the nominal stick-slip jump "
           "2 (T_s - T_c(dp)) / K at the dp scheduled is at least this: below it (dp < ~15 % of max) the doublet's "
           "smallest move exceeds the valve's whole jump (bare plant: 0.77e-3 / 2.2e-3 / 1.4e-3 rad at 0 / 5 / 10 % "
