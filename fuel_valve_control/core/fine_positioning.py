@@ -375,6 +375,10 @@ class FineConfig:
                                   # the learned breakaway (0: fine.preload_margin x the band only; task h29a)
     drop_rest_at_engage: bool = False  # the rest the main law's next breakaway is read from is dropped when the stage
                                        # engages: the stage's own moves are no breakaway from that rest (task h29a)
+    restair_after_breaks: bool = False  # after EARLY_BREAKS preload breakaways on a plateau the stage goes on with a doublet
+                                        # staircase starting fine.doublet_sigmas learned scatters below the twist the last one
+                                        # broke at (the same direction), instead of handing the plateau back; a further
+                                        # preload breakaway hands it back (task h30b, docs §66)
 
 
 class FinePositioner:
@@ -463,6 +467,8 @@ class FinePositioner:
         self.pulses_this_plateau = 0
         self.crossings_this_plateau = 0
         self._early_breaks = 0        # breakaways below the planned preload on this plateau
+        self._restair = None          # fine.restair_after_breaks: (direction, twist rad) of the last preload breakaway
+                                      # once EARLY_BREAKS of them were seen on this plateau (None: not yet)
         self._unfit = False           # the valve showed on this plateau that the model does not fit it
         self._climbed_out = False     # a doublet staircase climbed beyond any plausible breakaway
         self._plateau_k = 0           # periods since the plateau started
@@ -778,7 +784,7 @@ class FinePositioner:
         # valve loose a whole jump across (nominal box, seed 2013 #8: 6.2e-3 rad; task h20p)
         doublet = (abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short, self._doublet_jump_range(pressure_kpa))
                    or self._stair is not None and abs(err) <= cfg.doublet_max_error_rad + cfg.tolerance_rad
-            or self._cold) and cfg.kick_current_a > 0.0
+            or self._cold or self._restair is not None) and cfg.kick_current_a > 0.0
         aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
         final = phi_e + aim / 2.0
         pre = phi_b - d * cfg.preload_margin * gap
@@ -815,6 +821,12 @@ class FinePositioner:
             if self._stair is None:
                 self._stair = cfg.doublet_sigmas * self._scatter(d, band, gap)
                 self._stair_step = cfg.doublet_probe_step * self._nominal_gap(thl, pressure_kpa, d)
+                if self._restair is not None and self._restair[0] == d:
+                    # (h30b) two preloads broke the valve loose below the learned level at this plateau's stops:
+                    # the level lies lower than learned here -- the first apex goes fine.doublet_sigmas learned
+                    # scatters below the twist the last one broke at, not below the learned level
+                    self._stair = max(self._stair, d * (phi_b - self._restair[1])
+                                      + cfg.doublet_sigmas * self._scatter(d, band, gap) - self._kick_rise())
             self._pre = phi_b - d * (self._kick_rise() + self._stair)
         self._plan_park()
         self.phase = PARK
@@ -1274,6 +1286,12 @@ class FinePositioner:
                 else:
                     self._hand_back()
                 return
+        if cfg.restair_after_breaks and self._early_breaks >= EARLY_BREAKS and not pulsed and self._restair is None:
+            # (h30b) instead of handing the plateau back at the second preload breakaway (the main law's deadband is
+            # ~half a jump: nominal box seed 2018 #1 was left 6.1e-3 rad off), a doublet staircase from below the twist
+            # where it broke; one more preload breakaway hands it back
+            self._restair = (d, self._break_twist)
+            self._early_breaks -= 1
         if d * move < -2.0 * cfg.tolerance_rad or abs(err) > cfg.max_move_rad or self._early_breaks >= EARLY_BREAKS \
                 or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1) \
                 or not self._twist_fits(th1 - thl, thl, pressure_kpa):
