@@ -375,10 +375,10 @@ class FineConfig:
                                   # the learned breakaway (0: fine.preload_margin x the band only; task h29a)
     drop_rest_at_engage: bool = False  # the rest the main law's next breakaway is read from is dropped when the stage
                                        # engages: the stage's own moves are no breakaway from that rest (task h29a)
-    restair_after_breaks: bool = False  # after EARLY_BREAKS preload breakaways on a plateau the stage goes on with a doublet
-                                        # staircase starting fine.doublet_sigmas learned scatters below the twist the last one
-                                        # broke at (the same direction), instead of handing the plateau back; a further
-                                        # preload breakaway hands it back (task h30b, docs §66)
+    restair_sigmas: float = 0.0   # after EARLY_BREAKS preload breakaways on a plateau the stage goes on with a doublet
+                                  # staircase whose first apex lies this many learned scatters below the preload twist the
+                                  # last one broke at (the same direction), instead of handing the plateau back; a further
+                                  # preload breakaway hands it back (0: hand back at once; task h30b, docs §66)
 
 
 class FinePositioner:
@@ -467,7 +467,7 @@ class FinePositioner:
         self.pulses_this_plateau = 0
         self.crossings_this_plateau = 0
         self._early_breaks = 0        # breakaways below the planned preload on this plateau
-        self._restair = None          # fine.restair_after_breaks: (direction, twist rad) of the last preload breakaway
+        self._restair = None          # fine.restair_sigmas: (direction, twist rad) of the last preload breakaway
                                       # once EARLY_BREAKS of them were seen on this plateau (None: not yet)
         self._unfit = False           # the valve showed on this plateau that the model does not fit it
         self._climbed_out = False     # a doublet staircase climbed beyond any plausible breakaway
@@ -823,10 +823,10 @@ class FinePositioner:
                 self._stair_step = cfg.doublet_probe_step * self._nominal_gap(thl, pressure_kpa, d)
                 if self._restair is not None and self._restair[0] == d:
                     # (h30b) two preloads broke the valve loose below the learned level at this plateau's stops:
-                    # the level lies lower than learned here -- the first apex goes fine.doublet_sigmas learned
+                    # the level lies lower than learned here -- the first apex goes fine.restair_sigmas learned
                     # scatters below the twist the last one broke at, not below the learned level
                     self._stair = max(self._stair, d * (phi_b - self._restair[1])
-                                      + cfg.doublet_sigmas * self._scatter(d, band, gap) - self._kick_rise())
+                                      + cfg.restair_sigmas * self._scatter(d, band, gap) - self._kick_rise())
             self._pre = phi_b - d * (self._kick_rise() + self._stair)
         self._plan_park()
         self.phase = PARK
@@ -944,6 +944,7 @@ class FinePositioner:
                 # from a valve still moving)
                 self.phase, self._k, self._final, self._pulsed = OBSERVE, 0, x, False
                 self._break_twist = th1 - thl     # (a cold engagement judges the valve by it)
+                self._break_ref = x               # the preload reference when it slid (the twist it held up to)
             return self._servo(base + x, a, th1, w1, thl, v)
         if self.phase == PULSE and self._doublet:
             # torque doublet on the hold torque the park ended with: one period of kick, then
@@ -1286,11 +1287,13 @@ class FinePositioner:
                 else:
                     self._hand_back()
                 return
-        if cfg.restair_after_breaks and self._early_breaks >= EARLY_BREAKS and not pulsed and self._restair is None:
+        if cfg.restair_sigmas > 0.0 and self._early_breaks >= EARLY_BREAKS and not pulsed and self._restair is None:
             # (h30b) instead of handing the plateau back at the second preload breakaway (the main law's deadband is
             # ~half a jump: nominal box seed 2018 #1 was left 6.1e-3 rad off), a doublet staircase from below the twist
             # where it broke; one more preload breakaway hands it back
-            self._restair = (d, self._break_twist)
+            # -- from the preload reference it broke loose at: the twist seen once the valve had slid two
+            # tolerances has unwound with the slide, well below the level
+            self._restair = (d, self._break_ref)
             self._early_breaks -= 1
         if d * move < -2.0 * cfg.tolerance_rad or abs(err) > cfg.max_move_rad or self._early_breaks >= EARLY_BREAKS \
                 or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1) \

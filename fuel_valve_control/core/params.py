@@ -432,10 +432,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "stage engages: kept, the valve's displacement by the stage's own pulses read as a main-law breakaway from "
           "the rest before them, at that rest's twist, after a hand-back or a new demand mid-staircase (task h29a, "
           "docs §63)", runtime=True),
-    Param("fine.restair_after_breaks", False, "", "after two preload breakaways on one plateau the stage goes on with "
-          "a doublet staircase whose first apex lies fine.doublet_sigmas learned scatters below the twist the last one "
-          "broke at, instead of handing the plateau back to the main law; a third hands it back (task h30b, docs §66)",
-          runtime=True),
+    Param("fine.restair_sigmas", 0.0, "", "after two preload breakaways on one plateau the stage goes on with "
+          "a doublet staircase whose first apex lies this many learned rms scatters of the breakaway twist below the "
+          "preload twist the last one broke at, instead of handing the plateau back to the main law; a third hands it "
+          "back (0 = hand back at the second; task h30b, docs §66)", 0.0, 10.0, runtime=True),
     Param("fine.cold_start", False, "", "the stage engages before any breakaway has been seen (a run's first "
           "steps too small for the main law's hold to move the valve): after FRESH_WAIT engage times at rest with "
           "the twist at rest inside the nominal static band, it judges the valve by its own first doublets (a "
