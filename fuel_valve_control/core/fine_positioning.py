@@ -825,8 +825,7 @@ class FinePositioner:
                     # (h30b) two preloads broke the valve loose below the learned level at this plateau's stops:
                     # the level lies lower than learned here -- the first apex goes fine.restair_sigmas learned
                     # scatters below the twist the last one broke at, not below the learned level
-                    self._stair = (d * (phi_b - self._restair[1])
-                                   + cfg.restair_sigmas * self._scatter(d, band, gap) - self._kick_rise())
+                    self._stair = d * (phi_b - self._restair[1]) + cfg.restair_sigmas * self._scatter(d, band, gap)
             self._pre = phi_b - d * (self._kick_rise() + self._stair)
         self._plan_park()
         self.phase = PARK
