@@ -1288,10 +1288,10 @@ class FinePositioner:
                 return
         if cfg.restair_sigmas > 0.0 and self._early_breaks >= EARLY_BREAKS and not pulsed and self._restair is None:
             # (h30b) instead of handing the plateau back at the second preload breakaway (the main law's deadband is
-            # ~half a jump: nominal box seed 2018 #1 was left 6.1e-3 rad off), a doublet staircase from below the twist
-            # where it broke; one more preload breakaway hands it back
-            # -- from the preload reference it broke loose at: the twist seen once the valve had slid two
-            # tolerances has unwound with the slide, well below the level
+            # ~half a jump: nominal box seed 2018 #1 was left 6.1e-3 rad off), a doublet staircase from below the
+            # preload reference it broke loose at -- not the twist seen once the valve had slid two tolerances, which
+            # has unwound with the slide (2018 #1: 1.2e-3 rad beyond the reference); one more preload breakaway
+            # hands it back
             self._restair = (d, self._break_ref)
             self._early_breaks -= 1
         if d * move < -2.0 * cfg.tolerance_rad or abs(err) > cfg.max_move_rad or self._early_breaks >= EARLY_BREAKS \
