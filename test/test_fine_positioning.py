@@ -977,3 +977,46 @@ def test_the_stages_own_move_is_no_main_law_breakaway_from_the_rest_before_it(di
     d, phi = fine._breakaway_seen[:2]
     assert (d, phi) == ((1, pytest.approx(fine._nominal(thl, p, 1)[1], abs=1e-9)) if drop
                         else (direction, pytest.approx(_rest_twist(fine, thl, p), abs=1e-9)))
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+@pytest.mark.parametrize("sigmas", [0.0, 1.0])
+def test_after_two_preload_breakaways_a_staircase_starts_below_the_twist_it_broke_at(direction, sigmas):
+    """Two servo-blended preloads that break the valve loose (toward the target, short of it) on one
+    plateau: by default (``fine.restair_sigmas`` 0) the stage hands the plateau back to the main law;
+    with ``fine.restair_sigmas`` > 0 it goes on with a doublet staircase whose first apex lies that many
+    learned scatters below the preload reference the second one broke at (nominal box seed 2018 #1 was
+    handed back 6.1e-3 rad off; task h30b, docs §66)."""
+    fine, m = _stage(**{"fine.restair_sigmas": sigmas})
+    p = m.pressure_max_kpa
+    thl = 0.5
+    phi = _rest_twist(fine, thl, p)
+    target = thl + direction * 6e-3                       # a servo-blended pulse's error
+    _break_loose(fine, thl, p)
+    parks, breaks = 0, 0
+    for _ in range(4000):
+        was = fine.phase
+        fine.update(target, thl + phi, thl, True, 0.3, p)
+        if fine.phase == "park" and was != "park":
+            parks, k = parks + 1, 0
+        if fine.phase == "park":
+            k += 1
+            if k == 5 and breaks < 2:                     # it slides 1e-3 toward the target in the preload
+                thl += direction * 1e-3
+                breaks += 1
+                continue
+        if breaks == 2 and (fine.phase == "idle" or (fine.phase == "park" and parks == 3)):
+            break
+    assert breaks == 2
+    if sigmas == 0.0:
+        assert fine.phase == "idle" and fine._unfit        # handed back
+        return
+    assert fine.phase == "park" and fine._doublet          # a staircase instead
+    d, ref = fine._restair
+    assert d == direction
+    phi_e, phi_b, band = fine._twists(thl, p, direction)
+    apex = fine._pre + direction * fine._kick_rise()
+    scatter = fine._scatter(direction, band, max(direction * (phi_b - phi_e), 1e-5))
+    assert scatter > 0.0
+    assert direction * (ref - apex) == pytest.approx(sigmas * scatter, rel=1e-9, abs=1e-12)
+    assert direction * (fine._pre - fine._break_ref) < 0.0  # the preload lies below where it broke

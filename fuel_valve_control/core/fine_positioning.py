@@ -411,6 +411,10 @@ class FineConfig:
     start_step_sigmas: float = 0.5  # ... the tracker's step, learned scatters
     main_sample_weight: float = 1.0  # the main law's breakaway samples count this much of a doublet's in the learned
                                      # breakaway and scatter (task h29q: unbiased, but +-7e-4 rad p10/p90 off the true level)
+    restair_sigmas: float = 0.0   # after EARLY_BREAKS preload breakaways on a plateau the stage goes on with a doublet
+                                  # staircase whose first apex lies this many learned scatters below the preload twist the
+                                  # last one broke at (the same direction), instead of handing the plateau back; a further
+                                  # preload breakaway hands it back (0: hand back at once; task h30b, docs §66)
 
 
 class FinePositioner:
@@ -501,6 +505,8 @@ class FinePositioner:
         self.pulses_this_plateau = 0
         self.crossings_this_plateau = 0
         self._early_breaks = 0        # breakaways below the planned preload on this plateau
+        self._restair = None          # fine.restair_sigmas: (direction, twist rad) of the last preload breakaway
+                                      # once EARLY_BREAKS of them were seen on this plateau (None: not yet)
         self._unfit = False           # the valve showed on this plateau that the model does not fit it
         self._climbed_out = False     # a doublet staircase climbed beyond any plausible breakaway
         self._plateau_k = 0           # periods since the plateau started
@@ -841,7 +847,7 @@ class FinePositioner:
         # valve loose a whole jump across (nominal box, seed 2013 #8: 6.2e-3 rad; task h20p)
         doublet = (abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short, self._doublet_jump_range(pressure_kpa))
                    or self._stair is not None and abs(err) <= cfg.doublet_max_error_rad + cfg.tolerance_rad
-            or self._cold) and cfg.kick_current_a > 0.0
+            or self._cold or self._restair is not None) and cfg.kick_current_a > 0.0
         aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
         final = phi_e + aim / 2.0
         pre = phi_b - d * cfg.preload_margin * gap
@@ -878,6 +884,11 @@ class FinePositioner:
             if self._stair is None:
                 self._stair = self._start_sigmas(d, band) * self._scatter(d, band, gap)
                 self._stair_step = cfg.doublet_probe_step * self._nominal_gap(thl, pressure_kpa, d)
+                if self._restair is not None and self._restair[0] == d:
+                    # (h30b) two preloads broke the valve loose below the learned level at this plateau's stops:
+                    # the level lies lower than learned here -- the first apex goes fine.restair_sigmas learned
+                    # scatters below the twist the last one broke at, not below the learned level
+                    self._stair = d * (phi_b - self._restair[1]) + cfg.restair_sigmas * self._scatter(d, band, gap)
             self._pre = phi_b - d * (self._kick_rise() + self._stair)
         self._plan_park()
         self.phase = PARK
@@ -1083,6 +1094,7 @@ class FinePositioner:
                 # from a valve still moving)
                 self.phase, self._k, self._final, self._pulsed = OBSERVE, 0, x, False
                 self._break_twist = th1 - thl     # (a cold engagement judges the valve by it)
+                self._break_ref = x               # the preload reference when it slid (the twist it held up to)
             return self._servo(base + x, a, th1, w1, thl, v)
         if self.phase == PULSE and self._doublet:
             # torque doublet on the hold torque the park ended with: one period of kick, then
@@ -1349,7 +1361,10 @@ class FinePositioner:
                 phi_e = (th1 - self._thl0) - move / 2.0
                 cur = self.learn.equilibrium[d][b]
                 self.learn.set("equilibrium", d, b, cur + cfg.learn_gain * ((phi_e - e0) - cur))
-            if self._doublet:
+            if self._doublet and not (self._restair is not None and not pulsed):
+                # (h30b: a restaircase's preload that breaks loose is no sample: it was planned below where the level
+                # had already broken, and taken in it doubled the learned scatter for the later stops -- 2018: 0.32 ->
+                # 0.94e-3 rad)
                 # a sample of the level drawn at the last stop: within one stair step below the
                 # apex that broke it loose (the apex before did not), or below the preload it
                 # broke loose at (the staircase started too close: the scatter grows)
@@ -1441,6 +1456,14 @@ class FinePositioner:
                 else:
                     self._hand_back()
                 return
+        if cfg.restair_sigmas > 0.0 and self._early_breaks >= EARLY_BREAKS and not pulsed and self._restair is None:
+            # (h30b) instead of handing the plateau back at the second preload breakaway (the main law's deadband is
+            # ~half a jump: nominal box seed 2018 #1 was left 6.1e-3 rad off), a doublet staircase from below the
+            # preload reference it broke loose at -- not the twist seen once the valve had slid two tolerances, which
+            # has unwound with the slide (2018 #1: 1.2e-3 rad beyond the reference); one more preload breakaway
+            # hands it back
+            self._restair = (d, self._break_ref)
+            self._early_breaks -= 1
         if d * move < -2.0 * cfg.tolerance_rad or abs(err) > cfg.max_move_rad or self._early_breaks >= EARLY_BREAKS \
                 or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1) \
                 or not self._twist_fits(th1 - thl, thl, pressure_kpa):

@@ -465,6 +465,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "(its last three main-law breakaways) are read only while they spread no more than fine.breakaway_fit "
           "(friction scatter: < 0.15 on the nominal plant); wider, they read nothing, as two that disagree "
           "(task h29f, docs §64)", runtime=True),
+    Param("fine.restair_sigmas", 0.0, "", "after two preload breakaways on one plateau the stage goes on with "
+          "a doublet staircase whose first apex lies this many learned rms scatters of the breakaway twist below the "
+          "preload twist the last one broke at, instead of handing the plateau back to the main law; a third hands it "
+          "back (0 = hand back at the second; task h30b, docs §66)", 0.0, 10.0, runtime=True),
     Param("fine.cold_start", False, "", "the stage engages before any breakaway has been seen (a run's first "
           "steps too small for the main law's hold to move the valve): after FRESH_WAIT engage times at rest with "
           "the twist at rest inside the nominal static band, it judges the valve by its own first doublets (a "

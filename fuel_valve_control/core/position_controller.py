@@ -306,6 +306,7 @@ class PositionController:
                           cold_start=ps["fine.cold_start"], cold_band_gate=ps["fine.cold_band_gate"],
                           learn_kick_rise=ps["fine.learn_kick_rise"],
                           drop_rest_at_engage=ps["fine.drop_rest_at_engage"],
+                          restair_sigmas=ps["fine.restair_sigmas"],
                           preload_sigmas=ps["fine.preload_sigmas"],
                           first_kick_fraction=ps["fine.first_kick_fraction"],
                           probe_reached=ps["fine.probe_reached"], preload_cap=ps["fine.preload_cap"],
