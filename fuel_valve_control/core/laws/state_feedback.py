@@ -164,8 +164,10 @@ class StateFeedbackLaw(ControlLaw):
         #: hold's bounded probe (``integral.probe_soft_floor``), until the valve lets go
         self._probe_stuck: tuple[float, float, float] | None = None
         #: the target (rad) a probe on the friction met (``integral.probe_shown_friction``) has
-        #: broken the valve loose toward: once per target, so a jump that misfits cannot repeat
+        #: been made toward, and the one it is under way toward: one probe per target, ended by the
+        #: valve letting go or by its error leaving the probe's range, so a misfit cannot repeat
         self._shown_probed: float | None = None
+        self._shown_probing: float | None = None
         self._cocked = False
         self.reference: Reference | None = None
         self._pressure: float | None = None   # kPa, Δp of the latest update
@@ -274,6 +276,7 @@ class StateFeedbackLaw(ControlLaw):
         self._stuck_short = None
         self._probe_stuck = None
         self._shown_probed = None
+        self._shown_probing = None
         self._d = m.load_torque(meas.valve_rad, pressure_kpa) - m.spring_rate_nm_per_rad * meas.valve_rad
         self._inputs.clear()
         self._inputs.extend([(torque_nm, self._d)] * (self._inputs.maxlen - 1))   # at rest before
@@ -390,10 +393,19 @@ class StateFeedbackLaw(ControlLaw):
                      if self.integral.probe_soft_floor and soft != 1.0 and not outside and not ref.moving else None)
         shown_probe = False
         if (probe_cap is None and self.integral.probe_shown_friction and self.met_hold and not outside
-                and not ref.moving and self._shown_probed != target):
+                and not ref.moving and (self._shown_probed is None
+                                        or abs(target - self._shown_probed) > self.deadband)):
+            # (a target within the deadband of the one probed toward is that demand: demand noise)
             # h30h: inside a deadband wider than the friction met implies: a bounded probe, once
             probe_cap = self._shown_probe_cap_nm(abs(target - thl), m, pressure_kpa, friction)
             shown_probe = probe_cap is not None
+        if shown_probe:
+            self._shown_probing = target
+        elif self._shown_probing is not None:
+            # the probe ended (the valve let go, the error left its range, a move began): not again
+            # toward this target -- a LuGre valve that creeps in and out of the range was probed
+            # again and again and hunted on the final hold (full box 1001, 1057, 1174, ...)
+            self._shown_probed, self._shown_probing = self._shown_probing, None
         if probe_cap is not None:
             # the probe's breakaway is the drive's, not a relaxing drive's slip
             self.slip_watch.reset()
