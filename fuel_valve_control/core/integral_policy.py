@@ -62,6 +62,13 @@ class IntegralPolicy:
     #: would leave the error at the deadband's edge (StateFeedbackLaw._probe_cap_nm): a valve with
     #: less friction than the schedule lets go and lands within that jump, one with more stays
     probe_soft_floor: bool = False      # (the schema's default: true since h26k)
+    #: h30h: where the deadband in force (jumps learned, the crossing breaker's chain) holds a valve
+    #: further from its target than the deadband of the quasi-static jump at the static friction the
+    #: hold has met (:attr:`SlipEdges.static_nm`) would, the hold's stuck ramp still pushes toward
+    #: the target once per target, bounded like ``probe_soft_floor``'s probe on that jump
+    #: (StateFeedbackLaw._shown_probe_cap_nm): a valve with more friction than told that a move
+    #: left stuck inside a widened deadband is broken loose instead of held short for the plateau
+    probe_shown_friction: bool = False
 
     @property
     def settle_time_s(self) -> float:

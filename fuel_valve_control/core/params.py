@@ -184,6 +184,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "than the schedule lets go within a jump that fits (docs/control_results.md section 52; default since "
           "h26k: adaptation grid K x 0.1 friction x 0.5 max Δp final error 2.09e-2 (never moved) -> 3.7-5.6e-3 rad, "
           "full box p95 unchanged, median 2.56 -> 2.50e-3 rad)"),
+    Param("integral.probe_shown_friction", False, "", "observer_ff, observer_fp: where the deadband in force "
+          "(the jumps learned, the crossing breaker) holds the valve further from its target than the deadband of "
+          "the quasi-static jump at the static friction the hold has met would, the hold's stuck ramp still pushes "
+          "toward the target, once per target, up to the drive whose quasi-static jump that deadband would just "
+          "hold (docs/control_results.md section 68; off: measured)"),
     Param("integral.deadband_min_rad", 2.9e-4, "rad", "smallest deadband (3 valve resolver counts)",
           0.0, 0.05, runtime=True),
     # --- the drive's supply (planned moves are designed for it, core/design.design_trajectory)

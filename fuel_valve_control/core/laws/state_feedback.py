@@ -163,6 +163,11 @@ class StateFeedbackLaw(ControlLaw):
         #: (valve angle rad, way ±1, drive N*m toward the target) of the latest stuck period of the
         #: hold's bounded probe (``integral.probe_soft_floor``), until the valve lets go
         self._probe_stuck: tuple[float, float, float] | None = None
+        #: the target (rad) a probe on the friction met (``integral.probe_shown_friction``) has
+        #: been made toward, and the one it is under way toward: one probe per target, ended by the
+        #: valve letting go or by its error leaving the probe's range, so a misfit cannot repeat
+        self._shown_probed: float | None = None
+        self._shown_probing: float | None = None
         self._cocked = False
         self.reference: Reference | None = None
         self._pressure: float | None = None   # kPa, Δp of the latest update
@@ -270,6 +275,8 @@ class StateFeedbackLaw(ControlLaw):
         self._pull = None
         self._stuck_short = None
         self._probe_stuck = None
+        self._shown_probed = None
+        self._shown_probing = None
         self._d = m.load_torque(meas.valve_rad, pressure_kpa) - m.spring_rate_nm_per_rad * meas.valve_rad
         self._inputs.clear()
         self._inputs.extend([(torque_nm, self._d)] * (self._inputs.maxlen - 1))   # at rest before
@@ -384,6 +391,21 @@ class StateFeedbackLaw(ControlLaw):
         # h26k: inside the floor but beyond what the jumps learned would hold: a bounded probe
         probe_cap = (self._probe_cap_nm(abs(target - thl), static, self.integral.deadband(m, pressure_kpa, learned))
                      if self.integral.probe_soft_floor and soft != 1.0 and not outside and not ref.moving else None)
+        shown_probe = False
+        if (probe_cap is None and self.integral.probe_shown_friction and self.met_hold and not outside
+                and not ref.moving and (self._shown_probed is None
+                                        or abs(target - self._shown_probed) > self.deadband)):
+            # (a target within the deadband of the one probed toward is that demand: demand noise)
+            # h30h: inside a deadband wider than the friction met implies: a bounded probe, once
+            probe_cap = self._shown_probe_cap_nm(abs(target - thl), m, pressure_kpa, friction)
+            shown_probe = probe_cap is not None
+        if shown_probe:
+            self._shown_probing = target
+        elif self._shown_probing is not None:
+            # the probe ended (the valve let go, the error left its range, a move began): not again
+            # toward this target -- a LuGre valve that creeps in and out of the range was probed
+            # again and again and hunted on the final hold (full box 1001, 1057, 1174, ...)
+            self._shown_probed, self._shown_probing = self._shown_probing, None
         if probe_cap is not None:
             # the probe's breakaway is the drive's, not a relaxing drive's slip
             self.slip_watch.reset()
@@ -483,6 +505,8 @@ class StateFeedbackLaw(ControlLaw):
                 # let go: give the static-Coulomb surplus of the drive it let go at back, so the
                 # gear output does not follow the relaxing coupling and carry the valve further
                 _, w0, d0 = self._probe_stuck
+                if shown_probe:
+                    self._shown_probed = target
                 if friction.valve_static_nm > 0.0 and d0 > 0.0:
                     surplus = d0 * (1.0 - friction.valve_coulomb_nm / friction.valve_static_nm)
                     self.zeta -= w0 * surplus / n / self.fb.ki
@@ -528,6 +552,38 @@ class StateFeedbackLaw(ControlLaw):
                 or error_rad >= self.deadband - self.PROBE_EDGE_COUNTS * RESOLVER_COUNT_RAD):
             return None
         return static_nm * error_rad / self.deadband
+
+    def _shown_probe_cap_nm(self, error_rad: float, m, pressure_kpa: float, friction) -> float | None:
+        """The drive (N*m at the valve beyond the known and the learned load, toward the target)
+        up to which the hold may push a valve ``error_rad`` (rad, > 0) from its target that the
+        deadband in force holds although the quasi-static jump at the static friction the hold has
+        met would not (``integral.probe_shown_friction``; h30h), or None where that does not apply:
+        no band met yet (:attr:`SlipEdges.static_nm`), the error within that friction's deadband
+        (the hold stays, as the jump-sized deadband means it to), or within
+        :data:`PROBE_EDGE_COUNTS` of the deadband in force (the hold relaxes as before).
+
+        The deadband in force can be far wider than this valve's quasi-static jump: the crossing
+        breaker (:class:`~..integral_policy.JumpLearner`) widens both ways to the length of a
+        chained breakaway, whose second piece may be the gear output's own swing.  Friction x 1.5
+        nominal plant, nominal-box seed 2001: a 10 mrad jump and a 6.7 mrad swing-driven second
+        piece set both ways to 3.66 nominal jumps (9.23e-3 rad); the next 9.2 mrad opening step's
+        move did not break the valve loose, the 8.4e-3 rad error lay inside the band, and the hold
+        relaxed it for the whole plateau while the friction met (8.85 N*m: the x 1.5) gives a
+        jump of 6.9 mrad, a deadband of 3.8e-3 rad.
+
+        As :meth:`_probe_cap_nm`: a quasi-static breakaway at a drive ``D`` jumps the met
+        friction's jump times ``D / static met``, so one that lets go at
+        ``D <= static met * error / band`` lands within the jump whose deadband just holds this
+        error."""
+        shown = self.slip_edges.static_nm
+        scheduled = friction.valve_static_nm
+        if shown is None or shown <= 0.0 or scheduled <= 0.0:
+            return None
+        band = self.integral.deadband(m, pressure_kpa, shown / scheduled)
+        edge = self.PROBE_EDGE_COUNTS * RESOLVER_COUNT_RAD
+        if error_rad <= band + edge or error_rad >= self.deadband - edge:
+            return None
+        return shown * error_rad / band
 
     def _reprior_held_load(self, known_nm: float, scheduled_nm: float) -> None:
         """A move's reading said the Δp told is misread (``ff.read_breakaway_wrong_dp``): a held
