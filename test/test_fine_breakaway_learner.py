@@ -176,6 +176,8 @@ def test_an_unmoved_servo_blended_pulse_leaves_the_level_and_its_move_takes_a_ce
         assert hi > lo
         want = FineLearner(fine.learn.bands, fine.learn.limit)
         want.breakaway[direction][b] = before
-        want.observe_interval(direction, b, lo, hi, fine.cfg.scatter_gain, sigma)
+        # the table holds signed offsets: a closing move's bounds (toward the move) mirrored
+        want.observe_interval(direction, b, *((lo, hi) if direction > 0 else (-hi, -lo)), fine.cfg.scatter_gain,
+                              sigma)
         assert fine.learn.breakaway[direction][b] == pytest.approx(want.breakaway[direction][b], rel=1e-9)
         assert fine.learn.breakaway[direction][b] != before

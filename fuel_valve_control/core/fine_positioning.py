@@ -1565,8 +1565,10 @@ class FinePositioner:
 
     def _learn_interval(self, d: int, b: int, low: float, high: float, gap: float) -> None:
         """One censored sample (:meth:`FineLearner.observe_interval`): the breakaway twist's offset from its
-        nominal value (rad, toward the move) lay in [``low``, ``high``] at one stop; weight ``fine.scatter_gain``."""
-        self.learn.observe_interval(d, b, low, high, self.cfg.scatter_gain, self._scatter(d, b, gap))
+        nominal value lay in [``low``, ``high``] at one stop, rad **toward the move** (``d`` x the signed offset the
+        table holds: a closing move's bounds are mirrored); weight ``fine.scatter_gain``."""
+        lo, hi = (low, high) if d > 0 else (-high, -low)
+        self.learn.observe_interval(d, b, lo, hi, self.cfg.scatter_gain, self._scatter(d, b, gap))
 
     def _let_go_offset(self) -> float:
         """How far (rad of twist, >= 0) the twist a pulse let the valve go at lies above the apex the stage saw:
