@@ -106,3 +106,78 @@ def test_the_main_laws_breakaways_count_fine_main_sample_weight_of_a_doublets():
         x = 0.1 * m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
         assert moved[w] == pytest.approx(w * ps["fine.scatter_gain"] * x, rel=1e-6)
     assert moved[0.5] == pytest.approx(0.5 * moved[1.0])
+
+
+# ---------------------------------------------------------------------------------------------------------
+# fine.unbiased_samples (task h30u, docs §69): every input a sample of the level, not a ratchet
+
+@pytest.mark.parametrize("spread", [0.5, 1.5])
+def test_censored_samples_alone_learn_the_levels_mean_and_scatter(spread):
+    """Levels drawn N(0.4, spread) (units of the prior scatter 1), each seen only as a bound -- a pulse's apex
+    drawn about the learned level: above it (the pulse moved the valve) the level lay below the apex, else above
+    it.  :meth:`FineLearner.observe_interval` (the conditional mean and second moment of the learned normal)
+    settles on the true mean and spread from bounds alone; the ratchet-and-pull it replaces did not."""
+    rng = np.random.default_rng(11)
+    lr = FineLearner(1, 100.0)
+    mus, sig = [], []
+    for level in rng.normal(0.4, spread, 4000):
+        apex = lr.breakaway[1][0] + rng.normal(0.0, 1.0)
+        lo, hi = (-math.inf, apex) if level <= apex else (apex, math.inf)
+        lr.observe_interval(1, 0, lo, hi, 0.05, prior=1.0)
+        mus.append(lr.breakaway[1][0])
+        sig.append(lr.scatter[1][0])
+    assert np.mean(mus[1000:]) == pytest.approx(0.4, abs=0.1 * spread + 0.05)
+    assert np.mean(sig[1000:]) == pytest.approx(spread, rel=0.2)
+
+
+def test_an_interval_sample_moves_the_level_into_the_interval():
+    """Gain 1: the level becomes the conditional mean inside the interval, the scatter the rms distance of the
+    interval's level from the level before (as a point sample's deviation would be)."""
+    lr = FineLearner(1, 1.0)
+    lr.observe_interval(1, 0, 0.1, 0.2, 1.0, prior=0.1)
+    assert 0.1 < lr.breakaway[1][0] < 0.2 and 0.1 < lr.scatter[1][0] < 0.2
+    lr.observe_interval(1, 0, 0.3, 0.2, 0.5, prior=0.1)       # an empty interval: nothing learned
+    assert 0.1 < lr.breakaway[1][0] < 0.2
+    lr.reset()
+    lr.observe_interval(1, 0, 50.0, math.inf, 0.5, prior=0.1)  # far in the tail: its edge, clipped
+    assert lr.breakaway[1][0] == 1.0
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_an_unmoved_servo_blended_pulse_leaves_the_level_and_its_move_takes_a_censored_sample(direction):
+    """``fine.unbiased_samples``: a servo-blended pulse that did not move the valve (its twist stayed at its
+    preload) leaves the learned breakaway where it was -- off, the ratchet raises it ``fine.probe_step`` x the
+    band (nominal box: 822 such raises of +2.3e-4 rad median, h29q) -- while the next pulse's planned peak still
+    climbs the step.  When that pulse moves the valve, the level takes the censored sample: above the unmoved
+    apex, below the moving apex plus the let-go offset."""
+    from test_fine_positioning import _unmoved_short_pulse
+    for on in (False, True):
+        fine, pre, peak, before, b, step = _unmoved_short_pulse(direction, **{"fine.unbiased_samples": on})
+        raised = direction * (fine.learn.breakaway[direction][b] - before)
+        if not on:
+            assert raised == pytest.approx(step, rel=1e-6)          # the ratchet
+            continue
+        assert raised == pytest.approx(0.0, abs=1e-12)
+        assert direction * (fine._peak_planned - peak) == pytest.approx(step, rel=1e-6)   # the peak climbs
+        p = fine.m.pressure_max_kpa
+        err, thl = direction * 2.0 * fine.cfg.doublet_max_error_rad, 0.5
+        e0, b0 = fine._nominal(thl, p, direction)
+        lo = direction * (pre - b0)                                 # the unmoved apex: its preload
+        sigma = fine._scatter(direction, b, abs(b0 - e0))
+        for _ in range(600):                                        # the next pulse moves the valve
+            phase = fine.phase
+            if phase == "observe":
+                thl = 0.5 + err
+            fine.update(0.5 + err, 0.5 + (fine._pre if phase == "park" else fine._final), thl, True, 0.3, p)
+            if fine.phase == "hold":
+                break
+        assert fine.phase == "hold" and fine._pushes[(direction, b)] == 0.0
+        hi = direction * (fine._peak_seen - b0) + fine._let_go_offset()
+        assert hi > lo
+        want = FineLearner(fine.learn.bands, fine.learn.limit)
+        want.breakaway[direction][b] = before
+        # the table holds signed offsets: a closing move's bounds (toward the move) mirrored
+        want.observe_interval(direction, b, *((lo, hi) if direction > 0 else (-hi, -lo)), fine.cfg.scatter_gain,
+                              sigma)
+        assert fine.learn.breakaway[direction][b] == pytest.approx(want.breakaway[direction][b], rel=1e-9)
+        assert fine.learn.breakaway[direction][b] != before

@@ -272,6 +272,40 @@ class FineLearner:
         self.set("breakaway", d, b, mu + gain * dev)
         self.set("scatter", d, b, math.sqrt((1.0 - gain) * sigma * sigma + gain * dev * dev))
 
+    def observe_interval(self, direction: int, band: int, low: float, high: float, gain: float,
+                         prior: float) -> None:
+        """Take one *censored* sample of the breakaway twist's offset from its nominal value (rad): the level
+        drawn at one stop lay between ``low`` and ``high`` (either may be infinite: a pulse that moved the valve
+        bounds it from above, the furthest unmoved apex at that stop from below).  The learned level and scatter
+        are taken as a normal distribution, and the sample they take (each with weight ``gain``) is the level's
+        conditional mean and second moment about the learned mean, given the interval -- the stochastic-EM
+        step of the censored mean and variance, so that an input which only bounds the level neither ratchets
+        it (an unmoved pulse, task h30u) nor pulls it to the bound (a moved one).  Both stay bounded."""
+        d, b = direction, band
+        mu = self.breakaway[d][b]
+        sigma = max(self.scatter[d][b] or prior, 1e-9)
+        a = (low - mu) / sigma if math.isfinite(low) else -math.inf
+        z = (high - mu) / sigma if math.isfinite(high) else math.inf
+        if not a < z:
+            return
+
+        def pdf(x: float) -> float:
+            return 0.0 if math.isinf(x) else math.exp(-0.5 * x * x) / math.sqrt(2.0 * math.pi)
+
+        def cdf(x: float) -> float:
+            return 0.5 * math.erfc(-x / math.sqrt(2.0))
+
+        mass = cdf(z) - cdf(a)
+        if mass < 1e-12:
+            # the interval lies far in a tail of what was learned: its near edge is the best sample
+            self.observe_breakaway(d, b, low if math.isfinite(low) and a > 0.0 else high, gain, prior)
+            return
+        m1 = (pdf(a) - pdf(z)) / mass                                   # E[(L - mu) / sigma | interval]
+        m2 = 1.0 + ((a * pdf(a) if math.isfinite(a) else 0.0) - (z * pdf(z) if math.isfinite(z) else 0.0)) / mass
+        self.set("breakaway", d, b, mu + gain * sigma * m1)
+        self.set("scatter", d, b, math.sqrt(max((1.0 - gain) * sigma * sigma + gain * sigma * sigma * max(m2, 0.0),
+                                                0.0)))
+
     def observe_start(self, direction: int, band: int, let_go: bool, quantile: float, step: float,
                       prior: float) -> None:
         """Take one staircase's first-stair outcome into its learned start (``start``, in learned scatters of
@@ -415,6 +449,8 @@ class FineConfig:
                                   # staircase whose first apex lies this many learned scatters below the preload twist the
                                   # last one broke at (the same direction), instead of handing the plateau back; a further
                                   # preload breakaway hands it back (0: hand back at once; task h30b, docs §66)
+    unbiased_samples: bool = False  # every stage input a sample of the level: a moved doublet's at its apex plus the
+                                    # let-go offset, a servo-blended pulse's a censored one (no ratchet; task h30u)
 
 
 class FinePositioner:
@@ -1332,9 +1368,12 @@ class FinePositioner:
             # one), but the start, fine.doublet_sigmas scatters below it, is where the staircase's time goes
             self.learn.observe_start(d, b, abs(move) > 0.5 * cfg.tolerance_rad, cfg.start_quantile,
                                      cfg.start_step_sigmas, cfg.doublet_sigmas)
+        below = self._safe                     # (fine.unbiased_samples) the stop's furthest unmoved apex, if any
         if abs(move) > 0.5 * cfg.tolerance_rad:
             self._stair = None                 # a new stop: a new breakaway level
-            if not self._doublet:
+            if cfg.unbiased_samples:
+                self._pushes[(d, b)] = 0.0     # (h30u) a new stop: the climb was this stop's (its bound is learned)
+            elif not self._doublet:
                 self._pushes[(d, b)] = (1.0 - MOVE_GAIN) * self._pushes.get((d, b), 0.0)
             self._safe = None
             self._early_breaks += 0 if pulsed else 1
@@ -1369,7 +1408,24 @@ class FinePositioner:
                 # apex that broke it loose (the apex before did not), or below the preload it
                 # broke loose at (the staircase started too close: the scatter grows)
                 half_step = 0.5 * (self._stair_step or cfg.doublet_probe_step * gap0)
-                self._learn_breakaway(d, b, (self._peak_seen if pulsed else self._pre) - d * half_step - b0, gap0)
+                if cfg.unbiased_samples and pulsed:
+                    # (task h30u) the kick let it go: the level lies at the apex plus the let-go offset
+                    # (:meth:`_let_go_offset`), not half a stair below it -- there every moved doublet's
+                    # sample lay 1.3e-4 rad below the plant's true level (nominal box, h29q)
+                    self._learn_breakaway(d, b, self._peak_seen + d * self._let_go_offset() - b0, gap0)
+                elif cfg.unbiased_samples:
+                    # it broke loose in the preload: the level lay below it (a censored sample)
+                    self._learn_interval(d, b, -math.inf, d * (self._pre - b0), gap0)
+                else:
+                    self._learn_breakaway(d, b, (self._peak_seen if pulsed else self._pre) - d * half_step - b0,
+                                          gap0)
+            elif cfg.unbiased_samples:
+                # (task h30u) a servo-blended pulse's move bounds the level: below the twist it let go at
+                # (the apex plus the let-go offset, or the preload it broke loose in), above the furthest
+                # apex an unmoved pulse reached at this stop -- a censored sample, not a pull to the apex
+                hi = self._peak_seen + d * self._let_go_offset() if pulsed else self._pre
+                lo = d * (below - b0) if below is not None else -math.inf
+                self._learn_interval(d, b, lo, d * (hi - b0), gap0)
             else:
                 # breakaway at most the largest twist seen: probe a little lower next time
                 seen = self._peak_seen if pulsed else self._pre
@@ -1422,7 +1478,17 @@ class FinePositioner:
                 step = cfg.doublet_probe_step if self._doublet else cfg.probe_step
                 if self._safe is None or d * self._peak_seen > d * self._safe:
                     self._safe = self._peak_seen
-                if cfg.probe_reached:
+                if cfg.unbiased_samples:
+                    # (task h30u) an unmoved pulse only bounds this stop's level from below (the apex): that
+                    # bound enters the learned level once, with the move that ends the stop (above).  Raised
+                    # here by fine.probe_step x the band at each unmoved pulse (the §46 ratchet: +2.3e-4 rad
+                    # median over 822 pulses, the level lying 1.8e-4 above before them), the level drifted up
+                    # from every stop; the next pulse still climbs, by the push its peak is planned with
+                    # as far as the ratchet would have raised the level (max(level, apex) + step x band)
+                    self._pushes[(d, b)] = max(self._pushes.get((d, b), 0.0),
+                                               d * (self._peak_seen - (b0 + curb))) + step * gap0
+                    new_b = b0 + curb
+                elif cfg.probe_reached:
                     # an unmoved pulse proves only that the level at this stop lies beyond the apex the
                     # twist really reached: a pulse that fell short of the learned level (the servo
                     # reaches 60-75 % of a planned overdrive) proves nothing above it -- raised anyway,
@@ -1539,6 +1605,21 @@ class FinePositioner:
         (:meth:`FineLearner.observe_breakaway`, the prior scatter :meth:`_scatter`'s), taken with
         ``weight`` x ``fine.scatter_gain`` (the main law's samples: ``fine.main_sample_weight``)."""
         self.learn.observe_breakaway(d, b, x, self.cfg.scatter_gain * weight, self._scatter(d, b, gap))
+
+    def _learn_interval(self, d: int, b: int, low: float, high: float, gap: float) -> None:
+        """One censored sample (:meth:`FineLearner.observe_interval`): the breakaway twist's offset from its
+        nominal value lay in [``low``, ``high``] at one stop, rad **toward the move** (``d`` x the signed offset the
+        table holds: a closing move's bounds are mirrored); weight ``fine.scatter_gain``."""
+        lo, hi = (low, high) if d > 0 else (-high, -low)
+        self.learn.observe_interval(d, b, lo, hi, self.cfg.scatter_gain, self._scatter(d, b, gap))
+
+    def _let_go_offset(self) -> float:
+        """How far (rad of twist, >= 0) the twist a pulse let the valve go at lies above the apex the stage saw:
+        the valve breaks loose between two samples while the kick raises the twist, so the last sample lies on
+        average half the rise the kick adds below it -- half of :meth:`_kick_rise` (task h30u; traced on the
+        nominal box, h29q: a moved doublet's apex lay a median 0.94e-4 rad below the plant's quasi-static level,
+        p10 / p90 -1.5e-4 / +0.1e-4; the kick's measured rise is 0.28-0.30e-3 rad)."""
+        return 0.5 * self._kick_rise()
 
     def _hand_back(self) -> None:
         """Leave the plateau to the main law (which restarts from :meth:`hold_torque`): the

@@ -369,6 +369,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "breakaway in the learned breakaway twist and scatter (fine.scatter_gain x this; nominal box: unbiased but "
           "p10/p90 +-7e-4 rad off the plant's true level, a moved doublet's 1.6e-4 wide; task h29q)", 0.0, 1.0,
           runtime=True),
+    Param("fine.unbiased_samples", False, "", "every input of the learned breakaway a sample of the level drawn at its "
+          "stop: a doublet that moved the valve at its apex plus the let-go offset (half the kick's rise), not half a "
+          "stair below; a servo-blended pulse a censored sample (the level below the twist it let go at, above the "
+          "stop's furthest unmoved apex), taken as the learned normal's conditional mean and second moment, instead "
+          "of the pull to the apex and the raise by fine.probe_step at each unmoved pulse (the next pulse's peak "
+          "still climbs; task h30u)", runtime=True),
     Param("fine.min_move_fraction", 0.5, "", "no pulse for an error below this fraction of the learned smallest "
           "move a pulse makes (0.5: a move m improves an error e only if m < 2|e|; 0 = pulse regardless)",
           0.0, 2.0, runtime=True),

@@ -321,6 +321,7 @@ class PositionController:
                           repark_from_state=ps["fine.repark_from_state"],
                           start_quantile=ps["fine.start_quantile"], start_step_sigmas=ps["fine.start_step_sigmas"],
                           main_sample_weight=ps["fine.main_sample_weight"],
+                          unbiased_samples=ps["fine.unbiased_samples"],
                           retreat_stop_unmoved=ps["fine.retreat_stop_unmoved"],
                           retreat_unmoved_fraction=ps["fine.retreat_unmoved_fraction"])
 
