@@ -354,17 +354,18 @@ def test_a_piece_the_drive_wound_up_again_is_no_rest_of_the_breakaway_before():
 
 def test_the_chain_still_joins_a_piece_the_drive_did_not_wind():
     """JumpLearner alone, chain and ``unchain_rewound`` on, nominal jump 4 mrad, band 2.2 mrad: a
-    4 mrad jump comes to rest 1 mrad short (inside the band), then a 4 mrad piece the same way
-    lands 3 mrad beyond the target.  With the coupling's twist only unwound by the valve's travel
-    (the first jump's unspent twist going on, seed 1112's case) the pieces are one 8 mrad crossing:
-    both ways 2.0 nominal.  With the gear output winding the twist up again by 3 mrad (> half the
-    nominal jump) while the valve rests, the piece is its own 4 mrad crossing: 1.0."""
+    4 mrad jump crosses the target and comes to rest 1 mrad beyond it (inside the band), then a
+    4 mrad piece the same way lands 5 mrad beyond.  With the coupling's twist only unwound by the
+    valve's travel (the first jump's unspent twist going on, seed 1112's case) the pieces are one
+    8 mrad crossing: both ways 2.0 nominal.  With the gear output winding the twist up again by
+    3 mrad (> half the nominal jump) while the valve rests beyond the target, the piece is the
+    drive's overtravel, not joined: no crossing, the ratio stays the jumps' own (1.0)."""
     from fuel_valve_control.core.integral_policy import JumpLearner
 
-    def closing_ratio(rewind: float) -> float:
+    def learner(rewind: float) -> JumpLearner:
         j = JumpLearner(cross_hold=True, chain_periods=50, unchain_rewound=True)
-        path = ([(-5e-3, True)] * 5 + [(-3e-3, False), (-1e-3, False)] + [(-1e-3, True)] * 10
-                + [(1e-3, False), (3e-3, False)] + [(3e-3, True)] * 3)
+        path = ([(-3e-3, True)] * 5 + [(-1e-3, False), (1e-3, False)] + [(1e-3, True)] * 10
+                + [(3e-3, False), (5e-3, False)] + [(5e-3, True)] * 3)
         twist, before = 0.040, path[0][0]
         for i, (valve, stuck) in enumerate(path):
             twist -= valve - before                       # the valve's travel unwinds the coupling
@@ -372,7 +373,8 @@ def test_the_chain_still_joins_a_piece_the_drive_did_not_wind():
             if 7 <= i < 17:
                 twist += rewind / 10.0                    # the gear output winds it up again (or not)
             j.update(valve, stuck, True, 4e-3, 0.0, 2.2e-3, True, None, twist)
-        return j.directed[-1]
+        return j
 
-    assert closing_ratio(0.0) == pytest.approx(2.0)
-    assert closing_ratio(3e-3) == pytest.approx(1.0)
+    unspent, rewound = learner(0.0), learner(3e-3)
+    assert unspent.crossings == 1 and unspent.ratio_toward(-1) == pytest.approx(2.0)
+    assert rewound.crossings == 0 and rewound.ratio_toward(-1) == pytest.approx(1.0)

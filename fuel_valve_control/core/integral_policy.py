@@ -427,7 +427,7 @@ class JumpLearner:
         return self.directed.get(1 if direction > 0.0 else -1, self.ratio)
 
     def _chain_start(self, way: int, inside: bool, nominal_jump: float = 0.0,
-                     twist: float | None = None) -> float:
+                     twist: float | None = None, target: float | None = None) -> float:
         """Where the breakaway that just ended (from ``self._start``, ``way`` ±1) began, its
         pieces joined: a slide that starts the same way within ``chain_periods`` of the end of the
         one before is the rest of that breakaway, and the chain's start is the first piece's.
@@ -448,8 +448,13 @@ class JumpLearner:
 
         ``unchain_rewound`` (h31c): a piece that started after the coupling was wound up again its
         way (``twist`` at its start minus the lowest twist, its way, since the piece before started) by
-        at least half the ``nominal_jump`` (rad; floored at ``min_jump``) was driven, not the
-        breakaway's unspent twist going on (which only unwinds): it is not chained.  Friction x 1.5,
+        at least half the ``nominal_jump`` (rad; floored at ``min_jump``) *from beyond the target*
+        (``target``: the piece before had crossed it already) was the gear output's overtravel
+        driving the valve away from the target, not the breakaway's unspent twist going on (which
+        only unwinds): it is not chained.  A piece that starts short of the target while the hold
+        winds on is chained as before: unchained there too (the twist rose 0.65-0.69 mrad, over
+        half of a 1.13 mrad nominal jump at low Δp), full-box seed 1191 lost the chain's crossing
+        and hunted on its final hold.  Friction x 1.5,
         nominal-box seed 2001 plateau 6: a 10.1 mrad jump rested inside the band, the gear output
         kept winding (twist 36.8 -> 41.1 mrad, the valve at rest), 12 ms later the valve slid
         6.7 mrad more; joined, the 16.8 mrad "jump" across the target set both ways to 3.66
@@ -458,7 +463,7 @@ class JumpLearner:
         chain = self._chain
         span = self._chain_twist
         rewound = (self.unchain_rewound and twist is not None and self._start_twist is not None
-                   and span is not None
+                   and span is not None and target is not None and way * (target - self._start) < 0.0
                    and way * (self._start_twist - (span[0] if way > 0 else span[1]))
                    >= max(0.5 * nominal_jump, self.min_jump))
         if (self.chain_periods > 0 and chain is not None and chain[1] == way and chain[3]
@@ -519,7 +524,7 @@ class JumpLearner:
                     own = seen if own is None else own + self.gain * (seen - own)
                     self.directed[way] = min(max(own, self.limits[0]), self.limits[1])
                     origin = self._chain_start(way, target is None or abs(target - valve) <= band,
-                                               nominal_jump, twist)
+                                               nominal_jump, twist, target)
                     if origin != self._start:
                         seen = max(seen, abs(valve - origin) / nominal_jump)
                     if (self.cross_hold and target is not None and (target - origin) * (target - valve) < 0.0
