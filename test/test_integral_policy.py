@@ -313,7 +313,7 @@ def test_the_probe_does_not_break_loose_a_valve_whose_jump_would_not_fit():
 
 
 # ------------------------------------------------------------------ a deadband wider than the friction met (h30h)
-def _heavy_valve_run(probe: bool) -> dict:
+def _heavy_valve_run(probe: bool, unchain: bool = False) -> dict:
     """Nominal-box campaign seed 2001 (benchmarks/robustness.py) on a plant with 1.5x the told
     friction, the controller not told: the robustness run's record."""
     import sys
@@ -323,7 +323,8 @@ def _heavy_valve_run(probe: bool) -> dict:
 
     from fuel_valve_control.core.params import DEFAULT_MODE
     case = {**rb.sample_case(2001, "nominal"), "friction_scale": 1.5}
-    return rb.run_case((case, DEFAULT_MODE, {"integral.probe_shown_friction": probe}))
+    return rb.run_case((case, DEFAULT_MODE, {"integral.probe_shown_friction": probe,
+                                             "integral.unchain_rewound": unchain}))
 
 
 def test_a_heavier_valve_held_inside_a_widened_deadband_is_probed_loose():
@@ -337,3 +338,43 @@ def test_a_heavier_valve_held_inside_a_widened_deadband_is_probed_loose():
     on = _heavy_valve_run(True)
     assert on["plateaus"][7]["final_error_rad"] < 2e-3
     assert not on["hunts"] and not on["fault"] and on["peak_current_a"] <= 30.0
+
+
+def test_a_piece_the_drive_wound_up_again_is_no_rest_of_the_breakaway_before():
+    """The same heavier valve (friction x 1.5, seed 2001) with ``integral.unchain_rewound``: on
+    plateau 6 the 6.7 mrad piece started after the gear output wound the coupling up again by
+    4.8 mrad (> half the 4.6 mrad nominal jump) from the lowest twist since the 10.1 mrad jump
+    before it; not joined to it, no 16.8 mrad crossing widens both ways to 3.66 nominal, and
+    plateau 7's 9.2 mrad step is no longer inside the deadband: 1.7e-3 rad (off, the default:
+    8.39e-3; docs section 71).  One run, ~2.5 s CPU."""
+    on = _heavy_valve_run(False, unchain=True)
+    assert on["plateaus"][7]["final_error_rad"] < 3e-3
+    assert not on["hunts"] and not on["fault"] and on["peak_current_a"] <= 30.0
+
+
+def test_the_chain_still_joins_a_piece_the_drive_did_not_wind():
+    """JumpLearner alone, chain and ``unchain_rewound`` on, nominal jump 4 mrad, band 2.2 mrad: a
+    4 mrad jump crosses the target and comes to rest 1 mrad beyond it (inside the band), then a
+    4 mrad piece the same way lands 5 mrad beyond.  With the coupling's twist only unwound by the
+    valve's travel (the first jump's unspent twist going on, seed 1112's case) the pieces are one
+    8 mrad crossing: both ways 2.0 nominal.  With the gear output winding the twist up again by
+    3 mrad (> half the nominal jump) while the valve rests beyond the target, the piece is the
+    drive's overtravel, not joined: no crossing, the ratio stays the jumps' own (1.0)."""
+    from fuel_valve_control.core.integral_policy import JumpLearner
+
+    def learner(rewind: float) -> JumpLearner:
+        j = JumpLearner(cross_hold=True, chain_periods=50, unchain_rewound=True)
+        path = ([(-3e-3, True)] * 5 + [(-1e-3, False), (1e-3, False)] + [(1e-3, True)] * 10
+                + [(3e-3, False), (5e-3, False)] + [(5e-3, True)] * 3)
+        twist, before = 0.040, path[0][0]
+        for i, (valve, stuck) in enumerate(path):
+            twist -= valve - before                       # the valve's travel unwinds the coupling
+            before = valve
+            if 7 <= i < 17:
+                twist += rewind / 10.0                    # the gear output winds it up again (or not)
+            j.update(valve, stuck, True, 4e-3, 0.0, 2.2e-3, True, None, twist)
+        return j
+
+    unspent, rewound = learner(0.0), learner(3e-3)
+    assert unspent.crossings == 1 and unspent.ratio_toward(-1) == pytest.approx(2.0)
+    assert rewound.crossings == 0 and rewound.ratio_toward(-1) == pytest.approx(1.0)

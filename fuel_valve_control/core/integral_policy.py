@@ -69,6 +69,10 @@ class IntegralPolicy:
     #: (StateFeedbackLaw._shown_probe_cap_nm): a valve with more friction than told that a move
     #: left stuck inside a widened deadband is broken loose instead of held short for the plateau
     probe_shown_friction: bool = False
+    #: h31c: the limit-cycle breaker's chain (:meth:`JumpLearner._chain_start`) joins a piece to
+    #: the breakaway before only if the coupling was not wound up again in the piece's direction
+    #: between them (:attr:`JumpLearner.unchain_rewound`): a jump's unspent twist only unwinds
+    unchain_rewound: bool = False
 
     @property
     def settle_time_s(self) -> float:
@@ -339,8 +343,13 @@ class JumpLearner:
 
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4,
                  rest_periods: int = 1, cross_hold: bool = False, catch_up_periods: int = 0,
-                 chain_periods: int = 0):
+                 chain_periods: int = 0, unchain_rewound: bool = False):
         self.gain = gain
+        #: h31c: a piece is no rest of the breakaway before if the coupling's twist (gear output
+        #: minus valve, valve side, rad) rose the piece's way by half the nominal jump or more
+        #: between that breakaway's end and the piece's start (:meth:`_chain_start`; needs
+        #: ``twist`` in :meth:`update`)
+        self.unchain_rewound = unchain_rewound
         #: a breakaway the same way that starts within this many periods of the end of the one
         #: before (0 = off) is read by the limit-cycle breaker (``cross_hold``) as the rest of it
         #: (:meth:`_chain_start`)
@@ -380,6 +389,11 @@ class JumpLearner:
         #: (start rad, way ±1, the period it ended (:attr:`_period`), ended inside the deadband) of
         #: the latest breakaway, pieces chained (:meth:`_chain_start`)
         self._chain: tuple[float, int, int, bool] | None = None
+        #: the lowest and highest twist (rad) from that breakaway's start up to the next start
+        self._chain_twist: tuple[float, float] | None = None
+        self._slide_twist: tuple[float, float] | None = None   # the same over the slide in progress
+        self._stuck_twist: float | None = None   # the twist at _stuck_at (rad), then at _start
+        self._start_twist: float | None = None
         self._period = 0                  # periods updated (the clock of the chain's end)
         self.catch_ups = 0                # slides driven onto the target, not learned (diagnostics)
 
@@ -412,7 +426,8 @@ class JumpLearner:
         side's own jump."""
         return self.directed.get(1 if direction > 0.0 else -1, self.ratio)
 
-    def _chain_start(self, way: int, inside: bool) -> float:
+    def _chain_start(self, way: int, inside: bool, nominal_jump: float = 0.0,
+                     twist: float | None = None, target: float | None = None) -> float:
         """Where the breakaway that just ended (from ``self._start``, ``way`` ±1) began, its
         pieces joined: a slide that starts the same way within ``chain_periods`` of the end of the
         one before is the rest of that breakaway, and the chain's start is the first piece's.
@@ -429,13 +444,33 @@ class JumpLearner:
         Only a piece that came to rest *inside* the deadband (``inside``, of the piece before) is
         continued: one that ended beyond it across the target has been judged by the breaker at
         its own size already.  Chaining those too widened the band to the whole chain on nominal
-        valves (nominal box, 40 runs: 66 -> 71 plateaus > 8e-4 rad; h21h)."""
+        valves (nominal box, 40 runs: 66 -> 71 plateaus > 8e-4 rad; h21h).
+
+        ``unchain_rewound`` (h31c): a piece that started after the coupling was wound up again its
+        way (``twist`` at its start minus the lowest twist, its way, since the piece before started) by
+        at least half the ``nominal_jump`` (rad; floored at ``min_jump``) *from beyond the target*
+        (``target``: the piece before had crossed it already) was the gear output's overtravel
+        driving the valve away from the target, not the breakaway's unspent twist going on (which
+        only unwinds): it is not chained.  A piece that starts short of the target while the hold
+        winds on is chained as before: unchained there too (the twist rose 0.65-0.69 mrad, over
+        half of a 1.13 mrad nominal jump at low Δp), full-box seed 1191 lost the chain's crossing
+        and hunted on its final hold.  Friction x 1.5,
+        nominal-box seed 2001 plateau 6: a 10.1 mrad jump rested inside the band, the gear output
+        kept winding (twist 36.8 -> 41.1 mrad, the valve at rest), 12 ms later the valve slid
+        6.7 mrad more; joined, the 16.8 mrad "jump" across the target set both ways to 3.66
+        nominal, a 9.23e-3 rad deadband that held plateau 7 8.39e-3 short (docs section 68/71)."""
         start = self._start
         chain = self._chain
+        span = self._chain_twist
+        rewound = (self.unchain_rewound and twist is not None and self._start_twist is not None
+                   and span is not None and target is not None and way * (target - self._start) < 0.0
+                   and way * (self._start_twist - (span[0] if way > 0 else span[1]))
+                   >= max(0.5 * nominal_jump, self.min_jump))
         if (self.chain_periods > 0 and chain is not None and chain[1] == way and chain[3]
-                and self._period - chain[2] <= self.chain_periods + self._slide):
+                and self._period - chain[2] <= self.chain_periods + self._slide and not rewound):
             start = chain[0]
         self._chain = (start, way, self._period, inside)
+        self._chain_twist = self._slide_twist
         return start
 
     def _driven_to(self, target: float | None, valve: float, band: float, known: float) -> bool:
@@ -448,14 +483,16 @@ class JumpLearner:
 
     def update(self, valve: float, stuck: bool, holding: bool, nominal_jump: float,
                target: float | None = None, band: float = 0.0, driven: bool = True,
-               travel: float | None = None) -> None:
+               travel: float | None = None, twist: float | None = None) -> None:
         """One period: ``valve`` the angle the jump is read from (rad: the valve angle, or the
         tracking error valve − reference, see the class docstring), at rest or not, holding (no
         planned move), the nominal jump (rad); ``driven``: the drive's torque could have broken
         the valve loose (read when it does), ``target`` (in the same frame as ``valve``) and
         ``band`` (rad): the target and the deadband in force, for the end of a displacement;
         ``travel`` (rad, optional): the valve's own noise-filtered angle, which must have moved
-        by ``min_jump`` for a breakaway to count (None: no such check)."""
+        by ``min_jump`` for a breakaway to count (None: no such check); ``twist`` (rad, optional,
+        + the valve's positive way): the coupling's twist, gear output minus valve, valve side, for
+        ``unchain_rewound`` (None: chained as before)."""
         if not holding:
             self._start = None
             self._chain = None
@@ -464,6 +501,8 @@ class JumpLearner:
             self._start = self._stuck_at                      # broke away while holding
             self._slide = 0
             self._start_travel = self._stuck_travel
+            self._start_twist = self._stuck_twist
+            self._slide_twist = None if self._stuck_twist is None else (self._stuck_twist, self._stuck_twist)
             self._driven = driven
         elif stuck and self._start is not None and self._rest + 1 >= self.rest_periods:
             moved = valve - self._start
@@ -484,7 +523,8 @@ class JumpLearner:
                     seen = abs(moved) / nominal_jump
                     own = seen if own is None else own + self.gain * (seen - own)
                     self.directed[way] = min(max(own, self.limits[0]), self.limits[1])
-                    origin = self._chain_start(way, target is None or abs(target - valve) <= band)
+                    origin = self._chain_start(way, target is None or abs(target - valve) <= band,
+                                               nominal_jump, twist, target)
                     if origin != self._start:
                         seen = max(seen, abs(valve - origin) / nominal_jump)
                     if (self.cross_hold and target is not None and (target - origin) * (target - valve) < 0.0
@@ -505,4 +545,14 @@ class JumpLearner:
         self._slide += 1
         self._period += 1
         self._stuck_travel = travel if stuck else None
+        self._stuck_twist = twist if stuck else None
+        if twist is not None:
+            # the coupling's twist from a breakaway's start to the next one's: a jump unwinds it,
+            # its unspent twist going on only unwinds it further; wound up again from its lowest
+            # (the jump's way) the gear output drove it
+            if self._start is not None:
+                lo, hi = self._slide_twist or (twist, twist)
+                self._slide_twist = (min(lo, twist), max(hi, twist))
+            elif self._chain_twist is not None:
+                self._chain_twist = (min(self._chain_twist[0], twist), max(self._chain_twist[1], twist))
 

@@ -189,6 +189,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "the quasi-static jump at the static friction the hold has met would, the hold's stuck ramp still pushes "
           "toward the target, once per target, up to the drive whose quasi-static jump that deadband would just "
           "hold (docs/control_results.md section 68; off: measured)"),
+    Param("integral.unchain_rewound", False, "", "observer_fp (the limit-cycle breaker's chain): a breakaway "
+          "piece is joined to the one before only if the coupling's twist did not rise its way by half the "
+          "nominal jump or more between them (the gear output wound it again: the piece was driven, not the "
+          "first jump's unspent twist) (docs/control_results.md section 71; off: measured)"),
     Param("integral.deadband_min_rad", 2.9e-4, "rad", "smallest deadband (3 valve resolver counts)",
           0.0, 0.05, runtime=True),
     # --- the drive's supply (planned moves are designed for it, core/design.design_trajectory)

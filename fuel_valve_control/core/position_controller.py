@@ -253,6 +253,7 @@ class PositionController:
                                   stiffness_tolerance=ps["integral.stiffness_tolerance"],
                                   probe_soft_floor=ps["integral.probe_soft_floor"],
                                   probe_shown_friction=ps["integral.probe_shown_friction"],
+                                  unchain_rewound=ps["integral.unchain_rewound"],
                                   # the learned steady load never exceeds what the drive can hold
                                   load_limit_nm=ps["limits.continuous_current_a"] * m.torque_constant_nm_per_a
                                   * m.gear_ratio)

@@ -111,7 +111,8 @@ class StateFeedbackLaw(ControlLaw):
         # limit-cycle breaker (JumpLearner._chain_start; h21h, campaign seed 1112)
         self.jumps = JumpLearner(cross_hold=self.met_hold,
                                  catch_up_periods=round(self.CATCH_UP_S / period_s) if v2 else 0,
-                                 chain_periods=round(integral.settle_time_s / period_s) if self.met_hold else 0)
+                                 chain_periods=round(integral.settle_time_s / period_s) if self.met_hold else 0,
+                                 unchain_rewound=integral.unchain_rewound)
         #: h24k: the coupling's stiffness read at every hold (``integral.read_stiffness``, v2
         #: modes): K_model / K sizes the hold's jump and the planned moves' coupling-snap
         #: feed-forward once it lies beyond the reading's scatter (:class:`HoldStiffness`).  A rest
@@ -368,7 +369,8 @@ class StateFeedbackLaw(ControlLaw):
         # "slips" that collapsed the deadband and flipped the learned load (IntegralPolicy, h14r)
         valve = sum(hist) / len(hist) if self.v2 else meas.valve_rad
         self.jumps.update(valve - frame, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad),
-                          target - frame, self.deadband, driven, valve if self.v2 else None)
+                          target - frame, self.deadband, driven, valve if self.v2 else None,
+                          meas.motor_rad / m.gear_ratio - meas.valve_rad if self.integral.unchain_rewound else None)
         # v2: sized by the jump the valve makes toward the target (the jumps differ by direction)
         ratio = self.jumps.ratio_toward(target - thl) if self.v2 else self.jumps.ratio
         met = self.compensator.jump_ratio()     # the jump the friction met at breakaway implies
