@@ -470,6 +470,13 @@ class FinePositioner:
         self.timeable = self.servo_margin_rad(j1, self.kp, self.kd, period_s) > 0.0
         self._pushes = {}                  # fine.probe_reached: {(direction, Δp band): rad of twist (>= 0, toward the
                                            # move) a servo-blended pulse's planned peak lies beyond the learned level's}
+        # fine.repark_from_state / fine.retreat_unmoved_fraction: kept across resets (the last gear-output
+        # speeds rad/s, None before the first period; the planned re-park; the servo's integral at the last preload)
+        self._w1_now: float | None = None
+        self._w1_prev: float | None = None
+        self._repark: tuple[float, float, float, float] | None = None
+        self._integral_held: float | None = None
+        self._unmoved_now = False          # the valve within half a tolerance of the pulse's start (this period)
         self.reset()
 
     @staticmethod
@@ -986,7 +993,8 @@ class FinePositioner:
         gap = d * (self._park_mid - x0)
         if gap <= 0.0 or self._park_n1 <= 0:
             return
-        w1, w1_prev = getattr(self, "_w1_now", 0.0), getattr(self, "_w1_prev", 0.0)
+        w1 = self._w1_now if self._w1_now is not None else 0.0
+        w1_prev = self._w1_prev if self._w1_prev is not None else 0.0
         v0 = max(d * (1.5 * w1 - 0.5 * w1_prev), 0.0)
         v_app = min(self.cfg.park_approach_speed, self.cfg.park_speed)
         t_want = 3.0 * gap / max(v0 + v_app, 2.0 * self.cfg.park_speed)
@@ -1000,9 +1008,8 @@ class FinePositioner:
         # and the twist settled 0.3-0.8e-3 rad past the preload (seed 1000).  The integral alone restored, the
         # park's end error stayed in the proportional part and the integral drifted ~0.13 A toward the move
         # over a staircase (the park ends 0.9e-4 rad past the preload, median); with it, 0.3e-4 (§61)
-        held = getattr(self, "_integral_held", None)
-        if held is not None:
-            self._integral = held
+        if self._integral_held is not None:
+            self._integral = self._integral_held
         self._park_n1 = n1
         self._park_n2 = max(self._park_n2, self.cfg.park_periods - n1)
         self._park_n = self._park_n1 + self._park_n2
@@ -1010,7 +1017,7 @@ class FinePositioner:
     def _park_ref(self, k: int) -> tuple[float, float, float]:
         """The preload twist reference in period ``k`` of the park: (rad, rad/s, rad/s²)."""
         per = self.period
-        if getattr(self, "_repark", None) is not None:
+        if self._repark is not None:
             return self._repark_ref(k)
         if k <= self._park_n1:
             return self._blend(self._phi_start, self._park_mid, k * per, self._park_n1 * per)
@@ -1106,7 +1113,7 @@ class FinePositioner:
             self._hand_back()
             return None
         self._k += 1
-        self._w1_prev, self._w1_now = getattr(self, "_w1_now", w1), w1    # (fine.repark_from_state)
+        self._w1_prev, self._w1_now = (w1 if self._w1_now is None else self._w1_now), w1   # (fine.repark_from_state)
         base = self._thl0
         if self.phase == PARK:
             x, v, a = self._park_ref(self._k)
@@ -1171,7 +1178,7 @@ class FinePositioner:
                 self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed)
                 if self.phase == IDLE:
                     return None
-                if self.phase == PARK and getattr(self, "_repark", None) is not None:
+                if self.phase == PARK and self._repark is not None:
                     # (fine.repark_from_state) the planned re-park takes over in this period already: the
                     # observe servo pulling on toward the final twist is what throws the rebound past the plan
                     x, v, a = self._park_ref(0)
@@ -1230,7 +1237,7 @@ class FinePositioner:
             torque = self._hold_torque - d * cap
         else:
             # (h28r, ``fine.retreat_unmoved_fraction``) a valve not yet moved by now may get less of it
-            frac = cfg.retreat_unmoved_fraction if getattr(self, "_unmoved_now", False) else 0.5
+            frac = cfg.retreat_unmoved_fraction if self._unmoved_now else 0.5
             torque = self._hold_torque - d * frac * cap
             self.phase, self._k, self._pulsed = OBSERVE, 0, True
         return min(max(torque, -cap), cap)

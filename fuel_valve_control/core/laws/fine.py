@@ -48,8 +48,7 @@ class FinePositioningLaw(ControlLaw):
             if not worth:
                 self._stop_stage()
             if not self._stand_down:      # (stood down: the main law takes the plateau back now)
-                main = self.main          # the band its hold measured (fine.cold_band_gate)
-                self.fine.hold_static_nm = main.slip_edges.static_nm if main.met_hold and main.slip_edges.known else None
+                self.fine.hold_static_nm = self.main.band_static_nm   # (fine.cold_band_gate)
                 torque = self.fine.update(target, th1, meas.valve_rad, self._holding and worth and not self._aside,
                                           self._applied, pressure_kpa)
         self._stand_down = False

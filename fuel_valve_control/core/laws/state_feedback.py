@@ -419,7 +419,7 @@ class StateFeedbackLaw(ControlLaw):
                       # the planned move and the time its acceleration is sampled at (ff.snap_fit_cap)
                       self.shaper.move if ref.moving else None, self.shaper.sample_time,
                       # the static friction the hold's band showed (ff.band_starts_wrong_dp_move)
-                      self.slip_edges.static_nm if self.met_hold and self.slip_edges.known else None)
+                      self.band_static_nm)
         comp, self._fm, self._fl = self.compensator.update(ctx)
         if self.met_hold and not ref.moving:
             self._reprior_held_load(load_nm if self.v2 else 0.0, friction.valve_static_nm)
@@ -521,6 +521,14 @@ class StateFeedbackLaw(ControlLaw):
         if self.stiffness is not None and snap * u > 0.0 and abs(u) > self.snap_peak_nm:
             u -= math.copysign(min(abs(u) - self.snap_peak_nm, abs(snap)), u)
         return u
+
+    @property
+    def band_static_nm(self) -> float | None:
+        """The static valve friction the hold's band showed (N*m, valve side: half the width between
+        its relax slips' two edges, :attr:`SlipEdges.static_nm`), or None: not a hold on the friction
+        met, or not both edges known.  Read by the move's feed-forward (``ff.band_starts_wrong_dp_move``)
+        and by the fine stage's cold start (``fine.cold_band_gate``)."""
+        return self.slip_edges.static_nm if self.met_hold and self.slip_edges.known else None
 
     def _probe_cap_nm(self, error_rad: float, static_nm: float, learned_rad: float) -> float | None:
         """The drive (N*m at the valve beyond the known and the learned load, toward the target)
