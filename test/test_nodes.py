@@ -119,7 +119,7 @@ def test_demand_step_moves_the_valve_in_real_time():
     jump_pct = 100.0 * friction_levels(ps).stick_slip_jump_rad(ps["coupling.stiffness_nm_per_rad"]) / STROKE
     assert abs(summary["final_error_pct"]) < 2.0 * jump_pct, text
     loop = summary["loop"]
-    assert loop["ticks"] > 2000 and loop["commands"] > 500, loop
+    assert loop["ticks"] > 2000 and loop["commands"] > 500, (summary["loop_source"], loop)
 
 
 # ------------------------------------------------------------------------------ faults

@@ -72,6 +72,8 @@ class Monitor:
         #: round trip ...), values as published (text)
         self.loop: dict[str, str] = {}
         self.loop_reports = 0                      # how many of them arrived
+        #: the newest loop report's header stamp (s; in real time the plant's system clock)
+        self.loop_stamp: float | None = None
         self._taken = 0                            # callbacks run (spin_for drains until none)
         n = self.node
         from rclpy.qos import HistoryPolicy, QoSProfile
@@ -131,6 +133,7 @@ class Monitor:
             if st.name == self._plant_loop_name:
                 self.loop = {kv.key: kv.value for kv in st.values}
                 self.loop_reports += 1
+                self.loop_stamp = stamp_seconds(msg.header.stamp.sec, msg.header.stamp.nanosec)
                 continue
             if "valve driver" not in st.name or not st.name.startswith(self.node.get_namespace() + "/"):
                 continue
