@@ -136,3 +136,52 @@ def test_repark_follows_the_rebound_from_the_trough_and_arrives_at_the_preload_a
             assert refs[-2][2] == pytest.approx(0.0, abs=0.05)
     assert firsts[False][2] == 0.0                                 # off: the observe servo, rate reference 0
     assert periods[True] < periods[False]
+
+
+def _periods_to_engage(fine, err, p, deadband):
+    """Periods from a new steady demand ``err`` (rad) off a valve at rest, after the stage saw the main law's
+    breakaway on an earlier plateau, until the stage engages; ``deadband``: the main law's integrator deadband
+    the law hands it each period (rad, or None)."""
+    from test_fine_positioning import _break_loose, _rest_twist
+    thl = 0.5
+    _break_loose(fine, thl, p)
+    th1 = thl + _rest_twist(fine, thl, p)
+    for k in range(1, 400):
+        fine.main_deadband_rad = deadband
+        fine.update(thl + err, th1, thl, True, 0.3, p)
+        if fine.phase != "idle":
+            return k
+    return None
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_engage_inside_the_main_laws_deadband_skips_the_fresh_wait(direction):
+    """``fine.engage_inside_deadband`` (task h32d, §76; off by default): on a plateau the main law has not
+    broken the valve loose on, the stage waits ``FRESH_WAIT`` engage times for it -- unless the error lies inside
+    the main law's deadband by at least the tolerance, where the hold moves nothing: then it engages after the
+    engage time.  Off, or an error near the deadband's edge, or no deadband handed over (a probing hold): the
+    wait as before."""
+    from fuel_valve_control.core.fine_positioning import FRESH_WAIT
+    err = direction * 2.0e-3
+    off, m = _stage()
+    p = m.pressure_max_kpa
+    wait = FRESH_WAIT * off.cfg.engage_periods
+    assert _periods_to_engage(off, err, p, 4e-3) >= wait
+    on, _ = _stage(**{"fine.engage_inside_deadband": True})
+    tol = on.cfg.tolerance_rad
+    assert _periods_to_engage(on, err, p, 4e-3) <= on.cfg.engage_periods + 2
+    for band in (abs(err) + 0.5 * tol, None):
+        late, _ = _stage(**{"fine.engage_inside_deadband": True})
+        assert _periods_to_engage(late, err, p, band) >= wait
+
+
+def test_the_law_hands_the_stage_its_deadband_unless_the_hold_probes():
+    """The mode's law hands the stage the main law's deadband in force (rad), none where the hold may probe
+    inside it (``integral.probe_shown_friction``)."""
+    from fuel_valve_control.core.position_controller import PositionController
+    from fuel_valve_control.core.params import CONTROLLER_SPEC
+    for probe in (False, True):
+        ps = CONTROLLER_SPEC.defaults().replace({"mode": "observer_fp", "integral.probe_shown_friction": probe})
+        law = PositionController(ps).law
+        law.main.deadband = 2.5e-3
+        assert law._deadband_held() == (None if probe else 2.5e-3)

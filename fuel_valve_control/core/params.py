@@ -520,6 +520,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "
           "coupling x0.3: (3 Ts + load) / (0.3 K) ~ 0.14 rad)", 1e-4, 1.0),
+    Param("fine.engage_inside_deadband", False, "", "the stage does not wait FRESH_WAIT engage times for the main "
+          "law to break the valve loose on a plateau whose error at rest lies inside the main law's integrator "
+          "deadband by at least fine.tolerance_counts (and the hold probes nothing: coupling read as told): its hold "
+          "does not move the valve there, and the wait (0.09 s of a 0.3-0.8 s plateau) was out of the doublet "
+          "staircase's time (task h32d, docs §76)", runtime=True),
     # --- fc_gain (appendix A) ------------------------------------------------------------------
     Param("fc_gain.gain", 0.8, "", "stiction-breaking torque as a fraction of the nominal valve "
           "static friction at the current pressure", 0.0, 3.0, runtime=True),

@@ -324,7 +324,8 @@ class PositionController:
                           main_sample_weight=ps["fine.main_sample_weight"],
                           unbiased_samples=ps["fine.unbiased_samples"],
                           retreat_stop_unmoved=ps["fine.retreat_stop_unmoved"],
-                          retreat_unmoved_fraction=ps["fine.retreat_unmoved_fraction"])
+                          retreat_unmoved_fraction=ps["fine.retreat_unmoved_fraction"],
+                          engage_inside_deadband=ps["fine.engage_inside_deadband"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period

@@ -49,6 +49,7 @@ class FinePositioningLaw(ControlLaw):
                 self._stop_stage()
             if not self._stand_down:      # (stood down: the main law takes the plateau back now)
                 self.fine.hold_static_nm = self.main.band_static_nm   # (fine.cold_band_gate)
+                self.fine.main_deadband_rad = self._deadband_held()  # (fine.engage_inside_deadband)
                 torque = self.fine.update(target, th1, meas.valve_rad, self._holding and worth and not self._aside,
                                           self._applied, pressure_kpa)
         self._stand_down = False
@@ -68,6 +69,18 @@ class FinePositioningLaw(ControlLaw):
         ref = self.main.reference
         self._holding = (not seat and ref is not None and not ref.moving and abs(ref.position - target) < 1e-12)
         return torque
+
+    def _deadband_held(self) -> float | None:
+        """The main law's integrator deadband in force (rad, its last period's) where its hold moves no valve
+        inside it; None where it may (a bounded probe inside the band: ``integral.probe_soft_floor`` on a
+        coupling read softer than told, or ``integral.probe_shown_friction``), for
+        :meth:`FinePositioner._main_stays`."""
+        main = self.main
+        if main.integral.probe_shown_friction:
+            return None
+        if main.stiffness is not None and main.stiffness.misfit != 1.0:
+            return None
+        return main.deadband
 
     def _resume_main(self, meas: Measurement, torque_nm: float, pressure_kpa: float) -> None:
         """Restart the main law bumplessly from ``torque_nm`` (observer, integrator) but keep what
