@@ -378,3 +378,51 @@ def test_the_chain_still_joins_a_piece_the_drive_did_not_wind():
     unspent, rewound = learner(0.0), learner(3e-3)
     assert unspent.crossings == 1 and unspent.ratio_toward(-1) == pytest.approx(2.0)
     assert rewound.crossings == 0 and rewound.ratio_toward(-1) == pytest.approx(1.0)
+
+
+# ------------------------------------------------------------------ the chained crossing bounded by the friction met (h32b)
+def _chained_crossing(margin: float, drive_ratio: float | None) -> JumpLearner:
+    """JumpLearner alone, chain on, nominal jump 4 mrad, band 2.2 mrad: a 4 mrad jump crosses the
+    target and rests 1 mrad beyond it (inside the band), then a 4 mrad piece the same way lands
+    5 mrad beyond: one 8 mrad crossing (2.0 nominal).  The drive on the valve while it was at rest
+    before each piece is handed as its quasi-static jump ratio (``drive_ratio``, signed, + opening:
+    both pieces open)."""
+    j = JumpLearner(cross_hold=True, chain_periods=50, cross_met_margin=margin)
+    path = ([(-3e-3, True)] * 5 + [(-1e-3, False), (1e-3, False)] + [(1e-3, True)] * 10
+            + [(3e-3, False), (5e-3, False)] + [(5e-3, True)] * 3)
+    for valve, stuck in path:
+        j.update(valve, stuck, True, 4e-3, 0.0, 2.2e-3, True, None, None,
+                 drive_ratio)
+    return j
+
+
+def test_a_chained_crossing_widens_no_further_than_the_drive_at_let_go_allows():
+    """``integral.cross_ratio_from_met`` (h32b): the chain's 8 mrad (2.0 nominal) is what the breaker
+    sets both ways without a bound, or without a drive reading; with the drive at let-go a
+    quasi-static 1.1 nominal jump and the margin 1.5, at most 1.65 nominal -- but never less than
+    the last piece made alone (1.0: a drive of 0.5 nominal bounds it there)."""
+    assert _chained_crossing(0.0, 1.1).ratio_toward(1) == pytest.approx(2.0)      # off: main's chain
+    assert _chained_crossing(1.5, None).ratio_toward(1) == pytest.approx(2.0)     # no drive read: unbounded
+    bounded = _chained_crossing(1.5, 1.1)
+    assert bounded.crossings == 1 and bounded.met_bounded == 1
+    assert bounded.ratio_toward(1) == pytest.approx(1.65) and bounded.ratio_toward(-1) == pytest.approx(1.65)
+    assert _chained_crossing(1.5, 0.5).ratio_toward(1) == pytest.approx(1.0)
+    assert _chained_crossing(1.5, 2.0).met_bounded == 0                          # 3.0 allowed: the chain's 2.0
+
+
+def test_a_heavier_valve_keeps_no_deadband_its_friction_cannot_jump():
+    """The heavier valve (friction x 1.5, seed 2001) with ``integral.cross_ratio_from_met``: plateau
+    6's chain (10.1 mrad jump + the 6.7 mrad piece the gear output drove: 3.66 nominal) is bounded by
+    1.5 x the quasi-static jump of the drive at let-go, so plateau 7's 9.2 mrad step is no longer
+    held inside a 9.23e-3 rad deadband: 1.70e-3 rad (off, the default: 8.39e-3; docs section 74).
+    One run, ~2.5 s CPU."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import robustness as rb
+
+    from fuel_valve_control.core.params import DEFAULT_MODE
+    case = {**rb.sample_case(2001, "nominal"), "friction_scale": 1.5}
+    on = rb.run_case((case, DEFAULT_MODE, {"integral.cross_ratio_from_met": True}))
+    assert on["plateaus"][7]["final_error_rad"] < 3e-3
+    assert not on["hunts"] and not on["fault"] and on["peak_current_a"] <= 30.0
