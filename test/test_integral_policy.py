@@ -426,3 +426,18 @@ def test_a_heavier_valve_keeps_no_deadband_its_friction_cannot_jump():
     on = rb.run_case((case, DEFAULT_MODE, {"integral.cross_ratio_from_met": True}))
     assert on["plateaus"][7]["final_error_rad"] < 3e-3
     assert not on["hunts"] and not on["fault"] and on["peak_current_a"] <= 30.0
+
+
+def test_a_crossing_widens_the_band_only_until_the_next_move():
+    """``integral.cross_until_move`` (h32b): the chained 8 mrad crossing (2.0 nominal both ways) holds
+    the deadband at the target crossed; a planned move (``holding`` false: a new demand) returns
+    both ways to the jumps' own ratios (the two 4 mrad pieces: 1.0).  Off, the widening stays."""
+    def after_move(keep: bool) -> JumpLearner:
+        j = _chained_crossing(0.0, None)
+        j.cross_until_move = keep
+        assert j.crossings == 1 and j.ratio_toward(-1) == pytest.approx(2.0)
+        j.update(5e-3, False, False, 4e-3)        # a planned move starts
+        return j
+    assert after_move(False).ratio_toward(-1) == pytest.approx(2.0)
+    moved = after_move(True)
+    assert moved.ratio_toward(1) == pytest.approx(1.0) and moved.ratio_toward(-1) == pytest.approx(1.0)

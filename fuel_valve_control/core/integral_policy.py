@@ -84,6 +84,10 @@ class IntegralPolicy:
     #: 1.1-1.45x quasi-static (the gear output follows the relaxing coupling; h26k's trace, docs
     #: section 42), so 1.5 is the measured upper end, not a fit to one case
     cross_met_margin: float = 1.5
+    #: h32b: the limit-cycle breaker's widening holds for the target it was met at: a planned move
+    #: (a new demand) returns both directions to the jumps' own ratios
+    #: (:attr:`JumpLearner.cross_until_move`)
+    cross_until_move: bool = False
 
     @property
     def settle_time_s(self) -> float:
@@ -354,8 +358,14 @@ class JumpLearner:
 
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4,
                  rest_periods: int = 1, cross_hold: bool = False, catch_up_periods: int = 0,
-                 chain_periods: int = 0, unchain_rewound: bool = False, cross_met_margin: float = 0.0):
+                 chain_periods: int = 0, unchain_rewound: bool = False, cross_met_margin: float = 0.0,
+                 cross_until_move: bool = False):
         self.gain = gain
+        #: h32b: a crossing widens both ways (``cross_hold``) only until the next planned move: the
+        #: hold at a new target sizes its deadband by the jumps' own ratios (:attr:`own`).  Friction
+        #: x 1.5, seed 2001: plateau 6's chained crossing (3.66 nominal) held plateau 7's 9.2 mrad
+        #: step inside its 9.23e-3 rad band; a limit cycle about the target crossed is the same hold
+        self.cross_until_move = cross_until_move
         #: h32b: > 0: the ratio a chained crossing sets both ways is at most this times the
         #: largest quasi-static jump ratio the drive implied at the chain's breakaways (the
         #: ``drive_ratio`` handed to :meth:`update` the last period at rest before each piece),
@@ -401,6 +411,9 @@ class JumpLearner:
         #: the ratio learned from the jumps in each direction alone (+1 opening, -1 closing; a
         #: direction not met yet is absent): :meth:`ratio_toward`
         self.directed: dict[int, float] = {}
+        #: the same, learned from the jumps alone, never widened by the breaker (``cross_until_move``)
+        self.own: dict[int, float] = {}
+        self._widened = False             # the breaker widened ``directed`` since the last move
         self.crossings = 0                # breakaways across the target beyond the band (diagnostics)
         #: (start rad, way ±1, the period it ended (:attr:`_period`), ended inside the deadband) of
         #: the latest breakaway, pieces chained (:meth:`_chain_start`)
@@ -434,6 +447,7 @@ class JumpLearner:
         lo, hi = self.limits
         self.ratio = min(max(self.ratio * factor, lo), hi)
         self.directed = {w: min(max(r * factor, lo), hi) for w, r in self.directed.items()}
+        self.own = {w: min(max(r * factor, lo), hi) for w, r in self.own.items()}
         self._start = None
 
     def ratio_toward(self, direction: float) -> float:
@@ -523,6 +537,10 @@ class JumpLearner:
         the quasi-static jump the drive on the valve this period would make over the nominal one
         (drive beyond the loads / scheduled static friction x K_model / K read), for
         ``cross_met_margin`` (None: the chain's widening unbounded)."""
+        if not holding and self.cross_until_move and self._widened:
+            # a new demand: the crossing met at the last target widens no more
+            self.directed = dict(self.own)
+            self._widened = False
         if not holding:
             self._start = None
             self._chain = None
@@ -554,6 +572,9 @@ class JumpLearner:
                     seen = abs(moved) / nominal_jump
                     own = seen if own is None else own + self.gain * (seen - own)
                     self.directed[way] = min(max(own, self.limits[0]), self.limits[1])
+                    mine = self.own.get(way)
+                    mine = seen if mine is None else mine + self.gain * (seen - mine)
+                    self.own[way] = min(max(mine, self.limits[0]), self.limits[1])
                     origin = self._chain_start(way, target is None or abs(target - valve) <= band,
                                                nominal_jump, twist, target)
                     if origin != self._start:
@@ -576,6 +597,8 @@ class JumpLearner:
                         # breaker: the band widens to the jump that was really made)
                         for w in (1, -1):
                             self.directed[w] = min(max(self.directed.get(w, self.ratio), seen), self.limits[1])
+                            self.own.setdefault(w, self.ratio)
+                        self._widened = True
                         self.crossings += 1
             self.ratio = min(max(self.ratio, self.limits[0]), self.limits[1])
             self._start = None
