@@ -378,3 +378,48 @@ def test_the_chain_still_joins_a_piece_the_drive_did_not_wind():
     unspent, rewound = learner(0.0), learner(3e-3)
     assert unspent.crossings == 1 and unspent.ratio_toward(-1) == pytest.approx(2.0)
     assert rewound.crossings == 0 and rewound.ratio_toward(-1) == pytest.approx(1.0)
+
+
+# ------------------------------------------------------------------ the chained crossing bounded by the friction met (h32b)
+def _chained_crossing(margin: float, drive_ratio: float | None) -> JumpLearner:
+    """JumpLearner alone, chain on, nominal jump 4 mrad, band 2.2 mrad: a 4 mrad jump crosses the
+    target and rests 1 mrad beyond it (inside the band), then a 4 mrad piece the same way lands
+    5 mrad beyond: one 8 mrad crossing (2.0 nominal).  The drive on the valve while it was at rest
+    before each piece is handed as its quasi-static jump ratio (``drive_ratio``, signed, + opening:
+    both pieces open)."""
+    j = JumpLearner(cross_hold=True, chain_periods=50, cross_met_margin=margin)
+    path = ([(-3e-3, True)] * 5 + [(-1e-3, False), (1e-3, False)] + [(1e-3, True)] * 10
+            + [(3e-3, False), (5e-3, False)] + [(5e-3, True)] * 3)
+    for valve, stuck in path:
+        j.update(valve, stuck, True, 4e-3, 0.0, 2.2e-3, True, None, None,
+                 drive_ratio)
+    return j
+
+
+def test_a_chained_crossing_widens_no_further_than_the_drive_at_let_go_allows():
+    """``integral.cross_ratio_from_met`` (h32b): the chain's 8 mrad (2.0 nominal) is what the breaker
+    sets both ways without a bound, or without a drive reading; with the drive at let-go a
+    quasi-static 1.1 nominal jump and the margin 1.5, at most 1.65 nominal -- but never less than
+    the last piece made alone (1.0: a drive of 0.5 nominal bounds it there)."""
+    assert _chained_crossing(0.0, 1.1).ratio_toward(1) == pytest.approx(2.0)      # off: main's chain
+    assert _chained_crossing(1.5, None).ratio_toward(1) == pytest.approx(2.0)     # no drive read: unbounded
+    bounded = _chained_crossing(1.5, 1.1)
+    assert bounded.crossings == 1 and bounded.met_bounded == 1
+    assert bounded.ratio_toward(1) == pytest.approx(1.65) and bounded.ratio_toward(-1) == pytest.approx(1.65)
+    assert _chained_crossing(1.5, 0.5).ratio_toward(1) == pytest.approx(1.0)
+    assert _chained_crossing(1.5, 2.0).met_bounded == 0                          # 3.0 allowed: the chain's 2.0
+
+
+def test_a_crossing_widens_the_band_only_until_the_next_move():
+    """``integral.cross_until_move`` (h32b): the chained 8 mrad crossing (2.0 nominal both ways) holds
+    the deadband at the target crossed; a planned move (``holding`` false: a new demand) returns
+    both ways to the jumps' own ratios (the two 4 mrad pieces: 1.0).  Off, the widening stays."""
+    def after_move(keep: bool) -> JumpLearner:
+        j = _chained_crossing(0.0, None)
+        j.cross_until_move = keep
+        assert j.crossings == 1 and j.ratio_toward(-1) == pytest.approx(2.0)
+        j.update(5e-3, False, False, 4e-3)        # a planned move starts
+        return j
+    assert after_move(False).ratio_toward(-1) == pytest.approx(2.0)
+    moved = after_move(True)
+    assert moved.ratio_toward(1) == pytest.approx(1.0) and moved.ratio_toward(-1) == pytest.approx(1.0)

@@ -73,6 +73,21 @@ class IntegralPolicy:
     #: the breakaway before only if the coupling was not wound up again in the piece's direction
     #: between them (:attr:`JumpLearner.unchain_rewound`): a jump's unspent twist only unwinds
     unchain_rewound: bool = False
+    #: h32b: the limit-cycle breaker's widening from a *chained* breakaway (pieces joined by
+    #: :meth:`JumpLearner._chain_start`) is bounded by the jump the friction met at the chain's
+    #: breakaways allows: ``cross_met_margin`` x the quasi-static jump at the drive the hold had
+    #: on the valve when it let go (its ratio to the nominal jump: drive / scheduled Ts, times
+    #: K_model / K read), never below the jump the last piece made alone
+    #: (:attr:`JumpLearner.cross_met_margin`; 0 = off)
+    cross_ratio_from_met: bool = False
+    #: the bound's margin over the quasi-static jump: breakaways on the box's couplings run
+    #: 1.1-1.45x quasi-static (the gear output follows the relaxing coupling; h26k's trace, docs
+    #: section 42), so 1.5 is the measured upper end, not a fit to one case
+    cross_met_margin: float = 1.5
+    #: h32b: the limit-cycle breaker's widening holds for the target it was met at: a planned move
+    #: (a new demand) returns both directions to the jumps' own ratios
+    #: (:attr:`JumpLearner.cross_until_move`)
+    cross_until_move: bool = False
 
     @property
     def settle_time_s(self) -> float:
@@ -343,8 +358,19 @@ class JumpLearner:
 
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4,
                  rest_periods: int = 1, cross_hold: bool = False, catch_up_periods: int = 0,
-                 chain_periods: int = 0, unchain_rewound: bool = False):
+                 chain_periods: int = 0, unchain_rewound: bool = False, cross_met_margin: float = 0.0,
+                 cross_until_move: bool = False):
         self.gain = gain
+        #: h32b: a crossing widens both ways (``cross_hold``) only until the next planned move: the
+        #: hold at a new target sizes its deadband by the jumps' own ratios (:attr:`own`).  Friction
+        #: x 1.5, seed 2001: plateau 6's chained crossing (3.66 nominal) held plateau 7's 9.2 mrad
+        #: step inside its 9.23e-3 rad band; a limit cycle about the target crossed is the same hold
+        self.cross_until_move = cross_until_move
+        #: h32b: > 0: the ratio a chained crossing sets both ways is at most this times the
+        #: largest quasi-static jump ratio the drive implied at the chain's breakaways (the
+        #: ``drive_ratio`` handed to :meth:`update` the last period at rest before each piece),
+        #: and never below the last piece's own jump (0 = off: the whole chain, as before)
+        self.cross_met_margin = cross_met_margin
         #: h31c: a piece is no rest of the breakaway before if the coupling's twist (gear output
         #: minus valve, valve side, rad) rose the piece's way by half the nominal jump or more
         #: between that breakaway's end and the piece's start (:meth:`_chain_start`; needs
@@ -385,6 +411,9 @@ class JumpLearner:
         #: the ratio learned from the jumps in each direction alone (+1 opening, -1 closing; a
         #: direction not met yet is absent): :meth:`ratio_toward`
         self.directed: dict[int, float] = {}
+        #: the same, learned from the jumps alone, never widened by the breaker (``cross_until_move``)
+        self.own: dict[int, float] = {}
+        self._widened = False             # the breaker widened ``directed`` since the last move
         self.crossings = 0                # breakaways across the target beyond the band (diagnostics)
         #: (start rad, way ±1, the period it ended (:attr:`_period`), ended inside the deadband) of
         #: the latest breakaway, pieces chained (:meth:`_chain_start`)
@@ -395,6 +424,12 @@ class JumpLearner:
         self._stuck_twist: float | None = None   # the twist at _stuck_at (rad), then at _start
         self._start_twist: float | None = None
         self._period = 0                  # periods updated (the clock of the chain's end)
+        #: the drive's quasi-static jump ratio (signed, + opening) at _stuck_at, then at _start
+        #: (``cross_met_margin``), and the largest toward its way over the chain's pieces
+        self._stuck_drive: float | None = None
+        self._start_drive: float | None = None
+        self._chain_drive: float | None = None
+        self.met_bounded = 0              # chained crossings the met friction's jump bounded (diagnostics)
         self.catch_ups = 0                # slides driven onto the target, not learned (diagnostics)
 
     def drop_slide(self) -> None:
@@ -412,6 +447,7 @@ class JumpLearner:
         lo, hi = self.limits
         self.ratio = min(max(self.ratio * factor, lo), hi)
         self.directed = {w: min(max(r * factor, lo), hi) for w, r in self.directed.items()}
+        self.own = {w: min(max(r * factor, lo), hi) for w, r in self.own.items()}
         self._start = None
 
     def ratio_toward(self, direction: float) -> float:
@@ -466,9 +502,13 @@ class JumpLearner:
                    and span is not None and target is not None and way * (target - self._start) < 0.0
                    and way * (self._start_twist - (span[0] if way > 0 else span[1]))
                    >= max(0.5 * nominal_jump, self.min_jump))
+        drive = None if self._start_drive is None else max(way * self._start_drive, 0.0)
         if (self.chain_periods > 0 and chain is not None and chain[1] == way and chain[3]
                 and self._period - chain[2] <= self.chain_periods + self._slide and not rewound):
             start = chain[0]
+            if drive is not None and self._chain_drive is not None:
+                drive = max(drive, self._chain_drive)
+        self._chain_drive = drive
         self._chain = (start, way, self._period, inside)
         self._chain_twist = self._slide_twist
         return start
@@ -483,7 +523,8 @@ class JumpLearner:
 
     def update(self, valve: float, stuck: bool, holding: bool, nominal_jump: float,
                target: float | None = None, band: float = 0.0, driven: bool = True,
-               travel: float | None = None, twist: float | None = None) -> None:
+               travel: float | None = None, twist: float | None = None,
+               drive_ratio: float | None = None) -> None:
         """One period: ``valve`` the angle the jump is read from (rad: the valve angle, or the
         tracking error valve − reference, see the class docstring), at rest or not, holding (no
         planned move), the nominal jump (rad); ``driven``: the drive's torque could have broken
@@ -492,7 +533,14 @@ class JumpLearner:
         ``travel`` (rad, optional): the valve's own noise-filtered angle, which must have moved
         by ``min_jump`` for a breakaway to count (None: no such check); ``twist`` (rad, optional,
         + the valve's positive way): the coupling's twist, gear output minus valve, valve side, for
-        ``unchain_rewound`` (None: chained as before)."""
+        ``unchain_rewound`` (None: chained as before); ``drive_ratio`` (optional, signed, + opening):
+        the quasi-static jump the drive on the valve this period would make over the nominal one
+        (drive beyond the loads / scheduled static friction x K_model / K read), for
+        ``cross_met_margin`` (None: the chain's widening unbounded)."""
+        if not holding and self.cross_until_move and self._widened:
+            # a new demand: the crossing met at the last target widens no more
+            self.directed = dict(self.own)
+            self._widened = False
         if not holding:
             self._start = None
             self._chain = None
@@ -502,6 +550,7 @@ class JumpLearner:
             self._slide = 0
             self._start_travel = self._stuck_travel
             self._start_twist = self._stuck_twist
+            self._start_drive = self._stuck_drive
             self._slide_twist = None if self._stuck_twist is None else (self._stuck_twist, self._stuck_twist)
             self._driven = driven
         elif stuck and self._start is not None and self._rest + 1 >= self.rest_periods:
@@ -523,10 +572,23 @@ class JumpLearner:
                     seen = abs(moved) / nominal_jump
                     own = seen if own is None else own + self.gain * (seen - own)
                     self.directed[way] = min(max(own, self.limits[0]), self.limits[1])
+                    mine = self.own.get(way)
+                    mine = seen if mine is None else mine + self.gain * (seen - mine)
+                    self.own[way] = min(max(mine, self.limits[0]), self.limits[1])
                     origin = self._chain_start(way, target is None or abs(target - valve) <= band,
                                                nominal_jump, twist, target)
                     if origin != self._start:
-                        seen = max(seen, abs(valve - origin) / nominal_jump)
+                        chained = abs(valve - origin) / nominal_jump
+                        if self.cross_met_margin > 0.0 and self._chain_drive is not None:
+                            # h32b: the chain can be longer than any breakaway at the friction met:
+                            # a piece the gear output's overtravel drove (friction x 1.5, seed
+                            # 2001: 10.1 + 6.7 mrad, 3.66 nominal, where the drive at let-go
+                            # allows ~1.5 x the margin) -- widen no further than that allows
+                            bound = max(seen, self.cross_met_margin * self._chain_drive)
+                            if chained > bound:
+                                chained = bound
+                                self.met_bounded += 1
+                        seen = max(seen, chained)
                     if (self.cross_hold and target is not None and (target - origin) * (target - valve) < 0.0
                             and abs(target - valve) > band):
                         # the breakaway carried the valve across the target and beyond the
@@ -535,6 +597,8 @@ class JumpLearner:
                         # breaker: the band widens to the jump that was really made)
                         for w in (1, -1):
                             self.directed[w] = min(max(self.directed.get(w, self.ratio), seen), self.limits[1])
+                            self.own.setdefault(w, self.ratio)
+                        self._widened = True
                         self.crossings += 1
             self.ratio = min(max(self.ratio, self.limits[0]), self.limits[1])
             self._start = None
@@ -546,6 +610,7 @@ class JumpLearner:
         self._period += 1
         self._stuck_travel = travel if stuck else None
         self._stuck_twist = twist if stuck else None
+        self._stuck_drive = drive_ratio if stuck else None
         if twist is not None:
             # the coupling's twist from a breakaway's start to the next one's: a jump unwinds it,
             # its unspent twist going on only unwinds it further; wound up again from its lowest

@@ -195,6 +195,17 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "first jump's unspent twist) (docs/control_results.md section 71; off: measured)"),
     Param("integral.deadband_min_rad", 2.9e-4, "rad", "smallest deadband (3 valve resolver counts)",
           0.0, 0.05, runtime=True),
+    Param("integral.cross_ratio_from_met", False, "", "observer_fp (the limit-cycle breaker's chain): the jump a "
+          "chained breakaway across the target sets both ways is at most integral.cross_met_margin x the "
+          "quasi-static jump of the drive the hold had on the valve when it let go (drive / scheduled static "
+          "friction x K_model / K read), never below the last piece's own jump (docs/control_results.md "
+          "section 74; off: measured)"),
+    Param("integral.cross_met_margin", 1.5, "", "with integral.cross_ratio_from_met: the bound's margin over the "
+          "quasi-static jump (breakaways on the box's couplings run 1.1-1.45x quasi-static, docs section 42/52)",
+          1.0, 10.0),
+    Param("integral.cross_until_move", False, "", "observer_fp (the limit-cycle breaker): a crossing's widening of "
+          "both directions' jump ratio holds until the next planned move; the hold at a new target sizes its "
+          "deadband by the jumps' own ratios (docs/control_results.md section 74; off: measured)"),
     # --- the drive's supply (planned moves are designed for it, core/design.design_trajectory)
     Param("drive.supply_voltage_v", 28.0, "V", "DC bus voltage of the drive (data sheet 18-32 V; set it to the "
           "configured or measured supply): observer_ff/observer_fp plan moves no faster than the back-EMF it "

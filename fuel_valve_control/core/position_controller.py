@@ -254,6 +254,9 @@ class PositionController:
                                   probe_soft_floor=ps["integral.probe_soft_floor"],
                                   probe_shown_friction=ps["integral.probe_shown_friction"],
                                   unchain_rewound=ps["integral.unchain_rewound"],
+                                  cross_ratio_from_met=ps["integral.cross_ratio_from_met"],
+                                  cross_met_margin=ps["integral.cross_met_margin"],
+                                  cross_until_move=ps["integral.cross_until_move"],
                                   # the learned steady load never exceeds what the drive can hold
                                   load_limit_nm=ps["limits.continuous_current_a"] * m.torque_constant_nm_per_a
                                   * m.gear_ratio)

@@ -112,7 +112,9 @@ class StateFeedbackLaw(ControlLaw):
         self.jumps = JumpLearner(cross_hold=self.met_hold,
                                  catch_up_periods=round(self.CATCH_UP_S / period_s) if v2 else 0,
                                  chain_periods=round(integral.settle_time_s / period_s) if self.met_hold else 0,
-                                 unchain_rewound=integral.unchain_rewound)
+                                 unchain_rewound=integral.unchain_rewound,
+                                 cross_met_margin=integral.cross_met_margin if integral.cross_ratio_from_met else 0.0,
+                                 cross_until_move=integral.cross_until_move)
         #: h24k: the coupling's stiffness read at every hold (``integral.read_stiffness``, v2
         #: modes): K_model / K sizes the hold's jump and the planned moves' coupling-snap
         #: feed-forward once it lies beyond the reading's scatter (:class:`HoldStiffness`).  A rest
@@ -370,7 +372,10 @@ class StateFeedbackLaw(ControlLaw):
         valve = sum(hist) / len(hist) if self.v2 else meas.valve_rad
         self.jumps.update(valve - frame, stuck, not ref.moving, max(nominal_jump, self.integral.min_rad),
                           target - frame, self.deadband, driven, valve if self.v2 else None,
-                          meas.motor_rad / m.gear_ratio - meas.valve_rad if self.integral.unchain_rewound else None)
+                          meas.motor_rad / m.gear_ratio - meas.valve_rad if self.integral.unchain_rewound else None,
+                          # h32b: the quasi-static jump the drive on the valve would make, over the nominal one
+                          soft * drive_nm / friction.valve_static_nm
+                          if self.integral.cross_ratio_from_met and friction.valve_static_nm > 0.0 else None)
         # v2: sized by the jump the valve makes toward the target (the jumps differ by direction)
         ratio = self.jumps.ratio_toward(target - thl) if self.v2 else self.jumps.ratio
         met = self.compensator.jump_ratio()     # the jump the friction met at breakaway implies
