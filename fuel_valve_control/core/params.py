@@ -530,7 +530,8 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "that far up is in the tail of the stairs-needed distribution (nominal box: median 6, p90 19) -- at most "
           "fine.kick_rise_rad (the next preload below the apex reached) and as far as the worst move it allows "
           "(smallest move + fine.move_per_overdrive, else fine.stair_growth_slope, x the stair) leaves at most half "
-          "the error (0 = never; task h32e, docs §77)", 0, 1000, runtime=True),
+          "the error (0 = never; 12 measured no better on the nominal box: the tail's moves are already large, docs §77; "
+          "task h32e)", 0, 1000, runtime=True),
     Param("fine.stair_growth_slope", 4.0, "rad/rad", "fine.stair_growth_after: the valve's move per twist overdrive "
           "at breakaway the grown stair is bounded with where fine.move_per_overdrive is 0 (benchmarks/fine_doublet.py: "
           "~4)", 0.1, 100.0, runtime=True),
