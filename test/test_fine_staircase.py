@@ -185,3 +185,34 @@ def test_the_law_hands_the_stage_its_deadband_unless_the_hold_probes():
         law = PositionController(ps).law
         law.main.deadband = 2.5e-3
         assert law._deadband_held() == (None if probe else 2.5e-3)
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_stairs_grow_after_many_unmoved_ones_bounded_by_the_worst_move(direction):
+    """``fine.stair_growth_after`` = N (task h32e, §77; 0 = off, the default): the first N stairs of a staircase
+    climb the fixed ``fine.doublet_probe_step`` x the band; the n-th unmoved stair after them climbs the floor x
+    n / N, at most as far as the worst move it allows (smallest move + ``fine.stair_growth_slope`` x the stair)
+    leaves half the error, never above ``fine.kick_rise_rad``; for an error whose smallest move leaves no room,
+    the floor.  Off: every stair the floor (fails with the growth ignored)."""
+    big_n, err = 4, direction * 0.9e-3
+    fixed, m = _stage()
+    p = m.pressure_max_kpa
+    grown, _ = _stage(**{"fine.stair_growth_after": big_n})
+    _, d_fixed = _stuck_staircase(fixed, err, p, stairs=10)
+    _, d_grown = _stuck_staircase(grown, err, p, stairs=10)
+    c_fixed = [a - b for a, b in zip(d_fixed, d_fixed[1:])]
+    c_grown = [a - b for a, b in zip(d_grown, d_grown[1:])]
+    floor = c_fixed[0]
+    assert all(c == pytest.approx(floor) for c in c_fixed)
+    assert d_grown[0] == pytest.approx(d_fixed[0])
+    assert all(c == pytest.approx(floor) for c in c_grown[:big_n])
+    cfg = grown.cfg
+    cap = min((1.5 * abs(err) - grown._smallest_move(direction, p)) / cfg.stair_growth_slope, cfg.kick_rise_rad)
+    assert cap > 1.5 * floor                     # the case leaves room to grow
+    for i, c in enumerate(c_grown[big_n:], start=big_n + 1):
+        assert c == pytest.approx(min(floor * i / big_n, cap), rel=1e-6)
+    assert c_grown[-1] == pytest.approx(cap, rel=1e-6) and c_grown[-1] <= cfg.kick_rise_rad
+    # an error the smallest move nearly fills: no room, the floor throughout
+    small, _ = _stage(**{"fine.stair_growth_after": big_n})
+    _, d_small = _stuck_staircase(small, direction * 0.6e-3, p, stairs=8)
+    assert all(a - b == pytest.approx(floor, rel=1e-3) for a, b in zip(d_small, d_small[1:]))

@@ -454,6 +454,9 @@ class FineConfig:
     engage_inside_deadband: bool = False  # no FRESH_WAIT for a main-law breakaway where the error at rest lies inside
                                           # the main law's integrator deadband (:meth:`FinePositioner._main_stays`;
                                           # task h32d, docs §76)
+    stair_growth_after: int = 0   # doublet: after this many unmoved stairs of one staircase each further stair grows
+                                  # (:meth:`FinePositioner._grown_stair`; task h32e, docs §77; 0: never)
+    stair_growth_slope: float = 4.0  # ... bounded as fine.move_per_overdrive bounds it (this slope where that is 0)
 
 
 class FinePositioner:
@@ -536,6 +539,7 @@ class FinePositioner:
         self._stair = None
         self._safe = None             # fine.preload_cap: the furthest twist toward the move an unmoved pulse reached
                                       # at this stop, rad (None: none yet)
+        self._stairs_unmoved = 0      # fine.stair_growth_after: unmoved stairs of the staircase in progress
         self._stair_step = 0.0        # the last stair's climb, rad of twist (the level lies within it below the apex)
         self._rise_seen = [0.0, 0.0]  # mean twist a doublet's kick raised above its planned preload, rad (0: none
                                       # yet), [later stairs, a staircase's first stair]
@@ -959,6 +963,7 @@ class FinePositioner:
             # drawn anew at every stop, and one that breaks while preloading jumps the whole way
             self._first_stair = self._stair is None
             if self._stair is None:
+                self._stairs_unmoved = 0       # (fine.stair_growth_after) a new staircase
                 self._stair = self._start_sigmas(d, band) * self._scatter(d, band, gap)
                 self._stair_step = cfg.doublet_probe_step * self._nominal_gap(thl, pressure_kpa, d)
                 if self._restair is not None and self._restair[0] == d:
@@ -1344,6 +1349,33 @@ class FinePositioner:
         room = (1.0 if self._cross_guard(err, pressure_kpa) else 1.5) * abs(err) - m
         return min(max(room / cfg.move_per_overdrive, floor), max(cfg.kick_rise_rad, floor))
 
+    def _grown_stair(self, err: float, pressure_kpa: float, gap0: float) -> float:
+        """(``fine.stair_growth_after`` = N > 0; task h32e, docs §77) The next stair's climb (rad of twist) after the
+        n-th unmoved doublet of this staircase: the stair :meth:`_fitting_stair` gives, until n > N; then
+        ``floor`` x n / N, where ``floor`` is ``fine.doublet_probe_step`` x the band -- it grows with the stairs
+        already climbed.  Why the count: the staircase starts ``fine.doublet_sigmas`` learned scatters below the
+        learned level, and the stairs a staircase needs (nominal box, h32d §76.1: median 6, p90 19, max 39) put the
+        level this stop drew ~1.3 scatters below the learned one at the median; a staircase N ~ 12 stairs up is in
+        that distribution's tail, where the level lies above the learned one by an amount its scatter does not
+        describe (the learned Gaussian's mean excess above the apex, ``σ (λ(z) - z)``, shrinks there: it cannot
+        size the step).  The growth is bounded as ``fine.move_per_overdrive`` (§28.3) bounds a stair: the level lies
+        anywhere within the stair above the last apex, so the doublet that lets go does so at an overdrive of up
+        to the stair and moves the valve up to the smallest move plus the slope (``fine.move_per_overdrive``,
+        else ``fine.stair_growth_slope``) x the stair -- at most 1.5 |err| (|err| where the move must not
+        cross); and never above ``fine.kick_rise_rad``: the next preload stays below the apex this stair reached
+        and did not break the valve loose.  Never below the fixed stair."""
+        cfg = self.cfg
+        base = self._fitting_stair(err, pressure_kpa, gap0)
+        n, big_n = self._stairs_unmoved, cfg.stair_growth_after
+        if n <= big_n:
+            return base
+        floor = cfg.doublet_probe_step * gap0
+        d = 1 if err > 0 else -1
+        slope = cfg.move_per_overdrive if cfg.move_per_overdrive > 0.0 else cfg.stair_growth_slope
+        room = (1.0 if self._cross_guard(err, pressure_kpa) else 1.5) * abs(err) - self._smallest_move(d, pressure_kpa)
+        cap = min(room / max(slope, 1e-9), cfg.kick_rise_rad)
+        return max(base, min(floor * n / big_n, cap))
+
     def _smallest_move(self, d: int, pressure_kpa: float) -> float:
         """The smallest move (rad, > 0 unless the jump is 0) a doublet makes toward ``d`` (+1 open,
         -1 close) at this Δp: the one learned in its direction and Δp band, else
@@ -1510,6 +1542,10 @@ class FinePositioner:
                     # > 8e-4, p95 1.32 -> 1.49e-3 rad (docs §55): off by default
                     self._stair_step = max(self._stair_step, min(max(cfg.kick_rise_rad, self._stair_step),
                                                                  self._stair - far))
+                self._stairs_unmoved += 1
+                if cfg.stair_growth_after > 0:
+                    # (task h32e) past fine.stair_growth_after unmoved stairs a staircase is in its tail
+                    self._stair_step = max(self._stair_step, self._grown_stair(self._target - thl, pressure_kpa, gap0))
                 self._stair -= self._stair_step
                 if d * curb - (self._kick_rise() + self._stair) > self._plausible_offset_rad(pressure_kpa):
                     # the next stair's preload would lie beyond the nominal breakaway b0 by more

@@ -536,6 +536,16 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "deadband by at least fine.tolerance_counts (and the hold probes nothing: coupling read as told): its hold "
           "does not move the valve there, and the wait (0.09 s of a 0.3-0.8 s plateau) was out of the doublet "
           "staircase's time (task h32d, docs §76)", runtime=True),
+    Param("fine.stair_growth_after", 0, "", "doublet: after this many stairs of one staircase that did not move the "
+          "valve, each further stair climbs fine.doublet_probe_step x the band x (stairs done / this) -- a staircase "
+          "that far up is in the tail of the stairs-needed distribution (nominal box: median 6, p90 19) -- at most "
+          "fine.kick_rise_rad (the next preload below the apex reached) and as far as the worst move it allows "
+          "(smallest move + fine.move_per_overdrive, else fine.stair_growth_slope, x the stair) leaves at most half "
+          "the error (0 = never; 12 measured no better on the nominal box: the tail's moves are already large, docs §77; "
+          "task h32e)", 0, 1000, runtime=True),
+    Param("fine.stair_growth_slope", 4.0, "rad/rad", "fine.stair_growth_after: the valve's move per twist overdrive "
+          "at breakaway the grown stair is bounded with where fine.move_per_overdrive is 0 (benchmarks/fine_doublet.py: "
+          "~4)", 0.1, 100.0, runtime=True),
     # --- fc_gain (appendix A) ------------------------------------------------------------------
     Param("fc_gain.gain", 0.8, "", "stiction-breaking torque as a fraction of the nominal valve "
           "static friction at the current pressure", 0.0, 3.0, runtime=True),

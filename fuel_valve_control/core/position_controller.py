@@ -328,7 +328,9 @@ class PositionController:
                           unbiased_samples=ps["fine.unbiased_samples"],
                           retreat_stop_unmoved=ps["fine.retreat_stop_unmoved"],
                           retreat_unmoved_fraction=ps["fine.retreat_unmoved_fraction"],
-                          engage_inside_deadband=ps["fine.engage_inside_deadband"])
+                          engage_inside_deadband=ps["fine.engage_inside_deadband"],
+                          stair_growth_after=ps["fine.stair_growth_after"],
+                          stair_growth_slope=ps["fine.stair_growth_slope"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
