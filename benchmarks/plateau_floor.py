@@ -27,13 +27,19 @@ reach at best.  Three parts:
    plateau's budget lasts (each try costs its park + pulse + settle periods; a reversal of direction
    costs the park across the static band):
 
-   * **oracle**: knows every stop's drawn static level (reads the plant); per try picks the family
-     member whose tabulated move lands closest to the error; tries only while that improves it;
-   * **distribution-aware** (``bayes``): knows the scatter's law (the run's rms and ripple, so the
-     mean level at each position) but not the draw: a posterior over the level (the clipped normal,
-     truncated from below by every apex that did not move the valve, reset by every move, which
-     draws anew) and per try the member (apex, A, R, n_r, g) that maximises P(land within the stop
-     tolerance) + ``c`` x P(no move) (``c``: the value of trying again, 0 on the last try that fits).
+   * **oracle**: knows every stop's drawn static level (reads the plant) and tries candidates on copies
+     of the plant; per try the family member / overdrive that leaves the smallest |error|, only while
+     that improves it; where no single pulse does (the level drawn here is too high for this error),
+     the best two-pulse plan (a first move past the target or away from it -- a new stop, a new
+     draw -- then the best second);
+   * **distribution-aware** (``bayes``): knows the scatter's law of the run (its rms, and the ripple
+     map, so the mean level at each position) but not the draw: a posterior over the level (the
+     clipped normal, truncated from below by every apex that did not move the valve, reset by every
+     move, which draws anew) and per try the member and apex (grid: the law's points) that maximise
+     P(land within the stop tolerance) + P(no move) x (the best landing chance of the next try on the
+     truncated law), never a try that more likely worsens |e| (``--miss-value``: value misses by a
+     fresh try's chance instead -- measured worse);
+   * ``bayes_box``: the same knowing only the nominal box's law (rms and ripple unknown: a mixture).
 
    Reports median / p95 / max and the fractions > 5e-4 / > 8e-4 of the final plateau error for each,
    beside main's own final errors on the same plateaus.
@@ -44,6 +50,7 @@ Idealisations (all in the policy's favour, so the numbers are floors for this fa
 loop, the plant's dynamics and its friction draws.
 
     python benchmarks/plateau_floor.py [--jobs 2] [--runs 40] [--seed 1000] [--engage PATH.json]
+                                       [--stop-tol 4e-4] [--policies oracle,bayes,bayes_box] [--miss-value]
                                        [--json PATH] [--markdown PATH]
 
 Last stdout line: one JSON object.
@@ -98,7 +105,9 @@ FAMILY = {"kick_a": (2.0, 4.0, 8.0, 16.0), "retreat_a": (36.0, 24.0, 12.0, 0.0),
           "lead_rad": (0.0, 5e-4, 1e-3, 2e-3)}
 #: excess twists (static level - Coulomb level)/K tabulated, rad; overdrives (apex - level), rad
 EXCESS_GRID = tuple(float(x) for x in np.linspace(0.0, 5.2e-3, 27))
-OVERDRIVE_GRID = (1e-5, 5e-5, 1e-4, 2e-4, 4e-4, 8e-4, 1.6e-3)
+OVERDRIVE_GRID = (1e-5, 5e-5, 1e-4, 2e-4, 4e-4, 8e-4, 1.6e-3, 3.2e-3, 6.4e-3)
+#: True: the table clamps overdrives / excesses beyond its grid to the edge (a model error the policies can exploit);
+#: False: the move there is unknown (NaN)
 CLAMP_TABLE = False
 WANTED = (4e-4, 6e-4, 8e-4, 1e-3, 1.5e-3, 2e-3, 3e-3)
 
@@ -124,7 +133,7 @@ class Driver:
         t = self.pl.truth()
         return t.motor_angle / N - t.valve_angle
 
-    def run(self, iq: float, peak: list | None = None) -> None:
+    def run(self, iq: float) -> None:
         self.pl.set_command(min(max(iq, -CAP_A), CAP_A), True)
         self.pl.advance(PERIOD)
         self.periods += 1
@@ -641,7 +650,7 @@ def move_distribution(table: Table, sigma: float, d: int = 1) -> list[dict]:
                 mv = table.move(d, m, x, od)
                 ok = np.isfinite(mv)
                 if not ok.all():
-                    continue                           # the park alone breaks some draws: not this member
+                    continue                           # the park alone breaks some draws (NaN): not this member
                 moved = od > 0.0
                 p_hit = float((w * (moved & (np.abs(mv - wanted) <= TOL_TARGET))).sum())
                 if best is None or p_hit > best["p_within_5e-4"]:
