@@ -648,15 +648,16 @@ def move_distribution(table: Table, sigma: float, d: int = 1) -> list[dict]:
             for fr in fractions:
                 od = fr * mean_x - x
                 mv = table.move(d, m, x, od)
-                ok = np.isfinite(mv)
-                if not ok.all():
-                    continue                           # the park alone breaks some draws (NaN): not this member
-                moved = od > 0.0
-                p_hit = float((w * (moved & (np.abs(mv - wanted) <= TOL_TARGET))).sum())
+                ok = np.isfinite(mv)                   # NaN: the park alone breaks these draws loose -- a move of
+                moved = od > 0.0                       # a size this table does not know, counted a miss
+                p_hit = float((w * (moved & ok & (np.abs(np.nan_to_num(mv, nan=1.0) - wanted) <= TOL_TARGET))).sum())
                 if best is None or p_hit > best["p_within_5e-4"]:
                     pm = float((w * moved).sum())
-                    mu = float((w * moved * mv).sum() / pm) if pm > 0 else math.nan
-                    sd = float(math.sqrt(max((w * moved * (mv - mu) ** 2).sum() / pm, 0.0))) if pm > 0 else math.nan
+                    wk = w * (moved & ok)               # mean / sd of the moves of known size
+                    pk = float(wk.sum())
+                    mvk = np.nan_to_num(mv)
+                    mu = float((wk * mvk).sum() / pk) if pk > 0 else math.nan
+                    sd = float(math.sqrt(max((wk * (mvk - mu) ** 2).sum() / pk, 0.0))) if pk > 0 else math.nan
                     best = {"wanted_rad": wanted, "p_within_5e-4": p_hit, "p_no_move": 1.0 - pm, "mean_rad": mu,
                             "sd_rad": sd, "member": table.members[m], "apex_fraction": round(float(fr), 3)}
         out.append(best)
