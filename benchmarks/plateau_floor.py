@@ -198,18 +198,23 @@ def try_pulse(pl: Plant, d: int, apex: float, rise: float, member: tuple, coulom
 
 
 def calibrate_rise(d: int, member: tuple, theta: float = 0.5) -> float:
-    """Twist (rad, toward ``d``) the kick of ``member`` adds above a quasi-static park, valve held stuck."""
+    """Twist (rad, toward ``d``) a pulse of ``member`` adds above a quasi-static park at the nominal static
+    level on a valve held stuck: the kick, the retreat and then the servo toward the start's Coulomb twist +
+    the lead, as :meth:`Driver.pulse` runs them (a member that does not retreat keeps rising into the servo)."""
     pl = bare_plant(theta, 0.15)                      # a level nothing reaches (72 N*m)
     load = load_torque(theta)
     dr = Driver(pl)
-    park = (load + d * 0.5 * TS) / K
+    park = (load + d * TS) / K
     dr.park(park, PARK_PERIODS)
-    kick, retreat, nr, _ = member
+    kick, retreat, nr, lead = member
     t = pl.truth()
+    thl0 = t.valve_angle
     hold = K * (t.motor_angle / N - t.valve_angle) / (N * KT)
+    final_th1, final_ff = thl0 + (load + d * TC) / K + d * lead, load + d * TC
     apex = d * dr.twist()
     steps = pl.steps_for(PERIOD)
-    for iq in [hold + d * kick] + [hold - d * retreat] * nr + [hold] * 4:
+    for k in range(1 + nr + SETTLE_PERIODS):
+        iq = hold + d * kick if k == 0 else hold - d * retreat if k <= nr else dr.servo_current(final_th1, final_ff)
         pl.set_command(min(max(iq, -CAP_A), CAP_A), True)
         for _ in range(steps):
             pl.step(1)
