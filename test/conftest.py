@@ -133,6 +133,8 @@ def _plan_key(plan, baselines) -> str:
 def pytest_configure(config):
     if not config.getoption("--sim-repeats"):
         return
+    # every run in this process, where the wrapper below sees it: no look-ahead workers (prefetch.py)
+    os.environ["FUEL_VALVE_TEST_JOBS"] = "1"
     # wrapped before the test modules import it (``from ... import simulate_plan`` included);
     # the run itself is untouched, only timed and keyed
     from fuel_valve_control.tools import sim

@@ -32,7 +32,8 @@ JOBS_ENV = "FUEL_VALVE_TEST_JOBS"
 
 
 def jobs(config=None) -> int:
-    """Worker processes to use for look-ahead runs; 1 means none (see the module docstring)."""
+    """Worker processes to use for look-ahead runs; 1 means none (see the module docstring;
+    ``conftest.py`` sets :data:`JOBS_ENV` to 1 for ``--sim-repeats``)."""
     if os.environ.get("PYTEST_XDIST_WORKER"):
         return 1
     if config is not None and config.getoption("--sim-repeats", default=False):
