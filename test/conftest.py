@@ -24,8 +24,9 @@ Look-ahead (``test/prefetch.py``): the heaviest offline modules (``test_closed_l
 ``test_fuzz``'s parameter boundaries, ``test_dissertation_modes``, ``test_valve_tests``,
 ``test_campaign_robustness``, ``test_fine_positioning``'s campaign sample) hand their independent
 simulations to two forked worker processes when the module starts; each test still takes and
-asserts its own run.  Off with ``FUEL_VALVE_TEST_JOBS=1``, under pytest-xdist and with
-``--sim-repeats``.  The DDS modules never run beside it (the pool ends with its module).
+asserts its own run.  Only when a core is free as the module starts (on a busy machine the
+workers cost more than they gain); off with ``FUEL_VALVE_TEST_JOBS=1`` (``=2``: on regardless),
+under pytest-xdist and with ``--sim-repeats``.  The DDS modules never run beside it (the pool ends with its module).
 
 ``--sim-repeats`` lists the offline simulations (``sim.simulate_plan``, every scenario and
 campaign run goes through it) that ran more than once with the same inputs, and the CPU the

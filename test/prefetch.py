@@ -13,6 +13,8 @@ process, as before; a planned run no test asks for costs CPU, not correctness.
 Off (every run computed where it is asked for, as before) when:
 
 * ``FUEL_VALVE_TEST_JOBS=1`` (or fewer than two CPUs are ours);
+* the machine has no free core when the module starts (:func:`idle_cpus` < :data:`FREE_CPU`;
+  ``FUEL_VALVE_TEST_JOBS=2`` starts the workers anyway);
 * pytest-xdist runs the suite (``-n``): its workers already use the cores;
 * ``--sim-repeats`` is given: that report wraps ``sim.simulate_plan`` in this process and would
   not see the runs done in the worker processes.
@@ -25,6 +27,7 @@ from __future__ import annotations
 import concurrent.futures
 import multiprocessing
 import os
+import time
 from typing import Any, Callable, Hashable, Iterable
 
 #: environment variable: the number of worker processes (default: min(2, CPUs of ours))
@@ -40,7 +43,35 @@ def jobs(config=None) -> int:
         return 1
     if os.environ.get(JOBS_ENV):
         return max(1, int(os.environ[JOBS_ENV]))
-    return max(1, min(2, len(os.sched_getaffinity(0))))
+    ours = min(2, len(os.sched_getaffinity(0)))
+    # only a free core gains: on a busy machine a second process gets little more CPU (autogroup
+    # scheduling; measured 1.38x for two loops at load 12) and the workers cost 10-15 % more CPU
+    # than one process, so there the runs stay in the test process (test_closed_loop alone at
+    # load 10-12: 152 s in the test process, 170 s with two workers)
+    if ours > 1 and idle_cpus() < FREE_CPU:
+        return 1
+    return max(1, ours)
+
+
+#: idle CPUs (of the machine, over :data:`IDLE_WINDOW_S`) for the look-ahead to start workers
+FREE_CPU = 0.8
+IDLE_WINDOW_S = 0.2
+
+
+def idle_cpus(window_s: float = IDLE_WINDOW_S) -> float:
+    """CPUs of the machine left idle over the next ``window_s`` seconds (``/proc/stat``: idle +
+    iowait ticks over all ticks, times the CPU count); ``inf`` where it cannot be read."""
+    def ticks():
+        with open("/proc/stat") as f:
+            fields = [int(v) for v in f.readline().split()[1:9]]
+        return fields[3] + fields[4], sum(fields)
+    try:
+        idle0, total0 = ticks()
+        time.sleep(window_s)
+        idle1, total1 = ticks()
+    except (OSError, ValueError, IndexError):
+        return float("inf")
+    return (idle1 - idle0) / max(1, total1 - total0) * (os.cpu_count() or 1)
 
 
 def selected_items(request) -> list:
