@@ -20,6 +20,14 @@ tear-down; this process's threads and the node processes it waited for), beside 
 time, then the N with the most wall time, then every module's totals: on a machine shared
 with other work, wall time says more about the neighbours than about the test.
 
+Look-ahead (``test/prefetch.py``): the heaviest offline modules (``test_closed_loop``,
+``test_fuzz``'s parameter boundaries, ``test_dissertation_modes``, ``test_valve_tests``,
+``test_campaign_robustness``, ``test_fine_positioning``'s campaign sample) hand their independent
+simulations to two forked worker processes when the module starts; each test still takes and
+asserts its own run.  Only when a core is free as the module starts (on a busy machine the
+workers cost more than they gain); off with ``FUEL_VALVE_TEST_JOBS=1`` (``=2``: on regardless),
+under pytest-xdist and with ``--sim-repeats``.  The DDS modules never run beside it (the pool ends with its module).
+
 ``--sim-repeats`` lists the offline simulations (``sim.simulate_plan``, every scenario and
 campaign run goes through it) that ran more than once with the same inputs, and the CPU the
 repeats cost: the candidates for sharing one run between tests.  Serial runs only (with
@@ -133,6 +141,8 @@ def _plan_key(plan, baselines) -> str:
 def pytest_configure(config):
     if not config.getoption("--sim-repeats"):
         return
+    # every run in this process, where the wrapper below sees it: no look-ahead workers (prefetch.py)
+    os.environ["FUEL_VALVE_TEST_JOBS"] = "1"
     # wrapped before the test modules import it (``from ... import simulate_plan`` included);
     # the run itself is untouched, only timed and keyed
     from fuel_valve_control.tools import sim

@@ -24,6 +24,7 @@ from fuel_valve_control.tools.metrics import RESOLVER_COUNT_RAD
 from fuel_valve_control.tools.scenarios import builtin_names, load_scenario
 from fuel_valve_plant.physics.friction import friction_levels
 from fuel_valve_plant.physics.params import PLANT_SPEC
+from prefetch import Ahead, jobs, selected_items
 
 TWO_COUNTS = 2.0 * RESOLVER_COUNT_RAD            # 1.92e-4 rad
 SSE_TARGET = 1e-3                                 # SPEC §6 hold steady-state error, rad
@@ -40,13 +41,70 @@ def _run(scenario: str, mode: str = DEFAULT_MODE, plant: tuple = (), controller:
 
 @functools.lru_cache(maxsize=None)
 def _simulated(scenario: str, mode: str, plant: tuple, controller: tuple, seed):
+    return _AHEAD.result(scenario, mode, plant, controller, seed)
+
+
+def _simulate(scenario: str, mode: str, plant: tuple, controller: tuple, seed):
+    """The run itself (here or in a look-ahead worker, test/prefetch.py)."""
     sc = load_scenario(scenario)
     p, c = sim.build(sc, dict(plant), dict(controller), seed, mode)
     return sim.simulate(sc, p, c), p
 
 
+#: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
+_AHEAD = Ahead(_simulate, (), jobs=1)
+
+
 def _metrics(scenario, **kw):
     return _run(scenario, **kw)[0].metrics
+
+
+_LOW_SUPPLY = dict(plant=(("supply_voltage_v", 18.0),), controller=(("drive.supply_voltage_v", 18.0),))
+
+
+def _planned(item) -> list[tuple]:
+    """The runs (``_simulated``'s arguments) a selected test of this module asks ``_run`` for;
+    a run left out here is simulated when the test asks, as before."""
+    name, params = item.originalname, getattr(getattr(item, "callspec", None), "params", {})
+    nominal = ((), (), None)
+    runs = {"test_full_stroke_time": [("full_stroke", {})],
+            "test_large_step_overshoot": [("large_step", {})],
+            "test_sine_sweep_bandwidth": [("sine_sweep", {})],
+            "test_trip_closes_within_datasheet_time": [("trip", {})],
+            "test_pi_dither_does_not_cure_hunting": [("hold", dict(mode="pi_dither"))],
+            "test_pi_baseline_shows_the_field_limit_cycle": [("hold", dict(mode="pi")), ("step_small", dict(mode="pi")),
+                                                             ("hold", {})]}.get(name)
+    if runs is None and "seed" in params:
+        runs = [({"test_hold_no_hunting_and_small_error": "hold"}.get(name, "step_small"), dict(seed=params["seed"]))]
+    elif runs is None and "scenario" in params:
+        runs = [(params["scenario"], {})]
+        if name == "test_moves_at_the_low_supply_slow_down_instead_of_saturating":
+            runs.append((params["scenario"], _LOW_SUPPLY))
+    elif runs is None and "c" in params:
+        plant, ctrl = corner(**params["c"])
+        if name in ("test_adaptation_grid_small_step_overshoot_without_hunting", "test_breakaway_start_on_a_soft_coupling"):
+            ctrl = BREAKAWAY_START
+        runs = [("hold" if "hold" in name else "step_small", dict(plant=plant, controller=ctrl))]
+    keys = []
+    for scenario, kw in runs or []:
+        plant, controller, seed = kw.get("plant", nominal[0]), kw.get("controller", nominal[1]), kw.get("seed")
+        keys.append((scenario, kw.get("mode", DEFAULT_MODE), plant, controller, seed))
+    return keys
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _look_ahead(request):
+    """The module's runs on both cores (test/prefetch.py), the 30 s holds first; each test
+    still takes and asserts its own run."""
+    global _AHEAD
+    keys = [key for item in selected_items(request) for key in _planned(item)]
+    keys.sort(key=lambda k: -load_scenario(k[0]).duration_s)      # stable: the longest first
+    with Ahead(_simulate, keys, jobs(request.config)) as ahead:
+        _AHEAD = ahead
+        try:
+            yield
+        finally:
+            _AHEAD = Ahead(_simulate, (), jobs=1)
 
 
 # ============================================================================ nominal targets

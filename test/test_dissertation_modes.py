@@ -10,12 +10,55 @@ from fuel_valve_control.core.params import CONTROLLER_SPEC
 from fuel_valve_control.core.position_controller import PositionController
 from fuel_valve_control.tools import sim
 from fuel_valve_control.tools.metrics import RESOLVER_COUNT_RAD
+from fuel_valve_control.tools.scenarios import load_scenario
+from prefetch import Ahead, jobs, selected_items
 
 
 @functools.lru_cache(maxsize=None)
 def _result(scenario: str, mode: str, seed: int):
     """One simulation per (scenario, mode, seed) in this module (arguments positional: one cache key)."""
+    return _AHEAD.result(scenario, mode, seed)
+
+
+def _simulate(scenario: str, mode: str, seed: int):
+    """The run itself (here or in a look-ahead worker, test/prefetch.py)."""
     return sim.run(scenario, mode, seed=seed)
+
+
+#: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
+_AHEAD = Ahead(_simulate, (), jobs=1)
+
+
+def _planned(item) -> list[tuple]:
+    """The runs (``_result``'s arguments) a selected test of this module asks for; a run left
+    out here is simulated when the test asks, as before."""
+    name, params = item.originalname, getattr(getattr(item, "callspec", None), "params", {})
+    seed, mode = params.get("seed", 0), params.get("mode")
+    if name in ("test_observer_fc_small_step_overshoot", "test_kalman_fc_small_step_overshoot"):
+        return [("step_small", name.split("_")[1] + "_fc", seed)]
+    return {"test_small_step_settles_in_the_tenth_degree_band": [("step_small", mode, 0)],
+            "test_bandwidth_at_least_10_hz": [("sine_sweep", mode, seed)],
+            "test_kalman_fc_stays_off_the_current_limit": [("large_step", "kalman_fc", 0)],
+            "test_kalman_fc_large_step_overshoot": [("large_step", "kalman_fc", seed)],
+            "test_no_current_peak_at_start_on_a_soft_coupling": [("flexible_worst", mode, 0)],
+            "test_kalman_fc_peak_current_on_a_soft_coupling": [("flexible_worst", "kalman_fc", seed)],
+            "test_dissertation_modes_do_not_hunt_while_holding": [(params.get("scenario"), mode, 0)],
+            }.get(name, [])
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _look_ahead(request):
+    """The module's runs on both cores (test/prefetch.py), the longest first; each test still
+    takes and asserts its own run."""
+    global _AHEAD
+    keys = [key for item in selected_items(request) for key in _planned(item)]
+    keys.sort(key=lambda k: -load_scenario(k[0]).duration_s)
+    with Ahead(_simulate, keys, jobs(request.config)) as ahead:
+        _AHEAD = ahead
+        try:
+            yield
+        finally:
+            _AHEAD = Ahead(_simulate, (), jobs=1)
 
 
 def _metrics(scenario: str, mode: str) -> dict:

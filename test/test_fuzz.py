@@ -41,6 +41,7 @@ from fuel_valve_control.core.position_controller import PositionController
 from fuel_valve_control.tools.profiles import DEMAND_NODE_SPEC, ProfileError, profile_from_params
 from fuel_valve_plant.physics.params import PLANT_NODE_SPEC, PLANT_SPEC, check_consistency, load_plant_params
 from fuel_valve_plant.physics.plant import Plant
+from prefetch import Ahead, jobs, selected_items
 from snapshots import Snapshots
 
 N = 48.019
@@ -230,9 +231,9 @@ KNOWN_OVERSHOOT = [("design.bandwidth_hz", 0.5),
 @pytest.mark.parametrize("name", list(CONTROLLER_NODE_SPEC.params))
 def test_controller_parameter_boundary_values_are_rejected_or_safe(name):
     p = CONTROLLER_NODE_SPEC.params[name]
-    for value in boundary_values(p):
+    for index, value in enumerate(boundary_values(p)):
         if (name, value) not in KNOWN_OVERSHOOT:
-            _controller_case(p, name, value)
+            _AHEAD.result("controller", name, index)        # _controller_case(p, name, value)
 
 
 @pytest.mark.xfail(strict=True, reason="start-up value at the edge of its range: the valve overshoots the "
@@ -324,9 +325,8 @@ def test_plant_parameter_boundary_values_are_rejected_or_run(name):
     bound does not apply (a plant far from the controller's model may overshoot: that is the
     robustness campaign's subject, benchmarks/robustness.py); what must hold: rejected, or the
     plant runs (finite, no exception) and the controller stays supervised (faults: drive off)."""
-    p = PLANT_NODE_SPEC.params[name]
-    for value in boundary_values(p):
-        _plant_case(p, name, value)
+    for index, _ in enumerate(boundary_values(PLANT_NODE_SPEC.params[name])):
+        _AHEAD.result("plant", name, index)                 # _plant_case(p, name, value)
 
 
 @pytest.mark.parametrize("name, value", PLANT_DIVERGED)
@@ -445,3 +445,44 @@ def test_trip_and_reset_at_odd_times():
     assert not ok and "resolver" in msg
     loop.period(60.0, resolver=False)
     assert loop.drv.last.faults and not loop.drv.last.enable
+
+
+# ------------------------------------------------------------------ look-ahead (test/prefetch.py)
+def _boundary_case(node: str, name: str, index: int) -> None:
+    """``_controller_case`` / ``_plant_case`` of the ``index``-th boundary value of parameter
+    ``name`` of the controller's / plant's node schema, here or in a look-ahead worker: a case
+    that fails raises there, and :meth:`prefetch.Ahead.result` raises it in the test that asks
+    for it (the worker's traceback attached)."""
+    spec, case = (CONTROLLER_NODE_SPEC, _controller_case) if node == "controller" else (PLANT_NODE_SPEC, _plant_case)
+    p = spec.params[name]
+    case(p, name, boundary_values(p)[index])
+
+
+#: the module's look-ahead cases; none outside the module fixture below
+_AHEAD = Ahead(_boundary_case, (), jobs=1)
+
+
+def _planned(item) -> list[tuple]:
+    """The boundary cases a selected parameter test asks for, in its order."""
+    name = getattr(getattr(item, "callspec", None), "params", {}).get("name")
+    if item.originalname == "test_controller_parameter_boundary_values_are_rejected_or_safe":
+        return [("controller", name, i) for i, v in enumerate(boundary_values(CONTROLLER_NODE_SPEC.params[name]))
+                if (name, v) not in KNOWN_OVERSHOOT]
+    if item.originalname == "test_plant_parameter_boundary_values_are_rejected_or_run":
+        return [("plant", name, i) for i, _ in enumerate(boundary_values(PLANT_NODE_SPEC.params[name]))]
+    return []
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _look_ahead(request):
+    """The parameter-boundary cases (most of this module's CPU) on both cores while the input
+    cases run here; each parameter test still takes its cases in order and fails with the
+    first that fails."""
+    global _AHEAD
+    keys = [key for item in selected_items(request) for key in _planned(item)]
+    with Ahead(_boundary_case, keys, jobs(request.config)) as ahead:
+        _AHEAD = ahead
+        try:
+            yield
+        finally:
+            _AHEAD = Ahead(_boundary_case, (), jobs=1)

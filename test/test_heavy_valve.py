@@ -23,6 +23,7 @@ import pytest
 from scipy.optimize import brentq
 
 from conftest import load_benchmark
+from prefetch import Ahead, jobs, selected_items
 from fuel_valve_control.core.laws.state_feedback import StateFeedbackLaw
 from fuel_valve_control.core.model import NominalModel
 from fuel_valve_control.core.params import CONTROLLER_SPEC
@@ -39,10 +40,37 @@ def _model(valve: str) -> NominalModel:
 
 @functools.lru_cache(maxsize=None)
 def _startup(valve: str, mode: str, relieve: bool = False):
+    return _AHEAD.result(valve, mode, relieve)
+
+
+def _simulate(valve: str, mode: str, relieve: bool = False):
+    """The start-up run itself (here or in a look-ahead worker, test/prefetch.py)."""
     plant, ctrl = OV.overrides(OV.VALVES[valve])
     if relieve:
         ctrl = {**ctrl, "integral.relieve_unarrested_swing": True}
     return sim.run("startup", mode=mode, plant_overrides=plant, controller_overrides=ctrl, seed=0)
+
+
+#: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
+_AHEAD = Ahead(_simulate, (), jobs=1)
+#: the start-up runs each test asks for
+_PLANNED = {"test_heavy_valve_startup_plateaus_settle_with_the_relief": [("heavy_valve", "observer_fp", True)],
+            "test_heavy_valve_startup_plateaus_settle_by_default": [("heavy_valve", "observer_fp", False)],
+            "test_nominal_startup_keeps_working_with_the_relief": [("nominal", "observer_fp", True),
+                                                                    ("nominal", "observer_fp", False)]}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _look_ahead(request):
+    """The module's start-up runs on both cores; each test still takes and asserts its own run."""
+    global _AHEAD
+    keys = [key for item in selected_items(request) for key in _PLANNED.get(item.originalname, [])]
+    with Ahead(_simulate, keys, jobs(request.config)) as ahead:
+        _AHEAD = ahead
+        try:
+            yield
+        finally:
+            _AHEAD = Ahead(_simulate, (), jobs=1)
 
 
 def _worst_plateau(res) -> float:

@@ -23,6 +23,7 @@ from fuel_valve_control.core.valve_tests import PARTIAL_STROKE, SIGNATURE, Valve
 from fuel_valve_control.tools.run_plan import OFFLINE, plan_run
 from fuel_valve_control.tools.scenarios import parse_scenario
 from fuel_valve_control.tools.sim import simulate_plan
+from prefetch import Ahead, jobs, selected_items
 
 #: stated tolerance of the measured friction against the plant's true level (nominal plant):
 #: measured -0.3 % at 0 kPa, +1.0 % at 3103 kPa, +7.4 % at 6206 kPa (stick-slip at high Δp
@@ -67,8 +68,46 @@ def signature(pressure_kpa: float, friction_scale: float = 1.0, baselines=()):
     # baseline was answered with the cached one judged against the 6206 kPa baseline
     key = (pressure_kpa, friction_scale, json.dumps(list(baselines), sort_keys=True, default=repr))
     if key not in _cache:
-        _cache[key] = run(signature_scenario(pressure_kpa), friction_scale, baselines)
+        _cache[key] = _AHEAD.result("signature", pressure_kpa, friction_scale) if not baselines else \
+            run(signature_scenario(pressure_kpa), friction_scale, baselines)
     return _cache[key]
+
+
+def _simulate(what: str, pressure_kpa: float = 0.0, friction_scale: float = 1.0):
+    """A run without baselines (here or in a look-ahead worker, test/prefetch.py): the
+    signature at ``pressure_kpa``, or the nominal partial stroke."""
+    if what == "signature":
+        return run(signature_scenario(pressure_kpa), friction_scale)
+    return run(partial_scenario([(2.5, "partial_stroke_test")]))
+
+
+#: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
+_AHEAD = Ahead(_simulate, (), jobs=1)
+#: the runs without baselines each test asks for (those with a baseline wait for its result:
+#: simulated in the test, as before)
+_PLANNED = {"test_signature_detects_friction_x2_against_the_nominal_baseline": [("signature", 6206.0, 1.0)],
+            "test_baseline_taken_at_another_pressure_still_compares": [("signature", 0.0, 1.0)],
+            "test_partial_stroke_nominal_passes_and_friction_x2_is_flagged": [("partial",)],
+            "test_partial_stroke_returns_the_valve_to_its_start": [("partial",)],
+            "test_report_recognises_valve_tests_and_plots_them_next_to_the_baseline": [("signature", 6206.0, 1.0)]}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _look_ahead(request):
+    """The module's 21 s signatures and its nominal partial stroke on both cores; each test
+    still takes and asserts its own run."""
+    global _AHEAD
+    keys = []
+    for item in selected_items(request):
+        if item.originalname == "test_signature_recovers_true_friction":
+            keys.append(("signature", item.callspec.params["pressure_kpa"], 1.0))
+        keys += _PLANNED.get(item.originalname, [])
+    with Ahead(_simulate, keys, jobs(request.config)) as ahead:
+        _AHEAD = ahead
+        try:
+            yield
+        finally:
+            _AHEAD = Ahead(_simulate, (), jobs=1)
 
 
 # 3103 kPa was a strict xfail (the signature's 2 % step up did not settle within its hold since the
@@ -162,7 +201,7 @@ def partial_scenario(events, demand=None, duration_s=9.0) -> dict:
 @functools.cache
 def nominal_partial_stroke():
     """The nominal partial-stroke run (two tests read it; simulated once)."""
-    return run(partial_scenario([(2.5, "partial_stroke_test")]))
+    return _AHEAD.result("partial")
 
 
 def test_partial_stroke_nominal_passes_and_friction_x2_is_flagged():
