@@ -88,6 +88,12 @@ class IntegralPolicy:
     #: (a new demand) returns both directions to the jumps' own ratios
     #: (:attr:`JumpLearner.cross_until_move`)
     cross_until_move: bool = False
+    #: h32f: > 0: the widening is returned at a planned move (as ``cross_until_move``) only while
+    #: the hold has counted fewer than this many crossings; from then on it is kept across moves
+    #: (:attr:`JumpLearner.cross_keep_after`; 0 = off).  A valve that crossed repeatedly is one
+    #: whose jumps really are that long (LuGre / soft valves: full box 1190, 1010, quick 3025 lost
+    #: their protection under ``cross_until_move``); one crossing is as likely a one-off chain
+    cross_keep_after: int = 0
 
     @property
     def settle_time_s(self) -> float:
@@ -359,8 +365,13 @@ class JumpLearner:
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4,
                  rest_periods: int = 1, cross_hold: bool = False, catch_up_periods: int = 0,
                  chain_periods: int = 0, unchain_rewound: bool = False, cross_met_margin: float = 0.0,
-                 cross_until_move: bool = False):
+                 cross_until_move: bool = False, cross_keep_after: int = 0):
         self.gain = gain
+        #: h32f: > 0: a planned move returns the widening to the jumps' own ratios (as
+        #: ``cross_until_move``, which this implies) only while fewer than this many crossings
+        #: (:attr:`crossings`, since :meth:`reset`) have been counted; after that the widening is
+        #: the valve's and holds across moves.  0 = off (``cross_until_move`` alone decides)
+        self.cross_keep_after = int(cross_keep_after)
         #: h32b: a crossing widens both ways (``cross_hold``) only until the next planned move: the
         #: hold at a new target sizes its deadband by the jumps' own ratios (:attr:`own`).  Friction
         #: x 1.5, seed 2001: plateau 6's chained crossing (3.66 nominal) held plateau 7's 9.2 mrad
@@ -537,8 +548,11 @@ class JumpLearner:
         the quasi-static jump the drive on the valve this period would make over the nominal one
         (drive beyond the loads / scheduled static friction x K_model / K read), for
         ``cross_met_margin`` (None: the chain's widening unbounded)."""
-        if not holding and self.cross_until_move and self._widened:
-            # a new demand: the crossing met at the last target widens no more
+        until_move = self.cross_until_move or self.cross_keep_after > 0
+        if (not holding and until_move and self._widened
+                and (self.cross_keep_after <= 0 or self.crossings < self.cross_keep_after)):
+            # a new demand: the crossing met at the last target widens no more (h32f: unless
+            # the valve has crossed cross_keep_after times: then its jumps are that long)
             self.directed = dict(self.own)
             self._widened = False
         if not holding:
