@@ -94,6 +94,10 @@ class IntegralPolicy:
     #: whose jumps really are that long (LuGre / soft valves: full box 1190, 1010, quick 3025 lost
     #: their protection under ``cross_until_move``); one crossing is as likely a one-off chain
     cross_keep_after: int = 0
+    #: h32f: with the widening returned at a planned move (``cross_until_move`` or
+    #: ``cross_keep_after``), a direction the valve has not jumped in yet keeps it: its "own"
+    #: ratio is only the mean of the other way's jumps (:attr:`JumpLearner.cross_keep_unmet`)
+    cross_keep_unmet: bool = False
 
     @property
     def settle_time_s(self) -> float:
@@ -365,8 +369,12 @@ class JumpLearner:
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4,
                  rest_periods: int = 1, cross_hold: bool = False, catch_up_periods: int = 0,
                  chain_periods: int = 0, unchain_rewound: bool = False, cross_met_margin: float = 0.0,
-                 cross_until_move: bool = False, cross_keep_after: int = 0):
+                 cross_until_move: bool = False, cross_keep_after: int = 0, cross_keep_unmet: bool = False):
         self.gain = gain
+        #: h32f: at the move that returns the widening, a direction with no jump measured in it
+        #: (:attr:`met`) keeps its widened ratio (full box 1190: the unmet −1 way 6.27 -> 3.64, the
+        #: integrator then pushed the valve into an 8.17-nominal crossing)
+        self.cross_keep_unmet = cross_keep_unmet
         #: h32f: > 0: a planned move returns the widening to the jumps' own ratios (as
         #: ``cross_until_move``, which this implies) only while fewer than this many crossings
         #: (:attr:`crossings`, since :meth:`reset`) have been counted; after that the widening is
@@ -425,6 +433,7 @@ class JumpLearner:
         #: the same, learned from the jumps alone, never widened by the breaker (``cross_until_move``)
         self.own: dict[int, float] = {}
         self._widened = False             # the breaker widened ``directed`` since the last move
+        self.met: set[int] = set()        # directions a jump was measured in (``cross_keep_unmet``)
         self.crossings = 0                # breakaways across the target beyond the band (diagnostics)
         #: (start rad, way ±1, the period it ended (:attr:`_period`), ended inside the deadband) of
         #: the latest breakaway, pieces chained (:meth:`_chain_start`)
@@ -553,7 +562,8 @@ class JumpLearner:
                 and (self.cross_keep_after <= 0 or self.crossings < self.cross_keep_after)):
             # a new demand: the crossing met at the last target widens no more (h32f: unless
             # the valve has crossed cross_keep_after times: then its jumps are that long)
-            self.directed = dict(self.own)
+            self.directed = {w: r if (self.cross_keep_unmet and w not in self.met) else self.own.get(w, r)
+                             for w, r in self.directed.items()}
             self._widened = False
         if not holding:
             self._start = None
@@ -589,6 +599,7 @@ class JumpLearner:
                     mine = self.own.get(way)
                     mine = seen if mine is None else mine + self.gain * (seen - mine)
                     self.own[way] = min(max(mine, self.limits[0]), self.limits[1])
+                    self.met.add(way)
                     origin = self._chain_start(way, target is None or abs(target - valve) <= band,
                                                nominal_jump, twist, target)
                     if origin != self._start:

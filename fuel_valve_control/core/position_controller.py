@@ -258,6 +258,7 @@ class PositionController:
                                   cross_met_margin=ps["integral.cross_met_margin"],
                                   cross_until_move=ps["integral.cross_until_move"],
                                   cross_keep_after=ps["integral.cross_keep_after"],
+                                  cross_keep_unmet=ps["integral.cross_keep_unmet"],
                                   # the learned steady load never exceeds what the drive can hold
                                   load_limit_nm=ps["limits.continuous_current_a"] * m.torque_constant_nm_per_a
                                   * m.gear_ratio)
