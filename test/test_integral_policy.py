@@ -452,3 +452,19 @@ def test_a_crossing_widening_is_kept_across_moves_only_once_the_valve_crossed_re
     assert _crossed_then_moved(1, 0).ratio_toward(-1) == pytest.approx(2.0)            # off: main keeps
     assert _crossed_then_moved(2, 0, until_move=True).ratio_toward(1) == pytest.approx(1.0)
     assert _crossed_then_moved(1, 3).ratio_toward(-1) == pytest.approx(1.0)
+
+
+def test_a_move_keeps_the_widening_toward_a_way_no_jump_was_measured_in():
+    """``integral.cross_keep_unmet`` (h32f): the chained crossing's two pieces both open, so the
+    closing way's "own" ratio is only their mean.  A planned move under ``cross_until_move`` returns
+    the opening way to its measured 1.0, and with the option keeps the unmet closing way at the
+    crossing's 2.0 (full box 1190: the unmet way 6.27 -> 3.64 brought a second, 8.17 crossing)."""
+    def moved(keep_unmet: bool) -> JumpLearner:
+        j = _chained_crossing(0.0, None)
+        j.cross_until_move, j.cross_keep_unmet = True, keep_unmet
+        assert j.met == {1}
+        j.update(5e-3, False, False, 4e-3)
+        return j
+    kept = moved(True)
+    assert kept.ratio_toward(1) == pytest.approx(1.0) and kept.ratio_toward(-1) == pytest.approx(2.0)
+    assert moved(False).ratio_toward(-1) == pytest.approx(1.0)
