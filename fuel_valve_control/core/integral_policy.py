@@ -90,13 +90,14 @@ class IntegralPolicy:
     cross_until_move: bool = False
     #: h32f: > 0: the widening is returned at a planned move (as ``cross_until_move``) only while
     #: the hold has counted fewer than this many crossings; from then on it is kept across moves
-    #: (:attr:`JumpLearner.cross_keep_after`; 0 = off).  A valve that crossed repeatedly is one
-    #: whose jumps really are that long (LuGre / soft valves: full box 1190, 1010, quick 3025 lost
-    #: their protection under ``cross_until_move``); one crossing is as likely a one-off chain
+    #: (:attr:`JumpLearner.cross_keep_after`; 0 = off).  Measured and refuted (docs section 78): the
+    #: runs ``cross_until_move`` hurts (full box 1190, 1163, 1010) crossed *once* on main; their
+    #: later crossings were the reset's doing, so a count cannot tell them from the runs it helps
     cross_keep_after: int = 0
     #: h32f: with the widening returned at a planned move (``cross_until_move`` or
     #: ``cross_keep_after``), a direction the valve has not jumped in yet keeps it: its "own"
-    #: ratio is only the mean of the other way's jumps (:attr:`JumpLearner.cross_keep_unmet`)
+    #: ratio is only the mean of the other way's jumps (:attr:`JumpLearner.cross_keep_unmet`;
+    #: full box 1190 / 1163 and quick 3025 back to main, 1010 not: docs section 78.5)
     cross_keep_unmet: bool = False
 
     @property
