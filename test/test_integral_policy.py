@@ -423,3 +423,48 @@ def test_a_crossing_widens_the_band_only_until_the_next_move():
     assert after_move(False).ratio_toward(-1) == pytest.approx(2.0)
     moved = after_move(True)
     assert moved.ratio_toward(1) == pytest.approx(1.0) and moved.ratio_toward(-1) == pytest.approx(1.0)
+
+
+# ------------------------------------------------------------------ the widening kept after repeated crossings (h32f)
+def _crossed_then_moved(times: int, keep_after: int, until_move: bool = False) -> JumpLearner:
+    """The chained 8 mrad crossing (2.0 nominal both ways, the jumps' own 1.0), ``times`` = 2 adds a
+    second crossing of the same target the other way (rest 5 mrad beyond, one 8 mrad jump to 3 mrad
+    short), then a planned move starts (``holding`` false)."""
+    j = _chained_crossing(0.0, None)
+    j.cross_keep_after, j.cross_until_move = keep_after, until_move
+    if times == 2:
+        for valve, stuck in [(5e-3, True)] * 40 + [(3e-3, False), (-1e-3, False)] + [(-3e-3, True)] * 3:
+            j.update(valve, stuck, True, 4e-3, 0.0, 2.2e-3)
+    assert j.crossings == times
+    j.update(-3e-3, False, False, 4e-3)
+    return j
+
+
+def test_a_crossing_widening_is_kept_across_moves_only_once_the_valve_crossed_repeatedly():
+    """``integral.cross_keep_after`` (h32f): with 2, one crossing's widening ends at the next planned
+    move (as ``cross_until_move``: both ways back to the jumps' own 1.0), but after a second crossing
+    the valve's jumps are taken to be that long and the 2.0 holds across the move.  Off (0, main),
+    one crossing's widening stays; ``cross_until_move`` alone returns it after two crossings too."""
+    once = _crossed_then_moved(1, 2)
+    assert once.ratio_toward(1) == pytest.approx(1.0) and once.ratio_toward(-1) == pytest.approx(1.0)
+    twice = _crossed_then_moved(2, 2)
+    assert twice.ratio_toward(1) == pytest.approx(2.0) and twice.ratio_toward(-1) == pytest.approx(2.0)
+    assert _crossed_then_moved(1, 0).ratio_toward(-1) == pytest.approx(2.0)            # off: main keeps
+    assert _crossed_then_moved(2, 0, until_move=True).ratio_toward(1) == pytest.approx(1.0)
+    assert _crossed_then_moved(1, 3).ratio_toward(-1) == pytest.approx(1.0)
+
+
+def test_a_move_keeps_the_widening_toward_a_way_no_jump_was_measured_in():
+    """``integral.cross_keep_unmet`` (h32f): the chained crossing's two pieces both open, so the
+    closing way's "own" ratio is only their mean.  A planned move under ``cross_until_move`` returns
+    the opening way to its measured 1.0, and with the option keeps the unmet closing way at the
+    crossing's 2.0 (full box 1190: the unmet way 6.27 -> 3.64 brought a second, 8.17 crossing)."""
+    def moved(keep_unmet: bool) -> JumpLearner:
+        j = _chained_crossing(0.0, None)
+        j.cross_until_move, j.cross_keep_unmet = True, keep_unmet
+        assert j.met == {1}
+        j.update(5e-3, False, False, 4e-3)
+        return j
+    kept = moved(True)
+    assert kept.ratio_toward(1) == pytest.approx(1.0) and kept.ratio_toward(-1) == pytest.approx(2.0)
+    assert moved(False).ratio_toward(-1) == pytest.approx(1.0)

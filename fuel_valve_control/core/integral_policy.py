@@ -88,6 +88,17 @@ class IntegralPolicy:
     #: (a new demand) returns both directions to the jumps' own ratios
     #: (:attr:`JumpLearner.cross_until_move`)
     cross_until_move: bool = False
+    #: h32f: > 0: the widening is returned at a planned move (as ``cross_until_move``) only while
+    #: the hold has counted fewer than this many crossings; from then on it is kept across moves
+    #: (:attr:`JumpLearner.cross_keep_after`; 0 = off).  Measured and refuted (docs section 78): the
+    #: runs ``cross_until_move`` hurts (full box 1190, 1163, 1010) crossed *once* on main; their
+    #: later crossings were the reset's doing, so a count cannot tell them from the runs it helps
+    cross_keep_after: int = 0
+    #: h32f: with the widening returned at a planned move (``cross_until_move`` or
+    #: ``cross_keep_after``), a direction the valve has not jumped in yet keeps it: its "own"
+    #: ratio is only the mean of the other way's jumps (:attr:`JumpLearner.cross_keep_unmet`;
+    #: full box 1190 / 1163 and quick 3025 back to main, 1010 not: docs section 78.5)
+    cross_keep_unmet: bool = False
 
     @property
     def settle_time_s(self) -> float:
@@ -359,8 +370,17 @@ class JumpLearner:
     def __init__(self, gain: float = 0.5, limits: tuple[float, float] = (0.5, 50.0), min_jump: float = 3e-4,
                  rest_periods: int = 1, cross_hold: bool = False, catch_up_periods: int = 0,
                  chain_periods: int = 0, unchain_rewound: bool = False, cross_met_margin: float = 0.0,
-                 cross_until_move: bool = False):
+                 cross_until_move: bool = False, cross_keep_after: int = 0, cross_keep_unmet: bool = False):
         self.gain = gain
+        #: h32f: at the move that returns the widening, a direction with no jump measured in it
+        #: (:attr:`met`) keeps its widened ratio (full box 1190: the unmet −1 way 6.27 -> 3.64, the
+        #: integrator then pushed the valve into an 8.17-nominal crossing)
+        self.cross_keep_unmet = cross_keep_unmet
+        #: h32f: > 0: a planned move returns the widening to the jumps' own ratios (as
+        #: ``cross_until_move``, which this implies) only while fewer than this many crossings
+        #: (:attr:`crossings`, since :meth:`reset`) have been counted; after that the widening is
+        #: the valve's and holds across moves.  0 = off (``cross_until_move`` alone decides)
+        self.cross_keep_after = int(cross_keep_after)
         #: h32b: a crossing widens both ways (``cross_hold``) only until the next planned move: the
         #: hold at a new target sizes its deadband by the jumps' own ratios (:attr:`own`).  Friction
         #: x 1.5, seed 2001: plateau 6's chained crossing (3.66 nominal) held plateau 7's 9.2 mrad
@@ -414,6 +434,7 @@ class JumpLearner:
         #: the same, learned from the jumps alone, never widened by the breaker (``cross_until_move``)
         self.own: dict[int, float] = {}
         self._widened = False             # the breaker widened ``directed`` since the last move
+        self.met: set[int] = set()        # directions a jump was measured in (``cross_keep_unmet``)
         self.crossings = 0                # breakaways across the target beyond the band (diagnostics)
         #: (start rad, way ±1, the period it ended (:attr:`_period`), ended inside the deadband) of
         #: the latest breakaway, pieces chained (:meth:`_chain_start`)
@@ -537,9 +558,13 @@ class JumpLearner:
         the quasi-static jump the drive on the valve this period would make over the nominal one
         (drive beyond the loads / scheduled static friction x K_model / K read), for
         ``cross_met_margin`` (None: the chain's widening unbounded)."""
-        if not holding and self.cross_until_move and self._widened:
-            # a new demand: the crossing met at the last target widens no more
-            self.directed = dict(self.own)
+        until_move = self.cross_until_move or self.cross_keep_after > 0
+        if (not holding and until_move and self._widened
+                and (self.cross_keep_after <= 0 or self.crossings < self.cross_keep_after)):
+            # a new demand: the crossing met at the last target widens no more (h32f: unless
+            # the valve has crossed cross_keep_after times: then its jumps are that long)
+            self.directed = {w: r if (self.cross_keep_unmet and w not in self.met) else self.own.get(w, r)
+                             for w, r in self.directed.items()}
             self._widened = False
         if not holding:
             self._start = None
@@ -575,6 +600,7 @@ class JumpLearner:
                     mine = self.own.get(way)
                     mine = seen if mine is None else mine + self.gain * (seen - mine)
                     self.own[way] = min(max(mine, self.limits[0]), self.limits[1])
+                    self.met.add(way)
                     origin = self._chain_start(way, target is None or abs(target - valve) <= band,
                                                nominal_jump, twist, target)
                     if origin != self._start:

@@ -206,6 +206,14 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("integral.cross_until_move", False, "", "observer_fp (the limit-cycle breaker): a crossing's widening of "
           "both directions' jump ratio holds until the next planned move; the hold at a new target sizes its "
           "deadband by the jumps' own ratios (docs/control_results.md section 74; off: measured)"),
+    Param("integral.cross_keep_after", 0, "", "observer_fp (the limit-cycle breaker): > 0: a crossing's widening "
+          "is returned at the next planned move (as integral.cross_until_move, which this implies) only while "
+          "the hold has counted fewer than this many crossings; after that it is kept across moves (a valve "
+          "that crossed repeatedly jumps that far; docs/control_results.md section 78; 0 = off: measured)",
+          0, 100),
+    Param("integral.cross_keep_unmet", False, "", "observer_fp (the limit-cycle breaker): where a planned move returns a "
+          "crossing's widening (integral.cross_until_move / cross_keep_after), a direction no jump has been measured "
+          "in keeps it (its own ratio is only the other way's mean) (docs/control_results.md section 78; off: measured)"),
     # --- the drive's supply (planned moves are designed for it, core/design.design_trajectory)
     Param("drive.supply_voltage_v", 28.0, "V", "DC bus voltage of the drive (data sheet 18-32 V; set it to the "
           "configured or measured supply): observer_ff/observer_fp plan moves no faster than the back-EMF it "

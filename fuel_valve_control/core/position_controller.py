@@ -257,6 +257,8 @@ class PositionController:
                                   cross_ratio_from_met=ps["integral.cross_ratio_from_met"],
                                   cross_met_margin=ps["integral.cross_met_margin"],
                                   cross_until_move=ps["integral.cross_until_move"],
+                                  cross_keep_after=ps["integral.cross_keep_after"],
+                                  cross_keep_unmet=ps["integral.cross_keep_unmet"],
                                   # the learned steady load never exceeds what the drive can hold
                                   load_limit_nm=ps["limits.continuous_current_a"] * m.torque_constant_nm_per_a
                                   * m.gear_ratio)

@@ -114,7 +114,9 @@ class StateFeedbackLaw(ControlLaw):
                                  chain_periods=round(integral.settle_time_s / period_s) if self.met_hold else 0,
                                  unchain_rewound=integral.unchain_rewound,
                                  cross_met_margin=integral.cross_met_margin if integral.cross_ratio_from_met else 0.0,
-                                 cross_until_move=integral.cross_until_move)
+                                 cross_until_move=integral.cross_until_move,
+                                 cross_keep_after=integral.cross_keep_after,
+                                 cross_keep_unmet=integral.cross_keep_unmet)
         #: h24k: the coupling's stiffness read at every hold (``integral.read_stiffness``, v2
         #: modes): K_model / K sizes the hold's jump and the planned moves' coupling-snap
         #: feed-forward once it lies beyond the reading's scatter (:class:`HoldStiffness`).  A rest
