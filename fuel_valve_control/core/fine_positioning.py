@@ -451,6 +451,8 @@ class FineConfig:
                                   # preload breakaway hands it back (0: hand back at once; task h30b, docs §66)
     unbiased_samples: bool = False  # every stage input a sample of the level: a moved doublet's at its apex plus the
                                     # let-go offset, a servo-blended pulse's a censored one (no ratchet; task h30u)
+    unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
+                                         # level below it with learn_gain, as main does (task h32a, docs §73)
 
 
 class FinePositioner:
@@ -1432,7 +1434,18 @@ class FinePositioner:
                 # apex an unmoved pulse reached at this stop -- a censored sample, not a pull to the apex
                 hi = self._peak_seen + d * self._let_go_offset() if pulsed else self._pre
                 lo = d * (below - b0) if below is not None else -math.inf
-                self._learn_interval(d, b, lo, d * (hi - b0), gap0)
+                if cfg.unbiased_preload_pull and not pulsed:
+                    # (task h32a) it broke loose in the preload, planned below the learned level: the level is not
+                    # just scattered, it lies lower than learned.  The censored step (fine.scatter_gain toward the
+                    # normal's tail mean) left it above that preload -- full box seed 1137 (friction x0.71):
+                    # 0 -> -1.09e-4 rad after a break at -4.59e-4, and the next staircase's preload, planned
+                    # from it, broke the valve loose for 7.7e-3 rad; startup seed 1: -0.03 -> -1.8e-4 after a
+                    # break at -7.8e-4, the pulses then planned from it overshot 4.6e-4 and a doublet back
+                    # 5.8e-4.  Main's pull: below the preload by 0.05 band, with fine.learn_gain
+                    new_b = d * min(d * (b0 + curb), d * self._pre) - d * 0.05 * gap0
+                    self.learn.set("breakaway", d, b, curb + cfg.learn_gain * ((new_b - b0) - curb))
+                else:
+                    self._learn_interval(d, b, lo, d * (hi - b0), gap0)
             else:
                 # breakaway at most the largest twist seen: probe a little lower next time
                 seen = self._peak_seen if pulsed else self._pre

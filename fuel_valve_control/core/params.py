@@ -520,6 +520,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "
           "coupling x0.3: (3 Ts + load) / (0.3 K) ~ 0.14 rad)", 1e-4, 1.0),
+    Param("fine.unbiased_preload_pull", False, "", "with fine.unbiased_samples: a servo-blended pulse whose preload "
+          "broke the valve loose pulls the learned breakaway to below that preload with fine.learn_gain (main's "
+          "treatment), instead of the censored sample's fine.scatter_gain step toward the conditional mean (that "
+          "step left the level above the twist the valve had just broken at, and the next preload broke it loose "
+          "for a whole jump: full box seed 1137; task h32a, docs §73)", runtime=True),
     # --- fc_gain (appendix A) ------------------------------------------------------------------
     Param("fc_gain.gain", 0.8, "", "stiction-breaking torque as a fraction of the nominal valve "
           "static friction at the current pressure", 0.0, 3.0, runtime=True),
