@@ -452,7 +452,8 @@ class FineConfig:
     unbiased_samples: bool = False  # every stage input a sample of the level: a moved doublet's at its apex plus the
                                     # let-go offset, a servo-blended pulse's a censored one (no ratchet; task h30u)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
-                                         # level below it with learn_gain, as main does (task h32a, docs §73)
+                                         # level below it with learn_gain, as main does, unless an unmoved pulse at
+                                         # that stop held an apex beyond it (task h32a, docs §73)
 
 
 class FinePositioner:

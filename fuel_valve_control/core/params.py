@@ -524,7 +524,8 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "broke the valve loose pulls the learned breakaway to below that preload with fine.learn_gain (main's "
           "treatment), instead of the censored sample's fine.scatter_gain step toward the conditional mean (that "
           "step left the level above the twist the valve had just broken at, and the next preload broke it loose "
-          "for a whole jump: full box seed 1137; task h32a, docs §73)", runtime=True),
+          "for a whole jump: full box seed 1137); not when an unmoved pulse at that stop already held an apex beyond "
+          "the preload (the move is its late let-go: full box seed 1039; task h32a, docs §73)", runtime=True),
     # --- fc_gain (appendix A) ------------------------------------------------------------------
     Param("fc_gain.gain", 0.8, "", "stiction-breaking torque as a fraction of the nominal valve "
           "static friction at the current pressure", 0.0, 3.0, runtime=True),
