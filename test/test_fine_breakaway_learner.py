@@ -14,7 +14,7 @@ import pytest
 
 from fuel_valve_control.core.fine_positioning import START_SIGMAS_MAX, START_SIGMAS_MIN, FineLearner
 from fuel_valve_control.core.params import CONTROLLER_SPEC
-from test_fine_positioning import _stage
+from test_fine_positioning import _break_loose, _rest_twist, _stage
 from test_fine_staircase import _stuck_staircase
 
 
@@ -181,3 +181,73 @@ def test_an_unmoved_servo_blended_pulse_leaves_the_level_and_its_move_takes_a_ce
                               sigma)
         assert fine.learn.breakaway[direction][b] == pytest.approx(want.breakaway[direction][b], rel=1e-9)
         assert fine.learn.breakaway[direction][b] != before
+
+
+
+def _preload_break(direction, held_beyond=False, **changes):
+    """A servo-blended pulse whose preload breaks the stuck valve loose (it slides 0.6 of the error while the
+    preload holds the twist); returns the learned breakaway toward ``direction`` after it (rad, toward the
+    move), that preload's twist offset from the nominal breakaway (toward the move), the nominal static band
+    and the stage.  ``held_beyond``: an unmoved pulse at this stop had already reached half a band beyond the
+    preload (the move is that pulse's late let-go)."""
+    ps = CONTROLLER_SPEC.defaults()
+    fine, m = _stage(**changes)
+    p = m.pressure_max_kpa
+    b = fine.learn.band(m.pressure_fraction(p))
+    err = direction * 2.0 * ps["fine.doublet_max_error_rad"]               # a servo-blended pulse's error
+    thl = 0.5
+    th1 = thl + _rest_twist(fine, thl, p)
+    _break_loose(fine, thl, p)
+    before = fine.learn.breakaway[direction][b]
+    for _ in range(400):
+        if fine.phase == "park":
+            break
+        fine.update(0.5 + err, th1, thl, True, 0.3, p)
+    assert fine.phase == "park" and not fine._doublet
+    pre = fine._pre
+    e0, b0 = fine._nominal(0.5, p, direction)
+    if held_beyond:
+        fine._safe = pre + direction * 0.5 * abs(b0 - e0)
+    for _ in range(50):
+        fine.update(0.5 + err, 0.5 + pre, 0.5 + 0.6 * err, True, 0.3, p)
+        if fine.learn.breakaway[direction][b] != before or (held_beyond and fine._safe is None):   # the stop ended
+            break
+    assert (fine.learn.breakaway[direction][b] != before) != held_beyond  # it learned from the break (or not)
+    return direction * fine.learn.breakaway[direction][b], direction * (pre - b0), abs(b0 - e0), fine
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_preload_that_broke_the_valve_loose_pulls_the_unbiased_level_below_it(direction):
+    """``fine.unbiased_samples`` + ``fine.unbiased_preload_pull`` (task h32a, docs §73): a servo-blended pulse's
+    preload, planned below the learned breakaway, breaks the valve loose.  The censored step alone
+    (``fine.scatter_gain`` toward the normal's tail mean) leaves the learned level *above* the twist the valve
+    has just broken at -- the next preload, planned from it, breaks it loose again for a whole jump (full box seed
+    1137: 7.7e-3 rad).  With the pull the level goes ``fine.learn_gain`` of the way to 0.05 band below that
+    preload, as main's learner takes it."""
+    censored, broke_at, gap, _ = _preload_break(direction, **{"fine.unbiased_samples": True})
+    pulled, broke_at2, _, fine = _preload_break(direction, **{"fine.unbiased_samples": True,
+                                                            "fine.unbiased_preload_pull": True})
+    assert broke_at2 == pytest.approx(broke_at, abs=1e-12)
+    assert censored > broke_at                    # the censored step alone: above where it broke (the fault)
+    assert pulled == pytest.approx(fine.cfg.learn_gain * (broke_at - 0.05 * gap), rel=1e-9)
+    assert pulled < censored - 0.25 * gap
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_the_preload_pull_is_inert_without_unbiased_samples(direction):
+    """``fine.unbiased_preload_pull`` acts only in ``fine.unbiased_samples``' path: off, main's learner."""
+    main = _preload_break(direction)
+    pull = _preload_break(direction, **{"fine.unbiased_preload_pull": True})
+    assert main[:3] == pull[:3]
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_no_pull_when_an_unmoved_pulse_at_the_stop_reached_beyond_the_preload(direction):
+    """An unmoved pulse at this stop already held an apex beyond the preload: the valve that goes in the next
+    preload is that pulse's late let-go, not a level below the preload (full box seed 1039, friction x1.64 on
+    K x0.72: an apex 4.46e-3 rad held, the valve went at a preload of -1.92e-3; pulled to -1.40e-3 the level
+    planned a pulse that moved 7.7e-3, a doublet 2.3e-2 and a hunt).  The censored interval is empty and the
+    pull stands aside: the level is unchanged."""
+    level, _, _, _ = _preload_break(direction, held_beyond=True, **{"fine.unbiased_samples": True,
+                                                                    "fine.unbiased_preload_pull": True})
+    assert level == pytest.approx(0.0, abs=1e-12)

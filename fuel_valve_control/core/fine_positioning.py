@@ -457,6 +457,9 @@ class FineConfig:
     stair_growth_after: int = 0   # doublet: after this many unmoved stairs of one staircase each further stair grows
                                   # (:meth:`FinePositioner._grown_stair`; task h32e, docs §77; 0: never)
     stair_growth_slope: float = 4.0  # ... bounded as fine.move_per_overdrive bounds it (this slope where that is 0)
+    unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
+                                         # level below it with learn_gain, as main does, unless an unmoved pulse at
+                                         # that stop held an apex beyond it (task h32a, docs §73)
 
 
 class FinePositioner:
@@ -1498,7 +1501,22 @@ class FinePositioner:
                 # apex an unmoved pulse reached at this stop -- a censored sample, not a pull to the apex
                 hi = self._peak_seen + d * self._let_go_offset() if pulsed else self._pre
                 lo = d * (below - b0) if below is not None else -math.inf
-                self._learn_interval(d, b, lo, d * (hi - b0), gap0)
+                if cfg.unbiased_preload_pull and not pulsed and (below is None or d * (self._pre - below) > 0.0):
+                    # (task h32a) it broke loose in the preload, planned below the learned level: the level is not
+                    # just scattered, it lies lower than learned.  The censored step (fine.scatter_gain toward the
+                    # normal's tail mean) left it above that preload -- full box seed 1137 (friction x0.71):
+                    # 0 -> -1.09e-4 rad after a break at -4.59e-4, and the next staircase's preload, planned
+                    # from it, broke the valve loose for 7.7e-3 rad; startup seed 1: -0.03 -> -1.8e-4 after a
+                    # break at -7.8e-4, the pulses then planned from it overshot 4.6e-4 and a doublet back
+                    # 5.8e-4.  Main's pull: below the preload by 0.05 band, with fine.learn_gain.  Not when an
+                    # unmoved pulse at this stop reached beyond the preload: then the move is that pulse's late
+                    # let-go (the interval is empty, nothing is learned) -- full box seed 1039 (friction x1.64 on
+                    # K x0.72): an apex 4.46e-3 held, the valve went in the next preload at -1.92e-3, and pulled
+                    # to -1.40e-3 the level planned a pulse that moved 7.7e-3, a doublet 2.3e-2 and a hunt
+                    new_b = d * min(d * (b0 + curb), d * self._pre) - d * 0.05 * gap0
+                    self.learn.set("breakaway", d, b, curb + cfg.learn_gain * ((new_b - b0) - curb))
+                else:
+                    self._learn_interval(d, b, lo, d * (hi - b0), gap0)
             else:
                 # breakaway at most the largest twist seen: probe a little lower next time
                 seen = self._peak_seen if pulsed else self._pre

@@ -554,6 +554,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.stair_growth_slope", 4.0, "rad/rad", "fine.stair_growth_after: the valve's move per twist overdrive "
           "at breakaway the grown stair is bounded with where fine.move_per_overdrive is 0 (benchmarks/fine_doublet.py: "
           "~4)", 0.1, 100.0, runtime=True),
+    Param("fine.unbiased_preload_pull", False, "", "with fine.unbiased_samples: a servo-blended pulse whose preload "
+          "broke the valve loose pulls the learned breakaway to below that preload with fine.learn_gain (main's "
+          "treatment), instead of the censored sample's fine.scatter_gain step toward the conditional mean (that "
+          "step left the level above the twist the valve had just broken at, and the next preload broke it loose "
+          "for a whole jump: full box seed 1137); not when an unmoved pulse at that stop already held an apex beyond "
+          "the preload (the move is its late let-go: full box seed 1039; task h32a, docs §73)", runtime=True),
     # --- fc_gain (appendix A) ------------------------------------------------------------------
     Param("fc_gain.gain", 0.8, "", "stiction-breaking torque as a fraction of the nominal valve "
           "static friction at the current pressure", 0.0, 3.0, runtime=True),

@@ -328,6 +328,7 @@ class PositionController:
                           start_quantile=ps["fine.start_quantile"], start_step_sigmas=ps["fine.start_step_sigmas"],
                           main_sample_weight=ps["fine.main_sample_weight"],
                           unbiased_samples=ps["fine.unbiased_samples"],
+                          unbiased_preload_pull=ps["fine.unbiased_preload_pull"],
                           retreat_stop_unmoved=ps["fine.retreat_stop_unmoved"],
                           retreat_unmoved_fraction=ps["fine.retreat_unmoved_fraction"],
                           engage_inside_deadband=ps["fine.engage_inside_deadband"],
