@@ -25,6 +25,7 @@ designs), so a worker costs no start-up; they run plain Python and numpy code on
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import multiprocessing
 import os
 import time
@@ -121,3 +122,26 @@ class Ahead:
 
     def __exit__(self, *exc):
         self.close()
+
+
+class ModuleRuns:
+    """A test module's look-ahead slot: :meth:`result` hands back ``fn(*key)`` -- from the workers
+    while :meth:`planned` is active (the module fixture), computed here otherwise."""
+
+    def __init__(self, fn: Callable[..., Any]):
+        self._fn = fn
+        self._ahead = Ahead(fn, (), jobs=1)
+
+    def result(self, *key):
+        return self._ahead.result(*key)
+
+    @contextlib.contextmanager
+    def planned(self, keys: Iterable[Hashable], jobs: int):
+        """Start ``keys`` on ``jobs`` workers for the duration of the ``with`` block (see
+        :class:`Ahead`); afterwards every run is computed here again."""
+        with Ahead(self._fn, keys, jobs) as ahead:
+            self._ahead = ahead
+            try:
+                yield ahead
+            finally:
+                self._ahead = Ahead(self._fn, (), jobs=1)

@@ -14,7 +14,7 @@ import pytest
 
 from fuel_valve_control.core.integral_policy import IntegralPolicy
 from fuel_valve_control.core.params import DEFAULT_MODE
-from prefetch import Ahead, jobs, selected_items
+from prefetch import ModuleRuns, jobs, selected_items
 
 LIMIT_NM = 24.85          # continuous torque at the valve (15 A x 0.0345 N*m/A x 48.0)
 
@@ -35,7 +35,7 @@ def _simulate(seed: int, rb=None, **case_changes) -> dict:
 
 #: the module's look-ahead runs (test/prefetch.py) and the benchmark module they run with; none
 #: outside the module fixture below
-_AHEAD = Ahead(_simulate, (), jobs=1)
+_AHEAD = ModuleRuns(_simulate)
 _AHEAD_BENCH: dict = {}
 #: the campaign seeds the tests without a seed parameter ask for
 _SEED_OF = {"test_a_held_heavy_load_does_not_latch_the_i2t_jam_fault": 1019,
@@ -48,18 +48,15 @@ _SEED_OF = {"test_a_held_heavy_load_does_not_latch_the_i2t_jam_fault": 1019,
 def _look_ahead(request, robustness_bench):
     """The module's campaign runs on both cores (test/prefetch.py); each test still takes and
     asserts its own run.  A run left out of the plan is simulated when the test asks, as before."""
-    global _AHEAD
     items = selected_items(request)
     seeds = [item.callspec.params["seed"] if item.originalname == "test_former_campaign_hunters_hold_without_hunting"
              else _SEED_OF.get(item.originalname) for item in items]
     _AHEAD_BENCH["rb"] = robustness_bench
-    with Ahead(_simulate, [(s,) for s in seeds if s is not None], jobs(request.config)) as ahead:
-        _AHEAD = ahead
-        try:
+    try:
+        with _AHEAD.planned([(s,) for s in seeds if s is not None], jobs(request.config)):
             yield
-        finally:
-            _AHEAD = Ahead(_simulate, (), jobs=1)
-            _AHEAD_BENCH.clear()
+    finally:
+        _AHEAD_BENCH.clear()
 
 
 def test_learned_load_keeps_the_whole_held_load_within_the_continuous_torque():

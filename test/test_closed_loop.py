@@ -24,7 +24,7 @@ from fuel_valve_control.tools.metrics import RESOLVER_COUNT_RAD
 from fuel_valve_control.tools.scenarios import builtin_names, load_scenario
 from fuel_valve_plant.physics.friction import friction_levels
 from fuel_valve_plant.physics.params import PLANT_SPEC
-from prefetch import Ahead, jobs, selected_items
+from prefetch import ModuleRuns, jobs, selected_items
 
 TWO_COUNTS = 2.0 * RESOLVER_COUNT_RAD            # 1.92e-4 rad
 SSE_TARGET = 1e-3                                 # SPEC §6 hold steady-state error, rad
@@ -52,7 +52,7 @@ def _simulate(scenario: str, mode: str, plant: tuple, controller: tuple, seed):
 
 
 #: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
-_AHEAD = Ahead(_simulate, (), jobs=1)
+_AHEAD = ModuleRuns(_simulate)
 
 
 def _metrics(scenario, **kw):
@@ -96,15 +96,10 @@ def _planned(item) -> list[tuple]:
 def _look_ahead(request):
     """The module's runs on both cores (test/prefetch.py), the 30 s holds first; each test
     still takes and asserts its own run."""
-    global _AHEAD
     keys = [key for item in selected_items(request) for key in _planned(item)]
     keys.sort(key=lambda k: -load_scenario(k[0]).duration_s)      # stable: the longest first
-    with Ahead(_simulate, keys, jobs(request.config)) as ahead:
-        _AHEAD = ahead
-        try:
-            yield
-        finally:
-            _AHEAD = Ahead(_simulate, (), jobs=1)
+    with _AHEAD.planned(keys, jobs(request.config)):
+        yield
 
 
 # ============================================================================ nominal targets

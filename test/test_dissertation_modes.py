@@ -11,7 +11,7 @@ from fuel_valve_control.core.position_controller import PositionController
 from fuel_valve_control.tools import sim
 from fuel_valve_control.tools.metrics import RESOLVER_COUNT_RAD
 from fuel_valve_control.tools.scenarios import load_scenario
-from prefetch import Ahead, jobs, selected_items
+from prefetch import ModuleRuns, jobs, selected_items
 
 
 @functools.lru_cache(maxsize=None)
@@ -26,7 +26,7 @@ def _simulate(scenario: str, mode: str, seed: int):
 
 
 #: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
-_AHEAD = Ahead(_simulate, (), jobs=1)
+_AHEAD = ModuleRuns(_simulate)
 
 
 def _planned(item) -> list[tuple]:
@@ -50,15 +50,10 @@ def _planned(item) -> list[tuple]:
 def _look_ahead(request):
     """The module's runs on both cores (test/prefetch.py), the longest first; each test still
     takes and asserts its own run."""
-    global _AHEAD
     keys = [key for item in selected_items(request) for key in _planned(item)]
     keys.sort(key=lambda k: -load_scenario(k[0]).duration_s)
-    with Ahead(_simulate, keys, jobs(request.config)) as ahead:
-        _AHEAD = ahead
-        try:
-            yield
-        finally:
-            _AHEAD = Ahead(_simulate, (), jobs=1)
+    with _AHEAD.planned(keys, jobs(request.config)):
+        yield
 
 
 def _metrics(scenario: str, mode: str) -> dict:

@@ -41,7 +41,7 @@ from fuel_valve_control.core.position_controller import PositionController
 from fuel_valve_control.tools.profiles import DEMAND_NODE_SPEC, ProfileError, profile_from_params
 from fuel_valve_plant.physics.params import PLANT_NODE_SPEC, PLANT_SPEC, check_consistency, load_plant_params
 from fuel_valve_plant.physics.plant import Plant
-from prefetch import Ahead, jobs, selected_items
+from prefetch import ModuleRuns, jobs, selected_items
 from snapshots import Snapshots
 
 N = 48.019
@@ -459,7 +459,7 @@ def _boundary_case(node: str, name: str, index: int) -> None:
 
 
 #: the module's look-ahead cases; none outside the module fixture below
-_AHEAD = Ahead(_boundary_case, (), jobs=1)
+_AHEAD = ModuleRuns(_boundary_case)
 
 
 def _planned(item) -> list[tuple]:
@@ -478,11 +478,6 @@ def _look_ahead(request):
     """The parameter-boundary cases (most of this module's CPU) on both cores while the input
     cases run here; each parameter test still takes its cases in order and fails with the
     first that fails."""
-    global _AHEAD
     keys = [key for item in selected_items(request) for key in _planned(item)]
-    with Ahead(_boundary_case, keys, jobs(request.config)) as ahead:
-        _AHEAD = ahead
-        try:
-            yield
-        finally:
-            _AHEAD = Ahead(_boundary_case, (), jobs=1)
+    with _AHEAD.planned(keys, jobs(request.config)):
+        yield

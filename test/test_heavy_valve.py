@@ -23,7 +23,7 @@ import pytest
 from scipy.optimize import brentq
 
 from conftest import load_benchmark
-from prefetch import Ahead, jobs, selected_items
+from prefetch import ModuleRuns, jobs, selected_items
 from fuel_valve_control.core.laws.state_feedback import StateFeedbackLaw
 from fuel_valve_control.core.model import NominalModel
 from fuel_valve_control.core.params import CONTROLLER_SPEC
@@ -52,7 +52,7 @@ def _simulate(valve: str, mode: str, relieve: bool = False):
 
 
 #: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
-_AHEAD = Ahead(_simulate, (), jobs=1)
+_AHEAD = ModuleRuns(_simulate)
 #: the start-up runs each test asks for
 _PLANNED = {"test_heavy_valve_startup_plateaus_settle_with_the_relief": [("heavy_valve", "observer_fp", True)],
             "test_heavy_valve_startup_plateaus_settle_by_default": [("heavy_valve", "observer_fp", False)],
@@ -63,14 +63,9 @@ _PLANNED = {"test_heavy_valve_startup_plateaus_settle_with_the_relief": [("heavy
 @pytest.fixture(scope="module", autouse=True)
 def _look_ahead(request):
     """The module's start-up runs on both cores; each test still takes and asserts its own run."""
-    global _AHEAD
     keys = [key for item in selected_items(request) for key in _PLANNED.get(item.originalname, [])]
-    with Ahead(_simulate, keys, jobs(request.config)) as ahead:
-        _AHEAD = ahead
-        try:
-            yield
-        finally:
-            _AHEAD = Ahead(_simulate, (), jobs=1)
+    with _AHEAD.planned(keys, jobs(request.config)):
+        yield
 
 
 def _worst_plateau(res) -> float:

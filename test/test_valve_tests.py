@@ -23,7 +23,7 @@ from fuel_valve_control.core.valve_tests import PARTIAL_STROKE, SIGNATURE, Valve
 from fuel_valve_control.tools.run_plan import OFFLINE, plan_run
 from fuel_valve_control.tools.scenarios import parse_scenario
 from fuel_valve_control.tools.sim import simulate_plan
-from prefetch import Ahead, jobs, selected_items
+from prefetch import ModuleRuns, jobs, selected_items
 
 #: stated tolerance of the measured friction against the plant's true level (nominal plant):
 #: measured -0.3 % at 0 kPa, +1.0 % at 3103 kPa, +7.4 % at 6206 kPa (stick-slip at high Δp
@@ -82,7 +82,7 @@ def _simulate(what: str, pressure_kpa: float = 0.0, friction_scale: float = 1.0)
 
 
 #: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
-_AHEAD = Ahead(_simulate, (), jobs=1)
+_AHEAD = ModuleRuns(_simulate)
 #: the runs without baselines each test asks for (those with a baseline wait for its result:
 #: simulated in the test, as before)
 _PLANNED = {"test_signature_detects_friction_x2_against_the_nominal_baseline": [("signature", 6206.0, 1.0)],
@@ -96,18 +96,13 @@ _PLANNED = {"test_signature_detects_friction_x2_against_the_nominal_baseline": [
 def _look_ahead(request):
     """The module's 21 s signatures and its nominal partial stroke on both cores; each test
     still takes and asserts its own run."""
-    global _AHEAD
     keys = []
     for item in selected_items(request):
         if item.originalname == "test_signature_recovers_true_friction":
             keys.append(("signature", item.callspec.params["pressure_kpa"], 1.0))
         keys += _PLANNED.get(item.originalname, [])
-    with Ahead(_simulate, keys, jobs(request.config)) as ahead:
-        _AHEAD = ahead
-        try:
-            yield
-        finally:
-            _AHEAD = Ahead(_simulate, (), jobs=1)
+    with _AHEAD.planned(keys, jobs(request.config)):
+        yield
 
 
 # 3103 kPa was a strict xfail (the signature's 2 % step up did not settle within its hold since the
