@@ -1,0 +1,352 @@
+"""A plant-free model of the fine stage's torque doublet: how far the valve moves (issue 14, Deliver 1).
+
+:class:`PulseMoves` answers, from the controller's own :class:`~fuel_valve_control.core.model.NominalModel`,
+the question ``benchmarks/plateau_floor.py`` tabulates on the simulated plant (docs §75, §80): the valve's
+move for one doublet of :class:`~fuel_valve_control.core.fine_positioning.FinePositioner` whose twist *apex*
+lies ``overdrive`` above the valve's static level, that level lying ``excess`` above the Coulomb-equilibrium
+twist.  It is built for a pulse policy that places the apex where the chance to land within tolerance is
+best given the distribution of the level drawn at each stop.
+
+Sign conventions and units
+--------------------------
+* ``direction`` d = +1 opens (the valve angle grows), -1 closes.  Every twist, excess, overdrive, aim and move
+  argument or result is a magnitude *toward* ``d`` (rad at the valve; twist = gear-output angle - valve angle).
+* ``excess`` x >= 0: the static level's twist ``(load + d T_s) / K`` lies ``d x`` beyond the Coulomb-equilibrium
+  twist ``φe = (load + d T_c(Δp)) / K`` (``T_s = T_c + K x``): the per-stop draw of the level, in rad.
+* ``overdrive``: the apex (the largest twist the doublet reaches on a valve that stays stuck: the preload
+  plus :meth:`PulseMoves.rise`) less the static level's twist.  <= 0: the valve does not break loose.
+* ``aim``: the error the stage asks the doublet to close; its observe servo then pulls the gear output to
+  the final twist ``φe + d aim / 2`` measured from the valve angle the doublet started at
+  (:meth:`FinePositioner._start_pulse`: ``final = φe + aim / 2``).  The move depends on it (docs §80:
+  the servo pulls through the slide), so :meth:`PulseMoves.move` takes it (``aim_rad``).
+
+What is simulated (one vectorised time loop over every grid point at once)
+--------------------------------------------------------------------------
+Two masses at the gear output (motor ``J1 = Jm N²`` with its viscous term and its Coulomb / static
+friction, stick-slip as the plant integrates it; the valve ``JL`` with its viscous term, the spring +
+flow load ``model.load_torque`` at the moving valve angle, and stick-slip at ``T_c(Δp)`` sliding /
+``T_c + K x`` static), the coupling ``K``, ``c``; the drive's q-axis current
+loop (decoupled PI of bandwidth ``current_bandwidth_hz`` cancelling the R-L pole, voltage limited to the
+SVPWM circle ``V_dc / √3`` with the back-EMF, conditional integration: at the retreat's 30 A reversal the
+current slews ~42 A/ms at 28 V, the kick's current needs most of a period).  Substeps of
+``period / substeps`` (20 = the plant's 20 kHz).  The controller's torque per 1 kHz period (zero-order
+hold): the doublet as :meth:`FinePositioner._doublet_torque` commands it on the hold torque ``K φp / N``
+(one period of kick ``+ d kick``, ``fine.retreat_full_periods`` of ``hold - d cap``, one of
+``hold - d cap / 2``, each capped at ``± cap``), then the stage's observe servo
+(:meth:`FinePositioner._servo`: feed-forward ``K (θ1_ref - θL) / N``, PD ``kp, kd`` on the gear output
+sampled once a period with a backward-difference speed, integral ``ki``) toward
+``θ1_ref = θL0 + φe + d aim / 2`` for ``observe_periods`` periods.
+
+Not modelled (the caller's business or small): resolver quantisation, noise and the 50 µs delay; the
+servo's integral and feed-forward error carried from the park (taken as exact: the hold torque is
+``K φp / N``, the integral starts at 0); how the park reached the preload (the model starts at rest);
+backlash; the plant's LuGre alternative and Stribeck drop (the nominal valve has none); the static-level
+scatter's new draw when the valve stops (a stop re-sticks at the same level -- a second break within one
+doublet does not happen on the nominal valve); position ripple of the levels.
+"""
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+
+import numpy as np
+
+from .model import NominalModel
+
+#: a step of the tabulated move between neighbouring aims larger than this many aim spacings is the observe
+#: servo's second breakaway (a whole further jump, docs §80): :meth:`PulseMoves.move` takes the nearer aim's move
+#: there instead of a blend of the two regimes (the dragged regime grows ~1 rad of move per rad of aim)
+AIM_STEP_JUMPS = 3.0
+#: bisections of the second breakaway's aim between the two tabulated aims (each one more run of those cells)
+THRESHOLD_BISECTIONS = 3
+#: tables kept per PulseMoves (each (direction, Δp, kick, valve angle) key one table of ~20k floats)
+CACHE_SIZE = 32
+
+
+class PulseMoves:
+    """The doublet's valve move from the controller's model, tabulated lazily per
+    (direction, Δp, kick current, valve angle) and interpolated.
+
+    ``period_s``: the loop period (s); ``kick_current_a``: ``fine.kick_current_a`` (A, the default kick);
+    ``peak_current_a``: ``fine.peak_current_a`` (A, every command's cap); ``retreat_full_periods``:
+    ``fine.retreat_full_periods``; ``servo_kp`` (N*m/rad), ``servo_kd`` (N*m*s/rad), ``servo_ki``
+    (N*m/(rad*s)): the stage's gear-output servo gains (:class:`FinePositioner` ``kp, kd, ki``, at the gear
+    output); ``supply_voltage_v``: the drive's bus (``drive.supply_voltage_v``; None: no voltage limit).
+    Keyword extras: ``current_bandwidth_hz`` (the drive's current-loop bandwidth; None: the current
+    follows its command at once), ``observe_periods`` (periods of the observe servo simulated after the
+    retreat, ``fine.observe_time_s`` / period), ``substeps`` (integration steps per period),
+    ``retreat_unmoved_fraction`` (``fine.retreat_unmoved_fraction``: the last retreat period's current, x cap,
+    when the valve has not moved a half count by then; ``tolerance_rad`` that count's threshold x 2).
+    Grids: ``excess_fraction`` (the excesses tabulated: 0 ... this x T_s(Δp)/K, the plausible learned-offset
+    bound of :meth:`FinePositioner._plausible_offset_rad`), ``overdrive_points`` log-spaced from 1e-3 to 1 x
+    the stick-slip jump ``2 (T_s - T_c) / K`` at Δp, ``aim_points`` aims over 0 ... ``aim_fraction`` x that jump.
+    """
+
+    def __init__(self, model: NominalModel, period_s: float, *, kick_current_a: float, peak_current_a: float,
+                 retreat_full_periods: int, servo_kp: float, servo_kd: float, servo_ki: float,
+                 supply_voltage_v: float | None = None, current_bandwidth_hz: float | None = 1500.0,
+                 observe_periods: int = 15, substeps: int = 20, retreat_unmoved_fraction: float = 0.5,
+                 tolerance_rad: float = 0.0, excess_fraction: float = 0.5, excess_points: int = 21,
+                 overdrive_points: int = 14, aim_fraction: float = 1.0, aim_points: int = 9):
+        self.m = model
+        self.period = float(period_s)
+        self.kick = float(kick_current_a)
+        self.cap = float(peak_current_a)
+        self.retreat_full = max(int(retreat_full_periods), 1)
+        self.kp, self.kd, self.ki = float(servo_kp), float(servo_kd), float(servo_ki)
+        self.vlim = None if supply_voltage_v is None else supply_voltage_v / math.sqrt(3.0)
+        self.wc = None if current_bandwidth_hz is None else 2.0 * math.pi * current_bandwidth_hz
+        self.observe_periods = int(observe_periods)
+        self.substeps = int(substeps)
+        self.unmoved_fraction = float(retreat_unmoved_fraction)
+        self.tolerance = float(tolerance_rad)
+        self.excess_fraction = float(excess_fraction)
+        self.n_excess, self.n_overdrive = int(excess_points), int(overdrive_points)
+        self.aim_fraction, self.n_aim = float(aim_fraction), int(aim_points)
+        self._tables: OrderedDict = OrderedDict()
+        self._rises: dict = {}
+        self.builds = 0                  # tables simulated so far (tests count the cache's work)
+
+    # ------------------------------------------------------------------ public
+    def rise(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
+             valve_angle_rad: float | None = None) -> float:
+        """Twist (rad, >= 0, toward ``direction``) the doublet's kick -- and the retreat's first instants,
+        while the current slews back -- raises above a quasi-static preload on a valve that stays stuck: the
+        doublet's apex lies this far above its preload.  Per (direction, Δp, kick, angle), cached."""
+        d, p, kick, th = self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad)
+        key = (d, p, kick, th)
+        if key not in self._rises:
+            phi_s = self._levels(d, p, th)[2]
+            # a valve held stuck (static level far beyond reach); the preload at the nominal level
+            apex = self._simulate(d, p, kick, th, preload=np.array([phi_s]), excess=np.array([np.inf]),
+                                  aim=np.array([0.0]), track_apex=True)
+            self._rises[key] = float(max(d * (apex[0] - phi_s), 0.0))
+        return self._rises[key]
+
+    def move(self, direction: int, pressure_kpa: float, excess_rad, overdrive_rad,
+             kick_current_a: float | None = None, aim_rad=0.0, valve_angle_rad: float | None = None) -> np.ndarray:
+        """The valve's move (rad, >= 0 toward ``direction``; an ndarray of the broadcast shape of
+        ``excess_rad``, ``overdrive_rad`` and ``aim_rad``) for a doublet whose apex lies ``overdrive_rad``
+        above the static level, the level ``excess_rad`` above the Coulomb-equilibrium twist (both rad,
+        toward ``direction``), asked to close the error ``aim_rad`` (rad toward ``direction``, >= 0: the
+        observe servo's final twist is ``φe + aim / 2``; the move grows with it -- pass the error the
+        doublet is for).  0 where ``overdrive_rad <= 0`` (no break); NaN outside the table (excess
+        beyond ``excess_fraction`` x T_s/K or below 0, overdrive beyond one stick-slip jump, aim beyond one
+        jump or below 0: the caller counts it a miss).  ``valve_angle_rad``: where the doublet starts (the
+        load's angle; None: mid-stroke).  Interpolated (linear in excess and aim, in log overdrive)."""
+        d, p, kick, th = self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad)
+        tab = self._table(d, p, kick, th)
+        x = np.asarray(excess_rad, dtype=float)
+        od = np.asarray(overdrive_rad, dtype=float)
+        aim = np.asarray(aim_rad, dtype=float)
+        x, od, aim = np.broadcast_arrays(x, od, aim)
+        xg, og, ag, moves = tab["excess"], tab["overdrive"], tab["aim"], tab["moves"]
+        fx = np.interp(x, xg, np.arange(len(xg)))
+        fo = np.interp(np.log(np.maximum(od, og[0])), np.log(og), np.arange(len(og)))
+        fa = np.interp(aim, ag, np.arange(len(ag)))
+        i0 = np.minimum(fx.astype(int), len(xg) - 2)
+        j0 = np.minimum(fo.astype(int), len(og) - 2)
+        k0 = np.minimum(fa.astype(int), len(ag) - 2)
+        ax, ao, aa = fx - i0, fo - j0, fa - k0
+        thr, last_ok = tab["second_break_aim"], tab["last_ok"]
+        v = np.zeros(x.shape)
+        t = np.zeros(x.shape)
+        beyond = ag[-1] + (ag[1] - ag[0])
+        for di, wx in ((0, 1.0 - ax), (1, ax)):
+            for dj, wo in ((0, 1.0 - ao), (1, ao)):
+                ii, jj = i0 + di, j0 + dj
+                # along the aim, linear over this corner's aims short of its second breakaway (flat beyond them)
+                kk = np.minimum(fa, last_ok[ii, jj])
+                k = np.minimum(kk.astype(int), len(ag) - 2)
+                w = kk - k
+                va = moves[ii, jj, k] * (1.0 - w) + moves[ii, jj, k + 1] * w
+                v = v + va * wx * wo
+                t = t + np.minimum(thr[ii, jj], beyond) * wx * wo
+        # the observe servo pulls the valve loose a second time (a whole further jump at a level drawn anew on the
+        # real valve): no prediction
+        v = np.where(aim >= t, np.nan, v)
+        eps = 1e-12
+        outside = ((x < -eps) | (x > xg[-1] * (1 + 1e-6) + eps) | (od > og[-1] * (1 + 1e-6))
+                   | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | ~np.isfinite(x) | ~np.isfinite(aim))
+        v = np.where(outside, np.nan, v)
+        return np.where(od > 0.0, v, 0.0)
+
+    def table(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
+              valve_angle_rad: float | None = None) -> dict:
+        """The raw table behind :meth:`move`: ``excess``, ``overdrive``, ``aim`` (grids, rad) and ``moves``
+        [excess, overdrive, aim] (rad toward ``direction``), ``rise`` (rad), ``build_s`` (s of CPU it took)."""
+        return self._table(*self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad))
+
+    # ------------------------------------------------------------------ internals
+    def _key_parts(self, direction, pressure_kpa, kick_current_a, valve_angle_rad):
+        d = 1 if direction > 0 else -1
+        p = round(float(pressure_kpa), 3)
+        kick = self.kick if kick_current_a is None else float(kick_current_a)
+        th = 0.5 * self.m.stroke_rad if valve_angle_rad is None else float(valve_angle_rad)
+        # the load changes little over 0.01 rad of angle (spring rate + flow slope: < 0.1 % of K per 0.01 rad)
+        return d, p, round(kick, 6), round(th, 2)
+
+    def _load(self, th, p):
+        """``model.load_torque`` (N*m toward closed) over an array of valve angles ``th`` (rad) at Δp ``p``."""
+        m = self.m
+        frac = np.clip(th / m.stroke_rad, 0.0, 1.0)
+        return (m.spring_preload_nm + m.spring_rate_nm_per_rad * th
+                + m.flow_torque_max_nm * min(max(p / m.pressure_max_kpa, 0.0), 1.0) * np.sin(np.pi * frac))
+
+    def _levels(self, d, p, th):
+        """(T_c, T_s) at Δp (N*m) and the nominal static level's twist (rad, absolute) at angle ``th``."""
+        fl = self.m.friction(p)
+        load = self.m.load_torque(th, p)
+        return fl.valve_coulomb_nm, fl.valve_static_nm, (load + d * fl.valve_static_nm) / self.m.coupling_stiffness_nm_per_rad
+
+    def _table(self, d, p, kick, th) -> dict:
+        key = (d, p, kick, th)
+        if key in self._tables:
+            self._tables.move_to_end(key)
+            return self._tables[key]
+        import time
+        t0 = time.process_time()
+        m = self.m
+        k = m.coupling_stiffness_nm_per_rad
+        fl = m.friction(p)
+        jump = max(fl.stick_slip_jump_rad(k), 1e-6)
+        xg = np.linspace(0.0, self.excess_fraction * fl.valve_static_nm / k, self.n_excess)
+        og = jump * np.geomspace(1e-3, 1.0, self.n_overdrive)
+        ag = np.linspace(0.0, self.aim_fraction * jump, self.n_aim)
+        rise = self.rise(d, p, kick, th)
+        X, O, A = np.meshgrid(xg, og, ag, indexing="ij")
+        load0 = m.load_torque(th, p)
+        level = (load0 + d * (fl.valve_coulomb_nm + k * X)) / k          # the static level's twist, rad
+        preload = level + d * (O - rise)
+        end = self._simulate(d, p, kick, th, preload=preload.ravel(), excess=X.ravel(), aim=A.ravel())
+        moves = np.maximum(d * (end - th), 0.0).reshape(X.shape)
+        # the aim at which the observe servo's overshoot breaks the valve loose a second time: the first step
+        # between neighbouring aims of more than AIM_STEP_JUMPS aim spacings (midway between them; inf: none)
+        step = np.abs(np.diff(moves, axis=2)) > AIM_STEP_JUMPS * (ag[1] - ag[0])
+        has = step.any(axis=2)
+        first = np.argmax(step, axis=2)
+        thr = np.full(has.shape, np.inf)
+        if has.any():
+            # bisect the threshold between the two aims (THRESHOLD_BISECTIONS runs of those cells only)
+            ci, cj = np.nonzero(has)
+            kf = first[ci, cj]
+            lo_a, hi_a = ag[kf], ag[kf + 1]
+            lo_m, hi_m = moves[ci, cj, kf], moves[ci, cj, kf + 1]
+            xs = xg[ci]
+            pre = (load0 + d * (fl.valve_coulomb_nm + k * xs)) / k + d * (og[cj] - rise)
+            for _ in range(THRESHOLD_BISECTIONS):
+                mid = 0.5 * (lo_a + hi_a)
+                mm = np.maximum(d * (self._simulate(d, p, kick, th, preload=pre, excess=xs, aim=mid) - th), 0.0)
+                dragged = np.abs(mm - lo_m) > np.abs(mm - hi_m)
+                lo_a, hi_a = np.where(dragged, lo_a, mid), np.where(dragged, mid, hi_a)
+            thr[ci, cj] = 0.5 * (lo_a + hi_a)
+        last_ok = np.where(has, first, len(ag) - 1).astype(float)
+        tab = {"excess": xg, "overdrive": og, "aim": ag, "moves": moves, "rise": rise,
+               "second_break_aim": thr, "last_ok": last_ok, "build_s": time.process_time() - t0}
+        self.builds += 1
+        self._tables[key] = tab
+        while len(self._tables) > CACHE_SIZE:
+            self._tables.popitem(last=False)
+        return tab
+
+    def _simulate(self, d, p, kick, th0, *, preload, excess, aim, track_apex=False):
+        """Run the doublet on every lane at once from rest at valve angle ``th0`` with the twist at ``preload``
+        (absolute, rad), the valve's static level ``T_c + K excess``; returns the valve angle at the end
+        (or, with ``track_apex``, the largest twist toward ``d`` reached, absolute rad)."""
+        m = self.m
+        n_gear, k, c = m.gear_ratio, m.coupling_stiffness_nm_per_rad, m.coupling_damping_nms
+        j1, jl, b1, bl = m.j1, m.valve_inertia_kgm2, m.b1, m.valve_viscous_nms
+        kt = m.torque_constant_nm_per_a
+        fl = m.friction(p)
+        tc = fl.valve_coulomb_nm
+        ts = np.where(np.isfinite(excess), tc + k * np.where(np.isfinite(excess), excess, 0.0), np.inf)
+        # motor friction at the gear output (the plant's motor-shaft levels x N)
+        tcm, tsm = fl.motor_coulomb_nm * n_gear, fl.motor_static_nm * n_gear
+        r_ohm, lq = m.motor_resistance_ohm, m.motor_lq_h
+        pole = m.motor_pole_pairs
+        psi = kt / (1.5 * pole)
+        per = self.period
+        dt = per / self.substeps
+        n = preload.shape[0]
+        # initial rest: valve at th0, gear output at th0 + preload, the drive holding K φp / N
+        thl = np.full(n, float(th0))
+        wl = np.zeros(n)
+        th1 = thl + preload
+        w1 = np.zeros(n)
+        hold = k * preload / n_gear                                        # N*m at the motor
+        iq = hold / kt
+        xq = r_ohm * iq                                                    # the current PI's integral at rest
+        cap = self.cap * kt
+        phi_e = (self._load(thl, p) + d * tc) / k
+        ref1 = thl + phi_e + d * aim / 2.0                                 # the observe servo's gear-output target
+        integral = np.zeros(n)
+        th1_prev = th1.copy()
+        apex = d * preload.copy()
+        vlim2 = None if self.vlim is None else self.vlim ** 2
+        if self.wc is not None:
+            kpc, kic = lq * self.wc, r_ohm * self.wc
+            a_rl = math.exp(-r_ohm * dt / lq) if r_ohm > 0.0 else 1.0
+            b_rl = (1.0 - a_rl) / r_ohm if r_ohm > 0.0 else dt / lq
+        n_pulse = 2 + self.retreat_full
+        for period in range(n_pulse + self.observe_periods):
+            if period == 0:
+                torque = hold + d * kick * kt
+            elif period <= self.retreat_full:
+                torque = hold - d * cap
+            elif period == self.retreat_full + 1:
+                frac = 0.5
+                if self.unmoved_fraction != 0.5 and self.tolerance > 0.0:
+                    unmoved = np.abs(thl - th0) < 0.5 * self.tolerance
+                    frac = np.where(unmoved, self.unmoved_fraction, 0.5)
+                torque = hold - d * frac * cap
+            else:
+                # the observe servo (FinePositioner._servo, a_ref = v_ref = 0), sampled at the period's start
+                w1s = (th1 - th1_prev) / per             # the stage's backward difference, every period
+                e = ref1 - th1
+                integral = integral + e * per
+                ff = k * (ref1 - thl) / n_gear
+                torque = ff + (self.kp * e - self.kd * w1s + self.ki * integral) / n_gear
+            th1_prev = th1.copy()
+            iq_ref = np.clip(torque, -cap, cap) / kt * np.ones(n)
+            for _ in range(self.substeps):
+                # ---- the drive's q current (decoupled PI, voltage circle with the back-EMF, exact R-L step)
+                if self.wc is None:
+                    iq_new = iq_mid = iq_ref
+                else:
+                    we = (pole * n_gear) * w1
+                    emf_q = psi * we
+                    err = iq_ref - iq
+                    vq = kpc * err + xq + emf_q
+                    if vlim2 is not None:
+                        vd = lq * we * iq                                   # |d-axis EMF| (id = 0), fed forward
+                        vq_max = np.sqrt(np.maximum(vlim2 - vd * vd, 0.0))
+                        sat = np.abs(vq) > vq_max
+                        np.clip(vq, -vq_max, vq_max, out=vq)
+                        xq = xq + np.where(sat, 0.0, kic * dt) * err        # conditional integration
+                    else:
+                        xq = xq + (kic * dt) * err
+                    iq_new = a_rl * iq + b_rl * (vq - emf_q)
+                    iq_mid = 0.5 * (iq + iq_new)
+                iq = iq_new
+                # ---- mechanics (the plant's semi-implicit Euler with exact stick-slip), gear-output coordinates
+                tk = k * (th1 - thl) + c * (w1 - wl)
+                text_m = (kt * n_gear) * iq_mid - tk - b1 * w1
+                text_l = tk - bl * wl - self._load(thl, p)
+                w1 = self._stick_slip(w1, text_m, j1, tcm, tsm, dt)
+                wl = self._stick_slip(wl, text_l, jl, tc, ts, dt)
+                th1 = th1 + dt * w1
+                thl = thl + dt * wl
+                if track_apex:
+                    apex = np.maximum(apex, d * (th1 - thl))
+        return d * apex if track_apex else thl
+
+    @staticmethod
+    def _stick_slip(w, t_ext, inertia, t_coulomb, t_static, dt):
+        """One step of a shaft with static / Coulomb friction (no Stribeck), as the plant's kernel: stuck
+        while the torque on it is within the static level (breaking away at the Coulomb level), stopped
+        where its speed would reverse within the step."""
+        stuck = w == 0.0
+        sgn = np.where(stuck, np.sign(t_ext), np.sign(w))
+        w_new = w + (dt / inertia) * (t_ext - sgn * t_coulomb)
+        w_new[(stuck & (np.abs(t_ext) <= t_static)) | (w_new * w < 0.0)] = 0.0
+        return w_new
