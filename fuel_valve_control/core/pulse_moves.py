@@ -52,6 +52,10 @@ from collections import OrderedDict
 import numpy as np
 
 from .model import NominalModel
+from .params import CONTROLLER_SPEC
+
+#: the drive's current-loop bandwidth when the caller gives none (``drive.current_loop_bandwidth_hz``'s default)
+DEFAULT_BANDWIDTH = CONTROLLER_SPEC.defaults()["drive.current_loop_bandwidth_hz"]
 
 #: a step of the tabulated move between neighbouring aims larger than this many aim spacings is the observe
 #: servo's second breakaway (a whole further jump, docs §80): :meth:`PulseMoves.move` takes the nearer aim's move
@@ -84,7 +88,7 @@ class PulseMoves:
 
     def __init__(self, model: NominalModel, period_s: float, *, kick_current_a: float, peak_current_a: float,
                  retreat_full_periods: int, servo_kp: float, servo_kd: float, servo_ki: float,
-                 supply_voltage_v: float | None = None, current_bandwidth_hz: float | None = 1500.0,
+                 supply_voltage_v: float | None = None, current_bandwidth_hz: float | None = DEFAULT_BANDWIDTH,
                  observe_periods: int = 15, substeps: int = 20, retreat_unmoved_fraction: float = 0.5,
                  tolerance_rad: float = 0.0, excess_fraction: float = 0.5, excess_points: int = 21,
                  overdrive_points: int = 14, aim_fraction: float = 1.0, aim_points: int = 9):
@@ -106,6 +110,23 @@ class PulseMoves:
         self._tables: OrderedDict = OrderedDict()
         self._rises: dict = {}
         self.builds = 0                  # tables simulated so far (tests count the cache's work)
+
+    @classmethod
+    def for_positioner(cls, fine, ps=None, **kw) -> "PulseMoves":
+        """The move model of a :class:`FinePositioner` ``fine``: its planning model, period, doublet settings
+        (``fine.cfg``) and servo gains (``fine.kp, kd, ki``); ``ps`` (a controller parameter set, optional):
+        ``drive.supply_voltage_v`` and ``drive.current_loop_bandwidth_hz`` (else their defaults).  ``kw``
+        overrides any keyword of the constructor."""
+        vals = CONTROLLER_SPEC.defaults() if ps is None else ps
+        cfg = fine.cfg
+        args = dict(kick_current_a=cfg.kick_current_a, peak_current_a=cfg.peak_current_a,
+                    retreat_full_periods=cfg.retreat_full_periods, servo_kp=fine.kp, servo_kd=fine.kd,
+                    servo_ki=fine.ki, supply_voltage_v=vals["drive.supply_voltage_v"],
+                    current_bandwidth_hz=vals["drive.current_loop_bandwidth_hz"],
+                    observe_periods=cfg.observe_periods, retreat_unmoved_fraction=cfg.retreat_unmoved_fraction,
+                    tolerance_rad=cfg.tolerance_rad)
+        args.update(kw)
+        return cls(fine.m, fine.period, **args)
 
     # ------------------------------------------------------------------ public
     def rise(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
@@ -169,7 +190,12 @@ class PulseMoves:
         outside = ((x < -eps) | (x > xg[-1] * (1 + 1e-6) + eps) | (od > og[-1] * (1 + 1e-6))
                    | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | ~np.isfinite(x) | ~np.isfinite(aim))
         v = np.where(outside, np.nan, v)
-        return np.where(od > 0.0, v, 0.0)
+        # an apex below the level: no move -- unless the aim puts the observe servo's rebound into the level
+        # (then the servo breaks the valve loose, unpredicted: NaN)
+        ub = np.interp(x, xg, np.minimum(tab["servo_break_aim"], beyond))
+        unknown = (aim >= ub) | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | (x < -eps) | ~np.isfinite(x) \
+            | ~np.isfinite(aim)
+        return np.where(od > 0.0, v, np.where(unknown, np.nan, 0.0))
 
     def table(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
               valve_angle_rad: float | None = None) -> dict:
@@ -218,8 +244,21 @@ class PulseMoves:
         load0 = m.load_torque(th, p)
         level = (load0 + d * (fl.valve_coulomb_nm + k * X)) / k          # the static level's twist, rad
         preload = level + d * (O - rise)
-        end = self._simulate(d, p, kick, th, preload=preload.ravel(), excess=X.ravel(), aim=A.ravel())
-        moves = np.maximum(d * (end - th), 0.0).reshape(X.shape)
+        # ... and per excess x aim one doublet whose apex stays just short of the level (og[0] below it): where
+        # the observe servo's rebound from the retreat's trough overshoots into the level, even an apex below
+        # it moves the valve
+        X2, A2 = np.meshgrid(xg, ag, indexing="ij")
+        pre2 = (load0 + d * (fl.valve_coulomb_nm + k * X2)) / k + d * (-og[0] - rise)
+        end = self._simulate(d, p, kick, th, preload=np.concatenate([preload.ravel(), pre2.ravel()]),
+                             excess=np.concatenate([X.ravel(), X2.ravel()]),
+                             aim=np.concatenate([A.ravel(), A2.ravel()]))
+        moved = np.maximum(d * (end - th), 0.0)
+        moves = moved[:X.size].reshape(X.shape)
+        short = moved[X.size:].reshape(X2.shape) > 1e-6           # the unbroken doublet moved the valve
+        first2 = np.argmax(short, axis=1)
+        # the aim from which the servo breaks an unbroken valve loose (between the last still and first moved aim)
+        unbroken_thr = np.where(short.any(axis=1), np.where(first2 > 0, 0.5 * (ag[np.maximum(first2 - 1, 0)]
+                                                                           + ag[first2]), 0.0), np.inf)
         # the aim at which the observe servo's overshoot breaks the valve loose a second time: the first step
         # between neighbouring aims of more than AIM_STEP_JUMPS aim spacings (midway between them; inf: none)
         step = np.abs(np.diff(moves, axis=2)) > AIM_STEP_JUMPS * (ag[1] - ag[0])
@@ -242,14 +281,15 @@ class PulseMoves:
             thr[ci, cj] = 0.5 * (lo_a + hi_a)
         last_ok = np.where(has, first, len(ag) - 1).astype(float)
         tab = {"excess": xg, "overdrive": og, "aim": ag, "moves": moves, "rise": rise,
-               "second_break_aim": thr, "last_ok": last_ok, "build_s": time.process_time() - t0}
+               "second_break_aim": thr, "last_ok": last_ok,
+               "servo_break_aim": unbroken_thr, "build_s": time.process_time() - t0}
         self.builds += 1
         self._tables[key] = tab
         while len(self._tables) > CACHE_SIZE:
             self._tables.popitem(last=False)
         return tab
 
-    def _simulate(self, d, p, kick, th0, *, preload, excess, aim, track_apex=False):
+    def _simulate(self, d, p, kick, th0, *, preload, excess, aim, track_apex=False, apex_torque=True):
         """Run the doublet on every lane at once from rest at valve angle ``th0`` with the twist at ``preload``
         (absolute, rad), the valve's static level ``T_c + K excess``; returns the valve angle at the end
         (or, with ``track_apex``, the largest twist toward ``d`` reached, absolute rad)."""
@@ -337,7 +377,10 @@ class PulseMoves:
                 th1 = th1 + dt * w1
                 thl = thl + dt * wl
                 if track_apex:
-                    apex = np.maximum(apex, d * (th1 - thl))
+                    # the coupling's torque over K (twist + its damping's share c (ω1 - ωL) / K): what the valve's
+                    # static level is met by -- the twist alone peaks ~4e-5 rad lower, while it still rises
+                    apex = np.maximum(apex, d * (k * (th1 - thl) + c * (w1 - wl)) / k if apex_torque
+                                      else d * (th1 - thl))
         return d * apex if track_apex else thl
 
     @staticmethod
