@@ -90,8 +90,8 @@ class PulseMoves:
                  retreat_full_periods: int, servo_kp: float, servo_kd: float, servo_ki: float,
                  supply_voltage_v: float | None = None, current_bandwidth_hz: float | None = DEFAULT_BANDWIDTH,
                  observe_periods: int = 15, substeps: int = 20, retreat_unmoved_fraction: float = 0.5,
-                 tolerance_rad: float = 0.0, excess_fraction: float = 0.5, excess_points: int = 21,
-                 overdrive_points: int = 14, aim_fraction: float = 1.0, aim_points: int = 9):
+                 tolerance_rad: float = 0.0, excess_fraction: float = 0.5, excess_points: int = 41,
+                 overdrive_points: int = 14, aim_fraction: float = 1.0, aim_points: int = 17):
         self.m = model
         self.period = float(period_s)
         self.kick = float(kick_current_a)
