@@ -2,7 +2,8 @@
 
 One module-scoped model (its two max-Δp tables, ~0.1 s each) serves every test; the plant validation
 replays the same doublet on the bare nominal :class:`Plant` (no scatter / ripple, the static level set to
-``T_c + K x``), started at rest with the twist at the preload, with the FinePositioner's doublet currents and
+``T_c + K x``), started at rest with the twist at the preload (the drive holding it plus the motor's Coulomb friction, as
+after the park's climb), with the FinePositioner's doublet currents and
 its observe servo on the plant's true states -- the model's own idealisations, so what is compared is the
 dynamics (two masses, stick-slip, the current loop), not the park or the resolvers.
 """
@@ -58,7 +59,7 @@ def plant_doublet(d: int, excess: float, overdrive: float, aim: float, rise: flo
     n, kt, cfg = MODEL.gear_ratio, MODEL.torque_constant_nm_per_a, fine.cfg
     load = MODEL.load_torque(theta, P_MAX)
     phi = (load + d * ts) / K + d * (overdrive - rise)            # the preload twist
-    hold = K * phi / (n * kt)                                     # A
+    hold = (K * phi / n + d * FL.motor_coulomb_nm) / kt           # A (the park's climb: + the motor's Coulomb)
     pl.S[KN.S_THM] = (theta + phi) * n                            # at rest, twisted to the preload
     pl.S[KN.S_IQ] = hold
     pl.S[KN.S_XQ] = ps["motor.resistance_ohm"] * hold
@@ -163,7 +164,7 @@ def test_rise_agrees_with_the_bare_plant(pm, fine):
         pl = Plant(ps.replace({"friction.valve.static_per_dp_nm": 80.0}))
         pl.hold_at(theta)
         phi = (load + d * FL.valve_static_nm) / K
-        hold = K * phi / (n * kt)
+        hold = (K * phi / n + d * FL.motor_coulomb_nm) / kt
         pl.S[KN.S_THM] = (theta + phi) * n
         pl.S[KN.S_IQ] = hold
         pl.S[KN.S_XQ] = ps["motor.resistance_ohm"] * hold

@@ -91,7 +91,8 @@ class PulseMoves:
                  supply_voltage_v: float | None = None, current_bandwidth_hz: float | None = DEFAULT_BANDWIDTH,
                  observe_periods: int = 15, substeps: int = 20, retreat_unmoved_fraction: float = 0.5,
                  tolerance_rad: float = 0.0, excess_fraction: float = 0.5, excess_points: int = 41,
-                 overdrive_points: int = 14, aim_fraction: float = 1.0, aim_points: int = 17):
+                 overdrive_points: int = 14, aim_fraction: float = 1.0, aim_points: int = 17,
+                 park_friction: bool = True):
         self.m = model
         self.period = float(period_s)
         self.kick = float(kick_current_a)
@@ -107,6 +108,7 @@ class PulseMoves:
         self.excess_fraction = float(excess_fraction)
         self.n_excess, self.n_overdrive = int(excess_points), int(overdrive_points)
         self.aim_fraction, self.n_aim = float(aim_fraction), int(aim_points)
+        self.park_friction = bool(park_friction)
         self._tables: OrderedDict = OrderedDict()
         self._rises: dict = {}
         self.builds = 0                  # tables simulated so far (tests count the cache's work)
@@ -314,6 +316,10 @@ class PulseMoves:
         th1 = thl + preload
         w1 = np.zeros(n)
         hold = k * preload / n_gear                                        # N*m at the motor
+        if self.park_friction:
+            # the park climbed to the preload toward d: the servo's hold carries the motor's Coulomb friction
+            # too, which the stuck motor's reaction takes over (released by the kick: +5 % rise, docs §80)
+            hold = hold + d * fl.motor_coulomb_nm
         iq = hold / kt
         xq = r_ohm * iq                                                    # the current PI's integral at rest
         cap = self.cap * kt
