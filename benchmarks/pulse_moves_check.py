@@ -14,7 +14,7 @@ Two parts:
    equilibrium), then the apex the kick reached (coupling torque / K above the preload) and the valve's move;
    compared with the model's rise and its predicted move at that excess / overdrive / aim.
 
-    python benchmarks/pulse_moves_check.py [--points 150] [--runs 40] [--seed 1000] [--jobs 2] [--json PATH]
+    python benchmarks/pulse_moves_check.py [--points 150] [--dp-fraction 1] [--runs 40] [--seed 1000] [--jobs 2] [--json PATH]
 
 Last stdout line: one JSON object.
 """
@@ -57,22 +57,24 @@ def model() -> PulseMoves:
     return PulseMoves.for_positioner(FINE, CS)
 
 
-def plant_doublet(d: int, excess: float, overdrive: float, aim: float, rise: float) -> float:
-    """The valve's move (rad toward ``d``) on the bare nominal plant (see the module docstring)."""
+def plant_doublet(d: int, excess: float, overdrive: float, aim: float, rise: float, p: float = P_MAX) -> float:
+    """The valve's move (rad toward ``d``) on the bare nominal plant at Δp ``p`` (see the module docstring)."""
     ps = PLANT_SPEC.defaults()
-    ts = FL.valve_coulomb_nm + K * excess
-    pl = Plant(ps.replace({"friction.valve.static_per_dp_nm": ts - ps["friction.valve.static_nm"]}))
+    fl = M.friction(p)
+    ts = fl.valve_coulomb_nm + K * excess
+    pl = Plant(ps.replace({"pressure_differential_kpa": p,
+                           "friction.valve.static_per_dp_nm": (ts - ps["friction.valve.static_nm"]) / M.pressure_fraction(p)}))
     theta = 0.5 * M.stroke_rad
     pl.hold_at(theta)
     n, kt, cfg = M.gear_ratio, M.torque_constant_nm_per_a, FINE.cfg
-    load = M.load_torque(theta, P_MAX)
+    load = M.load_torque(theta, p)
     phi = (load + d * ts) / K + d * (overdrive - rise)
-    hold = (K * phi / n + d * FL.motor_coulomb_nm) / kt
+    hold = (K * phi / n + d * fl.motor_coulomb_nm) / kt
     pl.S[KN.S_THM] = (theta + phi) * n
     pl.S[KN.S_IQ] = hold
     pl.S[KN.S_XQ] = ps["motor.resistance_ohm"] * hold
     pl.set_command(hold, True)
-    ref = theta + (load + d * FL.valve_coulomb_nm) / K + d * aim / 2.0
+    ref = theta + (load + d * fl.valve_coulomb_nm) / K + d * aim / 2.0
     cap, integral, per = cfg.peak_current_a, 0.0, FINE.period
     th1_prev = pl.truth().motor_angle / n
     for k in range(2 + cfg.retreat_full_periods + cfg.observe_periods):
@@ -94,17 +96,20 @@ def plant_doublet(d: int, excess: float, overdrive: float, aim: float, rise: flo
     return d * (pl.valve_angle - theta)
 
 
-def bare_check(points: int, seed: int) -> dict:
+def bare_check(points: int, seed: int, dp_fraction: float = 1.0) -> dict:
     pm = model()
     rng = np.random.default_rng(seed)
+    p = dp_fraction * P_MAX
+    fl = M.friction(p)
+    x_nom = (fl.valve_static_nm - fl.valve_coulomb_nm) / K
     rows = []
     for d in (1, -1):
-        rise = pm.rise(d, P_MAX)
+        rise = pm.rise(d, p)
         for _ in range(points):
-            x = rng.uniform(0.3, 2.3) * X_NOM
+            x = rng.uniform(0.3, 2.3) * x_nom
             od = float(np.exp(rng.uniform(np.log(5e-6), np.log(2e-3))))
-            aim = rng.uniform(0.0, 1.5e-3)
-            rows.append((d, x, od, aim, plant_doublet(d, x, od, aim, rise), float(pm.move(d, P_MAX, x, od, aim_rad=aim))))
+            aim = rng.uniform(0.0, 1.5e-3) * x_nom / X_NOM
+            rows.append((d, x, od, aim, plant_doublet(d, x, od, aim, rise, p), float(pm.move(d, p, x, od, aim_rad=aim))))
     a = np.array(rows)
     fin = np.isfinite(a[:, 5])
     e = np.abs(a[fin, 5] - a[fin, 4])
@@ -112,8 +117,8 @@ def bare_check(points: int, seed: int) -> dict:
             "plant_move_where_nan_median_rad": float(np.median(a[~fin, 4])) if (~fin).any() else None,
             "abs_err_p50": float(np.median(e)), "abs_err_p95": float(np.percentile(e, 95)), "abs_err_max": float(e.max()),
             "within_10pct_or_1e-4": float(np.mean(e <= np.maximum(0.1 * a[fin, 4], 1e-4))),
-            "rise_rad": {str(d): pm.rise(d, P_MAX) for d in (1, -1)},
-            "build_cpu_s": [pm.table(d, P_MAX)["build_s"] for d in (1, -1)]}
+            "dp_fraction": dp_fraction, "rise_rad": {str(d): pm.rise(d, p) for d in (1, -1)},
+            "build_cpu_s": [pm.table(d, p)["build_s"] for d in (1, -1)]}
 
 
 def _closed_run(seed: int) -> list[dict]:
@@ -207,11 +212,12 @@ def main(argv=None) -> None:
     ap.add_argument("--points", type=int, default=150, help="random points per direction (bare check)")
     ap.add_argument("--runs", type=int, default=40, help="nominal-box runs (closed check; 0: skip)")
     ap.add_argument("--seed", type=int, default=1000)
+    ap.add_argument("--dp-fraction", type=float, default=1.0, help="Δp of the bare check, x max (the closed check: the nominal box's max Δp)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--json", type=Path)
     a = ap.parse_args(argv)
     t0 = time.time()
-    res = {"bare": bare_check(a.points, 7)}
+    res = {"bare": bare_check(a.points, 7, a.dp_fraction)}
     print("bare:", json.dumps(res["bare"]), flush=True)
     if a.runs > 0:
         res["closed"] = closed_check(a.runs, a.seed, a.jobs)
