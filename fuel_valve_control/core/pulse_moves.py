@@ -74,7 +74,7 @@ DEFAULT_BANDWIDTH = CONTROLLER_SPEC.defaults()["drive.current_loop_bandwidth_hz"
 #: servo's second breakaway (a whole further jump, docs §80): :meth:`PulseMoves.move` takes the nearer aim's move
 #: there instead of a blend of the two regimes (the dragged regime grows ~1 rad of move per rad of aim)
 AIM_STEP_JUMPS = 3.0
-#: bisections of the second breakaway's aim between the two tabulated aims (each one more run of those cells)
+#: the second breakaway's aim is refined between the two tabulated aims to 1 / 2**this of their spacing (one run)
 THRESHOLD_BISECTIONS = 3
 #: tables kept per PulseMoves (each (direction, Δp, kick, valve angle) key one table of ~20k floats)
 CACHE_SIZE = 32
@@ -285,19 +285,23 @@ class PulseMoves:
         first = np.argmax(step, axis=2)
         thr = np.full(has.shape, np.inf)
         if has.any():
-            # bisect the threshold between the two aims (THRESHOLD_BISECTIONS runs of those cells only)
+            # refine the threshold between the two aims: 2**THRESHOLD_BISECTIONS - 1 aims evenly between them, all
+            # cells in one run (as fine as that many bisections, in one pass)
             ci, cj = np.nonzero(has)
             kf = first[ci, cj]
             lo_a, hi_a = ag[kf], ag[kf + 1]
             lo_m, hi_m = moves[ci, cj, kf], moves[ci, cj, kf + 1]
-            xs = xg[ci]
-            pre = (load0 + d * (fl.valve_coulomb_nm + k * xs)) / k + d * (og[cj] - rise)
-            for _ in range(THRESHOLD_BISECTIONS):
-                mid = 0.5 * (lo_a + hi_a)
-                mm = np.maximum(d * (self._simulate(d, p, kick, th, preload=pre, excess=xs, aim=mid) - th), 0.0)
-                dragged = np.abs(mm - lo_m) > np.abs(mm - hi_m)
-                lo_a, hi_a = np.where(dragged, lo_a, mid), np.where(dragged, mid, hi_a)
-            thr[ci, cj] = 0.5 * (lo_a + hi_a)
+            parts = 2 ** THRESHOLD_BISECTIONS
+            frac = np.arange(1, parts) / parts
+            mids = lo_a[:, None] + (hi_a - lo_a)[:, None] * frac[None, :]
+            xs = np.repeat(xg[ci], parts - 1)
+            pre = ((load0 + d * (fl.valve_coulomb_nm + k * xg[ci])) / k + d * (og[cj] - rise)).repeat(parts - 1)
+            mm = np.maximum(d * (self._simulate(d, p, kick, th, preload=pre, excess=xs, aim=mids.ravel()) - th), 0.0)
+            mm = mm.reshape(mids.shape)
+            dragged = np.abs(mm - lo_m[:, None]) > np.abs(mm - hi_m[:, None])
+            # the first dragged of the sub-aims (parts: none -- the upper tabulated aim), the threshold half a step below
+            j = np.where(dragged.any(axis=1), np.argmax(dragged, axis=1) + 1, parts)
+            thr[ci, cj] = lo_a + (hi_a - lo_a) * (j - 0.5) / parts
         last_ok = np.where(has, first, len(ag) - 1).astype(float)
         tab = {"excess": xg, "overdrive": og, "aim": ag, "moves": moves, "rise": rise,
                "second_break_aim": thr, "last_ok": last_ok,
@@ -340,7 +344,13 @@ class PulseMoves:
         iq = hold / kt
         xq = r_ohm * iq                                                    # the current PI's integral at rest
         cap = self.cap * kt
-        phi_e = (self._load(thl, p) + d * tc) / k
+        # the load, linear about th0 over the doublet's few mrad (its curvature: < 1e-6 rad of twist over 5e-3 rad)
+        load0 = m.load_torque(float(th0), p)
+        frac0 = float(th0) / m.stroke_rad
+        load_slope = m.spring_rate_nm_per_rad + (
+            m.flow_torque_max_nm * m.pressure_fraction(p) * math.pi / m.stroke_rad * math.cos(math.pi * frac0)
+            if 0.0 < frac0 < 1.0 else 0.0)
+        phi_e = (load0 + d * tc) / k
         ref1 = thl + phi_e + d * aim / 2.0                                 # the observe servo's gear-output target
         integral = np.zeros(n)
         th1_prev = th1.copy()
@@ -350,6 +360,7 @@ class PulseMoves:
             kpc, kic = lq * self.wc, r_ohm * self.wc
             a_rl = math.exp(-r_ohm * dt / lq) if r_ohm > 0.0 else 1.0
             b_rl = (1.0 - a_rl) / r_ohm if r_ohm > 0.0 else dt / lq
+        c_emf, c_vd = psi * pole * n_gear, lq * pole * n_gear
         n_pulse = 2 + self.retreat_full
         for period in range(n_pulse + self.observe_periods):
             if period == 0:
@@ -376,12 +387,11 @@ class PulseMoves:
                 if self.wc is None:
                     iq_new = iq_mid = iq_ref
                 else:
-                    we = (pole * n_gear) * w1
-                    emf_q = psi * we
+                    emf_q = c_emf * w1                                      # ωe ψ, ωe = p N ω1
                     err = iq_ref - iq
                     vq = kpc * err + xq + emf_q
                     if vlim2 is not None:
-                        vd = lq * we * iq                                   # |d-axis EMF| (id = 0), fed forward
+                        vd = c_vd * (w1 * iq)                               # |d-axis EMF| ωe Lq iq (id = 0)
                         vq_max = np.sqrt(np.maximum(vlim2 - vd * vd, 0.0))
                         sat = np.abs(vq) > vq_max
                         np.clip(vq, -vq_max, vq_max, out=vq)
@@ -394,7 +404,7 @@ class PulseMoves:
                 # ---- mechanics (the plant's semi-implicit Euler with exact stick-slip), gear-output coordinates
                 tk = k * (th1 - thl) + c * (w1 - wl)
                 text_m = (kt * n_gear) * iq_mid - tk - b1 * w1
-                text_l = tk - bl * wl - self._load(thl, p)
+                text_l = tk - bl * wl - (load0 + load_slope * (thl - th0))
                 w1 = self._stick_slip(w1, text_m, j1, tcm, tsm, dt)
                 wl = self._stick_slip(wl, text_l, jl, tc, ts, dt)
                 th1 = th1 + dt * w1
@@ -412,7 +422,7 @@ class PulseMoves:
         while the torque on it is within the static level (breaking away at the Coulomb level), stopped
         where its speed would reverse within the step."""
         stuck = w == 0.0
-        sgn = np.where(stuck, np.sign(t_ext), np.sign(w))
+        sgn = np.sign(w + stuck * t_ext)          # a moving shaft's own direction, a stuck one's torque's
         w_new = w + (dt / inertia) * (t_ext - sgn * t_coulomb)
         w_new[(stuck & (np.abs(t_ext) <= t_static)) | (w_new * w < 0.0)] = 0.0
         return w_new
