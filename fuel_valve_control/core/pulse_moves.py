@@ -98,7 +98,7 @@ class PulseMoves:
     bound of :meth:`FinePositioner._plausible_offset_rad`), ``overdrive_points`` log-spaced from 1e-3 to 1 x
     the stick-slip jump ``2 (T_s - T_c) / K`` at Δp, ``aim_points`` aims over 0 ... ``aim_fraction`` x that jump.
     ``park_friction``: the hold torque carries the motor's Coulomb friction toward the move (module docstring).
-    A table (41 x 20 x 17 points and the aims' bisections) costs 0.1-0.2 s of CPU, once per key: build it before
+    A table (41 x 20 x 17 points and the second-break refinement) costs ~0.15 s of CPU, once per key: build it before
     the loop needs it (:meth:`table`) where a period's budget matters.
     """
 
