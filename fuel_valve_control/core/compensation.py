@@ -844,7 +844,14 @@ class ReferenceFeedforward(Compensator):
                                 self.scale_bounds[0])
                     r.slide_floor = least
                     self._move_cap = max(max(lo for lo, _ in spans) / fl.valve_static_nm, least)
-                if self.wrong_dp_cut_retreat:
+                # only where the reading is below half the least friction the valve can have at the Δp
+                # told (the band start's margin, :meth:`_start_cap`): there the told level wound in many
+                # times what the valve needed.  A reading just under that least (campaign seed 1010, LuGre
+                # x 0.58 at 5695 kPa told 6206: 0.46-0.53 x) is a valve near the told schedule whose own
+                # friction takes the wind-up: retreated there, the move it acted on overshot less (21 -> 9 %)
+                # but the run's later plateaus lost 6.4 mrad between them (docs/control_results.md §83)
+                if self.wrong_dp_cut_retreat and min(0.5 * (lo + up) for lo, up in spans) \
+                        < 0.5 * self.FLOOR_SCALE * fl.valve_static_nm:
                     # the coupling now carries what the drive wound into it while the valve stuck under
                     # the told Δp's level (``met``, N*m beyond the known load); sliding needs the cut's
                     # Coulomb level: take the excess back over one period of the valve on the coupling,
