@@ -120,8 +120,8 @@ def test_a_cut_the_told_dp_explains_takes_nothing_back():
     assert ff == pytest.approx(cap * MODEL.friction(0.0).valve_coulomb_nm)
 
 
-def test_the_option_is_off_by_default():
-    assert PS["ff.wrong_dp_cut_retreat"] is False
+def test_the_option_is_on_by_default():
+    assert PS["ff.wrong_dp_cut_retreat"] is True
 
 
 @pytest.fixture(scope="module")
