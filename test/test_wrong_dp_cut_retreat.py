@@ -111,6 +111,17 @@ def test_a_one_edge_held_load_counts_as_the_cuts_spans_do():
     assert ff == pytest.approx(cap * TC_MAX)
 
 
+def test_a_cut_just_under_the_told_floor_takes_nothing_back():
+    """A reading a misread Δp explains but above half the least friction at the Δp told (0.25 x): campaign seed
+    1010's, 0.46-0.53 x (2.5 / 2.9 N*m here, midpoint 0.49 x) -- a valve near its schedule, whose friction takes
+    the wind-up; retreated there, that run's later plateaus diverged (§83)."""
+    c = _comp()
+    ff, cap = _cut_move(c, 2.5, 2.9)
+    assert c.wrong_dp_static_nm is not None           # the cut is §53's (a misread Δp explains it) ...
+    assert c.cut_retreat_nm is None                   # ... but nothing is taken back
+    assert ff == pytest.approx(cap * TC_MAX)
+
+
 def test_a_cut_the_told_dp_explains_takes_nothing_back():
     """At Δp 0 told (no misread Δp to explain a reading) a cut is h21g's, as on main."""
     c = _comp(told=0.0)
