@@ -420,8 +420,13 @@ def test_the_grids_wrong_dp_cells_with_the_option_on(friction, inertia, main_os,
     from conftest import load_benchmark
     grid = load_benchmark("adaptation_grid")
     cell = {**grid.NOMINAL, "friction": friction, "inertia": inertia, "dp_kpa": 0.0, "stiffness": 1.0}
-    off = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={"ff.read_breakaway_wrong_dp": False})
-    on = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={"ff.read_breakaway_wrong_dp": True})
+    # without h33g's cut retreat (default since §83; it takes the F x 3 cell to 3.1 %: test_wrong_dp_cut_retreat.py),
+    # so the cut acts as §53 / §56 measured it
+    no_retreat = {"ff.wrong_dp_cut_retreat": False}
+    off = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX,
+                        controller_sets={**no_retreat, "ff.read_breakaway_wrong_dp": False})
+    on = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX,
+                       controller_sets={**no_retreat, "ff.read_breakaway_wrong_dp": True})
     assert off["overshoot_pct"] == pytest.approx(main_os, abs=0.1)
     assert on["overshoot_pct"] == pytest.approx(on_os, abs=0.1)
     assert not on["fault"]
@@ -505,8 +510,9 @@ def test_the_grids_f05_wrong_dp_cell_with_the_slide_lowers_option():
     grid = load_benchmark("adaptation_grid")
     cell = {**grid.NOMINAL, "friction": 0.5, "inertia": 1.0, "dp_kpa": 0.0, "stiffness": 1.0}
     # without h29d's band start (default since §65, which takes this cell to 0 %: test_wrong_dp_start.py),
-    # so the move's first periods are fed as §60 measured them
-    band = {"ff.band_starts_wrong_dp_move": False}
+    # so the move's first periods are fed as §60 measured them; and without h33g's cut retreat (default since
+    # §83: with it this cell's cut takes back the wind-up, 20.4 -> 12.1 %)
+    band = {"ff.band_starts_wrong_dp_move": False, "ff.wrong_dp_cut_retreat": False}
     off = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={**band, "ff.slide_lowers_wrong_dp_cap": False})
     on = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={**band, "ff.slide_lowers_wrong_dp_cap": True})
     assert off["overshoot_pct"] == pytest.approx(20.4, abs=0.1)

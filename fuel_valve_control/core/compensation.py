@@ -90,6 +90,9 @@ class _MoveRead:
     slide_floor: float | None = None
     #: periods of the move read so far with the valve still within half a breakaway of its start
     stuck_periods: int = 0
+    #: the largest valve friction level (N*m, valve side, the move's way) fed while the reading was not
+    #: made yet (``ff.wrong_dp_cut_retreat``: what wound the coupling before the cut)
+    fed_nm: float = 0.0
 
 
 def _sat(x: float) -> float:
@@ -507,7 +510,14 @@ class ReferenceFeedforward(Compensator):
                  retreat_periods: int = 0, count_rad: float = RESOLVER_COUNT_RAD, read_breakaway: bool = False,
                  breakaway_rad: float = 3.0 * RESOLVER_COUNT_RAD, read_wrong_dp: bool = False,
                  snap_fit_cap: bool = False, snap_cap_nm: float = math.inf,
-                 slide_lowers_wrong_dp_cap: bool = False, band_start: bool = False, unconfirmed_start: bool = False):
+                 slide_lowers_wrong_dp_cap: bool = False, band_start: bool = False, unconfirmed_start: bool = False,
+                 wrong_dp_cut_retreat: bool = False):
+        #: ``ff.wrong_dp_cut_retreat`` (h33g): a move cut because only a misread Δp explains its reading
+        #: (``read_wrong_dp``) takes back the coupling torque it carries at the cut beyond the cut's
+        #: Coulomb level, over one period of the valve on the coupling (:meth:`_read_move_breakaway`)
+        self.wrong_dp_cut_retreat = wrong_dp_cut_retreat
+        #: the retreat (N*m, valve side) the latest such cut took back (diagnostics and tests; None: none)
+        self.cut_retreat_nm: float | None = None
         #: ``ff.unconfirmed_dp_start`` (h29d): while the Δp told is unconfirmed and a misread Δp would
         #: help a clocked move, its stuck valve's level starts at the least friction any Δp explains and
         #: rises to the schedule over a quarter of the valve's period on the coupling (:meth:`_start_cap`)
@@ -834,6 +844,30 @@ class ReferenceFeedforward(Compensator):
                                 self.scale_bounds[0])
                     r.slide_floor = least
                     self._move_cap = max(max(lo for lo, _ in spans) / fl.valve_static_nm, least)
+                # only where the reading is below half the least friction the valve can have at the Δp
+                # told (the band start's margin, :meth:`_start_cap`): there the told level wound in many
+                # times what the valve needed.  A reading just under that least (campaign seed 1010, LuGre
+                # x 0.58 at 5695 kPa told 6206: 0.46-0.53 x) is a valve near the told schedule whose own
+                # friction takes the wind-up: retreated there, the move it acted on overshot less (21 -> 9 %)
+                # but the run's later plateaus lost 6.4 mrad between them (docs/control_results.md §83)
+                if self.wrong_dp_cut_retreat and min(0.5 * (lo + up) for lo, up in spans) \
+                        < 0.5 * self.FLOOR_SCALE * fl.valve_static_nm:
+                    # the coupling now carries what the drive wound into it while the valve stuck under
+                    # the told Δp's level (``met``, N*m beyond the known load); sliding needs the cut's
+                    # Coulomb level: take the excess back over one period of the valve on the coupling,
+                    # as the waiting move's retreat takes back the scheduled static - Coulomb gap
+                    # (:meth:`_breakaway`; here the gap is measured, not scheduled)
+                    # (gross of a one-edge held load too, as the cut's spans: only what both say is
+                    # certain -- the grid's friction x1 valve at Δp 0 told max carried 3.0 N*m net of a
+                    # one-edge -3.17 N*m, -0.17 gross, and let go on time: nothing stored to take back)
+                    carried = min([met] + ([met + s * ctx.held_load] if not ctx.held_load_known else []))
+                    # and only what the level fed while the valve stuck could have wound in: a move
+                    # started under the hold's band (ff.band_starts_wrong_dp_move) was fed less than its
+                    # cut, and the coupling it carries is the move's own catch-up, the law's business
+                    # (the grid's friction x0.5 valve: a retreat of 0.9 N*m stopped it 3.4 mrad short)
+                    self._retreat_nm = max(min(carried, r.fed_nm) - self._move_cap * fl.valve_coulomb_nm, 0.0)
+                    self._retreat_periods = int(round(self.retreat_periods * math.sqrt(self.coupling.softness)))
+                    self.cut_retreat_nm = self._retreat_nm
 
     def _start_cap(self, ctx: Context, static_nm: float) -> float | None:
         """``ff.band_starts_wrong_dp_move`` (h29d): the cap (x the scheduled static level
@@ -1143,6 +1177,9 @@ class ReferenceFeedforward(Compensator):
             if start is not None:
                 sv = min(sv, start)
         tv = sv * (fl.valve_static_nm if breakaway else fl.valve_coulomb_nm)
+        r = self._move_read
+        if r is not None and not r.done:
+            r.fed_nm = max(r.fed_nm, tv)
         if self._retreat_periods > 0 and not at_rest:
             # only from a valve that slides: a "breakaway" that was a creep (LuGre presliding
             # read through resolver noise) left the valve stuck with the drive cut by the

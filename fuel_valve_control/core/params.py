@@ -311,6 +311,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "would help a clocked move, its friction feed-forward starts, while the valve still sticks, at the least "
           "friction any Δp explains (0.5 x the schedule at Δp 0) and rises to the schedule over a quarter of the "
           "valve's period on the coupling (docs/control_results.md section 65)", runtime=True),
+    Param("ff.wrong_dp_cut_retreat", True, "", "observer_ff, observer_fp, with ff.read_breakaway_wrong_dp: a "
+          "clocked move whose breakaway reading is cut because only a misread Δp explains it takes back the coupling "
+          "torque it carries at the cut beyond the cut's Coulomb level (what the told Δp's level wound in while the "
+          "valve stuck) over one period of the valve on the coupling, as a waiting move's breakaway retreat does "
+          "(docs/control_results.md section 83)", runtime=True),
     Param("ff.snap_fit_cap", False, "", "observer_ff, observer_fp, on a coupling read softer than the model: a "
           "planned move's coupling-snap feed-forward is taken from its plan and scaled by one factor for the whole "
           "move, decided at its start, so its planned peak plus the move's static friction feed-forward fits the "

@@ -365,6 +365,7 @@ class PositionController:
                                         slide_lowers_wrong_dp_cap=ps["ff.slide_lowers_wrong_dp_cap"],
                                         band_start=ps["ff.band_starts_wrong_dp_move"],
                                         unconfirmed_start=ps["ff.unconfirmed_dp_start"],
+                                        wrong_dp_cut_retreat=ps["ff.wrong_dp_cut_retreat"],
                                         snap_cap_nm=ps["fine.peak_current_a"] * m.torque_constant_nm_per_a,
                                         breakaway_rad=ps["trajectory.breakaway_counts"] * RESOLVER_COUNT_RAD)
         return FriedlandPark(*fps, ps["fp.compensation_fraction"], ps["ff.stuck_speed_rad_s"])
