@@ -135,7 +135,8 @@ def grid_check(pairs: int = 12, points: int = 500, seed: int = 11, dp_grid=None,
         kw["angle_grid"] = angle_grid
 
     keyed = PulseMoves.for_positioner(FINE, CS, **kw)
-    exact = PulseMoves.for_positioner(FINE, CS, exact=True)
+    # the reference: h33m's tables (one per Δp and angle, every aim simulated)
+    exact = PulseMoves.for_positioner(FINE, CS, exact=True, coarse_aims=False)
     prep_s = keyed.prepare()
     runs = keyed.runs
     rng = np.random.default_rng(seed)
@@ -174,7 +175,9 @@ def grid_check(pairs: int = 12, points: int = 500, seed: int = 11, dp_grid=None,
             "abs_err_max": float(e.max()), "within_5pct_or_5e-5": float(np.mean(e <= np.maximum(0.05 * r, 5e-5))),
             "within_10pct_or_1e-4": float(np.mean(e <= np.maximum(0.1 * r, 1e-4))),
             "rise_abs_err_max": float(max(rise_err)), "move_61x40_ms": move_ms,
-            "runs_after_prepare": keyed.runs - runs}
+            "runs_after_prepare": keyed.runs - runs,
+            "table_cpu_s_keyed_vs_reference": [float(np.mean([t["build_s"] for t in keyed._tables.values()])),
+                                              float(np.mean([t["build_s"] for t in exact._tables.values()]))]}
 
 def _closed_run(seed: int) -> list[dict]:
     import robustness as R

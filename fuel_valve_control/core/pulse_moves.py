@@ -136,7 +136,7 @@ class PulseMoves:
                  tolerance_rad: float = 0.0, excess_fraction: float = 0.5, excess_points: int = 41,
                  overdrive_points: int = 20, aim_fraction: float = 1.0, aim_points: int = 17,
                  park_friction: bool = True, dp_grid=DP_GRID, angle_grid=ANGLE_GRID, extra_kicks=(),
-                 exact: bool = False):
+                 exact: bool = False, coarse_aims: bool = True):
         self.m = model
         self.period = float(period_s)
         self.kick = float(kick_current_a)
@@ -156,6 +156,7 @@ class PulseMoves:
         # the keyed grid (fractions of the model's max Δp and of its stroke); ``exact``: one table per
         # (direction, Δp to 1e-3 kPa, kick, angle to 0.01 rad) as h33m built it (the reference the grid is measured on)
         self.exact = bool(exact)
+        self.coarse_aims = bool(coarse_aims)
         self.dp_grid = np.unique(np.clip(np.asarray(dp_grid, dtype=float), 0.0, 1.0)) * model.pressure_max_kpa
         self.angle_grid = np.unique(np.clip(np.asarray(angle_grid, dtype=float), 0.0, 1.0)) * model.stroke_rad
         self.kicks = tuple(dict.fromkeys(round(float(k), 6) for k in (self.kick, *extra_kicks)))
@@ -422,21 +423,40 @@ class PulseMoves:
         og = jump * np.geomspace(1e-3, 1.0, self.n_overdrive)
         ag = np.linspace(0.0, self.aim_fraction * jump, self.n_aim)
         rise = self._rise_at(d, p, kick, th)
-        X, O, A = np.meshgrid(xg, og, ag, indexing="ij")
         load0 = m.load_torque(th, p)
-        level = (load0 + d * (fl.valve_coulomb_nm + k * X)) / k          # the static level's twist, rad
-        preload = level + d * (O - rise)
         # ... and per excess x aim one doublet whose apex stays just short of the level (og[0] below it): where
         # the observe servo's rebound from the retreat's trough overshoots into the level, even an apex below
         # it moves the valve
         X2, A2 = np.meshgrid(xg, ag, indexing="ij")
         pre2 = (load0 + d * (fl.valve_coulomb_nm + k * X2)) / k + d * (-og[0] - rise)
-        end = self._simulate(d, p, kick, th, preload=np.concatenate([preload.ravel(), pre2.ravel()]),
-                             excess=np.concatenate([X.ravel(), X2.ravel()]),
-                             aim=np.concatenate([A.ravel(), A2.ravel()]))
+        # the (excess, overdrive) cells at the aims ``ka``: their preloads (the static level's twist + overdrive - rise)
+        cell_pre = lambda ii, jj: (load0 + d * (fl.valve_coulomb_nm + k * xg[ii])) / k + d * (og[jj] - rise)
+        nx, no, na = len(xg), len(og), len(ag)
+        coarse = self.coarse_aims and na >= 5 and na % 2 == 1
+        ka = np.arange(0, na, 2) if coarse else np.arange(na)
+        I, J, KA = np.meshgrid(np.arange(nx), np.arange(no), ka, indexing="ij")
+        end = self._simulate(d, p, kick, th, preload=np.concatenate([cell_pre(I, J).ravel(), pre2.ravel()]),
+                             excess=np.concatenate([xg[I].ravel(), X2.ravel()]),
+                             aim=np.concatenate([ag[KA].ravel(), A2.ravel()]))
         moved = np.maximum(d * (end - th), 0.0)
-        moves = moved[:X.size].reshape(X.shape)
-        short = moved[X.size:].reshape(X2.shape) > 1e-6           # the unbroken doublet moved the valve
+        moves = np.empty((nx, no, na))
+        moves[:, :, ka] = moved[:I.size].reshape(I.shape)
+        if coarse:
+            # every other aim simulated; between two of them the move is linear in the aim (the dragged regime's
+            # smooth growth; no dependence at all elsewhere) -- except across the second breakaway's step, where the
+            # cell's odd aims are simulated too (one more run), so the step detector below sees the full grid
+            ev = moves[:, :, ka]
+            moves[:, :, 1::2] = 0.5 * (ev[:, :, :-1] + ev[:, :, 1:])
+            need = (np.abs(np.diff(ev, axis=2)) > AIM_STEP_JUMPS * (ag[1] - ag[0])).any(axis=2)
+            if need.any():
+                ci, cj = np.nonzero(need)
+                ko = np.arange(1, na, 2)
+                ii, jj = np.repeat(ci, len(ko)), np.repeat(cj, len(ko))
+                kk = np.tile(ko, len(ci))
+                mo = np.maximum(d * (self._simulate(d, p, kick, th, preload=cell_pre(ii, jj), excess=xg[ii],
+                                                    aim=ag[kk]) - th), 0.0)
+                moves[ii, jj, kk] = mo
+        short = moved[I.size:].reshape(X2.shape) > 1e-6           # the unbroken doublet moved the valve
         first2 = np.argmax(short, axis=1)
         # the aim from which the servo breaks an unbroken valve loose (between the last still and first moved aim)
         unbroken_thr = np.where(short.any(axis=1), np.where(first2 > 0, 0.5 * (ag[np.maximum(first2 - 1, 0)]
