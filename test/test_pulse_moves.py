@@ -223,7 +223,7 @@ def test_module_is_plant_free_and_ros_free():
     assert names <= {"__future__", "math", "collections", "time", "numpy", ".model", ".params"}, names
 
 
-def test_prepare_leaves_nothing_to_build(pm):
+def test_prepare_leaves_nothing_to_build(pm, fine):
     """(§80.9) After ``prepare()`` every table the keyed grid can need is built: ``prepared``, nothing ``pending``,
     and no move / rise at any Δp, angle or shape simulates anything (the ROS node's 1 kHz callback never builds)."""
     spent = pm.prepare()
@@ -238,6 +238,13 @@ def test_prepare_leaves_nothing_to_build(pm):
         pm.rise(d, p, valve_angle_rad=th)
         pm.move(d, p, rng.uniform(0, 3e-3, (7, 5)), rng.uniform(-1e-4, 2e-3, (7, 5)), aim_rad=3e-4, valve_angle_rad=th)
     assert (pm.builds, pm.runs) == (builds, runs)
+    # a second model of the same positioner (a campaign's next run, h33p's policy per engagement) shares the tables
+    twin = PulseMoves.for_positioner(fine, CS, dp_grid=TEST_DP_GRID, angle_grid=(0.5,))
+    assert twin.prepared
+    twin.move(1, 0.93 * P_MAX, 2e-3, 1e-4, aim_rad=2e-4)
+    assert twin.runs == 0
+    alone = PulseMoves.for_positioner(fine, CS, share=False, dp_grid=TEST_DP_GRID, angle_grid=(0.5,))
+    assert len(alone.pending()) == 6                                # 2 directions x 3 Δp (one kick, one angle)
     # a fresh model with the same grid: prepare() builds exactly direction x Δp x angle x kick tables
     fresh = PulseMoves(MODEL, PERIOD, kick_current_a=pm.kick, peak_current_a=pm.cap, retreat_full_periods=1,
                        servo_kp=pm.kp, servo_kd=pm.kd, servo_ki=pm.ki, dp_grid=(1.0,), angle_grid=(0.2, 0.8))

@@ -98,6 +98,10 @@ DP_GRID = (0.0, 0.025, 0.05, 0.075, 0.1, 0.125, 0.15, 0.175, 0.2, 0.25, 0.3, 0.3
 ANGLE_GRID = (0.0, 0.5, 1.0)
 #: keyed mode: blended tables (one per asked (direction, Δp, kick, angle)) kept
 BLEND_CACHE_SIZE = 16
+#: keyed mode: the process keeps the tables of this many model / settings signatures, shared by every PulseMoves of
+#: one signature (``share``)
+SHARED_SIGNATURES = 4
+_SHARED: OrderedDict = OrderedDict()
 #: tables kept per PulseMoves in the ``exact`` mode (the keyed grid keeps all of its finite set) (each (direction, Δp, kick, valve angle) key one table of ~20k floats)
 CACHE_SIZE = 32
 
@@ -126,7 +130,10 @@ class PulseMoves:
     grid the tables are built at, interpolated between (module docstring); ``extra_kicks`` (A): kicks besides
     ``kick_current_a`` that :meth:`prepare` builds by default (``for_positioner``: the staircase's first-stair kick,
     ``fine.first_kick_fraction`` x the kick); ``exact``: per-key tables instead (Δp to 1e-3 kPa, angle to 0.01 rad,
-    LRU ``CACHE_SIZE``; no :meth:`prepare`).  Counters: ``builds`` (tables), ``runs`` (time-loop simulations).
+    LRU ``CACHE_SIZE``; no :meth:`prepare`); ``coarse_aims``: simulate every other aim and the rest only where the
+    second breakaway's step lies between (False: every aim, h33m's table); ``share``: keyed tables shared in the
+    process by every PulseMoves of the same model and settings (``SHARED_SIGNATURES`` kept).  Counters: ``builds``
+    (tables), ``runs`` (time-loop simulations) -- this instance's own work.
     """
 
     def __init__(self, model: NominalModel, period_s: float, *, kick_current_a: float, peak_current_a: float,
@@ -136,7 +143,7 @@ class PulseMoves:
                  tolerance_rad: float = 0.0, excess_fraction: float = 0.5, excess_points: int = 41,
                  overdrive_points: int = 20, aim_fraction: float = 1.0, aim_points: int = 17,
                  park_friction: bool = True, dp_grid=DP_GRID, angle_grid=ANGLE_GRID, extra_kicks=(),
-                 exact: bool = False, coarse_aims: bool = True):
+                 exact: bool = False, coarse_aims: bool = True, share: bool = True):
         self.m = model
         self.period = float(period_s)
         self.kick = float(kick_current_a)
@@ -162,6 +169,19 @@ class PulseMoves:
         self.kicks = tuple(dict.fromkeys(round(float(k), 6) for k in (self.kick, *extra_kicks)))
         self._tables: OrderedDict = OrderedDict()
         self._rises: dict = {}
+        if share and not self.exact:
+            # the keyed tables depend on nothing but these: every PulseMoves of one signature in the process shares
+            # them (a campaign's runs with one told model build them once; read-only once built)
+            sig = (model, self.period, self.cap, self.retreat_full, self.kp, self.kd, self.ki, self.vlim, self.wc,
+                   self.observe_periods, self.substeps, self.unmoved_fraction, self.tolerance, self.excess_fraction,
+                   self.n_excess, self.n_overdrive, self.aim_fraction, self.n_aim, self.park_friction, self.coarse_aims)
+            store = _SHARED.get(sig)
+            if store is None:
+                store = _SHARED[sig] = (self._tables, self._rises)
+                while len(_SHARED) > SHARED_SIGNATURES:
+                    _SHARED.popitem(last=False)
+            _SHARED.move_to_end(sig)
+            self._tables, self._rises = store
         self._blends: OrderedDict = OrderedDict()
         self.builds = 0                  # tables simulated so far (tests count the cache's work)
         self.runs = 0                    # time-loop runs (_simulate calls: tables, refinements and rises)
