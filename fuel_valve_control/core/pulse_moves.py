@@ -302,7 +302,8 @@ class PulseMoves:
             return [(float(grid[0]), 1.0)]
         i = int(min(max(np.searchsorted(grid, v, side="right") - 1, 0), len(grid) - 2))
         w = (v - grid[i]) / (grid[i + 1] - grid[i])
-        w = min(max(w, 0.0), 1.0)
+        # on a grid point to rounding (0.9 x max Δp computed two ways): that point alone, no neighbour to build
+        w = 0.0 if w < 1e-9 else 1.0 if w > 1.0 - 1e-9 else w
         return [(float(g), ww) for g, ww in ((grid[i], 1.0 - w), (grid[i + 1], w)) if ww > 0.0]
 
     def _corners(self, p, th):
@@ -455,9 +456,13 @@ class PulseMoves:
         coarse = self.coarse_aims and na >= 5 and na % 2 == 1
         ka = np.arange(0, na, 2) if coarse else np.arange(na)
         I, J, KA = np.meshgrid(np.arange(nx), np.arange(no), ka, indexing="ij")
-        end = self._simulate(d, p, kick, th, preload=np.concatenate([cell_pre(I, J).ravel(), pre2.ravel()]),
-                             excess=np.concatenate([xg[I].ravel(), X2.ravel()]),
-                             aim=np.concatenate([ag[KA].ravel(), A2.ravel()]))
+        # the doublet once per cell (and per excess for the short-of-the-level rows), the observe servo per aim
+        ic, jc = np.meshgrid(np.arange(nx), np.arange(no), indexing="ij")
+        row_pre = (load0 + d * (fl.valve_coulomb_nm + k * xg)) / k + d * (-og[0] - rise)
+        end = self._simulate(d, p, kick, th, preload=np.concatenate([cell_pre(ic, jc).ravel(), row_pre]),
+                             excess=np.concatenate([np.repeat(xg, no), xg]),
+                             aim=np.concatenate([ag[KA].ravel(), A2.ravel()]),
+                             base=np.concatenate([(I * no + J).ravel(), nx * no + np.repeat(np.arange(nx), na)]))
         moved = np.maximum(d * (end - th), 0.0)
         moves = np.empty((nx, no, na))
         moves[:, :, ka] = moved[:I.size].reshape(I.shape)
@@ -473,8 +478,9 @@ class PulseMoves:
                 ko = np.arange(1, na, 2)
                 ii, jj = np.repeat(ci, len(ko)), np.repeat(cj, len(ko))
                 kk = np.tile(ko, len(ci))
-                mo = np.maximum(d * (self._simulate(d, p, kick, th, preload=cell_pre(ii, jj), excess=xg[ii],
-                                                    aim=ag[kk]) - th), 0.0)
+                mo = np.maximum(d * (self._simulate(d, p, kick, th, preload=cell_pre(ci, cj), excess=xg[ci],
+                                                    aim=ag[kk], base=np.repeat(np.arange(len(ci)), len(ko)))
+                                     - th), 0.0)
                 moves[ii, jj, kk] = mo
         short = moved[I.size:].reshape(X2.shape) > 1e-6           # the unbroken doublet moved the valve
         first2 = np.argmax(short, axis=1)
@@ -497,9 +503,9 @@ class PulseMoves:
             parts = 2 ** THRESHOLD_BISECTIONS
             frac = np.arange(1, parts) / parts
             mids = lo_a[:, None] + (hi_a - lo_a)[:, None] * frac[None, :]
-            xs = np.repeat(xg[ci], parts - 1)
-            pre = ((load0 + d * (fl.valve_coulomb_nm + k * xg[ci])) / k + d * (og[cj] - rise)).repeat(parts - 1)
-            mm = np.maximum(d * (self._simulate(d, p, kick, th, preload=pre, excess=xs, aim=mids.ravel()) - th), 0.0)
+            pre = (load0 + d * (fl.valve_coulomb_nm + k * xg[ci])) / k + d * (og[cj] - rise)
+            mm = np.maximum(d * (self._simulate(d, p, kick, th, preload=pre, excess=xg[ci], aim=mids.ravel(),
+                                                base=np.repeat(np.arange(len(ci)), parts - 1)) - th), 0.0)
             mm = mm.reshape(mids.shape)
             dragged = np.abs(mm - lo_m[:, None]) > np.abs(mm - hi_m[:, None])
             # the first dragged of the sub-aims (parts: none -- the upper tabulated aim), the threshold half a step below
@@ -515,10 +521,13 @@ class PulseMoves:
             self._tables.popitem(last=False)
         return tab
 
-    def _simulate(self, d, p, kick, th0, *, preload, excess, aim, track_apex=False, apex_torque=True):
+    def _simulate(self, d, p, kick, th0, *, preload, excess, aim, track_apex=False, apex_torque=True, base=None):
         """Run the doublet on every lane at once from rest at valve angle ``th0`` with the twist at ``preload``
         (absolute, rad), the valve's static level ``T_c + K excess``; returns the valve angle at the end
-        (or, with ``track_apex``, the largest twist toward ``d`` reached, absolute rad)."""
+        (or, with ``track_apex``, the largest twist toward ``d`` reached, absolute rad).  ``base`` (int array,
+        optional): ``preload`` and ``excess`` are per *base* lane and ``aim`` per final lane, lane i starting from
+        base lane ``base[i]``: the doublet itself (kick and retreat) does not depend on the aim, so it is run once
+        per base lane and the state copied out to the final lanes for the observe servo (the same answers)."""
         self.runs += 1
         m = self.m
         n_gear, k, c = m.gear_ratio, m.coupling_stiffness_nm_per_rad, m.coupling_damping_nms
@@ -555,7 +564,8 @@ class PulseMoves:
             m.flow_torque_max_nm * m.pressure_fraction(p) * math.pi / m.stroke_rad * math.cos(math.pi * frac0)
             if 0.0 < frac0 < 1.0 else 0.0)
         phi_e = (load0 + d * tc) / k
-        ref1 = thl + phi_e + d * aim / 2.0                                 # the observe servo's gear-output target
+        # the observe servo's gear-output target (per final lane)
+        ref1 = (thl + phi_e if base is None else float(th0) + phi_e) + d * aim / 2.0
         integral = np.zeros(n)
         th1_prev = th1.copy()
         apex = d * preload.copy()
@@ -567,6 +577,11 @@ class PulseMoves:
         c_emf, c_vd = psi * pole * n_gear, lq * pole * n_gear
         n_pulse = 2 + self.retreat_full
         for period in range(n_pulse + self.observe_periods):
+            if base is not None and period == n_pulse:
+                # the doublet done on the base lanes: one lane per aim from here
+                thl, wl, th1, w1, iq, xq, th1_prev, ts = (v[base] for v in (thl, wl, th1, w1, iq, xq, th1_prev, ts))
+                n = len(base)
+                integral = np.zeros(n)
             if period == 0:
                 torque = hold + d * kick * kt
             elif period <= self.retreat_full:
