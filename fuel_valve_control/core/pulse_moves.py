@@ -614,7 +614,7 @@ class PulseMoves:
                         vd = c_vd * (w1 * iq)                               # |d-axis EMF| ωe Lq iq (id = 0)
                         vq_max = np.sqrt(np.maximum(vlim2 - vd * vd, 0.0))
                         sat = np.abs(vq) > vq_max
-                        np.clip(vq, -vq_max, vq_max, out=vq)
+                        np.minimum(np.maximum(vq, -vq_max, out=vq), vq_max, out=vq)   # np.clip, at half the cost
                         xq = xq + np.where(sat, 0.0, kic * dt) * err        # conditional integration
                     else:
                         xq = xq + (kic * dt) * err
