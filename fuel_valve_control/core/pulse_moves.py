@@ -268,19 +268,25 @@ class PulseMoves:
         in ``kicks``) is built: no :meth:`move` or :meth:`rise` with those kicks builds anything any more."""
         return not self.exact and not self.pending()
 
-    def prepare(self, pressures_kpa=None, directions=(1, -1), kicks=None) -> float:
+    def prepare(self, pressures_kpa=None, directions=(1, -1), kicks=None, max_s: float | None = None) -> float:
         """Build ahead every table the stage can need, so that no later :meth:`move` / :meth:`rise` builds one;
         returns the CPU seconds spent (``time.process_time``).  ``pressures_kpa``: None, every Δp point of the grid
         (any Δp then interpolates between built tables); else the grid's neighbours of each.  ``directions``: +1
         / -1.  ``kicks`` (A): None, ``kicks`` (``kick_current_a`` and ``extra_kicks``).  Every angle point.
         Keyed mode only.  **The ROS controller node must call it at configure / activate, outside its 1 kHz
         control callback** (one table costs ~0.15 s of CPU: built lazily inside the callback it would stall the
-        loop ~150 periods); offline a lazy build is harmless (docs §80.9)."""
+        loop ~150 periods); offline a lazy build is harmless (docs §80.9).  ``max_s`` (s of CPU, optional): stop after
+        the table that passes this budget (a caller spreading the work over idle time calls again until ``prepared``
+        / :meth:`pending` says nothing is left)."""
         if self.exact:
             raise ValueError("prepare(): the exact mode has no finite set of keys (its Δp and angle are continuous)")
         t0 = time.process_time()
         for key in self._needed(pressures_kpa, directions, kicks):
+            if key in self._tables and key in self._rises:
+                continue
             self._table(*key)
+            if max_s is not None and time.process_time() - t0 >= max_s:
+                break
         return time.process_time() - t0
 
     # ------------------------------------------------------------------ internals
