@@ -96,6 +96,9 @@ DP_GRID = (0.0, 0.025, 0.05, 0.075, 0.1, 0.125, 0.15, 0.175, 0.2, 0.25, 0.3, 0.3
 #: the valve angles (fractions of the stroke) the keyed tables are built at (the load's slope and the hold current
 #: change along the stroke); interpolated linearly in the angle
 ANGLE_GRID = (0.0, 0.5, 1.0)
+#: keyed mode: the blend's second-break / servo-break aims: "min" the neighbours' smallest (conservative), "mean"
+#: their bilinear blend where every neighbour has one (docs §80.9)
+BLEND_THRESHOLDS = "min"
 #: keyed mode: blended tables (one per asked (direction, Δp, kick, angle)) kept
 BLEND_CACHE_SIZE = 16
 #: keyed mode: the process keeps the tables of this many model / settings signatures, shared by every PulseMoves of
@@ -334,6 +337,7 @@ class PulseMoves:
         else:
             xs, js = self._scales(p)
             tab = {"moves": 0.0, "rise": 0.0, "second_break_aim": np.inf, "last_ok": np.inf, "servo_break_aim": np.inf}
+            mean = {"second_break_aim": 0.0, "servo_break_aim": 0.0}
             for pk, tk, w in corners:
                 t = self._table(d, pk, kick, tk)
                 xk, jk = self._scales(pk)
@@ -343,7 +347,11 @@ class PulseMoves:
                 tab["rise"] += w * t["rise"]
                 for name in ("second_break_aim", "servo_break_aim"):
                     tab[name] = np.minimum(tab[name], t[name] * r)
+                    mean[name] = mean[name] + w * (t[name] * r)
                 tab["last_ok"] = np.minimum(tab["last_ok"], t["last_ok"])
+            if BLEND_THRESHOLDS == "mean":
+                for name in ("second_break_aim", "servo_break_aim"):
+                    tab[name] = np.where(np.isfinite(mean[name]), mean[name], tab[name])
         self._blends[key] = tab
         while len(self._blends) > BLEND_CACHE_SIZE:
             self._blends.popitem(last=False)
