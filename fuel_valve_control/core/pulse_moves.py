@@ -59,7 +59,7 @@ current -- and :meth:`PulseMoves.move` / :meth:`PulseMoves.rise` interpolate bet
 Δp and angle (on grids normalised by each Δp's friction levels): the Δp and the angle are *approximated*, and the
 set of tables is finite, so :meth:`PulseMoves.prepare` can build all of them ahead.  **A real-time caller (the ROS
 controller node) must call ``prepare()`` at configure / activate, outside its control callback** (a table costs
-~0.15-0.18 s of CPU; the default grid 114 tables); afterwards ``prepared`` is True and no call simulates anything
+~0.12 s of CPU; the default grid 114 tables, ~14 s); afterwards ``prepared`` is True and no call simulates anything
 (``move`` on a 61 x 40 array ~0.2 ms).  Offline the tables are built lazily on first use (a nominal-box run, max Δp:
 6 tables).  ``exact=True`` keeps h33m's per-key tables (Δp to 1e-3 kPa, angle to 0.01 rad): the reference the keyed
 grid's error is measured against (``benchmarks/pulse_moves_check.py --grid``).
@@ -105,7 +105,8 @@ BLEND_CACHE_SIZE = 16
 #: one signature (``share``)
 SHARED_SIGNATURES = 4
 _SHARED: OrderedDict = OrderedDict()
-#: tables kept per PulseMoves in the ``exact`` mode (the keyed grid keeps all of its finite set) (each (direction, Δp, kick, valve angle) key one table of ~20k floats)
+#: tables kept per PulseMoves in the ``exact`` mode (the keyed grid keeps all of its finite set; each (direction, Δp,
+#: kick, valve angle) key one table of ~20k floats)
 CACHE_SIZE = 32
 
 
@@ -127,7 +128,7 @@ class PulseMoves:
     bound of :meth:`FinePositioner._plausible_offset_rad`), ``overdrive_points`` log-spaced from 1e-3 to 1 x
     the stick-slip jump ``2 (T_s - T_c) / K`` at Δp, ``aim_points`` aims over 0 ... ``aim_fraction`` x that jump.
     ``park_friction``: the hold torque carries the motor's Coulomb friction toward the move (module docstring).
-    A table (41 x 20 x 17 points and the second-break refinement) costs ~0.15 s of CPU, once per key: build them before
+    A table (41 x 20 x 17 points and the second-break refinement) costs ~0.12 s of CPU, once per key: build them before
     the loop needs them (:meth:`prepare`) where a period's budget matters.
     Keying (docs §80.9): ``dp_grid`` (fractions of the model's max Δp) and ``angle_grid`` (fractions of the stroke): the
     grid the tables are built at, interpolated between (module docstring); ``extra_kicks`` (A): kicks besides
@@ -239,7 +240,7 @@ class PulseMoves:
         (``excess_fraction`` T_s/K), overdrive and aim / the jump 2 (T_s - T_c)/K) and its move read in jumps; NaN
         where any neighbour with a weight answers NaN.  Error against the exact per-key table: docs §80.9
         (``benchmarks/pulse_moves_check.py --grid``).  Within a table: linear in excess and aim, in log overdrive.
-        Builds the neighbours' tables if they are not built yet (~0.15 s each): call :meth:`prepare` first where
+        Builds the neighbours' tables if they are not built yet (~0.12 s each): call :meth:`prepare` first where
         a period's budget matters."""
         d, p, kick, th = self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad)
         x, od, aim = np.broadcast_arrays(np.asarray(excess_rad, dtype=float), np.asarray(overdrive_rad, dtype=float),
@@ -277,7 +278,7 @@ class PulseMoves:
         (any Δp then interpolates between built tables); else the grid's neighbours of each.  ``directions``: +1
         / -1.  ``kicks`` (A): None, ``kicks`` (``kick_current_a`` and ``extra_kicks``).  Every angle point.
         Keyed mode only.  **The ROS controller node must call it at configure / activate, outside its 1 kHz
-        control callback** (one table costs ~0.15 s of CPU: built lazily inside the callback it would stall the
+        control callback** (one table costs ~0.12 s of CPU: built lazily inside the callback it would stall the
         loop ~150 periods); offline a lazy build is harmless (docs §80.9).  ``max_s`` (s of CPU, optional): stop after
         the table that passes this budget (a caller spreading the work over idle time calls again until ``prepared``
         / :meth:`pending` says nothing is left)."""
