@@ -245,8 +245,8 @@ def test_prepare_leaves_nothing_to_build(pm, fine):
     assert twin.runs == 0
     alone = PulseMoves.for_positioner(fine, CS, share=False, dp_grid=TEST_DP_GRID, angle_grid=(0.5,))
     assert len(alone.pending()) == 6                                # 2 directions x 3 Δp (one kick, one angle)
-    alone.prepare(pressures_kpa=[P_MAX], directions=(1,), max_s=0.0)   # a budget: one table (+ its rise) at a time
-    assert alone.builds == 1 and len(alone.pending()) == 5
+    alone.prepare(max_s=0.0)                        # a budget: one table (+ its rise) at a time, max Δp first
+    assert alone.builds == 1 and len(alone.pending()) == 5 and (1, P_MAX) == next(iter(alone._tables))[:2]
     # a fresh model with the same grid: prepare() builds exactly direction x Δp x angle x kick tables
     fresh = PulseMoves(MODEL, PERIOD, kick_current_a=pm.kick, peak_current_a=pm.cap, retreat_full_periods=1,
                        servo_kp=pm.kp, servo_kd=pm.kd, servo_ki=pm.ki, dp_grid=(1.0,), angle_grid=(0.2, 0.8))

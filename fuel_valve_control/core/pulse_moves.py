@@ -372,8 +372,10 @@ class PulseMoves:
             ps = sorted({pk for v in np.atleast_1d(pressures_kpa)
                          for pk, _ in self._bracket(self.dp_grid, self._key_parts(1, v, None, None)[1])})
         ks = self.kicks if kicks is None else tuple(round(float(k), 6) for k in kicks)
-        return [(1 if d > 0 else -1, pk, kk, float(tk)) for d in directions for kk in ks for pk in ps
-                for tk in self.angle_grid]
+        # highest Δp first, both directions and every angle before the next Δp: a budgeted prepare (``max_s``) has the
+        # operating point (max Δp, the fine stage's tight plateaus) ready first
+        return [(1 if d > 0 else -1, pk, kk, float(tk)) for pk in sorted(ps, reverse=True) for kk in ks
+                for d in directions for tk in self.angle_grid]
 
     def _rise_at(self, d, p, kick, th) -> float:
         """The rise at one key (simulated once, cached)."""
