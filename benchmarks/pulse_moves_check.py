@@ -14,7 +14,10 @@ Two parts:
    equilibrium), then the apex the kick reached (coupling torque / K above the preload) and the valve's move;
    compared with the model's rise and its predicted move at that excess / overdrive / aim.
 
-    python benchmarks/pulse_moves_check.py [--points 150] [--dp-fraction 1] [--runs 40] [--seed 1000] [--jobs 2] [--json PATH]
+3. **grid** (:func:`grid_check`, ``--grid``: only it): the keyed tables (Δp x angle grid, interpolated: the
+   default) against the exact per-key tables, and the cost of ``prepare()`` / of a ``move()`` after it.
+
+    python benchmarks/pulse_moves_check.py [--grid] [--pairs 12] [--dp-grid 0,0.25,...] [--angle-grid 0,0.5,1] [--points 150] [--dp-fraction 1] [--runs 40] [--seed 1000] [--jobs 2] [--json PATH]
 
 Last stdout line: one JSON object.
 """
@@ -121,6 +124,61 @@ def bare_check(points: int, seed: int, dp_fraction: float = 1.0) -> dict:
             "build_cpu_s": [pm.table(d, p)["build_s"] for d in (1, -1)]}
 
 
+def grid_check(pairs: int = 12, points: int = 500, seed: int = 11, dp_grid=None, angle_grid=None,
+               dp_range=(0.02, 1.0)) -> dict:
+    """The keyed model (tables on the Δp x angle grid, interpolated) against the exact per-key tables (one per
+    (direction, Δp, angle)) at ``pairs`` random (Δp, angle) per direction, ``points`` random (excess, overdrive, aim)
+    each over the policy's domain at that Δp (excess 0.3-1.6 x the nominal excess, overdrive log 1e-3-1 jump, aim
+    0-1 jump); also the cost of ``prepare()`` and of a ``move()`` on a 61 x 40 array after it."""
+    kw = {} if dp_grid is None else {"dp_grid": dp_grid}
+    if angle_grid is not None:
+        kw["angle_grid"] = angle_grid
+
+    keyed = PulseMoves.for_positioner(FINE, CS, **kw)
+    # the reference: h33m's tables (one per Δp and angle, every aim simulated)
+    exact = PulseMoves.for_positioner(FINE, CS, exact=True, coarse_aims=False)
+    prep_s = keyed.prepare()
+    runs = keyed.runs
+    rng = np.random.default_rng(seed)
+    errs, refs, nanmis, lost, n_all, rise_err = [], [], 0, 0, 0, []
+    for d in (1, -1):
+        for _ in range(pairs):
+            p = float(rng.uniform(*dp_range)) * P_MAX
+            th = float(rng.uniform(0.0, 1.0)) * M.stroke_rad
+            fl = M.friction(p)
+            xn = (fl.valve_static_nm - fl.valve_coulomb_nm) / K
+            j = 2.0 * xn
+            x = rng.uniform(0.3, 1.6, points) * xn
+            od = np.exp(rng.uniform(np.log(1e-3 * j), np.log(j), points))
+            aim = rng.uniform(0.0, 1.0, points) * j
+            a = keyed.move(d, p, x, od, aim_rad=aim, valve_angle_rad=th)
+            b = exact.move(d, p, x, od, aim_rad=aim, valve_angle_rad=th)
+            fa, fb = np.isfinite(a), np.isfinite(b)
+            nanmis += int((fa != fb).sum())
+            lost += int((~fa & fb).sum())
+            n_all += points
+            errs.append(np.abs(a - b)[fa & fb])
+            refs.append(np.abs(b)[fa & fb])
+            rise_err.append(abs(keyed.rise(d, p, valve_angle_rad=th) - exact.rise(d, p, valve_angle_rad=th)))
+    e, r = np.concatenate(errs), np.concatenate(refs)
+    # a policy's call after prepare(): 61 draws x 40 candidate apexes, nothing built
+    xx = np.linspace(0.5, 1.5, 61)[:, None] * X_NOM
+    oo = np.geomspace(1e-5, 2e-3, 40)[None, :]
+    t0 = time.process_time()
+    for _ in range(50):
+        keyed.move(1, 0.83 * P_MAX, xx, oo, aim_rad=4e-4, valve_angle_rad=0.41)
+    move_ms = (time.process_time() - t0) / 50 * 1e3
+    return {"dp_grid": [float(v) for v in keyed.dp_grid / P_MAX], "angle_grid": [float(v) for v in keyed.angle_grid / M.stroke_rad],
+            "tables": keyed.builds, "prepare_cpu_s": prep_s, "points": n_all, "nan_mismatch": nanmis,
+            "keyed_nan_exact_finite": lost, "exact_finite": int(sum(len(v) for v in errs)) + lost,
+            "abs_err_p50": float(np.median(e)), "abs_err_p95": float(np.percentile(e, 95)),
+            "abs_err_max": float(e.max()), "within_5pct_or_5e-5": float(np.mean(e <= np.maximum(0.05 * r, 5e-5))),
+            "within_10pct_or_1e-4": float(np.mean(e <= np.maximum(0.1 * r, 1e-4))),
+            "rise_abs_err_max": float(max(rise_err)), "move_61x40_ms": move_ms,
+            "runs_after_prepare": keyed.runs - runs,
+            "table_cpu_s_keyed_vs_reference": [float(np.mean([t["build_s"] for t in keyed._tables.values()])),
+                                              float(np.mean([t["build_s"] for t in exact._tables.values()]))]}
+
 def _closed_run(seed: int) -> list[dict]:
     import robustness as R
     from fuel_valve_control.core.driver import ValveDriver
@@ -214,10 +272,22 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=1000)
     ap.add_argument("--dp-fraction", type=float, default=1.0, help="Δp of the bare check, x max (the closed check: the nominal box's max Δp)")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--grid", action="store_true", help="only the keyed grid against the exact per-key tables")
+    ap.add_argument("--pairs", type=int, default=12, help="random (Δp, angle) per direction (grid check)")
+    ap.add_argument("--dp-grid", type=str, default=None, help="comma-separated Δp grid, x max (grid check)")
+    ap.add_argument("--angle-grid", type=str, default=None, help="comma-separated angle grid, x stroke (grid check)")
+    ap.add_argument("--dp-range", type=str, default="0.02,1.0", help="Δp range of the grid check's random points, x max")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args(argv)
     t0 = time.time()
-    res = {"bare": bare_check(a.points, 7, a.dp_fraction)}
+    fl = (lambda v: None if v is None else [float(u) for u in v.split(",")])
+    res = {"grid": grid_check(a.pairs, dp_grid=fl(a.dp_grid), angle_grid=fl(a.angle_grid),
+                              dp_range=fl(a.dp_range))}
+    print("grid:", json.dumps(res["grid"]), flush=True)
+    if a.grid:
+        print(json.dumps(res))
+        return
+    res["bare"] = bare_check(a.points, 7, a.dp_fraction)
     print("bare:", json.dumps(res["bare"]), flush=True)
     if a.runs > 0:
         res["closed"] = closed_check(a.runs, a.seed, a.jobs)

@@ -38,9 +38,13 @@ def fine() -> FinePositioner:
     return pc.law.fine
 
 
+#: the module's keyed grid: the Δp points the tests ask at and around (a short grid keeps prepare() cheap: ~6 tables)
+TEST_DP_GRID = (0.5, 0.9, 1.0)
+
+
 @pytest.fixture(scope="module")
 def pm(fine) -> PulseMoves:
-    return PulseMoves.for_positioner(fine, CS)
+    return PulseMoves.for_positioner(fine, CS, dp_grid=TEST_DP_GRID, angle_grid=(0.5,))
 
 
 def plant_doublet(d: int, excess: float, overdrive: float, aim: float, rise: float, fine: FinePositioner,
@@ -217,3 +221,60 @@ def test_module_is_plant_free_and_ros_free():
         elif isinstance(node, ast.ImportFrom):
             names.add(("." * node.level) + (node.module or ""))
     assert names <= {"__future__", "math", "collections", "time", "numpy", ".model", ".params"}, names
+
+
+def test_prepare_leaves_nothing_to_build(pm, fine):
+    """(§80.9) After ``prepare()`` every table the keyed grid can need is built: ``prepared``, nothing ``pending``,
+    and no move / rise at any Δp, angle or shape simulates anything (the ROS node's 1 kHz callback never builds)."""
+    spent = pm.prepare()
+    assert spent >= 0.0 and pm.prepared and pm.pending() == []
+    assert pm.pending(kicks=[8.5]) != []                          # an unprepared kick would build
+    builds, runs = pm.builds, pm.runs
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        d = int(rng.choice([1, -1]))
+        p = float(rng.uniform(-0.1, 1.2)) * P_MAX                 # clamped to the grid's range
+        th = float(rng.uniform(0.0, 1.0)) * MODEL.stroke_rad
+        pm.rise(d, p, valve_angle_rad=th)
+        pm.move(d, p, rng.uniform(0, 3e-3, (7, 5)), rng.uniform(-1e-4, 2e-3, (7, 5)), aim_rad=3e-4, valve_angle_rad=th)
+    assert (pm.builds, pm.runs) == (builds, runs)
+    # a second model of the same positioner (a campaign's next run, h33p's policy per engagement) shares the tables
+    twin = PulseMoves.for_positioner(fine, CS, dp_grid=TEST_DP_GRID, angle_grid=(0.5,))
+    assert twin.prepared
+    twin.move(1, 0.93 * P_MAX, 2e-3, 1e-4, aim_rad=2e-4)
+    assert twin.runs == 0
+    alone = PulseMoves.for_positioner(fine, CS, share=False, dp_grid=TEST_DP_GRID, angle_grid=(0.5,))
+    assert len(alone.pending()) == 6                                # 2 directions x 3 Δp (one kick, one angle)
+    alone.prepare(max_s=0.0)                        # a budget: one table (+ its rise) at a time, max Δp first
+    assert alone.builds == 1 and len(alone.pending()) == 5 and (1, P_MAX) == next(iter(alone._tables))[:2]
+    # a fresh model with the same grid: prepare() builds exactly direction x Δp x angle x kick tables
+    fresh = PulseMoves(MODEL, PERIOD, kick_current_a=pm.kick, peak_current_a=pm.cap, retreat_full_periods=1,
+                       servo_kp=pm.kp, servo_kd=pm.kd, servo_ki=pm.ki, dp_grid=(1.0,), angle_grid=(0.2, 0.8))
+    assert len(fresh.pending()) == 4 and not fresh.prepared
+    with pytest.raises(ValueError):
+        PulseMoves(MODEL, PERIOD, kick_current_a=4.0, peak_current_a=30.0, retreat_full_periods=1, servo_kp=1.0,
+                   servo_kd=0.0, servo_ki=0.0, exact=True).prepare()
+
+
+def test_keyed_grid_within_its_measured_bound(pm, fine):
+    """(§80.9) The keyed model (Δp between grid points 0.9 and 1.0 x max, interpolated on the friction-normalised
+    grids) against the exact table at that Δp: 500 random points of the policy's domain (excess 0.3-1.6 x nominal,
+    overdrive log 1e-3-1 jump, aim 0-1 jump) within max(10 %, 1e-4 rad) for >= 97 % of those both answer, and the
+    NaN answers differ on <= 8 % (measured on the default grid above 0.4 x max Δp: 99.5 %, p95 3.9e-5 rad, 5 % of
+    the exact answers lost to NaN)."""
+    exact = PulseMoves.for_positioner(fine, CS, exact=True, coarse_aims=False)     # h33m's table, every aim simulated
+    rng = np.random.default_rng(4)
+    p = 0.95 * P_MAX
+    fl = MODEL.friction(p)
+    xn = (fl.valve_static_nm - fl.valve_coulomb_nm) / K
+    j = 2.0 * xn
+    x = rng.uniform(0.3, 1.6, 500) * xn
+    od = np.exp(rng.uniform(math.log(1e-3 * j), math.log(j), 500))
+    aim = rng.uniform(0.0, 1.0, 500) * j
+    a = pm.move(1, p, x, od, aim_rad=aim)
+    b = exact.move(1, p, x, od, aim_rad=aim)
+    both = np.isfinite(a) & np.isfinite(b)
+    assert np.mean(np.isfinite(a) != np.isfinite(b)) <= 0.08
+    e = np.abs(a - b)[both]
+    assert np.mean(e <= np.maximum(0.1 * np.abs(b[both]), 1e-4)) >= 0.97, np.percentile(e, [50, 95, 100])
+    assert abs(pm.rise(1, p) - exact.rise(1, p)) < 1e-6

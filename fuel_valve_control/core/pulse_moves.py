@@ -52,6 +52,18 @@ servo's integral and feed-forward error carried from the park (the hold is as ab
 valve has none); the static level's new draw when the valve stops (the model's valve re-sticks at the same
 level: a second breakaway's size is the bare valve's -- hence NaN); the levels' position ripple over the move;
 the told model's errors (friction scale, Δp, inertia: ``for_positioner`` takes the stage's planning model).
+Keyed tables and preparing them (docs §80.9)
+--------------------------------------------
+By default the tables are keyed on a fixed grid -- direction x ``DP_GRID`` (Δp) x ``ANGLE_GRID`` (valve angle) x kick
+current -- and :meth:`PulseMoves.move` / :meth:`PulseMoves.rise` interpolate between the grid's neighbours of the asked
+Δp and angle (on grids normalised by each Δp's friction levels): the Δp and the angle are *approximated*, and the
+set of tables is finite, so :meth:`PulseMoves.prepare` can build all of them ahead.  **A real-time caller (the ROS
+controller node) must call ``prepare()`` at configure / activate, outside its control callback** (a table costs
+~0.12 s of CPU; the default grid 114 tables, ~14 s); afterwards ``prepared`` is True and no call simulates anything
+(``move`` on a 61 x 40 array ~0.2 ms).  Offline the tables are built lazily on first use (a nominal-box run, max Δp:
+6 tables).  ``exact=True`` keeps h33m's per-key tables (Δp to 1e-3 kPa, angle to 0.01 rad): the reference the keyed
+grid's error is measured against (``benchmarks/pulse_moves_check.py --grid``).
+
 Validation (docs §80): bare nominal plant, 300 random points, 99.3 % within max(10 %, 1e-4 rad), p95 1.6e-4,
 max 3.9e-4 rad, rise to 1e-8 rad; the stage's own 2310 doublets on the nominal box (40 runs): rise -2..-3 %,
 no break misclassified beyond the rise's error, moves within +0.02 (median) / 0.07 (p90 |err|) e-3 rad.
@@ -76,7 +88,25 @@ DEFAULT_BANDWIDTH = CONTROLLER_SPEC.defaults()["drive.current_loop_bandwidth_hz"
 AIM_STEP_JUMPS = 3.0
 #: the second breakaway's aim is refined between the two tabulated aims to 1 / 2**this of their spacing (one run)
 THRESHOLD_BISECTIONS = 3
-#: tables kept per PulseMoves (each (direction, Δp, kick, valve angle) key one table of ~20k floats)
+#: the Δp points (fractions of ``model.pressure_max_kpa``) the keyed tables are built at; a move between them is
+#: interpolated linearly in Δp on the grids normalised by that Δp's friction levels (docs §80.9: error measured)
+#: (dense below 0.4: there the doublet carries a lightly held valve several jumps and the regime boundary moves
+#: fast with Δp; 0.1 apart above it)
+DP_GRID = (0.0, 0.025, 0.05, 0.075, 0.1, 0.125, 0.15, 0.175, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+#: the valve angles (fractions of the stroke) the keyed tables are built at (the load's slope and the hold current
+#: change along the stroke); interpolated linearly in the angle
+ANGLE_GRID = (0.0, 0.5, 1.0)
+#: keyed mode: the blend's second-break / servo-break aims: "min" the neighbours' smallest (conservative), "mean"
+#: their bilinear blend where every neighbour has one (docs §80.9)
+BLEND_THRESHOLDS = "min"
+#: keyed mode: blended tables (one per asked (direction, Δp, kick, angle)) kept
+BLEND_CACHE_SIZE = 16
+#: keyed mode: the process keeps the tables of this many model / settings signatures, shared by every PulseMoves of
+#: one signature (``share``)
+SHARED_SIGNATURES = 4
+_SHARED: OrderedDict = OrderedDict()
+#: tables kept per PulseMoves in the ``exact`` mode (the keyed grid keeps all of its finite set; each (direction, Δp,
+#: kick, valve angle) key one table of ~20k floats)
 CACHE_SIZE = 32
 
 
@@ -98,8 +128,16 @@ class PulseMoves:
     bound of :meth:`FinePositioner._plausible_offset_rad`), ``overdrive_points`` log-spaced from 1e-3 to 1 x
     the stick-slip jump ``2 (T_s - T_c) / K`` at Δp, ``aim_points`` aims over 0 ... ``aim_fraction`` x that jump.
     ``park_friction``: the hold torque carries the motor's Coulomb friction toward the move (module docstring).
-    A table (41 x 20 x 17 points and the second-break refinement) costs ~0.15 s of CPU, once per key: build it before
-    the loop needs it (:meth:`table`) where a period's budget matters.
+    A table (41 x 20 x 17 points and the second-break refinement) costs ~0.12 s of CPU, once per key: build them before
+    the loop needs them (:meth:`prepare`) where a period's budget matters.
+    Keying (docs §80.9): ``dp_grid`` (fractions of the model's max Δp) and ``angle_grid`` (fractions of the stroke): the
+    grid the tables are built at, interpolated between (module docstring); ``extra_kicks`` (A): kicks besides
+    ``kick_current_a`` that :meth:`prepare` builds by default (``for_positioner``: the staircase's first-stair kick,
+    ``fine.first_kick_fraction`` x the kick); ``exact``: per-key tables instead (Δp to 1e-3 kPa, angle to 0.01 rad,
+    LRU ``CACHE_SIZE``; no :meth:`prepare`); ``coarse_aims``: simulate every other aim and the rest only where the
+    second breakaway's step lies between (False: every aim, h33m's table); ``share``: keyed tables shared in the
+    process by every PulseMoves of the same model and settings (``SHARED_SIGNATURES`` kept).  Counters: ``builds``
+    (tables), ``runs`` (time-loop simulations) -- this instance's own work.
     """
 
     def __init__(self, model: NominalModel, period_s: float, *, kick_current_a: float, peak_current_a: float,
@@ -108,7 +146,8 @@ class PulseMoves:
                  observe_periods: int = 15, substeps: int = 20, retreat_unmoved_fraction: float = 0.5,
                  tolerance_rad: float = 0.0, excess_fraction: float = 0.5, excess_points: int = 41,
                  overdrive_points: int = 20, aim_fraction: float = 1.0, aim_points: int = 17,
-                 park_friction: bool = True):
+                 park_friction: bool = True, dp_grid=DP_GRID, angle_grid=ANGLE_GRID, extra_kicks=(),
+                 exact: bool = False, coarse_aims: bool = True, share: bool = True):
         self.m = model
         self.period = float(period_s)
         self.kick = float(kick_current_a)
@@ -125,9 +164,31 @@ class PulseMoves:
         self.n_excess, self.n_overdrive = int(excess_points), int(overdrive_points)
         self.aim_fraction, self.n_aim = float(aim_fraction), int(aim_points)
         self.park_friction = bool(park_friction)
+        # the keyed grid (fractions of the model's max Δp and of its stroke); ``exact``: one table per
+        # (direction, Δp to 1e-3 kPa, kick, angle to 0.01 rad) as h33m built it (the reference the grid is measured on)
+        self.exact = bool(exact)
+        self.coarse_aims = bool(coarse_aims)
+        self.dp_grid = np.unique(np.clip(np.asarray(dp_grid, dtype=float), 0.0, 1.0)) * model.pressure_max_kpa
+        self.angle_grid = np.unique(np.clip(np.asarray(angle_grid, dtype=float), 0.0, 1.0)) * model.stroke_rad
+        self.kicks = tuple(dict.fromkeys(round(float(k), 6) for k in (self.kick, *extra_kicks)))
         self._tables: OrderedDict = OrderedDict()
         self._rises: dict = {}
+        if share and not self.exact:
+            # the keyed tables depend on nothing but these: every PulseMoves of one signature in the process shares
+            # them (a campaign's runs with one told model build them once; read-only once built)
+            sig = (model, self.period, self.cap, self.retreat_full, self.kp, self.kd, self.ki, self.vlim, self.wc,
+                   self.observe_periods, self.substeps, self.unmoved_fraction, self.tolerance, self.excess_fraction,
+                   self.n_excess, self.n_overdrive, self.aim_fraction, self.n_aim, self.park_friction, self.coarse_aims)
+            store = _SHARED.get(sig)
+            if store is None:
+                store = _SHARED[sig] = (self._tables, self._rises)
+                while len(_SHARED) > SHARED_SIGNATURES:
+                    _SHARED.popitem(last=False)
+            _SHARED.move_to_end(sig)
+            self._tables, self._rises = store
+        self._blends: OrderedDict = OrderedDict()
         self.builds = 0                  # tables simulated so far (tests count the cache's work)
+        self.runs = 0                    # time-loop runs (_simulate calls: tables, refinements and rises)
 
     @classmethod
     def for_positioner(cls, fine, ps=None, **kw) -> "PulseMoves":
@@ -142,7 +203,8 @@ class PulseMoves:
                     servo_ki=fine.ki, supply_voltage_v=vals["drive.supply_voltage_v"],
                     current_bandwidth_hz=vals["drive.current_loop_bandwidth_hz"],
                     observe_periods=cfg.observe_periods, retreat_unmoved_fraction=cfg.retreat_unmoved_fraction,
-                    tolerance_rad=cfg.tolerance_rad)
+                    tolerance_rad=cfg.tolerance_rad,
+                    extra_kicks=(cfg.kick_current_a * cfg.first_kick_fraction,))
         args.update(kw)
         return cls(fine.m, fine.period, **args)
 
@@ -151,16 +213,13 @@ class PulseMoves:
              valve_angle_rad: float | None = None) -> float:
         """Twist (rad, >= 0, toward ``direction``) the doublet's kick -- and the retreat's first instants,
         while the current slews back -- raises above a quasi-static preload on a valve that stays stuck: the
-        doublet's apex lies this far above its preload.  Per (direction, Δp, kick, angle), cached."""
+        doublet's apex lies this far above its preload.  Keyed mode (default): interpolated between the grid's
+        (Δp, angle) points (it depends on neither by more than 2e-6 rad: the valve is held); ``exact``: per
+        (direction, Δp, kick, angle), cached."""
         d, p, kick, th = self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad)
-        key = (d, p, kick, th)
-        if key not in self._rises:
-            phi_s = self._levels(d, p, th)[2]
-            # a valve held stuck (static level far beyond reach); the preload at the nominal level
-            apex = self._simulate(d, p, kick, th, preload=np.array([phi_s]), excess=np.array([np.inf]),
-                                  aim=np.array([0.0]), track_apex=True)
-            self._rises[key] = float(max(d * (apex[0] - phi_s), 0.0))
-        return self._rises[key]
+        if self.exact:
+            return self._rise_at(d, p, kick, th)
+        return float(sum(w * self._rise_at(d, pk, kick, tk) for pk, tk, w in self._corners(p, th)))
 
     def move(self, direction: int, pressure_kpa: float, excess_rad, overdrive_rad,
              kick_current_a: float | None = None, aim_rad=0.0, valve_angle_rad: float | None = None) -> np.ndarray:
@@ -171,66 +230,210 @@ class PulseMoves:
         observe servo's final twist is ``φe + aim / 2``; the move grows with it -- pass the error the
         doublet is for).  0 where ``overdrive_rad <= 0`` (no break); NaN where the observe servo's rebound breaks
         the valve loose a second time (or, below the level, at all: a move the model does not predict); NaN outside
-        the table (excess
-        beyond ``excess_fraction`` x T_s/K or below 0, overdrive beyond one stick-slip jump, aim beyond one
-        jump or below 0: the caller counts it a miss).  ``valve_angle_rad``: where the doublet starts (the
-        load's angle; None: mid-stroke).  Interpolated (linear in excess and aim, in log overdrive)."""
+        the table (excess beyond ``excess_fraction`` x T_s/K or below 0, overdrive beyond one stick-slip jump, aim
+        beyond one jump or below 0: the caller counts it a miss).  ``valve_angle_rad``: where the doublet starts
+        (the load's angle; None: mid-stroke).
+
+        Keyed mode (default): ``pressure_kpa`` and ``valve_angle_rad`` are *approximated* -- the answer is
+        interpolated (bilinear in Δp and angle) between the tables at the neighbouring points of ``dp_grid`` x
+        ``angle_grid``, each asked at the same point of its grid normalised by its own friction levels (excess /
+        (``excess_fraction`` T_s/K), overdrive and aim / the jump 2 (T_s - T_c)/K) and its move read in jumps; NaN
+        where any neighbour with a weight answers NaN.  Error against the exact per-key table: docs §80.9
+        (``benchmarks/pulse_moves_check.py --grid``).  Within a table: linear in excess and aim, in log overdrive.
+        Builds the neighbours' tables if they are not built yet (~0.12 s each): call :meth:`prepare` first where
+        a period's budget matters."""
         d, p, kick, th = self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad)
-        tab = self._table(d, p, kick, th)
-        x = np.asarray(excess_rad, dtype=float)
-        od = np.asarray(overdrive_rad, dtype=float)
-        aim = np.asarray(aim_rad, dtype=float)
-        x, od, aim = np.broadcast_arrays(x, od, aim)
-        xg, og, ag, moves = tab["excess"], tab["overdrive"], tab["aim"], tab["moves"]
-        fx = np.interp(x, xg, np.arange(len(xg)))
-        fo = np.interp(np.log(np.maximum(od, og[0])), np.log(og), np.arange(len(og)))
-        fa = np.interp(aim, ag, np.arange(len(ag)))
-        i0 = np.minimum(fx.astype(int), len(xg) - 2)
-        j0 = np.minimum(fo.astype(int), len(og) - 2)
-        k0 = np.minimum(fa.astype(int), len(ag) - 2)
-        ax, ao, aa = fx - i0, fo - j0, fa - k0
-        thr, last_ok = tab["second_break_aim"], tab["last_ok"]
-        v = np.zeros(x.shape)
-        t = np.zeros(x.shape)
-        beyond = ag[-1] + (ag[1] - ag[0])
-        for di, wx in ((0, 1.0 - ax), (1, ax)):
-            for dj, wo in ((0, 1.0 - ao), (1, ao)):
-                ii, jj = i0 + di, j0 + dj
-                # along the aim, linear over this corner's aims short of its second breakaway (flat beyond them)
-                kk = np.minimum(fa, last_ok[ii, jj])
-                k = np.minimum(kk.astype(int), len(ag) - 2)
-                w = kk - k
-                va = moves[ii, jj, k] * (1.0 - w) + moves[ii, jj, k + 1] * w
-                v = v + va * wx * wo
-                t = t + np.minimum(thr[ii, jj], beyond) * wx * wo
-        # the observe servo pulls the valve loose a second time (a whole further jump at a level drawn anew on the
-        # real valve): no prediction
-        v = np.where(aim >= t, np.nan, v)
-        eps = 1e-12
-        outside = ((x < -eps) | (x > xg[-1] * (1 + 1e-6) + eps) | (od > og[-1] * (1 + 1e-6))
-                   | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | ~np.isfinite(x) | ~np.isfinite(aim))
-        v = np.where(outside, np.nan, v)
-        # an apex below the level: no move -- unless the aim puts the observe servo's rebound into the level
-        # (then the servo breaks the valve loose, unpredicted: NaN)
-        ub = np.interp(x, xg, np.minimum(tab["servo_break_aim"], beyond))
-        unknown = (aim >= ub) | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | (x < -eps) | ~np.isfinite(x) \
-            | ~np.isfinite(aim)
-        return np.where(od > 0.0, v, np.where(unknown, np.nan, 0.0))
+        x, od, aim = np.broadcast_arrays(np.asarray(excess_rad, dtype=float), np.asarray(overdrive_rad, dtype=float),
+                                         np.asarray(aim_rad, dtype=float))
+        if self.exact:
+            return self._raw_move(self._table(d, p, kick, th), x, od, aim)
+        return self._raw_move(self._blend(d, p, kick, th), x, od, aim)
 
     def table(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
               valve_angle_rad: float | None = None) -> dict:
         """The raw table behind :meth:`move`: ``excess``, ``overdrive``, ``aim`` (grids, rad) and ``moves``
-        [excess, overdrive, aim] (rad toward ``direction``), ``rise`` (rad), ``build_s`` (s of CPU it took)."""
-        return self._table(*self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad))
+        [excess, overdrive, aim] (rad toward ``direction``), ``rise`` (rad), ``build_s`` (s of CPU it took).
+        Keyed mode: the table of the grid point nearest to (``pressure_kpa``, ``valve_angle_rad``)."""
+        d, p, kick, th = self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad)
+        if not self.exact:
+            p = float(self.dp_grid[np.argmin(np.abs(self.dp_grid - p))])
+            th = float(self.angle_grid[np.argmin(np.abs(self.angle_grid - th))])
+        return self._table(d, p, kick, th)
+
+    def pending(self, pressures_kpa=None, directions=(1, -1), kicks=None) -> list:
+        """The (direction, Δp, kick, angle) keys :meth:`prepare` with these arguments would still build (tables or
+        rises not built yet); [] once prepared.  Keyed mode only (``exact``: every new key is a new table)."""
+        return [key for key in self._needed(pressures_kpa, directions, kicks)
+                if key not in self._tables or key not in self._rises]
+
+    @property
+    def prepared(self) -> bool:
+        """True when every table the keyed grid can need (every Δp and angle point, both directions, every kick
+        in ``kicks``) is built: no :meth:`move` or :meth:`rise` with those kicks builds anything any more."""
+        return not self.exact and not self.pending()
+
+    def prepare(self, pressures_kpa=None, directions=(1, -1), kicks=None, max_s: float | None = None) -> float:
+        """Build ahead every table the stage can need, so that no later :meth:`move` / :meth:`rise` builds one;
+        returns the CPU seconds spent (``time.process_time``).  ``pressures_kpa``: None, every Δp point of the grid
+        (any Δp then interpolates between built tables); else the grid's neighbours of each.  ``directions``: +1
+        / -1.  ``kicks`` (A): None, ``kicks`` (``kick_current_a`` and ``extra_kicks``).  Every angle point.
+        Keyed mode only.  **The ROS controller node must call it at configure / activate, outside its 1 kHz
+        control callback** (one table costs ~0.12 s of CPU: built lazily inside the callback it would stall the
+        loop ~150 periods); offline a lazy build is harmless (docs §80.9).  ``max_s`` (s of CPU, optional): stop after
+        the table that passes this budget (a caller spreading the work over idle time calls again until ``prepared``
+        / :meth:`pending` says nothing is left)."""
+        if self.exact:
+            raise ValueError("prepare(): the exact mode has no finite set of keys (its Δp and angle are continuous)")
+        t0 = time.process_time()
+        for key in self._needed(pressures_kpa, directions, kicks):
+            if key in self._tables and key in self._rises:
+                continue
+            self._table(*key)
+            if max_s is not None and time.process_time() - t0 >= max_s:
+                break
+        return time.process_time() - t0
 
     # ------------------------------------------------------------------ internals
     def _key_parts(self, direction, pressure_kpa, kick_current_a, valve_angle_rad):
         d = 1 if direction > 0 else -1
-        p = round(float(pressure_kpa), 3)
-        kick = self.kick if kick_current_a is None else float(kick_current_a)
+        kick = round(self.kick if kick_current_a is None else float(kick_current_a), 6)
         th = 0.5 * self.m.stroke_rad if valve_angle_rad is None else float(valve_angle_rad)
+        if not self.exact:
+            # keyed: continuous, clamped to the grid (the friction law and the flow torque saturate at max Δp)
+            p = min(max(float(pressure_kpa), self.dp_grid[0]), self.dp_grid[-1])
+            return d, p, kick, min(max(th, self.angle_grid[0]), self.angle_grid[-1])
         # the load changes little over 0.01 rad of angle (spring rate + flow slope: < 0.1 % of K per 0.01 rad)
-        return d, p, round(kick, 6), round(th, 2)
+        return d, round(float(pressure_kpa), 3), kick, round(th, 2)
+
+    @staticmethod
+    def _bracket(grid, v):
+        """[(grid point, weight)] of the linear interpolation at ``v`` (one point where ``v`` is on the grid)."""
+        if len(grid) == 1:
+            return [(float(grid[0]), 1.0)]
+        i = int(min(max(np.searchsorted(grid, v, side="right") - 1, 0), len(grid) - 2))
+        w = (v - grid[i]) / (grid[i + 1] - grid[i])
+        # on a grid point to rounding (0.9 x max Δp computed two ways): that point alone, no neighbour to build
+        w = 0.0 if w < 1e-9 else 1.0 if w > 1.0 - 1e-9 else w
+        return [(float(g), ww) for g, ww in ((grid[i], 1.0 - w), (grid[i + 1], w)) if ww > 0.0]
+
+    def _corners(self, p, th):
+        """[(Δp, angle, weight)]: the grid points the keyed mode interpolates between at (``p``, ``th``)."""
+        return [(pk, tk, wp * wt) for pk, wp in self._bracket(self.dp_grid, p)
+                for tk, wt in self._bracket(self.angle_grid, th)]
+
+    def _blend(self, d, p, kick, th) -> dict:
+        """Keyed mode: the table at (``p``, ``th``) blended from its grid neighbours (bilinear weights) on their common
+        normalised grids (excess / (``excess_fraction`` T_s/K), overdrive and aim / the jump): the moves read in jumps
+        and rescaled to ``p``'s jump; the second-break aims, ``last_ok`` and the servo-break aims the smallest of the
+        neighbours' (conservative: NaN where any neighbour breaks a second time).  Cached (LRU) per query key: the
+        stage asks at one Δp and angle for a whole plateau."""
+        key = (d, p, kick, th)
+        hit = self._blends.get(key)
+        if hit is not None:
+            self._blends.move_to_end(key)
+            return hit
+        corners = self._corners(p, th)
+        if len(corners) == 1:
+            tab = self._table(d, corners[0][0], kick, corners[0][1])
+        else:
+            xs, js = self._scales(p)
+            tab = {"moves": 0.0, "rise": 0.0, "second_break_aim": np.inf, "last_ok": np.inf, "servo_break_aim": np.inf}
+            mean = {"second_break_aim": 0.0, "servo_break_aim": 0.0}
+            for pk, tk, w in corners:
+                t = self._table(d, pk, kick, tk)
+                xk, jk = self._scales(pk)
+                r = js / jk
+                tab["excess"], tab["overdrive"], tab["aim"] = t["excess"] * (xs / xk), t["overdrive"] * r, t["aim"] * r
+                tab["moves"] = tab["moves"] + (w * r) * t["moves"]
+                tab["rise"] += w * t["rise"]
+                for name in ("second_break_aim", "servo_break_aim"):
+                    tab[name] = np.minimum(tab[name], t[name] * r)
+                    mean[name] = mean[name] + w * (t[name] * r)
+                tab["last_ok"] = np.minimum(tab["last_ok"], t["last_ok"])
+            if BLEND_THRESHOLDS == "mean":
+                for name in ("second_break_aim", "servo_break_aim"):
+                    tab[name] = np.where(np.isfinite(mean[name]), mean[name], tab[name])
+        self._blends[key] = tab
+        while len(self._blends) > BLEND_CACHE_SIZE:
+            self._blends.popitem(last=False)
+        return tab
+
+    def _scales(self, p):
+        """(excess range, stick-slip jump) at Δp ``p`` (rad): the table's grids' scales (``_table``)."""
+        fl = self.m.friction(p)
+        k = self.m.coupling_stiffness_nm_per_rad
+        return self.excess_fraction * fl.valve_static_nm / k, max(fl.stick_slip_jump_rad(k), 1e-6)
+
+    def _needed(self, pressures_kpa, directions, kicks):
+        """The keys :meth:`prepare` builds (module docstring of :meth:`prepare`)."""
+        if pressures_kpa is None:
+            ps = [float(v) for v in self.dp_grid]
+        else:
+            ps = sorted({pk for v in np.atleast_1d(pressures_kpa)
+                         for pk, _ in self._bracket(self.dp_grid, self._key_parts(1, v, None, None)[1])})
+        ks = self.kicks if kicks is None else tuple(round(float(k), 6) for k in kicks)
+        # highest Δp first, both directions and every angle before the next Δp: a budgeted prepare (``max_s``) has the
+        # operating point (max Δp, the fine stage's tight plateaus) ready first
+        return [(1 if d > 0 else -1, pk, kk, float(tk)) for pk in sorted(ps, reverse=True) for kk in ks
+                for d in directions for tk in self.angle_grid]
+
+    def _rise_at(self, d, p, kick, th) -> float:
+        """The rise at one key (simulated once, cached)."""
+        key = (d, p, kick, th)
+        if key not in self._rises:
+            phi_s = self._levels(d, p, th)[2]
+            # a valve held stuck (static level far beyond reach); the preload at the nominal level
+            apex = self._simulate(d, p, kick, th, preload=np.array([phi_s]), excess=np.array([np.inf]),
+                                  aim=np.array([0.0]), track_apex=True)
+            self._rises[key] = float(max(d * (apex[0] - phi_s), 0.0))
+        return self._rises[key]
+
+    @staticmethod
+    def _raw_move(tab, x, od, aim) -> np.ndarray:
+        """:meth:`move` on one table (arrays of one shape, rad toward the table's direction).  The grids are
+        uniform (excess, aim) and geometric (overdrive): the fractional indices are computed, not searched; the
+        corners are gathered by flat index (the policy's 61 x 40 call: ~0.1 ms)."""
+        xg, og, ag, moves = tab["excess"], tab["overdrive"], tab["aim"], tab["moves"]
+        nx, no, na = moves.shape
+        beyond = ag[-1] + (ag[1] - ag[0])
+        flat = tab.get("_flat")
+        if flat is None:
+            # per-table constants, kept in the table (flat views for the gathers; the second-break aims capped)
+            flat = tab["_flat"] = (moves.ravel(), np.asarray(tab["last_ok"], dtype=float).ravel(),
+                                   np.minimum(np.asarray(tab["second_break_aim"], dtype=float), beyond).ravel())
+        mv, lok, thr = flat
+        # (np.minimum / np.maximum: np.clip costs twice as much here)
+        fx = np.minimum(np.maximum(x * (1.0 / (xg[1] - xg[0])), 0.0), nx - 1)
+        fo = np.minimum(np.log(np.maximum(od, og[0]) * (1.0 / og[0])) * (1.0 / math.log(og[1] / og[0])), no - 1)
+        fa = np.minimum(np.maximum(aim * (1.0 / (ag[1] - ag[0])), 0.0), na - 1)
+        i0 = np.minimum(fx.astype(np.intp), nx - 2)
+        j0 = np.minimum(fo.astype(np.intp), no - 2)
+        ax, ao = fx - i0, fo - j0
+        v = np.zeros(x.shape)
+        t = np.zeros(x.shape)
+        for di, wx in ((0, 1.0 - ax), (1, ax)):
+            for dj, wo in ((0, 1.0 - ao), (1, ao)):
+                cell = (i0 + di) * no + (j0 + dj)
+                w2 = wx * wo
+                # along the aim, linear over this corner's aims short of its second breakaway (flat beyond them)
+                kk = np.minimum(fa, lok[cell])
+                k = np.minimum(kk.astype(np.intp), na - 2)
+                w = kk - k
+                base = cell * na + k
+                v += (mv[base] * (1.0 - w) + mv[base + 1] * w) * w2
+                t += thr[cell] * w2
+        # the observe servo pulls the valve loose a second time (a whole further jump at a level drawn anew on the
+        # real valve): no prediction
+        eps = 1e-12
+        bad = (x < -eps) | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | ~np.isfinite(x) | ~np.isfinite(aim)
+        v[(aim >= t) | bad | (x > xg[-1] * (1 + 1e-6) + eps) | (od > og[-1] * (1 + 1e-6))] = np.nan
+        # an apex below the level: no move -- unless the aim puts the observe servo's rebound into the level
+        # (then the servo breaks the valve loose, unpredicted: NaN)
+        below = od <= 0.0
+        if below.any():
+            ub = np.interp(x, xg, np.minimum(tab["servo_break_aim"], beyond))
+            v[below] = np.where((aim >= ub) | bad, np.nan, 0.0)[below]
+        return v
 
     def _load(self, th, p):
         """``model.load_torque`` (N*m toward closed) over an array of valve angles ``th`` (rad) at Δp ``p``."""
@@ -258,22 +461,46 @@ class PulseMoves:
         xg = np.linspace(0.0, self.excess_fraction * fl.valve_static_nm / k, self.n_excess)
         og = jump * np.geomspace(1e-3, 1.0, self.n_overdrive)
         ag = np.linspace(0.0, self.aim_fraction * jump, self.n_aim)
-        rise = self.rise(d, p, kick, th)
-        X, O, A = np.meshgrid(xg, og, ag, indexing="ij")
+        rise = self._rise_at(d, p, kick, th)
         load0 = m.load_torque(th, p)
-        level = (load0 + d * (fl.valve_coulomb_nm + k * X)) / k          # the static level's twist, rad
-        preload = level + d * (O - rise)
         # ... and per excess x aim one doublet whose apex stays just short of the level (og[0] below it): where
         # the observe servo's rebound from the retreat's trough overshoots into the level, even an apex below
         # it moves the valve
         X2, A2 = np.meshgrid(xg, ag, indexing="ij")
         pre2 = (load0 + d * (fl.valve_coulomb_nm + k * X2)) / k + d * (-og[0] - rise)
-        end = self._simulate(d, p, kick, th, preload=np.concatenate([preload.ravel(), pre2.ravel()]),
-                             excess=np.concatenate([X.ravel(), X2.ravel()]),
-                             aim=np.concatenate([A.ravel(), A2.ravel()]))
+        # the (excess, overdrive) cells at the aims ``ka``: their preloads (the static level's twist + overdrive - rise)
+        cell_pre = lambda ii, jj: (load0 + d * (fl.valve_coulomb_nm + k * xg[ii])) / k + d * (og[jj] - rise)
+        nx, no, na = len(xg), len(og), len(ag)
+        coarse = self.coarse_aims and na >= 5 and na % 2 == 1
+        ka = np.arange(0, na, 2) if coarse else np.arange(na)
+        I, J, KA = np.meshgrid(np.arange(nx), np.arange(no), ka, indexing="ij")
+        # the doublet once per cell (and per excess for the short-of-the-level rows), the observe servo per aim
+        ic, jc = np.meshgrid(np.arange(nx), np.arange(no), indexing="ij")
+        row_pre = (load0 + d * (fl.valve_coulomb_nm + k * xg)) / k + d * (-og[0] - rise)
+        end = self._simulate(d, p, kick, th, preload=np.concatenate([cell_pre(ic, jc).ravel(), row_pre]),
+                             excess=np.concatenate([np.repeat(xg, no), xg]),
+                             aim=np.concatenate([ag[KA].ravel(), A2.ravel()]),
+                             base=np.concatenate([(I * no + J).ravel(), nx * no + np.repeat(np.arange(nx), na)]))
         moved = np.maximum(d * (end - th), 0.0)
-        moves = moved[:X.size].reshape(X.shape)
-        short = moved[X.size:].reshape(X2.shape) > 1e-6           # the unbroken doublet moved the valve
+        moves = np.empty((nx, no, na))
+        moves[:, :, ka] = moved[:I.size].reshape(I.shape)
+        if coarse:
+            # every other aim simulated; between two of them the move is linear in the aim (the dragged regime's
+            # smooth growth; no dependence at all elsewhere) -- except across the second breakaway's step, where the
+            # cell's odd aims are simulated too (one more run), so the step detector below sees the full grid
+            ev = moves[:, :, ka]
+            moves[:, :, 1::2] = 0.5 * (ev[:, :, :-1] + ev[:, :, 1:])
+            need = (np.abs(np.diff(ev, axis=2)) > AIM_STEP_JUMPS * (ag[1] - ag[0])).any(axis=2)
+            if need.any():
+                ci, cj = np.nonzero(need)
+                ko = np.arange(1, na, 2)
+                ii, jj = np.repeat(ci, len(ko)), np.repeat(cj, len(ko))
+                kk = np.tile(ko, len(ci))
+                mo = np.maximum(d * (self._simulate(d, p, kick, th, preload=cell_pre(ci, cj), excess=xg[ci],
+                                                    aim=ag[kk], base=np.repeat(np.arange(len(ci)), len(ko)))
+                                     - th), 0.0)
+                moves[ii, jj, kk] = mo
+        short = moved[I.size:].reshape(X2.shape) > 1e-6           # the unbroken doublet moved the valve
         first2 = np.argmax(short, axis=1)
         # the aim from which the servo breaks an unbroken valve loose (between the last still and first moved aim)
         unbroken_thr = np.where(short.any(axis=1), np.where(first2 > 0, 0.5 * (ag[np.maximum(first2 - 1, 0)]
@@ -294,9 +521,9 @@ class PulseMoves:
             parts = 2 ** THRESHOLD_BISECTIONS
             frac = np.arange(1, parts) / parts
             mids = lo_a[:, None] + (hi_a - lo_a)[:, None] * frac[None, :]
-            xs = np.repeat(xg[ci], parts - 1)
-            pre = ((load0 + d * (fl.valve_coulomb_nm + k * xg[ci])) / k + d * (og[cj] - rise)).repeat(parts - 1)
-            mm = np.maximum(d * (self._simulate(d, p, kick, th, preload=pre, excess=xs, aim=mids.ravel()) - th), 0.0)
+            pre = (load0 + d * (fl.valve_coulomb_nm + k * xg[ci])) / k + d * (og[cj] - rise)
+            mm = np.maximum(d * (self._simulate(d, p, kick, th, preload=pre, excess=xg[ci], aim=mids.ravel(),
+                                                base=np.repeat(np.arange(len(ci)), parts - 1)) - th), 0.0)
             mm = mm.reshape(mids.shape)
             dragged = np.abs(mm - lo_m[:, None]) > np.abs(mm - hi_m[:, None])
             # the first dragged of the sub-aims (parts: none -- the upper tabulated aim), the threshold half a step below
@@ -308,14 +535,18 @@ class PulseMoves:
                "servo_break_aim": unbroken_thr, "build_s": time.process_time() - t0}
         self.builds += 1
         self._tables[key] = tab
-        while len(self._tables) > CACHE_SIZE:
+        while self.exact and len(self._tables) > CACHE_SIZE:
             self._tables.popitem(last=False)
         return tab
 
-    def _simulate(self, d, p, kick, th0, *, preload, excess, aim, track_apex=False, apex_torque=True):
+    def _simulate(self, d, p, kick, th0, *, preload, excess, aim, track_apex=False, apex_torque=True, base=None):
         """Run the doublet on every lane at once from rest at valve angle ``th0`` with the twist at ``preload``
         (absolute, rad), the valve's static level ``T_c + K excess``; returns the valve angle at the end
-        (or, with ``track_apex``, the largest twist toward ``d`` reached, absolute rad)."""
+        (or, with ``track_apex``, the largest twist toward ``d`` reached, absolute rad).  ``base`` (int array,
+        optional): ``preload`` and ``excess`` are per *base* lane and ``aim`` per final lane, lane i starting from
+        base lane ``base[i]``: the doublet itself (kick and retreat) does not depend on the aim, so it is run once
+        per base lane and the state copied out to the final lanes for the observe servo (the same answers)."""
+        self.runs += 1
         m = self.m
         n_gear, k, c = m.gear_ratio, m.coupling_stiffness_nm_per_rad, m.coupling_damping_nms
         j1, jl, b1, bl = m.j1, m.valve_inertia_kgm2, m.b1, m.valve_viscous_nms
@@ -351,7 +582,8 @@ class PulseMoves:
             m.flow_torque_max_nm * m.pressure_fraction(p) * math.pi / m.stroke_rad * math.cos(math.pi * frac0)
             if 0.0 < frac0 < 1.0 else 0.0)
         phi_e = (load0 + d * tc) / k
-        ref1 = thl + phi_e + d * aim / 2.0                                 # the observe servo's gear-output target
+        # the observe servo's gear-output target (per final lane)
+        ref1 = (thl + phi_e if base is None else float(th0) + phi_e) + d * aim / 2.0
         integral = np.zeros(n)
         th1_prev = th1.copy()
         apex = d * preload.copy()
@@ -363,6 +595,11 @@ class PulseMoves:
         c_emf, c_vd = psi * pole * n_gear, lq * pole * n_gear
         n_pulse = 2 + self.retreat_full
         for period in range(n_pulse + self.observe_periods):
+            if base is not None and period == n_pulse:
+                # the doublet done on the base lanes: one lane per aim from here
+                thl, wl, th1, w1, iq, xq, th1_prev, ts = (v[base] for v in (thl, wl, th1, w1, iq, xq, th1_prev, ts))
+                n = len(base)
+                integral = np.zeros(n)
             if period == 0:
                 torque = hold + d * kick * kt
             elif period <= self.retreat_full:
@@ -394,7 +631,7 @@ class PulseMoves:
                         vd = c_vd * (w1 * iq)                               # |d-axis EMF| ωe Lq iq (id = 0)
                         vq_max = np.sqrt(np.maximum(vlim2 - vd * vd, 0.0))
                         sat = np.abs(vq) > vq_max
-                        np.clip(vq, -vq_max, vq_max, out=vq)
+                        np.minimum(np.maximum(vq, -vq_max, out=vq), vq_max, out=vq)   # np.clip, at half the cost
                         xq = xq + np.where(sat, 0.0, kic * dt) * err        # conditional integration
                     else:
                         xq = xq + (kic * dt) * err
