@@ -744,8 +744,13 @@ def run_stop(job: tuple) -> dict:
                 elif seen.get("peak") is not None:
                     # the apex the resolvers showed, in the law's coordinate (above the Coulomb twist toward d); with
                     # floor 'park': the twist they showed at the park's end plus the member's calibrated rise
-                    top = seen["peak"] if realism.get("floor", "peak") == "peak" else seen["park"] + d * rise
+                    # (plan: the higher of the measured peak and the apex planned -- the sampled peak misses the kick's
+                    # apex between two samples, and the same apex was tried again and again)
+                    how = realism.get("floor", "peak")
+                    top = seen["peak"] if how in ("peak", "plan") else seen["park"] + d * rise
                     x_seen = d * (top - (load_torque(th_m) + d * tcr) / K)
+                    if how == "plan":
+                        x_seen = max(x_seen, xa)
                     floor_x = x_seen if floor_x is None else max(floor_x, x_seen)
                 log.append({"e": e, "member": member, "apex_excess": xa, "apex_error": err - offset,
                             "floor": floor_x, "move": pl.valve_angle - before, "move_seen": seen_move})
@@ -846,10 +851,10 @@ def main(argv=None) -> int:
                     f"realisation error, a seeded zero-mean normal of this rms (default {APEX_RMS_RAD:g})")
     ap.add_argument("--json", metavar="PATH", help="also write the JSON with every stop here")
     ap.add_argument("--markdown", metavar="PATH", help="also write the tables here")
-    ap.add_argument("--floor", choices=("peak", "park"), default="peak", help="with --realism, the apex an unmoved "
+    ap.add_argument("--floor", choices=("peak", "park", "plan"), default="peak", help="with --realism, the apex an unmoved "
                     "try truncates the level's law at: peak = the highest twist the resolvers showed (once a period: "
                     "the kick's apex falls between samples), park = the twist they showed at the park's end + the "
-                    "member's calibrated rise (default peak)")
+                    "member's calibrated rise, plan = the higher of peak and the apex the policy planned (default peak)")
     a = ap.parse_args(argv)
     if a.miss_value and a.family != "full":
         ap.error("--miss-value needs --family full (its continuation chooses the lead)")
