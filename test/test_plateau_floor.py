@@ -103,3 +103,22 @@ def test_main_family_is_mains_doublet_and_the_lead_rule_interpolates(pf):
     # beyond the grid: its end
     _, mem, _ = t.at_lead(1, moves, 1.0)
     assert mem[0][3] == pf.LEAD_GRID[-1]
+
+
+def test_realism_reads_the_twist_through_the_resolvers_within_a_few_counts(pf):
+    # --realism's readings: the twist as the motor resolver / N minus the valve resolver shows it (quantised to the
+    # valve's count, noisy, once a period): within a couple of counts of the truth at rest; the peak read during a
+    # pulse that does not move the valve lies above the park's end but not above the apex planned (the kick's
+    # apex falls between two samples -- what the policy must not climb from, docs §82.3)
+    d, x = 1, 2.3e-3
+    pl = pf.bare_plant(0.5, x)
+    level = (pf.load_torque(0.5) + d * (pf.TC + pf.K * x)) / pf.K
+    dr = pf.Driver(pl)
+    dr.sense = d
+    dr.park(level - 1e-3, pf.PARK_PERIODS)
+    assert abs(dr.last - dr.twist()) < 2 * pf.LSB_RAD
+    rise = pf.calibrate_rise(d, MAIN_DOUBLET)
+    seen: dict = {}
+    move, _ = pf.try_pulse(pl, d, level - 3e-4, rise, MAIN_DOUBLET, pf.TC, seen=seen)
+    assert move == 0.0
+    assert seen["park"] < seen["peak"] < level - 3e-4 + 2 * pf.LSB_RAD
