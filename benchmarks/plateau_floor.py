@@ -49,8 +49,16 @@ Idealisations (all in the policy's favour, so the numbers are floors for this fa
 Δp or inertia error.  Not idealised: the 1 kHz command period, the 30 A cap, the drive's current
 loop, the plant's dynamics and its friction draws.
 
+Ablations (task h33a, docs §82; the default output is unchanged without them): ``--family`` restricts the policies
+to main's doublet (kick, the whole current backwards on the hold, then half of it: a member's fifth element) or a
+few shapes near it, with main's final twist phi_e + e/2 (:data:`FAMILIES`); ``--realism`` gives the distribution-
+aware policies the resolvers' readings, an apex placed in measured coordinates with a seeded park error
+(``--apex-rms``) and the truncation at the measured apex (``--floor``).
+
     python benchmarks/plateau_floor.py [--jobs 2] [--runs 40] [--seed 1000] [--engage PATH.json]
                                        [--stop-tol 4e-4] [--policies oracle,bayes,bayes_box] [--miss-value]
+                                       [--family full|main|kicks|kicks2|strong|deep]
+                                       [--realism [--apex-rms 6e-5] [--floor peak|park|plan]]
                                        [--json PATH] [--markdown PATH]
 
 Last stdout line: one JSON object.
