@@ -57,7 +57,7 @@ aware policies the resolvers' readings, an apex placed in measured coordinates w
 
     python benchmarks/plateau_floor.py [--jobs 2] [--runs 40] [--seed 1000] [--engage PATH.json]
                                        [--stop-tol 4e-4] [--policies oracle,bayes,bayes_box] [--miss-value]
-                                       [--family full|main|kicks|kicks2|strong|deep]
+                                       [--family full|main|kicks|kicks2|strong|deep|deep4]
                                        [--realism [--apex-rms 6e-5] [--floor peak|park|plan]]
                                        [--json PATH] [--markdown PATH]
 
@@ -127,8 +127,8 @@ WANTED = (4e-4, 6e-4, 8e-4, 1e-3, 1.5e-3, 2e-3, 3e-3)
 #: end at most): ``main`` with main's kick ``fine.kick_current_a`` (4 A); ``kicks`` with a kick of 4, 8 or 16 A;
 #: ``strong``: a 16 A kick, two periods at the cap (R = 36), no half period, the same final twist; ``deep``: that
 #: retreat with a kick of 4, 8 or 16 A; ``kicks2``: ``kicks`` with two whole periods before the half one (main with
-#: ``fine.retreat_full_periods`` 2)
-FAMILIES = ("full", "main", "kicks", "kicks2", "strong", "deep")
+#: ``fine.retreat_full_periods`` 2); ``deep4``: the ``deep`` retreat with main's kick only
+FAMILIES = ("full", "main", "kicks", "kicks2", "strong", "deep", "deep4")
 MAIN_KICK_A = CS["fine.kick_current_a"]                # A
 MAIN_RETREAT_A = CS["fine.peak_current_a"]             # A below the hold
 MAIN_FULL_PERIODS = CS["fine.retreat_full_periods"]
@@ -366,7 +366,8 @@ def members(family: str = "full") -> list[tuple]:
               "kicks": [(k, MAIN_RETREAT_A, MAIN_FULL_PERIODS, MAIN_HALF) for k in (4.0, 8.0, 16.0)],
               "kicks2": [(k, MAIN_RETREAT_A, 2, MAIN_HALF) for k in (4.0, 8.0, 16.0)],
               "strong": [(16.0, 36.0, 2, 0.0)],
-              "deep": [(k, 36.0, 2, 0.0) for k in (4.0, 8.0, 16.0)]}[family]
+              "deep": [(k, 36.0, 2, 0.0) for k in (4.0, 8.0, 16.0)],
+              "deep4": [(MAIN_KICK_A, 36.0, 2, 0.0)]}[family]
     return [(k, r, n, g, h) for (k, r, n, h) in shapes for g in LEAD_GRID]
 
 
@@ -851,7 +852,8 @@ def main(argv=None) -> int:
     ap.add_argument("--family", choices=FAMILIES, default="full", help="the pulses the policies choose from (default "
                     "full: the 128-member grid; main: main's doublet only, 4 A kick, whole / half retreat, final twist "
                     "phi_e + e/2; kicks: the same with a 4, 8 or 16 A kick; strong: 16 A kick, two periods at the cap; "
-                    "deep: that retreat with a 4, 8 or 16 A kick; kicks2: kicks with two whole retreat periods)")
+                    "deep: that retreat with a 4, 8 or 16 A kick; kicks2: kicks with two whole retreat periods; deep4: deep with "
+                    "main's kick only)")
     ap.add_argument("--realism", action="store_true", help="the distribution-aware policies read the valve and the "
                     "twist through the resolvers, their apex lands off the plan (--apex-rms), and an unmoved try "
                     "truncates the level's law at the measured apex (default: true states)")
