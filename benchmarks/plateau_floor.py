@@ -49,8 +49,16 @@ Idealisations (all in the policy's favour, so the numbers are floors for this fa
 Δp or inertia error.  Not idealised: the 1 kHz command period, the 30 A cap, the drive's current
 loop, the plant's dynamics and its friction draws.
 
+Ablations (task h33a, docs §82; the default output is unchanged without them): ``--family`` restricts the policies
+to main's doublet (kick, the whole current backwards on the hold, then half of it: a member's fifth element) or a
+few shapes near it, with main's final twist phi_e + e/2 (:data:`FAMILIES`); ``--realism`` gives the distribution-
+aware policies the resolvers' readings, an apex placed in measured coordinates with a seeded park error
+(``--apex-rms``) and the truncation at the measured apex (``--floor``).
+
     python benchmarks/plateau_floor.py [--jobs 2] [--runs 40] [--seed 1000] [--engage PATH.json]
                                        [--stop-tol 4e-4] [--policies oracle,bayes,bayes_box] [--miss-value]
+                                       [--family full|main|kicks|kicks2|strong|deep|deep4]
+                                       [--realism [--apex-rms 6e-5] [--floor peak|park|plan]]
                                        [--json PATH] [--markdown PATH]
 
 Last stdout line: one JSON object.
@@ -111,6 +119,30 @@ OVERDRIVE_GRID = (1e-5, 5e-5, 1e-4, 2e-4, 4e-4, 8e-4, 1.6e-3, 3.2e-3, 6.4e-3)
 CLAMP_TABLE = False
 WANTED = (4e-4, 6e-4, 8e-4, 1e-3, 1.5e-3, 2e-3, 3e-3)
 
+#: ``--family`` (task h33a, docs §82): which pulses the policy may choose.  ``full``: :data:`FAMILY` (default).
+#: The others are main's doublet (:meth:`FinePositioner._doublet_torque`): one period of kick on the hold, then
+#: ``fine.retreat_full_periods`` periods of the whole current ``fine.peak_current_a`` backwards on the hold (hold -
+#: 30 A: main's "whole current", not the cap -30 A the full family's R = 36 gives), then one period of half of it, then
+#: the servo to main's final twist phi_e + e/2 (the lead is half the error the try starts from, :data:`LEAD_GRID`'s
+#: end at most): ``main`` with main's kick ``fine.kick_current_a`` (4 A); ``kicks`` with a kick of 4, 8 or 16 A;
+#: ``strong``: a 16 A kick, two periods at the cap (R = 36), no half period, the same final twist; ``deep``: that
+#: retreat with a kick of 4, 8 or 16 A; ``kicks2``: ``kicks`` with two whole periods before the half one (main with
+#: ``fine.retreat_full_periods`` 2); ``deep4``: the ``deep`` retreat with main's kick only
+FAMILIES = ("full", "main", "kicks", "kicks2", "strong", "deep", "deep4")
+MAIN_KICK_A = CS["fine.kick_current_a"]                # A
+MAIN_RETREAT_A = CS["fine.peak_current_a"]             # A below the hold
+MAIN_FULL_PERIODS = CS["fine.retreat_full_periods"]
+MAIN_HALF = 0.5                                        # the last retreat period's fraction of the whole current
+#: leads (rad) tabulated for the families that set the lead by main's rule (e/2): interpolated between them
+LEAD_GRID = (0.0, 2.5e-4, 5e-4, 7.5e-4, 1e-3, 1.5e-3, 2e-3, 3e-3, 5e-3)
+#: ``--realism``: the valve resolver's count (rad), and main's "moved" test (fine_positioning's OBSERVE: the valve
+#: at least half of ``fine.tolerance_counts`` counts from the pulse's start)
+LSB_RAD = 2.0 * math.pi / (1 << int(PS["resolver.bits"]))
+MOVED_RAD = 0.5 * CS["fine.tolerance_counts"] * LSB_RAD
+#: ``--apex-rms`` default: the servo's park ends off the plan by ~0.3-0.9e-4 rad (median, §55 / §61.3: main
+#: 0.87e-4, the planned re-park 0.33e-4); a zero-mean normal of the middle, 0.6e-4 rad rms
+APEX_RMS_RAD = 6e-5
+
 
 def load_torque(theta: float, ps=PS) -> float:
     """Spring + flow + steady load on the valve at ``theta`` (N*m, toward closed), max Δp."""
@@ -128,6 +160,10 @@ class Driver:
         w = 2.0 * math.pi * SERVO_HZ
         self.kp, self.kd = J1 * w * w, 2.0 * 0.8 * w * J1
         self.periods = 0
+        #: ``--realism``: the direction whose measured twist peak is tracked (None: not sensed)
+        self.sense: int | None = None
+        self.peak: float | None = None     # rad, the measured twist furthest toward ``sense`` (once a period)
+        self.last: float | None = None     # rad, the last measured twist
 
     def twist(self) -> float:
         t = self.pl.truth()
@@ -137,6 +173,15 @@ class Driver:
         self.pl.set_command(min(max(iq, -CAP_A), CAP_A), True)
         self.pl.advance(PERIOD)
         self.periods += 1
+        if self.sense is not None:
+            # the twist as the controller reads it once a period: the motor resolver / N minus the valve resolver
+            # (both quantised, with their noise and delay)
+            r = self.pl.resolver()
+            if r is not None:
+                phi = r.motor_rad / N - r.valve_rad
+                self.last = phi
+                if self.peak is None or self.sense * phi > self.sense * self.peak:
+                    self.peak = phi
 
     def servo_current(self, th1_ref: float, ff_nm: float) -> float:
         """Current holding the gear output at ``th1_ref`` (rad) with ``ff_nm`` of coupling torque fed forward."""
@@ -155,14 +200,17 @@ class Driver:
             self.run(self.servo_current(thl + phi, K * phi))
 
     def pulse(self, d: int, kick_a: float, retreat_a: float, retreat_periods: int, final_th1: float,
-              final_ff: float) -> None:
-        """The kick, the retreat, then the servo at ``final_th1`` until the valve has rested
+              final_ff: float, half: float = 0.0) -> None:
+        """The kick, the retreat (``retreat_periods`` of ``retreat_a``, then with ``half`` > 0 one period of
+        ``half`` x ``retreat_a``: main's doublet), then the servo at ``final_th1`` until the valve has rested
         ``SETTLE_PERIODS`` (at most 4 x that)."""
         t = self.pl.truth()
         hold = K * (t.motor_angle / N - t.valve_angle) / (N * KT)
         self.run(hold + d * kick_a)
         for _ in range(retreat_periods):
             self.run(hold - d * retreat_a)
+        if half > 0.0:
+            self.run(hold - d * half * retreat_a)
         rest = 0
         for _ in range(4 * SETTLE_PERIODS):
             self.run(self.servo_current(final_th1, final_ff))
@@ -181,19 +229,29 @@ def bare_plant(theta: float, excess_rad: float) -> Plant:
 
 
 def try_pulse(pl: Plant, d: int, apex: float, rise: float, member: tuple, coulomb_nm: float,
-              park_periods: int = PARK_PERIODS, table: bool = True) -> tuple[float, int]:
+              park_periods: int = PARK_PERIODS, table: bool = True, seen: dict | None = None) -> tuple[float, int]:
     """One try on ``pl`` (at rest): park at ``apex - rise`` (absolute twist, rad), pulse ``member``
-    = (kick_a, retreat_a, retreat_periods, lead_rad).  Returns (valve move rad, periods spent); with
-    ``table`` the move is NaN when the park itself broke the valve loose (no pulse of this member)."""
-    kick, retreat, nr, lead = member
+    = (kick_a, retreat_a, retreat_periods, lead_rad[, half]) (``half``: one more retreat period at that
+    fraction of ``retreat_a``, main's doublet).  Returns (valve move rad, periods spent); with ``table`` the
+    move is NaN when the park itself broke the valve loose (no pulse of this member).  With ``seen`` (a dict)
+    the twist is also read through the resolvers once a period: ``seen['peak']`` = the measured twist
+    furthest toward ``d`` during the try (rad, absolute)."""
+    kick, retreat, nr, lead = member[:4]
+    half = member[4] if len(member) > 4 else 0.0
     dr = Driver(pl)
+    if seen is not None:
+        dr.sense = d
     thl0 = pl.valve_angle
     load = load_torque(thl0, pl.params)
     dr.park(apex - d * rise, park_periods)
     moved_early = pl.valve_angle - thl0
+    if seen is not None:
+        seen["park"] = dr.last                          # the measured twist at the park's end (at rest, quasi-static)
     final_th1 = thl0 + (load + d * coulomb_nm) / K + d * lead
-    dr.pulse(d, kick, retreat, nr, final_th1, load + d * coulomb_nm)
+    dr.pulse(d, kick, retreat, nr, final_th1, load + d * coulomb_nm, half)
     move = pl.valve_angle - thl0
+    if seen is not None:
+        seen["peak"] = dr.peak
     return (math.nan if table and abs(moved_early) > 1e-9 else move), dr.periods
 
 
@@ -206,15 +264,18 @@ def calibrate_rise(d: int, member: tuple, theta: float = 0.5) -> float:
     dr = Driver(pl)
     park = (load + d * TS) / K
     dr.park(park, PARK_PERIODS)
-    kick, retreat, nr, lead = member
+    kick, retreat, nr, lead = member[:4]
+    half = member[4] if len(member) > 4 else 0.0
+    nh = 1 if half > 0.0 else 0
     t = pl.truth()
     thl0 = t.valve_angle
     hold = K * (t.motor_angle / N - t.valve_angle) / (N * KT)
     final_th1, final_ff = thl0 + (load + d * TC) / K + d * lead, load + d * TC
     apex = d * dr.twist()
     steps = pl.steps_for(PERIOD)
-    for k in range(1 + nr + SETTLE_PERIODS):
-        iq = hold + d * kick if k == 0 else hold - d * retreat if k <= nr else dr.servo_current(final_th1, final_ff)
+    for k in range(1 + nr + nh + SETTLE_PERIODS):
+        iq = (hold + d * kick if k == 0 else hold - d * retreat if k <= nr else hold - d * half * retreat if k <= nr + nh
+              else dr.servo_current(final_th1, final_ff))
         pl.set_command(min(max(iq, -CAP_A), CAP_A), True)
         for _ in range(steps):
             pl.step(1)
@@ -296,9 +357,18 @@ def engage_sample(seeds, jobs: int) -> list[dict]:
 
 
 # ------------------------------------------------------------------------------------------ the pulse table
-def members() -> list[tuple]:
-    """Every member (kick_a, retreat_a, retreat_periods, lead_rad) of :data:`FAMILY`."""
-    return list(itertools.product(FAMILY["kick_a"], FAMILY["retreat_a"], FAMILY["retreat_periods"], FAMILY["lead_rad"]))
+def members(family: str = "full") -> list[tuple]:
+    """Every member (kick_a, retreat_a, retreat_periods, lead_rad) of :data:`FAMILY` (``family`` 'full'), or of
+    one of the other :data:`FAMILIES` (kick_a, retreat_a, retreat_periods, lead_rad, half) over :data:`LEAD_GRID`."""
+    if family == "full":
+        return list(itertools.product(FAMILY["kick_a"], FAMILY["retreat_a"], FAMILY["retreat_periods"], FAMILY["lead_rad"]))
+    shapes = {"main": [(MAIN_KICK_A, MAIN_RETREAT_A, MAIN_FULL_PERIODS, MAIN_HALF)],
+              "kicks": [(k, MAIN_RETREAT_A, MAIN_FULL_PERIODS, MAIN_HALF) for k in (4.0, 8.0, 16.0)],
+              "kicks2": [(k, MAIN_RETREAT_A, 2, MAIN_HALF) for k in (4.0, 8.0, 16.0)],
+              "strong": [(16.0, 36.0, 2, 0.0)],
+              "deep": [(k, 36.0, 2, 0.0) for k in (4.0, 8.0, 16.0)],
+              "deep4": [(MAIN_KICK_A, 36.0, 2, 0.0)]}[family]
+    return [(k, r, n, g, h) for (k, r, n, h) in shapes for g in LEAD_GRID]
 
 
 def _table_row(job: tuple) -> tuple:
@@ -319,10 +389,31 @@ class Table:
     """Valve move (rad, toward the pulse) for direction x member x excess x overdrive, and the kick's rise.
     (A plain class, not a dataclass: the tests load this script as a module without registering it.)"""
 
-    def __init__(self, members: list, rise: dict, moves: dict):
-        self.members = members        # (kick_a, retreat_a, retreat_periods, lead_rad)
+    def __init__(self, members: list, rise: dict, moves: dict, lead_rule: bool = False):
+        self.members = members        # (kick_a, retreat_a, retreat_periods, lead_rad[, half])
         self.rise = rise              # (d, member index) -> rad
         self.moves = moves            # d -> array [member, excess, overdrive], rad
+        #: the lead is not chosen but main's rule, half the error (the members tabulate it over :data:`LEAD_GRID`)
+        self.lead_rule = lead_rule
+
+    def at_lead(self, d: int, moves: np.ndarray, lead: float) -> tuple[np.ndarray, list, list]:
+        """``moves`` [member, ...] (of :meth:`move_all`) and the rises interpolated in the lead to ``lead`` (rad)
+        per pulse shape (the members alike but for the lead): (moves [shape, ...], members, rises)."""
+        groups: dict = {}
+        for i, m in enumerate(self.members):
+            groups.setdefault(m[:3] + m[4:], []).append((m[3], i))
+        out, mem, rise = [], [], []
+        for key, pts in groups.items():
+            pts.sort()
+            gs = np.array([g for g, _ in pts])
+            lead = min(max(lead, gs[0]), gs[-1])
+            j = min(int(np.searchsorted(gs, lead, side="right")) - 1, len(gs) - 2) if len(gs) > 1 else 0
+            i0, i1 = pts[j][1], pts[min(j + 1, len(pts) - 1)][1]
+            t = 0.0 if i0 == i1 else (lead - gs[j]) / (gs[j + 1] - gs[j])
+            out.append((1.0 - t) * moves[i0] + t * moves[i1])
+            mem.append(key[:3] + (float(lead),) + key[3:])
+            rise.append((1.0 - t) * self.rise[(d, i0)] + t * self.rise[(d, i1)])
+        return np.asarray(out), mem, rise
 
     def move(self, d: int, m: int, excess, overdrive):
         """Interpolated move(s) of member ``m``; 0 where the overdrive is <= 0 (the apex stays below the level)."""
@@ -346,9 +437,9 @@ class Table:
         return np.where(od > 0.0, v, 0.0)
 
 
-def pulse_table(jobs: int) -> Table:
+def pulse_table(jobs: int, family: str = "full") -> Table:
     """Tabulate every member's move on the bare plant (both directions) in a pool of ``jobs``."""
-    ms = members()
+    ms = members(family)
     work = [(d, m) for d in (1, -1) for m in ms]
     if jobs > 1:
         with Pool(jobs) as pool:
@@ -362,7 +453,7 @@ def pulse_table(jobs: int) -> Table:
         i = ms.index(member)
         moves[d][i] = mv
         rise[(d, i)] = r
-    return Table(ms, rise, moves)
+    return Table(ms, rise, moves, lead_rule=family != "full")
 
 
 # ------------------------------------------------------------------------------------------ the plateau bounds
@@ -432,7 +523,8 @@ def law_samples(row: dict, theta: float) -> tuple[np.ndarray, np.ndarray, np.nda
 def _est_periods(pl: Plant, d: int, apex: float, rise: float, member: tuple) -> int:
     t = pl.truth()
     phi = t.motor_angle / N - t.valve_angle
-    return PARK_PERIODS + 3 + int(math.ceil(abs(apex - d * rise - phi) / PARK_RATE_RAD)) + 1 + member[2] + SETTLE_PERIODS
+    half = 1 if len(member) > 4 and member[4] > 0.0 else 0
+    return PARK_PERIODS + 3 + int(math.ceil(abs(apex - d * rise - phi) / PARK_RATE_RAD)) + 1 + member[2] + half + SETTLE_PERIODS
 
 
 def _apex(pl: Plant, row: dict, d: int, x: float, known_r: bool = False) -> tuple[float, float]:
@@ -540,13 +632,17 @@ def choose_bayes(pl: Plant, row: dict, table: Table, e: float, floor_x: float | 
     The later terms count only when the budget leaves time for another try (a reversal's park included)."""
     d = 1 if e > 0 else -1
     _, x, w0, xa, moves = _fresh_moves(row, table, d, pl.valve_angle)   # x: the apex coordinate x_p
+    mems, rises = table.members, [table.rise[(d, m)] for m in range(len(table.members))]
+    if table.lead_rule:
+        # main's final twist phi_e + e/2: the lead is the error's half, not a choice
+        moves, mems, rises = table.at_lead(d, moves, abs(e) / 2.0)
     w = w0
     if floor_x is not None:
         w = np.where(x >= floor_x, w, 0.0)
         if w.sum() <= 0.0:
             w = np.where(x == x.max(), 1.0, 0.0)
         w = w / w.sum()
-    nm = len(table.members)
+    nm = len(mems)
     moved = (xa[None, :] > x[:, None]).T[None, :, :]  # [1, a, k]
     fin = np.isfinite(moves)
     mv = np.nan_to_num(moves, nan=1.0)
@@ -568,7 +664,7 @@ def choose_bayes(pl: Plant, row: dict, table: Table, e: float, floor_x: float | 
         p_miss_value = (np.where(moved & fin & ~hit, vmiss, 0.0) * w).sum(axis=2)
     best = None
     for m in range(nm):
-        member, rise = table.members[m], table.rise[(d, m)]
+        member, rise = mems[m], rises[m]
         rank = p_hit[m] + p_none * v1 + p_miss_value[m]
         if floor_x is not None:
             rank = np.where(xa > floor_x, rank, -np.inf)   # apexes at or below the floor: the same no move again
@@ -588,24 +684,41 @@ def choose_bayes(pl: Plant, row: dict, table: Table, e: float, floor_x: float | 
             if cont is None and p_better[m, a] <= 0.5:
                 continue                               # without a value for misses: no try that more likely worsens |e|
             if best is None or score > best[0]:
-                best = (score, m, xa[a])
+                best = (score, m, xa[a], member, rise)
     return best
 
 
 def run_stop(job: tuple) -> dict:
-    """Replay one engage sample under ``policy`` ('oracle', 'bayes' or 'none'); the final |error| and tries."""
-    row, policy, table, stop_tol, miss_value = job
+    """Replay one engage sample under ``policy`` ('oracle', 'bayes' or 'none'); the final |error| and tries.
+    ``job`` = (row, policy, table, stop_tol, miss_value[, realism]); ``realism`` (None: true states) is the
+    distribution-aware policies' measurement model, a dict with ``apex_rms`` (rad): the policy reads the valve
+    through its resolver (quantised, the plant's noise) once the valve rests, judges a try moved only when that
+    reading changed by :data:`MOVED_RAD`, its apex lands off the plan by a seeded zero-mean normal of that rms, and
+    an unmoved try truncates the level's law at the apex it *measured* (the motor resolver / N minus the valve
+    resolver, once a period: the highest since the last move), not at the apex it planned."""
+    row, policy, table, stop_tol, miss_value = job[:5]
+    realism = job[5] if len(job) > 5 else None
     row = {**row, "law": "box" if policy == "bayes_box" else "run"}
     pl = stop_plant(row)
     target = pl.valve_angle + row["error_rad"]
     budget = int(round(row["budget_s"] / PERIOD))
     floor_x, tries, moves, spent, log = None, 0, 0, 0, []
+    real = realism is not None and policy.startswith("bayes")
+    rng = np.random.default_rng([row["seed"], int(round(abs(row["theta_rad"]) * 1e6)), 82]) if real else None
+
+    def read() -> float:
+        if not real:
+            return pl.valve_angle
+        r = pl.resolver()
+        return pl.valve_angle if r is None else r.valve_rad
+
     cont = None
     if policy.startswith("bayes") and miss_value:
         errs = np.linspace(-4e-3, 4e-3, 81)
         cont = (errs, continuation(row, table, pl.valve_angle, stop_tol, errs))
     while policy != "none":
-        e = target - pl.valve_angle
+        th_m = read()
+        e = target - th_m
         if abs(e) <= stop_tol:
             break
         d = 1 if e > 0 else -1
@@ -621,13 +734,40 @@ def run_stop(job: tuple) -> dict:
             got = choose_bayes(pl, row, table, e, floor_x, budget - spent, stop_tol, cont)
             if got is None:
                 break
-            _, m, xa = got
+            _, m, xa, member, rise = got
             apex, tcr = _apex(pl, row, d, xa)
             before = pl.valve_angle
-            _, per = try_pulse(pl, d, apex, table.rise[(d, m)], table.members[m], tcr, table=False)
+            if real:
+                seen: dict = {}
+                # the apex is placed in the policy's coordinates, the twist as the resolvers show it: the truth
+                # differs by the reading's offset at this stop (the valve count's quantisation, both noises) and
+                # the servo's park error
+                r = pl.resolver()
+                offset = 0.0 if r is None else (r.motor_rad / N - r.valve_rad) - (pl.truth().motor_angle / N - before)
+                err = float(rng.normal(0.0, realism["apex_rms"]))
+                _, per = try_pulse(pl, d, apex - offset + err, rise, member, tcr, table=False, seen=seen)
+                seen_move = read() - th_m
+                moved_seen = abs(seen_move) >= MOVED_RAD
+                if moved_seen:
+                    floor_x = None
+                elif seen.get("peak") is not None:
+                    # the apex the resolvers showed, in the law's coordinate (above the Coulomb twist toward d); with
+                    # floor 'park': the twist they showed at the park's end plus the member's calibrated rise
+                    # (plan: the higher of the measured peak and the apex planned -- the sampled peak misses the kick's
+                    # apex between two samples, and the same apex was tried again and again)
+                    how = realism.get("floor", "peak")
+                    top = seen["peak"] if how in ("peak", "plan") else seen["park"] + d * rise
+                    x_seen = d * (top - (load_torque(th_m) + d * tcr) / K)
+                    if how == "plan":
+                        x_seen = max(x_seen, xa)
+                    floor_x = x_seen if floor_x is None else max(floor_x, x_seen)
+                log.append({"e": e, "member": member, "apex_excess": xa, "apex_error": err - offset,
+                            "floor": floor_x, "move": pl.valve_angle - before, "move_seen": seen_move})
+            else:
+                _, per = try_pulse(pl, d, apex, rise, member, tcr, table=False)
+                floor_x = None if abs(pl.valve_angle - before) > 1e-7 else xa
+                log.append({"e": e, "member": member, "apex_excess": xa, "move": pl.valve_angle - before})
             moved = abs(pl.valve_angle - before) > 1e-7
-            floor_x = None if moved else xa
-            log.append({"e": e, "member": table.members[m], "apex_excess": xa, "move": pl.valve_angle - before})
         tries += 1
         moves += moved
         spent += per
@@ -694,8 +834,8 @@ def _init(table: Table) -> None:
 
 
 def _run_stop_global(job: tuple) -> dict:
-    row, policy, stop_tol, miss_value = job
-    return run_stop((row, policy, _TABLE, stop_tol, miss_value))
+    row, policy, stop_tol, miss_value = job[:4]
+    return run_stop((row, policy, _TABLE, stop_tol, miss_value) + tuple(job[4:]))
 
 
 def main(argv=None) -> int:
@@ -709,9 +849,27 @@ def main(argv=None) -> int:
                     "chance from where it leaves the valve (measured worse: the table's bare-plant moves are optimistic "
                     "for the large moves it then gambles on); default: only landings and no-moves count")
     ap.add_argument("--policies", default=",".join(POLICIES), help=f"comma list of {', '.join(POLICIES)} (default all)")
+    ap.add_argument("--family", choices=FAMILIES, default="full", help="the pulses the policies choose from (default "
+                    "full: the 128-member grid; main: main's doublet only, 4 A kick, whole / half retreat, final twist "
+                    "phi_e + e/2; kicks: the same with a 4, 8 or 16 A kick; strong: 16 A kick, two periods at the cap; "
+                    "deep: that retreat with a 4, 8 or 16 A kick; kicks2: kicks with two whole retreat periods; deep4: deep with "
+                    "main's kick only)")
+    ap.add_argument("--realism", action="store_true", help="the distribution-aware policies read the valve and the "
+                    "twist through the resolvers, their apex lands off the plan (--apex-rms), and an unmoved try "
+                    "truncates the level's law at the measured apex (default: true states)")
+    ap.add_argument("--apex-rms", type=float, default=APEX_RMS_RAD, help=f"rad: with --realism, the apex's "
+                    f"realisation error, a seeded zero-mean normal of this rms (default {APEX_RMS_RAD:g})")
     ap.add_argument("--json", metavar="PATH", help="also write the JSON with every stop here")
     ap.add_argument("--markdown", metavar="PATH", help="also write the tables here")
+    ap.add_argument("--floor", choices=("peak", "park", "plan"), default="peak", help="with --realism, the apex an unmoved "
+                    "try truncates the level's law at: peak = the highest twist the resolvers showed (once a period: "
+                    "the kick's apex falls between samples), park = the twist they showed at the park's end + the "
+                    "member's calibrated rise, plan = the higher of peak and the apex the policy planned (default peak)")
     a = ap.parse_args(argv)
+    if a.miss_value and a.family != "full":
+        ap.error("--miss-value needs --family full (its continuation chooses the lead)")
+    extra = a.family != "full" or a.realism           # the default invocation's output stays as it was
+    realism = {"apex_rms": a.apex_rms, "floor": a.floor} if a.realism else None
     t0 = time.perf_counter()
     if a.engage and Path(a.engage).exists():
         rows = json.loads(Path(a.engage).read_text())
@@ -720,10 +878,10 @@ def main(argv=None) -> int:
         if a.engage:
             Path(a.engage).write_text(json.dumps(rows) + "\n")
     t1 = time.perf_counter()
-    table = pulse_table(a.jobs)
+    table = pulse_table(a.jobs, a.family)
     t2 = time.perf_counter()
     pols = [p for p in POLICIES if p in a.policies.split(",")]
-    jobs = [(r, pol, a.stop_tol, a.miss_value) for pol in pols for r in rows]
+    jobs = [(r, pol, a.stop_tol, a.miss_value) + ((realism,) if realism else ()) for pol in pols for r in rows]
     if a.jobs > 1:
         with Pool(a.jobs, initializer=_init, initargs=(table,)) as pool:
             stops = pool.map(_run_stop_global, jobs, chunksize=8)
@@ -737,10 +895,13 @@ def main(argv=None) -> int:
     for pol in pols:
         bounds[pol] = stats([s["final_error_rad"] for s in stops if s["policy"] == pol])
         bounds[pol]["tries_mean"] = float(np.mean([s["tries"] for s in stops if s["policy"] == pol]))
+        if extra:
+            bounds[pol]["moves_mean"] = float(np.mean([s["moves"] for s in stops if s["policy"] == pol]))
     dist = {f"{sig:g}": move_distribution(table, sig) for sig in (0.02, 0.05, 0.08)}
     small = {d: smallest_moves(table, d) for d in (1, -1)}
     lines = [f"### plateau floor: {len(rows)} nominal plateaus (seeds {a.seed}..{a.seed + a.runs - 1}), "
-             f"stop tolerance {a.stop_tol:g} rad", "",
+             f"stop tolerance {a.stop_tol:g} rad" + (f", family {a.family}" + (f", realism (apex rms {a.apex_rms:g} rad, floor {a.floor})"
+                                                                          if a.realism else "") if extra else ""), "",
              "| final plateau error | median | p95 | max | > 5e-4 | > 8e-4 | tries / plateau |", "|---|---|---|---|---|---|---|"]
     for key, name in (("start", "start (main's at the policies' take-over)"), ("main", "main (a3beb09)"),
                       ("oracle", "(a) oracle (knows each stop's level)"),
@@ -750,7 +911,8 @@ def main(argv=None) -> int:
             continue
         b = bounds[key]
         lines.append(f"| {name} | {b['median']:.3g} | {b['p95']:.3g} | {b['max']:.3g} | {100 * b['over_5e-4']:.1f} % | "
-                     f"{100 * b['over_8e-4']:.1f} % | {b.get('tries_mean', float('nan')):.2f} |")
+                     f"{100 * b['over_8e-4']:.1f} % | {b.get('tries_mean', float('nan')):.2f} |"
+                     + (f" moves / plateau {b['moves_mean']:.2f}" if "moves_mean" in b else ""))
     lines += ["", "smallest move of any member just past the level (overdrive 1e-5 rad), rad:", "",
               "| excess twist (T_s - T_c)/K | " + " | ".join(f"{r['excess_rad'] * 1e3:.2f}e-3" for r in small[1][::3]) + " |",
               "|---|" + "---|" * len(small[1][::3])]
@@ -772,6 +934,8 @@ def main(argv=None) -> int:
     doc = {"runs": a.runs, "seed": a.seed, "stop_tol_rad": a.stop_tol, "miss_value": a.miss_value, "plateaus": len(rows), "bounds": bounds,
            "move_distribution": dist, "smallest_moves": {str(d): v for d, v in small.items()},
            "family": FAMILY, "wall_time_s": round(t3 - t0, 1)}
+    if extra:
+        doc.update({"pulse_family": a.family, "members": table.members, "realism": realism})
     if a.json:
         Path(a.json).write_text(json.dumps({**doc, "stops": stops, "engage": rows}, indent=1, default=str) + "\n")
     print(json.dumps(doc, default=str))
