@@ -22,9 +22,12 @@ with other work, wall time says more about the neighbours than about the test.
 
 Look-ahead (``test/prefetch.py``): the heaviest offline modules (``test_closed_loop``,
 ``test_fuzz``'s parameter boundaries, ``test_dissertation_modes``, ``test_valve_tests``,
-``test_campaign_robustness``, ``test_fine_positioning``'s campaign sample) hand their independent
-simulations to two forked worker processes when the module starts; each test still takes and
-asserts its own run.  Only when a core is free as the module starts (on a busy machine the
+``test_campaign_robustness``, ``test_fine_positioning``'s campaign sample, ``test_breakaway_start``,
+``test_heavy_valve``; since stop 23 ``test_pressure_input``, ``test_ramp_tracking``,
+``test_move_breakaway_read``, ``test_loop_timing``, ``test_plateau_step_overshoot``,
+``test_other_valves``, ``test_steady_load``, ``test_friction_check``'s campaign plants) hand their
+independent simulations to two forked worker processes when the module starts; each test still
+takes and asserts its own run.  Only when a core is free as the module starts (on a busy machine the
 workers cost more than they gain); off with ``FUEL_VALVE_TEST_JOBS=1`` (``=2``: on regardless),
 under pytest-xdist and with ``--sim-repeats``.  The DDS modules never run beside it (the pool ends with its module).
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import gc
 import multiprocessing
 import os
 import time
@@ -97,9 +98,20 @@ class Ahead:
         self._pool = None
         keys = list(dict.fromkeys(keys))
         if jobs > 1 and len(keys) > 1:
-            self._pool = concurrent.futures.ProcessPoolExecutor(
-                max_workers=jobs, mp_context=multiprocessing.get_context("fork"))
-            self._futures = {key: self._pool.submit(fn, *key) for key in keys}
+            # the workers must not run finalizers of objects they inherit: a ROS module just before
+            # leaves rclpy objects for the garbage collector, whose finalizers call into DDS,
+            # whose threads a forked child does not have -- the worker died ("A process in the
+            # process pool was terminated abruptly", test_steady_load after test_sros2_policy,
+            # test_heavy_valve after test_fuzz_nodes).  So collect them here, where DDS runs, and
+            # freeze what is left out of the children's collections while they are forked.
+            gc.collect()
+            gc.freeze()
+            try:
+                self._pool = concurrent.futures.ProcessPoolExecutor(
+                    max_workers=jobs, mp_context=multiprocessing.get_context("fork"))
+                self._futures = {key: self._pool.submit(fn, *key) for key in keys}
+            finally:
+                gc.unfreeze()
 
     def result(self, *key):
         """``fn(*key)``: the worker's run if it was planned, else run here."""

@@ -14,6 +14,7 @@ from fuel_valve_control.core.friction_check import FrictionCheck
 from fuel_valve_control.core.model import NominalModel
 from fuel_valve_control.core.params import load_controller_params
 from fuel_valve_control.core.signals import Measurement
+from prefetch import ModuleRuns, jobs, selected_items
 
 PERIOD = 1e-3
 VALVE = 0.2
@@ -255,6 +256,34 @@ def test_bad_construction_is_refused():
 
 
 # ------------------------------------------------------------------ a campaign plant
+def _campaign_plant(seed: int):
+    """``(case, result)``: full-box campaign case ``seed`` run in ``observer_ff`` with the friction
+    check on (here or in a look-ahead worker, test/prefetch.py)."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import robustness as R
+    from fuel_valve_control.tools import sim
+    case = R.sample_case(seed)
+    sc = R.case_scenario(case)
+    p, c = sim.build(sc, R.plant_overrides(case), {**R.controller_knowledge(case), "pressure.friction_check": True},
+                     None, "observer_ff")
+    return case, sim.simulate(sc, p, c)
+
+
+#: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
+_AHEAD = ModuleRuns(_campaign_plant)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _look_ahead(request):
+    """The campaign plants' runs on both cores; each test still takes and asserts its own run."""
+    keys = [(item.callspec.params["seed"],) for item in selected_items(request)
+            if item.originalname == "test_campaign_plants_with_a_right_reading_are_left_alone"]
+    with _AHEAD.planned(keys, jobs(request.config)):
+        yield
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1000, 1004, 1019])
 def test_campaign_plants_with_a_right_reading_are_left_alone(seed):
@@ -264,19 +293,10 @@ def test_campaign_plants_with_a_right_reading_are_left_alone(seed):
     a breakaway, median of 5) found 0.32, 0.31 N*m on 1000 and 1019, rescheduled them to 0 kPa
     and the valves hunted (main a71811a, ratio 4); on an earlier main 1004's LuGre creep read
     0.7, 1.8, 3.3 ... N*m on a 12 N*m valve.  Now: no warning, no hunting."""
-    import sys
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import robustness as R
     from fuel_valve_control.core.driver import PRESSURE_FRICTION
     from fuel_valve_control.tools import metrics as M
-    from fuel_valve_control.tools import sim
-    case = R.sample_case(seed)
+    case, res = _AHEAD.result(seed)
     assert case["dp_kind"] in ("exact", "measured")
-    sc = R.case_scenario(case)
-    p, c = sim.build(sc, R.plant_overrides(case), {**R.controller_knowledge(case), "pressure.friction_check": True},
-                     None, "observer_ff")
-    res = sim.simulate(sc, p, c)
     assert PRESSURE_FRICTION not in res.warnings
     log = res.log
     tr = M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9], res.stroke_rad)

@@ -10,8 +10,13 @@ controller does not count) and from drive watchdog trips; the stage then stands 
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
+
+from conftest import load_benchmark
+from prefetch import ModuleRuns, jobs, selected_items
 
 from fuel_valve_control.core.driver import ValveDriver
 from fuel_valve_control.core.params import load_controller_params
@@ -44,11 +49,18 @@ def test_late_intervals_mark_the_loop_late_a_clock_offset_does_not():
     assert drv.late_loop_events == 2
 
 
-def _thrown(bench, late_periods: int, seed: int, guard: bool) -> tuple[float, int]:
+def _thrown(late_periods: int, seed: int, guard: bool) -> tuple[float, int]:
+    """:func:`_simulate_thrown`'s run, from the module's look-ahead workers while the module
+    fixture below is active (test/prefetch.py), else run here."""
+    return _AHEAD.result(late_periods, seed, guard)
+
+
+def _simulate_thrown(late_periods: int, seed: int, guard: bool) -> tuple[float, int]:
     """``benchmarks/vcpu_freezes.py``'s closed loop (default mode, max Δp) on a plateau sequence
     of 0.1-0.5 % steps; from 1 s on, every 0.25 s the loop is ``late_periods`` periods late (the
     drive keeps the last command, shorter than its watchdog).  How far a valve that had arrived
     was thrown off its plateau (rad), and the late periods the driver saw."""
+    bench = _freezes_bench()
     period = 1.0 / load_controller_params()["loop_rate_hz"]
     freezes = bench.regular_freezes(late_periods, 0.25, bench.PLATEAU_SECONDS, period) if late_periods else {}
     r = bench.simulate_freezes(freezes, bench.PLATEAU_SECONDS, bench.plateau_demand(seed, steps=12, high_pct=0.5),
@@ -56,11 +68,37 @@ def _thrown(bench, late_periods: int, seed: int, guard: bool) -> tuple[float, in
     return r["thrown_rad"], r["late"]
 
 
-def test_on_a_loop_that_keeps_time_the_guard_changes_nothing(freezes_bench):
-    assert _thrown(freezes_bench, 0, 0, True) == (_thrown(freezes_bench, 0, 0, False)[0], 0)
+@functools.cache
+def _freezes_bench():
+    """``benchmarks/vcpu_freezes.py`` as a module, once per process (conftest's ``freezes_bench``
+    fixture is not at hand in a look-ahead worker)."""
+    return load_benchmark("vcpu_freezes")
 
 
-def test_a_late_loop_does_not_stretch_the_fine_stages_pulses(freezes_bench):
+#: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
+_AHEAD = ModuleRuns(_simulate_thrown)
+#: the plateau sequences of the late-loop test (benchmarks/vcpu_freezes.py's seeds)
+LATE_SEEDS = (1, 2, 3, 4)
+#: ``_thrown``'s arguments each test asks for
+_PLANNED = {"test_on_a_loop_that_keeps_time_the_guard_changes_nothing": [(0, 0, True), (0, 0, False)],
+            "test_a_late_loop_does_not_stretch_the_fine_stages_pulses":
+                [(4, seed, guard) for seed in LATE_SEEDS for guard in (True, False)]}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _look_ahead(request):
+    """The module's closed loops on both cores (test/prefetch.py); each test still takes and
+    asserts its own run."""
+    keys = [key for item in selected_items(request) for key in _PLANNED.get(item.originalname, [])]
+    with _AHEAD.planned(keys, jobs(request.config)):
+        yield
+
+
+def test_on_a_loop_that_keeps_time_the_guard_changes_nothing():
+    assert _thrown(0, 0, True) == (_thrown(0, 0, False)[0], 0)
+
+
+def test_a_late_loop_does_not_stretch_the_fine_stages_pulses():
     # 4-period late loops every 0.25 s on four plateau sequences (benchmarks/vcpu_freezes.py
     # gives the distribution over ten): without the guard the stretched kicks threw arrived
     # valves 1.0-4.7e-2 rad; with it the main law holds them within about half a jump (2.4e-3
@@ -68,7 +106,7 @@ def test_a_late_loop_does_not_stretch_the_fine_stages_pulses(freezes_bench):
     # lands in shifts with any change to the stage
     m = ValveDriver(load_controller_params()).controller.model
     jump = m.friction(load_plant_params()["pressure_differential_kpa"]).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
-    runs = [(_thrown(freezes_bench, 4, seed, True), _thrown(freezes_bench, 4, seed, False)[0]) for seed in (1, 2, 3, 4)]
+    runs = [(_thrown(4, seed, True), _thrown(4, seed, False)[0]) for seed in LATE_SEEDS]
     guarded = [g for (g, _), _ in runs]
     unguarded = [u for _, u in runs]
     assert min(late for (_, late), _ in runs) >= 25

@@ -11,6 +11,8 @@ them is raised to them (h22g, §34); a reading below the least friction the valv
 h24g (docs/control_results.md §31, §34, §43).
 The closed-loop figure (the 2 % step at friction x 0.5, max Δp) is at the end.
 """
+import functools
+
 import pytest
 
 from fuel_valve_control.common.contract import RESOLVER_COUNT_RAD
@@ -18,6 +20,7 @@ from fuel_valve_control.core.compensation import Context, ReferenceFeedforward
 from fuel_valve_control.core.friction_observer import FrictionObserver
 from fuel_valve_control.core.model import NominalModel
 from fuel_valve_control.core.params import CONTROLLER_SPEC
+from prefetch import ModuleRuns, jobs, selected_items
 
 PS = CONTROLLER_SPEC.defaults()
 MODEL = NominalModel.from_params(PS)
@@ -234,6 +237,12 @@ def test_the_sliding_friction_is_the_coupling_torque_less_the_valves_inertia_tor
 
 # ===================================================== in the loop (step_small, the default mode)
 def _step_small(friction, stiffness=1.0, dp=P_MAX, read=True):
+    """:func:`_simulate_step_small`'s run (from the module's look-ahead workers while the module
+    fixture at the end of this file is active, test/prefetch.py)."""
+    return _AHEAD.result("step_small", friction, stiffness, dp, read)
+
+
+def _simulate_step_small(friction, stiffness, dp, read):
     """The 2 % step on a plant of ``friction`` x the nominal friction and ``stiffness`` x the
     model's coupling at ``dp``, ``ff.read_breakaway`` = ``read`` (on by default since
     docs/control_results.md §43): (overshoot %, the move's breakaway reading)."""
@@ -290,14 +299,8 @@ def test_the_reading_leaves_the_lugre_valve_of_campaign_seed_1137_without_huntin
     (8 reversals, 33 mrad).  The sliding friction read after the slide (:meth:`_read_sliding`,
     h22g) raised that cap to the level the sliding valve meets: no hunting (on 149ea55 it hunted).  Since h24g
     neither move is cut at all: midpoints 0.25 / 0.45 x, below FLOOR_SCALE (§43)."""
-    import sys
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import robustness as rb
-    from fuel_valve_control.core.params import DEFAULT_MODE
-    case = rb.sample_case(1137)
-    assert not rb.run_case((case, DEFAULT_MODE, {"ff.read_breakaway": False}))["hunts"]   # off (main 570f5b7)
-    on = rb.run_case((case, DEFAULT_MODE, {"ff.read_breakaway": True}))
+    assert not _campaign_run(1137, {"ff.read_breakaway": False})["hunts"]   # off (main 570f5b7)
+    on = _campaign_run(1137, {"ff.read_breakaway": True})
     assert not on["beyond_rating"]
     assert not on["hunts"]
 
@@ -417,16 +420,10 @@ def test_the_grids_wrong_dp_cells_with_the_option_on(friction, inertia, main_os,
     N*m, the valve's -1.18; on the told schedule's it was -3.17 and the hold slid the valve 5.8 mrad
     back: tail 1.7-1.8 x the allowance, one reversal, "hunting" by the grid's metric; h26d §53,
     h27d §56)."""
-    from conftest import load_benchmark
-    grid = load_benchmark("adaptation_grid")
-    cell = {**grid.NOMINAL, "friction": friction, "inertia": inertia, "dp_kpa": 0.0, "stiffness": 1.0}
     # without h33g's cut retreat (default since §83; it takes the F x 3 cell to 3.1 %: test_wrong_dp_cut_retreat.py),
     # so the cut acts as §53 / §56 measured it
-    no_retreat = {"ff.wrong_dp_cut_retreat": False}
-    off = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX,
-                        controller_sets={**no_retreat, "ff.read_breakaway_wrong_dp": False})
-    on = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX,
-                       controller_sets={**no_retreat, "ff.read_breakaway_wrong_dp": True})
+    off = _wrong_dp_cell(friction, inertia, {"ff.wrong_dp_cut_retreat": False, "ff.read_breakaway_wrong_dp": False})
+    on = _wrong_dp_cell(friction, inertia, {"ff.wrong_dp_cut_retreat": False, "ff.read_breakaway_wrong_dp": True})
     assert off["overshoot_pct"] == pytest.approx(main_os, abs=0.1)
     assert on["overshoot_pct"] == pytest.approx(on_os, abs=0.1)
     assert not on["fault"]
@@ -440,12 +437,7 @@ def test_campaign_seed_1010s_pull_edge_is_not_re_learned_as_a_held_load():
     held load was 0): re-learned on the reading's friction it put -2.6 N*m of load on the hold and
     the last four plateaus ended 2-3 mrad off (sum of the 12 final errors 17.1 mrad).  Only a held
     load that is the one-edge prior is re-learned (h27d, §56): 13.8 mrad, main's 15.2."""
-    import sys
-    from pathlib import Path
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import robustness as rb
-    from fuel_valve_control.core.params import DEFAULT_MODE
-    on = rb.run_case((rb.sample_case(1010), DEFAULT_MODE, {"ff.read_breakaway_wrong_dp": True}))
+    on = _campaign_run(1010, {"ff.read_breakaway_wrong_dp": True})
     assert not on["hunts"]
     assert sum(p["final_error_rad"] for p in on["plateaus"]) < 15.2e-3
 
@@ -506,15 +498,86 @@ def test_the_grids_f05_wrong_dp_cell_with_the_slide_lowers_option():
     """``adaptation_grid.py --dp-error``, F x 0.5 J 0, Δp 0 told max (§60): the default (§56) overshoots
     20.4 %, the option 17.6 % (the cap 0.139 x read static, lowered to 0.074 x = 0.33 N*m once the
     sliding estimates are in; what is left is the four periods fed 4.4 N*m before the valve lets go)."""
-    from conftest import load_benchmark
-    grid = load_benchmark("adaptation_grid")
-    cell = {**grid.NOMINAL, "friction": 0.5, "inertia": 1.0, "dp_kpa": 0.0, "stiffness": 1.0}
     # without h29d's band start (default since §65, which takes this cell to 0 %: test_wrong_dp_start.py),
     # so the move's first periods are fed as §60 measured them; and without h33g's cut retreat (default since
     # §83: with it this cell's cut takes back the wind-up, 20.4 -> 12.1 %)
     band = {"ff.band_starts_wrong_dp_move": False, "ff.wrong_dp_cut_retreat": False}
-    off = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={**band, "ff.slide_lowers_wrong_dp_cap": False})
-    on = grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets={**band, "ff.slide_lowers_wrong_dp_cap": True})
+    off = _wrong_dp_cell(0.5, 1.0, {**band, "ff.slide_lowers_wrong_dp_cap": False})
+    on = _wrong_dp_cell(0.5, 1.0, {**band, "ff.slide_lowers_wrong_dp_cap": True})
     assert off["overshoot_pct"] == pytest.approx(20.4, abs=0.1)
     assert on["overshoot_pct"] == pytest.approx(17.6, abs=0.1)
     assert not on["fault"] and not on["hunts"] and on["tail_reversals"] == 0
+
+
+# ============================================ the closed-loop runs above, on both cores (test/prefetch.py)
+def _campaign_run(seed: int, controller_sets: dict) -> dict:
+    """Full-box campaign run ``seed`` (``benchmarks/robustness.py``), default mode, with ``controller_sets``."""
+    return _AHEAD.result("case", seed, tuple(controller_sets.items()))
+
+
+def _wrong_dp_cell(friction: float, inertia: float, controller_sets: dict) -> dict:
+    """``adaptation_grid.py --dp-error``'s cell friction x ``friction``, inertia x ``inertia`` at
+    Δp 0 told max, default mode with ``controller_sets``."""
+    return _AHEAD.result("cell", friction, inertia, tuple(controller_sets.items()))
+
+
+@functools.cache
+def _grid():
+    """``benchmarks/adaptation_grid.py`` as a module, once per process."""
+    from conftest import load_benchmark
+    return load_benchmark("adaptation_grid")
+
+
+def _simulate(kind: str, *args):
+    """The module's closed-loop runs, here or in a look-ahead worker: ``("step_small", friction,
+    stiffness, dp, read)`` (:func:`_simulate_step_small`), ``("case", seed, sets)`` (a campaign run),
+    ``("cell", friction, inertia, sets)`` (a wrong-Δp grid cell); ``sets``: controller parameters as
+    ``(name, value)`` pairs."""
+    if kind == "step_small":
+        return _simulate_step_small(*args)
+    if kind == "case":
+        import sys
+        from pathlib import Path
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+        import robustness as rb
+        from fuel_valve_control.core.params import DEFAULT_MODE
+        seed, sets = args
+        return rb.run_case((rb.sample_case(seed), DEFAULT_MODE, dict(sets)))
+    friction, inertia, sets = args
+    grid = _grid()
+    cell = {**grid.NOMINAL, "friction": friction, "inertia": inertia, "dp_kpa": 0.0, "stiffness": 1.0}
+    return grid.run_cell("observer_fp", cell, told_dp_kpa=P_MAX, controller_sets=dict(sets))
+
+
+#: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
+_AHEAD = ModuleRuns(_simulate)
+
+
+def _planned(item) -> list[tuple]:
+    """The runs (``_simulate``'s arguments) a selected test asks for; a run left out here is
+    simulated when the test asks, as before."""
+    name, params = item.originalname, getattr(getattr(item, "callspec", None), "params", {})
+    if name == "test_the_loop_reads_the_friction_the_valve_has_and_the_step_does_not_overshoot":
+        return [("step_small", 0.5, 1.0, P_MAX, True), ("step_small", 0.5, 1.0, P_MAX, False),
+                ("step_small", 3.0, 1.0, P_MAX, True), ("step_small", 0.5, 0.5, P_MAX, True)]
+    if name == "test_the_reading_leaves_the_lugre_valve_of_campaign_seed_1137_without_hunting":
+        return [("case", 1137, (("ff.read_breakaway", False),)), ("case", 1137, (("ff.read_breakaway", True),))]
+    if name == "test_campaign_seed_1010s_pull_edge_is_not_re_learned_as_a_held_load":
+        return [("case", 1010, (("ff.read_breakaway_wrong_dp", True),))]
+    if name == "test_the_grids_wrong_dp_cells_with_the_option_on":
+        return [("cell", params["friction"], params["inertia"],
+                 (("ff.wrong_dp_cut_retreat", False), ("ff.read_breakaway_wrong_dp", on))) for on in (False, True)]
+    if name == "test_the_grids_f05_wrong_dp_cell_with_the_slide_lowers_option":
+        return [("cell", 0.5, 1.0, (("ff.band_starts_wrong_dp_move", False), ("ff.wrong_dp_cut_retreat", False),
+                                    ("ff.slide_lowers_wrong_dp_cap", on))) for on in (False, True)]
+    return []
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _look_ahead(request):
+    """The module's closed-loop runs on both cores (test/prefetch.py); each test still takes and
+    asserts its own run."""
+    keys = [key for item in selected_items(request) for key in _planned(item)]
+    keys.sort(key=lambda k: k[0] != "case")      # the campaign runs (12 plateaus: the longest) first
+    with _AHEAD.planned(keys, jobs(request.config)):
+        yield

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from conftest import load_benchmark
+from prefetch import ModuleRuns, jobs, selected_items
 from fuel_valve_control.core import design
 from fuel_valve_control.core.model import NominalModel
 from fuel_valve_control.core.params import CONTROLLER_SPEC, DEFAULT_MODE
@@ -47,12 +48,45 @@ def _design(model: NominalModel):
 
 @functools.lru_cache(maxsize=None)
 def _run(valve: str, scenario: str, mode: str = DEFAULT_MODE):
+    """One run per (valve, scenario, mode) in this module (from the look-ahead workers while the
+    module fixture below is active, test/prefetch.py)."""
+    return _AHEAD.result(valve, scenario, mode)
+
+
+def _simulate(valve: str, scenario: str, mode: str):
+    """The run itself (here or in a look-ahead worker)."""
     plant, ctrl = OV.overrides(OV.VALVES[valve])
     sc = parse_scenario(SHORT_HOLD) if scenario == "short_hold" else scenario
     if isinstance(sc, str):
         return sim.run(sc, mode=mode, plant_overrides=plant, controller_overrides=ctrl, seed=0)
     p, c = sim.build(sc, plant, ctrl, 0, mode)
     return sim.simulate(sc, p, c)
+
+
+#: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
+_AHEAD = ModuleRuns(_simulate)
+#: the valves of test_other_valves_that_work_keep_working
+WORKING = ("gear30_strong_motor", "small_motor_gear70", "long_stroke")
+
+
+def _planned(item) -> list[tuple]:
+    """The runs (``_run``'s arguments) a selected test asks for; a run left out here is simulated
+    when the test asks, as before."""
+    if item.originalname == "test_stiff_coupling_holds_without_hunting":
+        return [("stiff_coupling", "short_hold", DEFAULT_MODE)]
+    if item.originalname == "test_other_valves_that_work_keep_working":
+        valve = item.callspec.params["valve"]
+        return [(valve, "step_small", DEFAULT_MODE), (valve, "short_hold", DEFAULT_MODE)]
+    return []
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _look_ahead(request):
+    """The module's runs on both cores (test/prefetch.py); each test still takes and asserts its
+    own run."""
+    keys = [key for item in selected_items(request) for key in _planned(item)]
+    with _AHEAD.planned(keys, jobs(request.config)):
+        yield
 
 
 def _plateaus(res):
@@ -97,7 +131,7 @@ def test_stiff_coupling_holds_without_hunting():
     assert not np.any(res.fault > 0)
 
 
-@pytest.mark.parametrize("valve", ["gear30_strong_motor", "small_motor_gear70", "long_stroke"])
+@pytest.mark.parametrize("valve", WORKING)
 def test_other_valves_that_work_keep_working(valve):
     """Valves that already worked on main (section 35): the 2 % step overshoots < 10 %, settles
     within 8e-4 rad, and neither it nor the hold hunts or faults."""

@@ -18,6 +18,7 @@ from fuel_valve_control.core.params import load_controller_params
 from fuel_valve_control.core.signals import Measurement
 from fuel_valve_plant.physics.params import load_plant_params
 from fuel_valve_plant.physics.plant import Plant
+from prefetch import ModuleRuns, jobs, selected_items
 
 PERIOD = 1e-3
 VALVE = 0.2          # rad, a valve at rest part-open
@@ -233,6 +234,12 @@ def test_friction_check_reads_the_static_friction_of_a_quasi_static_breakaway():
 
 
 def _hold_and_small_steps(mode, true_kpa, told_kpa, check=None):
+    """:func:`_simulate_hold_and_small_steps`'s run, from the module's look-ahead workers while
+    the module fixture below is active (test/prefetch.py), else run here."""
+    return _AHEAD.result(mode, true_kpa, told_kpa, check)
+
+
+def _simulate_hold_and_small_steps(mode, true_kpa, told_kpa, check=None):
     """9 s offline at 20 %: a 1.5 s hold (the check needs breakaways both ways: observer_fc,
     told max on a valve at Δp 0, is caught at 0.46 s), +-0.5 % and +1 % steps, a 3 s final hold, with the Δp transducer
     biased so that it reads ``told_kpa`` while the valve is at ``true_kpa``; ``check``: pressure.friction_check
@@ -251,6 +258,32 @@ def _hold_and_small_steps(mode, true_kpa, told_kpa, check=None):
     log = res.log
     tr = M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9], res.stroke_rad)
     return M.plateau_results(tr), res
+
+
+#: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
+_AHEAD = ModuleRuns(_simulate_hold_and_small_steps)
+
+
+def _planned(item) -> list[tuple]:
+    """The runs (``_hold_and_small_steps``' arguments, positional) a selected test asks for; a run
+    left out here is simulated when the test asks, as before."""
+    name, params = item.originalname, getattr(getattr(item, "callspec", None), "params", {})
+    if name == "test_wrong_pressure_reading_is_caught_by_the_friction_met_and_never_hunts":
+        return [(params["mode"], params["true_kpa"], params["told_kpa"], None)]
+    if name == "test_without_the_friction_check_a_wrong_reading_does_not_hunt":
+        return [("observer_ff", params["true_kpa"], params["told_kpa"], False)]
+    if name == "test_a_right_reading_raises_no_friction_warning":
+        return [("observer_ff", PRESSURE_MAX_KPA, PRESSURE_MAX_KPA, None)]
+    return []
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _look_ahead(request):
+    """The module's 9 s runs on both cores (test/prefetch.py); each test still takes and asserts
+    its own run."""
+    keys = [key for item in selected_items(request) for key in _planned(item)]
+    with _AHEAD.planned(keys, jobs(request.config)):
+        yield
 
 
 @pytest.mark.slow
@@ -277,7 +310,7 @@ def test_without_the_friction_check_a_wrong_reading_does_not_hunt(true_kpa, told
     max on a valve at Δp 0 hunted on all 4 plateaus (26 counts): the held load learned from
     the schedule's static level flipped sign slip after slip, the drive test rejected every
     real breakaway and the stuck ramp ran 11x too fast."""
-    plateaus, res = _hold_and_small_steps("observer_ff", true_kpa, told_kpa, check=False)
+    plateaus, res = _hold_and_small_steps("observer_ff", true_kpa, told_kpa, False)
     assert len(plateaus) == 4
     assert not any(pl["hunts"] for pl in plateaus), [(pl["hunting_amplitude_rad"], pl["hunting_reversals"])
                                                      for pl in plateaus]

@@ -24,6 +24,7 @@ from fuel_valve_plant.physics.friction import friction_levels
 from fuel_valve_control.tools.run_plan import OFFLINE, plan_run
 from fuel_valve_control.tools.scenarios import load_scenario, parse_scenario
 from fuel_valve_control.tools.sim import simulate_plan
+from prefetch import ModuleRuns, jobs, selected_items
 
 pytestmark = [pytest.mark.slow]
 
@@ -51,17 +52,58 @@ def _ramps(plan) -> list[dict]:
 
 @functools.cache
 def _startup(mode: str, seed: int):
-    sc = load_scenario("startup")
-    sc.duration_s = STARTUP_UNTIL_S
-    plan = plan_run(sc, OFFLINE, mode=mode, seed=seed)
-    return plan, _ramps(plan)
+    return _AHEAD.result("startup", mode, seed)
 
 
 def _points(points, dp_kpa: float, mode: str, seed: int = 0):
-    sc = parse_scenario({"name": "ramp", "duration_s": points[-1][0], "pressure_differential_kpa": dp_kpa,
-                         "initial_percent": points[0][1], "demand": {"type": "points", "points": points}})
+    return _AHEAD.result("points", tuple(map(tuple, points)), dp_kpa, mode, seed)
+
+
+def _simulate(kind: str, *args):
+    """``(plan, ramps)`` of a run (here or in a look-ahead worker, test/prefetch.py):
+    ``("startup", mode, seed)`` -- `startup` up to STARTUP_UNTIL_S; ``("points", points, dp_kpa,
+    mode, seed)`` -- a linear demand through ``points`` ([t s, percent], ...) at ``dp_kpa``."""
+    if kind == "startup":
+        mode, seed = args
+        sc = load_scenario("startup")
+        sc.duration_s = STARTUP_UNTIL_S
+    else:
+        points, dp_kpa, mode, seed = args
+        points = [list(p) for p in points]
+        sc = parse_scenario({"name": "ramp", "duration_s": points[-1][0], "pressure_differential_kpa": dp_kpa,
+                             "initial_percent": points[0][1], "demand": {"type": "points", "points": points}})
     plan = plan_run(sc, OFFLINE, mode=mode, seed=seed)
     return plan, _ramps(plan)
+
+
+#: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
+_AHEAD = ModuleRuns(_simulate)
+#: the demands of the ramp tests below ([t s, percent], ...)
+LOW_DP_RAMP = ((0, 23), (1, 23), (4, 25), (5, 25))
+REVERSING_RAMP = ((0, 30), (1, 30), (4, 28), (5, 28), (8, 30), (9, 30))
+
+
+def _planned(item) -> list[tuple]:
+    """The runs (``_simulate``'s arguments) a selected test asks for; a run
+    left out here is simulated when the test asks, as before."""
+    name, params = item.originalname, getattr(getattr(item, "callspec", None), "params", {})
+    if name.startswith("test_the_") and "_startup_ramp_" in name:
+        return [("startup", params["mode"], params["seed"])]
+    if name == "test_both_legs_of_a_reversing_ramp_are_followed_within_a_jump":
+        return [("points", REVERSING_RAMP, P_MAX, params["mode"], 1)]
+    if name == "test_a_ramp_at_low_and_half_dp_is_followed_within_a_jump":
+        return [("points", LOW_DP_RAMP, params["dp_kpa"], "observer_fp", 0)]
+    return []
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _look_ahead(request):
+    """The module's runs on both cores (test/prefetch.py); each test still takes and asserts its
+    own run."""
+    keys = [key for item in selected_items(request) for key in _planned(item)]
+    keys.sort(key=lambda k: -(STARTUP_UNTIL_S if k[0] == "startup" else k[1][-1][0]))    # simulated s
+    with _AHEAD.planned(keys, jobs(request.config)):
+        yield
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -92,13 +134,13 @@ def test_the_second_startup_ramp_is_followed_within_a_jump(mode, seed, request):
 
 @pytest.mark.parametrize("dp_kpa", [0.0, 0.5 * P_MAX])
 def test_a_ramp_at_low_and_half_dp_is_followed_within_a_jump(dp_kpa):
-    plan, ramps = _points([[0, 23], [1, 23], [4, 25], [5, 25]], dp_kpa, "observer_fp")
+    plan, ramps = _points(LOW_DP_RAMP, dp_kpa, "observer_fp")
     assert ramps[0]["ramp_max_error_rad"] <= bound(plan, ramps[0]), ramps[0]
 
 
 @pytest.mark.parametrize("mode", V2_MODES)
 def test_both_legs_of_a_reversing_ramp_are_followed_within_a_jump(mode):
-    plan, ramps = _points([[0, 30], [1, 30], [4, 28], [5, 28], [8, 30], [9, 30]], P_MAX, mode, seed=1)
+    plan, ramps = _points(REVERSING_RAMP, P_MAX, mode, seed=1)
     assert len(ramps) == 2 and ramps[0]["rate_rad_s"] < 0.0 < ramps[1]["rate_rad_s"]
     for ramp in ramps:
         assert ramp["ramp_max_error_rad"] <= bound(plan, ramp), ramp
