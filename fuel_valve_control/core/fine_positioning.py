@@ -225,7 +225,7 @@ def _pulse_moves(model: NominalModel, period_s: float, cfg, kp: float, kd: float
     except ImportError:
         return _StandInMoves(model, period_s)
     return PulseMoves(model, period_s, kick_current_a=cfg.kick_current_a, peak_current_a=cfg.peak_current_a,
-                      retreat_full_periods=cfg.retreat_full_periods, servo_kp=kp, servo_kd=kd, servo_ki=ki,
+                      retreat_full_periods=cfg.apex_retreat_periods or cfg.retreat_full_periods, servo_kp=kp, servo_kd=kd, servo_ki=ki,
                       supply_voltage_v=cfg.supply_voltage_v, observe_periods=cfg.observe_periods,
                       retreat_unmoved_fraction=cfg.retreat_unmoved_fraction, tolerance_rad=cfg.tolerance_rad)
 
@@ -518,6 +518,7 @@ class FineConfig:
     apex_min_chance: float = 0.0  # ... no try whose chance of ending within apex_land_rad is not above this
     apex_kick_max_a: float = 0.0  # ... the kick chosen per try among kick_current_a x 1, 2, 4 ... up to this, A
                                   # (0 or below kick_current_a: kick_current_a only)
+    apex_retreat_periods: int = 0  # ... its doublets retreat this many periods at the whole current (0: fine.retreat_full_periods)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
@@ -607,6 +608,7 @@ class FinePositioner:
                                       # reached at this stop (None: none yet)
         self._apex_plan = None        # fine.apex_policy: (apex, P(land), P(no move), score, kick) of the last choice
         self._apex_kick = None        # fine.apex_policy: the kick current (A) of the doublet in progress (None: main's)
+        self._apex_try = None         # ... (direction, the model's mean move if it moves, rad) of that doublet
         self._apex_rise = 0.0         # ... and its rise above the preload, rad
         self._safe = None             # fine.preload_cap: the furthest twist toward the move an unmoved pulse reached
                                       # at this stop, rad (None: none yet)
@@ -1027,6 +1029,7 @@ class FinePositioner:
         self._phi_start = th1 - thl
         self._k = 0
         self._doublet = doublet
+        self._apex_try = None
         if self._doublet:
             # the kick rises kick_rise above the preload; the retreat after it is the whole
             # current, so the valve breaks loose while the gear output is already turning back
@@ -1152,11 +1155,14 @@ class FinePositioner:
             score = np.where((p_worse < 0.5) & (p_break <= break_limit), score, -np.inf)
             j = int(np.argmax(score))
             if best is None or score[j] > best[0]:
-                best = (float(score[j]), float(cand[j]), kick, rise, float(p_hit[j]), float(p_none[j]))
-        self._apex_plan = (best[1], best[4], best[5], best[0], best[2])
+                pm = float(moved[j].astype(float) @ w)
+                m_mean = float((np.where(moved[j] & np.isfinite(mv[j]), mv[j], 0.0) @ w) / pm) if pm > 0 else 0.0
+                best = (float(score[j]), float(cand[j]), kick, rise, float(p_hit[j]), float(p_none[j]), m_mean)
+        self._apex_plan = (best[1], best[4], best[5], best[0], best[2], best[6])
         if not best[0] > cfg.apex_min_chance:
             return None
         self._apex_kick, self._apex_rise = best[2], best[3]
+        self._apex_try = (d, best[6])          # the model's mean move, if this try moves (traced in §81)
         return best[1]
 
     def _start_sigmas(self, d: int, b: int) -> float:
@@ -1457,7 +1463,8 @@ class FinePositioner:
             if cfg.apex_policy and self._apex_kick is not None:
                 kick = self._apex_kick             # (task h33p) the kick the policy chose for this try
             torque = self._hold_torque + d * kick * kt
-        elif self._k <= 1 + max(cfg.retreat_full_periods, 1):
+        elif self._k <= 1 + max(cfg.apex_retreat_periods if cfg.apex_policy and cfg.apex_retreat_periods > 0
+                                else cfg.retreat_full_periods, 1):
             torque = self._hold_torque - d * cap
         else:
             # (h28r, ``fine.retreat_unmoved_fraction``) a valve not yet moved by now may get less of it

@@ -567,9 +567,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "prediction (docs section 33: the moved doublets' residual about the fit to the true static excess, "
           "0.19e-3 rad)", 1e-5, 2e-3, runtime=True),
     Param("fine.apex_min_chance", 0.0, "", "fine.apex_policy: no try whose chance of ending within "
-          "fine.apex_land_rad (this try or, after no move, the next) is not above this (0: every try that is not "
-          "more likely to worsen the error; 0.1 stopped staircases main's finished, task h33p)", 0.0, 1.0,
+          "fine.apex_land_rad (this try or, after no move, the next) is not above this (0: every try not more "
+          "likely to worsen the error; 0.1 stopped staircases main's finished, task h33p)", 0.0, 1.0,
           runtime=True),
+    Param("fine.apex_retreat_periods", 0, "", "fine.apex_policy: its doublets retreat this many loop periods at the "
+          "whole current (fine.peak_current_a) before the half one (0 = fine.retreat_full_periods; h33a: the deeper "
+          "retreat carries plateau_floor's gain)", 0, 3, runtime=True),
     Param("fine.apex_kick_max_a", 0.0, "A", "fine.apex_policy: the kick is chosen per try among "
           "fine.kick_current_a x 1, 2, 4 ... up to this (docs section 75.4: the kick's size sets how much the "
           "level's draw matters; 0 = fine.kick_current_a only)", 0.0, 30.0, runtime=True),
