@@ -219,6 +219,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "configured or measured supply): observer_ff/observer_fp plan moves no faster than the back-EMF it "
           "leaves room for, so at 18 V a move slows down instead of saturating the voltage", 18.0, 32.0,
           runtime=True),
+    Param("drive.current_loop_bandwidth_hz", 1500.0, "Hz", "bandwidth of the drive's dq current regulators (its "
+          "tuning: a PI cancelling the R-L pole); core/pulse_moves.py models the fine stage's doublet with it (the "
+          "kick's 4 A settle within it, the retreat's 30 A reversal slews at the supply's voltage; docs/control_results.md "
+          "section 80); read by nothing else", 100.0, 20000.0),
     # --- reference trajectory for large demand changes -------------------------------------
     Param("trajectory.max_velocity_rad_s", 11.0, "rad/s", "observer, observer_fc, kalman_fc, fc_gain: slew rate "
           "of planned moves (observer_ff, observer_fp: designed, trajectory.voltage_fraction)", 0.01, 100.0),

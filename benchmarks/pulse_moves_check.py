@@ -1,0 +1,232 @@
+#!/usr/bin/env python3
+"""Validate the plant-free doublet move model (``core/pulse_moves.py``) against the plant (task h33m, docs §80).
+
+Two parts:
+
+1. **bare** (:func:`bare_check`): random (direction, excess, overdrive, aim) points, each doublet replayed on the
+   bare nominal :class:`Plant` (max Δp, no scatter / ripple, static level ``T_c + K x``) started at rest with the
+   twist at the preload (``apex - rise``; the drive holding it plus the motor's Coulomb friction, as after the
+   park's climb), the FinePositioner's doublet currents and its observe servo on the plant's true states --
+   the model's own idealisations, so what is compared is the dynamics.
+2. **closed** (:func:`closed_check`): the default controller on nominal-box runs (``benchmarks/robustness.py
+   --box nominal``); at each of the stage's doublets the plant's true twist at the kick, its drawn levels
+   (``valve_friction_levels``), load and the stage's servo target (as an aim relative to the true Coulomb
+   equilibrium), then the apex the kick reached (coupling torque / K above the preload) and the valve's move;
+   compared with the model's rise and its predicted move at that excess / overdrive / aim.
+
+    python benchmarks/pulse_moves_check.py [--points 150] [--dp-fraction 1] [--runs 40] [--seed 1000] [--jobs 2] [--json PATH]
+
+Last stdout line: one JSON object.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import replace
+from multiprocessing import Pool
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+for p in (ROOT, ROOT / "benchmarks"):
+    if str(p) not in sys.path:
+        sys.path.insert(0, str(p))
+
+from fuel_valve_control.core.fine_positioning import IDLE, OBSERVE, PULSE  # noqa: E402
+from fuel_valve_control.core.params import CONTROLLER_SPEC  # noqa: E402
+from fuel_valve_control.core.position_controller import PositionController  # noqa: E402
+from fuel_valve_control.core.pulse_moves import PulseMoves  # noqa: E402
+from fuel_valve_plant.physics import kernel as KN  # noqa: E402
+from fuel_valve_plant.physics.params import PLANT_SPEC  # noqa: E402
+from fuel_valve_plant.physics.plant import Plant  # noqa: E402
+
+CS = CONTROLLER_SPEC.defaults()
+FINE = PositionController(CS).law.fine
+M = FINE.m
+P_MAX = M.pressure_max_kpa
+K = M.coupling_stiffness_nm_per_rad
+FL = M.friction(P_MAX)
+X_NOM = (FL.valve_static_nm - FL.valve_coulomb_nm) / K
+
+
+def model() -> PulseMoves:
+    return PulseMoves.for_positioner(FINE, CS)
+
+
+def plant_doublet(d: int, excess: float, overdrive: float, aim: float, rise: float, p: float = P_MAX) -> float:
+    """The valve's move (rad toward ``d``) on the bare nominal plant at Δp ``p`` (see the module docstring)."""
+    ps = PLANT_SPEC.defaults()
+    fl = M.friction(p)
+    ts = fl.valve_coulomb_nm + K * excess
+    pl = Plant(ps.replace({"pressure_differential_kpa": p,
+                           "friction.valve.static_per_dp_nm": (ts - ps["friction.valve.static_nm"]) / M.pressure_fraction(p)}))
+    theta = 0.5 * M.stroke_rad
+    pl.hold_at(theta)
+    n, kt, cfg = M.gear_ratio, M.torque_constant_nm_per_a, FINE.cfg
+    load = M.load_torque(theta, p)
+    phi = (load + d * ts) / K + d * (overdrive - rise)
+    hold = (K * phi / n + d * fl.motor_coulomb_nm) / kt
+    pl.S[KN.S_THM] = (theta + phi) * n
+    pl.S[KN.S_IQ] = hold
+    pl.S[KN.S_XQ] = ps["motor.resistance_ohm"] * hold
+    pl.set_command(hold, True)
+    ref = theta + (load + d * fl.valve_coulomb_nm) / K + d * aim / 2.0
+    cap, integral, per = cfg.peak_current_a, 0.0, FINE.period
+    th1_prev = pl.truth().motor_angle / n
+    for k in range(2 + cfg.retreat_full_periods + cfg.observe_periods):
+        t = pl.truth()
+        th1, thl = t.motor_angle / n, t.valve_angle
+        if k == 0:
+            iq = hold + d * cfg.kick_current_a
+        elif k <= cfg.retreat_full_periods:
+            iq = hold - d * cap
+        elif k == cfg.retreat_full_periods + 1:
+            iq = hold - d * 0.5 * cap
+        else:
+            e = ref - th1
+            integral += e * per
+            iq = (K * (ref - thl) / n + (FINE.kp * e - FINE.kd * (th1 - th1_prev) / per + FINE.ki * integral) / n) / kt
+        th1_prev = th1
+        pl.set_command(min(max(iq, -cap), cap), True)
+        pl.advance(per)
+    return d * (pl.valve_angle - theta)
+
+
+def bare_check(points: int, seed: int, dp_fraction: float = 1.0) -> dict:
+    pm = model()
+    rng = np.random.default_rng(seed)
+    p = dp_fraction * P_MAX
+    fl = M.friction(p)
+    x_nom = (fl.valve_static_nm - fl.valve_coulomb_nm) / K
+    rows = []
+    for d in (1, -1):
+        rise = pm.rise(d, p)
+        for _ in range(points):
+            x = rng.uniform(0.3, 2.3) * x_nom
+            od = float(np.exp(rng.uniform(np.log(5e-6), np.log(2e-3))))
+            aim = rng.uniform(0.0, 1.5e-3) * x_nom / X_NOM
+            rows.append((d, x, od, aim, plant_doublet(d, x, od, aim, rise, p), float(pm.move(d, p, x, od, aim_rad=aim))))
+    a = np.array(rows)
+    fin = np.isfinite(a[:, 5])
+    e = np.abs(a[fin, 5] - a[fin, 4])
+    return {"points": len(a), "model_nan": int((~fin).sum()),
+            "plant_move_where_nan_median_rad": float(np.median(a[~fin, 4])) if (~fin).any() else None,
+            "abs_err_p50": float(np.median(e)), "abs_err_p95": float(np.percentile(e, 95)), "abs_err_max": float(e.max()),
+            "within_10pct_or_1e-4": float(np.mean(e <= np.maximum(0.1 * a[fin, 4], 1e-4))),
+            "dp_fraction": dp_fraction, "rise_rad": {str(d): pm.rise(d, p) for d in (1, -1)},
+            "build_cpu_s": [pm.table(d, p)["build_s"] for d in (1, -1)]}
+
+
+def _closed_run(seed: int) -> list[dict]:
+    import robustness as R
+    from fuel_valve_control.core.driver import ValveDriver
+    from fuel_valve_control.tools import sim
+    from fuel_valve_control.tools.run_plan import OFFLINE, plan_run
+
+    case = R.sample_case(seed, "nominal")
+    sc = R.case_scenario(case)
+    p, c = sim.build(sc, R.plant_overrides(case), R.controller_knowledge(case), None, None)
+    plan = replace(plan_run(sc, OFFLINE), plant_params=p, controller_params=c)
+    plant, driver = Plant(plan.plant_params), ValveDriver(plan.controller_params)
+    plan.start_held(plant, driver)
+    per = driver.period
+    fine = driver.controller.law.fine
+    kk = plan.plant_params["coupling.stiffness_nm_per_rad"]
+    n = plan.plant_params["gearbox.ratio"]
+    cc = plan.plant_params["coupling.damping_nms"]
+    rows, cur, prev = [], None, IDLE
+    for k in range(int(round(plan.duration_s / per))):
+        t = k * per
+        if fine.phase == PULSE and fine._doublet and fine._k == 0 and cur is None:
+            # the next output is a doublet's kick: the true state now
+            tr = plant.truth()
+            d = fine._dir
+            tc, ts = plant.valve_friction_levels()
+            load = float(plant.O[KN.O_TSPRING] + plant.O[KN.O_TFLOW])
+            phi = tr.motor_angle / n - tr.valve_angle
+            cur = {"seed": seed, "d": d, "thl0": tr.valve_angle, "phi0": phi, "x": (ts - tc) / kk,
+                   "pre_rel": d * (phi - (load + d * ts) / kk),
+                   "aim": 2.0 * d * (fine._final - (load + d * tc) / kk), "apex": -1.0,
+                   "kick": fine.cfg.kick_current_a * (fine.cfg.first_kick_fraction if fine._first_stair else 1.0)}
+        out, _ = sim.exchange_period(driver, plant, t, plan.demand.value(t))
+        plant.set_command(out.current_a, out.enable)
+        if cur is None:
+            plant.advance(per)
+        else:
+            for _ in range(plant.steps_for(per)):
+                plant.step(1)
+                tr = plant.truth()
+                tk = kk * (tr.motor_angle / n - tr.valve_angle) + cc * (tr.motor_velocity / n - tr.valve_velocity)
+                cur["apex"] = max(cur["apex"], cur["d"] * (tk / kk - cur["phi0"]))
+        if cur is not None and ((fine.phase != OBSERVE and prev == OBSERVE) or (fine.phase == IDLE and prev != IDLE)):
+            cur["move"] = cur["d"] * (plant.valve_angle - cur["thl0"])
+            rows.append(cur)
+            cur = None
+        prev = fine.phase
+    return rows
+
+
+def closed_check(runs: int, seed: int, jobs: int) -> dict:
+    seeds = list(range(seed, seed + runs))
+    if jobs > 1:
+        with Pool(jobs) as pool:
+            parts = pool.map(_closed_run, seeds, chunksize=1)
+    else:
+        parts = [_closed_run(s) for s in seeds]
+    rows = [r for part in parts for r in part]
+    pm = model()
+    tol = FINE.cfg.tolerance_rad
+    rise = {d: pm.rise(d, P_MAX) for d in (1, -1)}
+    d_ = np.array([r["d"] for r in rows])
+    mv = np.array([r["move"] for r in rows])
+    od = np.array([r["pre_rel"] + rise[r["d"]] for r in rows])
+    apex = np.array([r["apex"] for r in rows])
+    pred = np.array([float(pm.move(r["d"], P_MAX, r["x"], o, kick_current_a=r["kick"], aim_rad=max(r["aim"], 0.0)))
+                     for r, o in zip(rows, od)])
+    moved = np.abs(mv) > 0.5 * tol
+    nan = np.isnan(pred)
+    pmoved = ~nan & (pred > 0.5 * tol)
+    both = moved & pmoved
+    e = pred[both] - mv[both]
+    out = {"doublets": len(rows), "plant_moved": int(moved.sum()), "model_nan": int(nan.sum()),
+           "model_nan_plant_moved": int((nan & moved).sum()),
+           "moved_both": int(both.sum()), "plant_moved_model_still": int((moved & ~pmoved & ~nan).sum()),
+           "plant_still_model_moved": int((~moved & pmoved).sum()),
+           "plant_still_model_moved_overdrive_max_rad": float(od[~moved & pmoved].max()) if (~moved & pmoved).any() else None,
+           "move_err_median_rad": float(np.median(e)), "move_err_p10_rad": float(np.percentile(e, 10)),
+           "move_err_p90_rad": float(np.percentile(e, 90)), "move_abs_err_p90_rad": float(np.percentile(np.abs(e), 90)),
+           "plant_move_median_rad": float(np.median(mv[both]))}
+    for d in (1, -1):
+        s = ~moved & (d_ == d)
+        out[f"rise_measured_median_rad_{d:+d}"] = float(np.median(apex[s])) if s.any() else None
+        out[f"rise_model_rad_{d:+d}"] = rise[d]
+    return out
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=150, help="random points per direction (bare check)")
+    ap.add_argument("--runs", type=int, default=40, help="nominal-box runs (closed check; 0: skip)")
+    ap.add_argument("--seed", type=int, default=1000)
+    ap.add_argument("--dp-fraction", type=float, default=1.0, help="Δp of the bare check, x max (the closed check: the nominal box's max Δp)")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--json", type=Path)
+    a = ap.parse_args(argv)
+    t0 = time.time()
+    res = {"bare": bare_check(a.points, 7, a.dp_fraction)}
+    print("bare:", json.dumps(res["bare"]), flush=True)
+    if a.runs > 0:
+        res["closed"] = closed_check(a.runs, a.seed, a.jobs)
+        print("closed:", json.dumps(res["closed"]), flush=True)
+    res["wall_s"] = round(time.time() - t0, 1)
+    if a.json:
+        a.json.write_text(json.dumps(res, indent=1))
+    print(json.dumps(res))
+
+
+if __name__ == "__main__":
+    main()

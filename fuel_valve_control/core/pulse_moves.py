@@ -1,0 +1,428 @@
+"""A plant-free model of the fine stage's torque doublet: how far the valve moves (issue 14, Deliver 1).
+
+:class:`PulseMoves` answers, from the controller's own :class:`~fuel_valve_control.core.model.NominalModel`,
+the question ``benchmarks/plateau_floor.py`` tabulates on the simulated plant (docs §75, §80): the valve's
+move for one doublet of :class:`~fuel_valve_control.core.fine_positioning.FinePositioner` whose twist *apex*
+lies ``overdrive`` above the valve's static level, that level lying ``excess`` above the Coulomb-equilibrium
+twist.  It is built for a pulse policy that places the apex where the chance to land within tolerance is
+best given the distribution of the level drawn at each stop.
+
+Sign conventions and units
+--------------------------
+* ``direction`` d = +1 opens (the valve angle grows), -1 closes.  Every twist, excess, overdrive, aim and move
+  argument or result is a magnitude *toward* ``d`` (rad at the valve; twist = gear-output angle - valve angle).
+* ``excess`` x >= 0: the static level's twist ``(load + d T_s) / K`` lies ``d x`` beyond the Coulomb-equilibrium
+  twist ``φe = (load + d T_c(Δp)) / K`` (``T_s = T_c + K x``): the per-stop draw of the level, in rad.
+* ``overdrive``: the apex less the static level's twist.  The apex is the largest *coupling torque over K*
+  (the twist plus its damping's share ``c (ω1 - ωL) / K``: what meets the valve's static level) the doublet
+  reaches on a valve that stays stuck: the preload plus :meth:`PulseMoves.rise`.  <= 0: the kick does not
+  break the valve loose (exact in the model).  The twist alone -- what the resolvers show -- peaks ~1.3e-5 rad
+  lower (its rate is not quite 0 at the apex).
+* ``aim``: the error the stage asks the doublet to close; its observe servo then pulls the gear output to
+  the final twist ``φe + d aim / 2`` measured from the valve angle the doublet started at
+  (:meth:`FinePositioner._start_pulse`: ``final = φe + aim / 2``).  **The move depends on it**, so
+  :meth:`PulseMoves.move` takes it (``aim_rad``, default 0): up to an aim that grows with the excess the move
+  does not depend on it at all (bare plant: equal to 1e-9 rad); beyond it the servo's rebound breaks the valve
+  loose a second time, a whole further jump (a sharp step: 0.23 -> 2.04e-3 rad between aims 1.0 and 1.2e-3 at
+  excess 1e-3, apex 2e-5 over) -- the model answers NaN there, as it does where the rebound breaks a valve the
+  kick did not (levels within ~0.6e-3 rad of the Coulomb equilibrium, or large aims).  At small excesses
+  (< ~0.6e-3 rad) the servo drags the valve on instead, a move growing smoothly with the aim (tabulated).
+
+What is simulated (one vectorised time loop over every grid point at once)
+--------------------------------------------------------------------------
+Two masses at the gear output (motor ``J1 = Jm N²`` with its viscous term and its Coulomb / static
+friction, stick-slip as the plant integrates it; the valve ``JL`` with its viscous term, the spring +
+flow load ``model.load_torque`` at the moving valve angle, and stick-slip at ``T_c(Δp)`` sliding /
+``T_c + K x`` static), the coupling ``K``, ``c``; the drive's q-axis current loop (decoupled PI of bandwidth
+``current_bandwidth_hz`` cancelling the R-L pole, voltage limited to the SVPWM circle ``V_dc / √3`` with the
+back-EMF, conditional integration: the retreat's 30 A reversal slews at up to ~60 A/ms at 28 V, so it takes
+half a period).  Substeps of ``period / substeps`` (20 = the plant's 20 kHz; 10 gave 1.8e-4 rad median error
+against 40).  The controller's torque per 1 kHz period (zero-order hold): the doublet as
+:meth:`FinePositioner._doublet_torque` commands it on the hold torque ``K φp / N`` (+ d x the motor's Coulomb
+friction, ``park_friction``: the park climbed to the preload, and the stuck motor's reaction holds what the
+servo carried), one period of kick ``+ d kick``, ``fine.retreat_full_periods`` of ``hold - d cap``, one of
+``hold - d cap / 2``, each capped at ``± cap``; then the stage's observe servo (:meth:`FinePositioner._servo`:
+feed-forward ``K (θ1_ref - θL) / N``, PD ``kp, kd`` on the gear output sampled once a period with a
+backward-difference speed, integral ``ki`` from 0) toward ``θ1_ref = θL0 + φe + d aim / 2`` for
+``observe_periods`` periods; the move is the valve's displacement at the end.
+
+Not modelled (the caller's business or small): resolver quantisation, noise and the 50 µs delay; the
+servo's integral and feed-forward error carried from the park (the hold is as above, the integral starts at
+0); the park's own motion (the model starts at rest); backlash; LuGre and the Stribeck drop (the nominal
+valve has none); the static level's new draw when the valve stops (the model's valve re-sticks at the same
+level: a second breakaway's size is the bare valve's -- hence NaN); the levels' position ripple over the move;
+the told model's errors (friction scale, Δp, inertia: ``for_positioner`` takes the stage's planning model).
+Validation (docs §80): bare nominal plant, 300 random points, 99.3 % within max(10 %, 1e-4 rad), p95 1.6e-4,
+max 3.9e-4 rad, rise to 1e-8 rad; the stage's own 2310 doublets on the nominal box (40 runs): rise -2..-3 %,
+no break misclassified beyond the rise's error, moves within +0.02 (median) / 0.07 (p90 |err|) e-3 rad.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections import OrderedDict
+
+import numpy as np
+
+from .model import NominalModel
+from .params import CONTROLLER_SPEC
+
+#: the drive's current-loop bandwidth when the caller gives none (``drive.current_loop_bandwidth_hz``'s default)
+DEFAULT_BANDWIDTH = CONTROLLER_SPEC.defaults()["drive.current_loop_bandwidth_hz"]
+
+#: a step of the tabulated move between neighbouring aims larger than this many aim spacings is the observe
+#: servo's second breakaway (a whole further jump, docs §80): :meth:`PulseMoves.move` takes the nearer aim's move
+#: there instead of a blend of the two regimes (the dragged regime grows ~1 rad of move per rad of aim)
+AIM_STEP_JUMPS = 3.0
+#: the second breakaway's aim is refined between the two tabulated aims to 1 / 2**this of their spacing (one run)
+THRESHOLD_BISECTIONS = 3
+#: tables kept per PulseMoves (each (direction, Δp, kick, valve angle) key one table of ~20k floats)
+CACHE_SIZE = 32
+
+
+class PulseMoves:
+    """The doublet's valve move from the controller's model, tabulated lazily per
+    (direction, Δp, kick current, valve angle) and interpolated.
+
+    ``period_s``: the loop period (s); ``kick_current_a``: ``fine.kick_current_a`` (A, the default kick);
+    ``peak_current_a``: ``fine.peak_current_a`` (A, every command's cap); ``retreat_full_periods``:
+    ``fine.retreat_full_periods``; ``servo_kp`` (N*m/rad), ``servo_kd`` (N*m*s/rad), ``servo_ki``
+    (N*m/(rad*s)): the stage's gear-output servo gains (:class:`FinePositioner` ``kp, kd, ki``, at the gear
+    output); ``supply_voltage_v``: the drive's bus (``drive.supply_voltage_v``; None: no voltage limit).
+    Keyword extras: ``current_bandwidth_hz`` (the drive's current-loop bandwidth; None: the current
+    follows its command at once), ``observe_periods`` (periods of the observe servo simulated after the
+    retreat, ``fine.observe_time_s`` / period), ``substeps`` (integration steps per period),
+    ``retreat_unmoved_fraction`` (``fine.retreat_unmoved_fraction``: the last retreat period's current, x cap,
+    when the valve has not moved a half count by then; ``tolerance_rad`` that count's threshold x 2).
+    Grids: ``excess_fraction`` (the excesses tabulated: 0 ... this x T_s(Δp)/K, the plausible learned-offset
+    bound of :meth:`FinePositioner._plausible_offset_rad`), ``overdrive_points`` log-spaced from 1e-3 to 1 x
+    the stick-slip jump ``2 (T_s - T_c) / K`` at Δp, ``aim_points`` aims over 0 ... ``aim_fraction`` x that jump.
+    ``park_friction``: the hold torque carries the motor's Coulomb friction toward the move (module docstring).
+    A table (41 x 20 x 17 points and the second-break refinement) costs ~0.15 s of CPU, once per key: build it before
+    the loop needs it (:meth:`table`) where a period's budget matters.
+    """
+
+    def __init__(self, model: NominalModel, period_s: float, *, kick_current_a: float, peak_current_a: float,
+                 retreat_full_periods: int, servo_kp: float, servo_kd: float, servo_ki: float,
+                 supply_voltage_v: float | None = None, current_bandwidth_hz: float | None = DEFAULT_BANDWIDTH,
+                 observe_periods: int = 15, substeps: int = 20, retreat_unmoved_fraction: float = 0.5,
+                 tolerance_rad: float = 0.0, excess_fraction: float = 0.5, excess_points: int = 41,
+                 overdrive_points: int = 20, aim_fraction: float = 1.0, aim_points: int = 17,
+                 park_friction: bool = True):
+        self.m = model
+        self.period = float(period_s)
+        self.kick = float(kick_current_a)
+        self.cap = float(peak_current_a)
+        self.retreat_full = max(int(retreat_full_periods), 1)
+        self.kp, self.kd, self.ki = float(servo_kp), float(servo_kd), float(servo_ki)
+        self.vlim = None if supply_voltage_v is None else supply_voltage_v / math.sqrt(3.0)
+        self.wc = None if current_bandwidth_hz is None else 2.0 * math.pi * current_bandwidth_hz
+        self.observe_periods = int(observe_periods)
+        self.substeps = int(substeps)
+        self.unmoved_fraction = float(retreat_unmoved_fraction)
+        self.tolerance = float(tolerance_rad)
+        self.excess_fraction = float(excess_fraction)
+        self.n_excess, self.n_overdrive = int(excess_points), int(overdrive_points)
+        self.aim_fraction, self.n_aim = float(aim_fraction), int(aim_points)
+        self.park_friction = bool(park_friction)
+        self._tables: OrderedDict = OrderedDict()
+        self._rises: dict = {}
+        self.builds = 0                  # tables simulated so far (tests count the cache's work)
+
+    @classmethod
+    def for_positioner(cls, fine, ps=None, **kw) -> "PulseMoves":
+        """The move model of a :class:`FinePositioner` ``fine``: its planning model, period, doublet settings
+        (``fine.cfg``) and servo gains (``fine.kp, kd, ki``); ``ps`` (a controller parameter set, optional):
+        ``drive.supply_voltage_v`` and ``drive.current_loop_bandwidth_hz`` (else their defaults).  ``kw``
+        overrides any keyword of the constructor."""
+        vals = CONTROLLER_SPEC.defaults() if ps is None else ps
+        cfg = fine.cfg
+        args = dict(kick_current_a=cfg.kick_current_a, peak_current_a=cfg.peak_current_a,
+                    retreat_full_periods=cfg.retreat_full_periods, servo_kp=fine.kp, servo_kd=fine.kd,
+                    servo_ki=fine.ki, supply_voltage_v=vals["drive.supply_voltage_v"],
+                    current_bandwidth_hz=vals["drive.current_loop_bandwidth_hz"],
+                    observe_periods=cfg.observe_periods, retreat_unmoved_fraction=cfg.retreat_unmoved_fraction,
+                    tolerance_rad=cfg.tolerance_rad)
+        args.update(kw)
+        return cls(fine.m, fine.period, **args)
+
+    # ------------------------------------------------------------------ public
+    def rise(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
+             valve_angle_rad: float | None = None) -> float:
+        """Twist (rad, >= 0, toward ``direction``) the doublet's kick -- and the retreat's first instants,
+        while the current slews back -- raises above a quasi-static preload on a valve that stays stuck: the
+        doublet's apex lies this far above its preload.  Per (direction, Δp, kick, angle), cached."""
+        d, p, kick, th = self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad)
+        key = (d, p, kick, th)
+        if key not in self._rises:
+            phi_s = self._levels(d, p, th)[2]
+            # a valve held stuck (static level far beyond reach); the preload at the nominal level
+            apex = self._simulate(d, p, kick, th, preload=np.array([phi_s]), excess=np.array([np.inf]),
+                                  aim=np.array([0.0]), track_apex=True)
+            self._rises[key] = float(max(d * (apex[0] - phi_s), 0.0))
+        return self._rises[key]
+
+    def move(self, direction: int, pressure_kpa: float, excess_rad, overdrive_rad,
+             kick_current_a: float | None = None, aim_rad=0.0, valve_angle_rad: float | None = None) -> np.ndarray:
+        """The valve's move (rad, >= 0 toward ``direction``; an ndarray of the broadcast shape of
+        ``excess_rad``, ``overdrive_rad`` and ``aim_rad``) for a doublet whose apex lies ``overdrive_rad``
+        above the static level, the level ``excess_rad`` above the Coulomb-equilibrium twist (both rad,
+        toward ``direction``), asked to close the error ``aim_rad`` (rad toward ``direction``, >= 0: the
+        observe servo's final twist is ``φe + aim / 2``; the move grows with it -- pass the error the
+        doublet is for).  0 where ``overdrive_rad <= 0`` (no break); NaN where the observe servo's rebound breaks
+        the valve loose a second time (or, below the level, at all: a move the model does not predict); NaN outside
+        the table (excess
+        beyond ``excess_fraction`` x T_s/K or below 0, overdrive beyond one stick-slip jump, aim beyond one
+        jump or below 0: the caller counts it a miss).  ``valve_angle_rad``: where the doublet starts (the
+        load's angle; None: mid-stroke).  Interpolated (linear in excess and aim, in log overdrive)."""
+        d, p, kick, th = self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad)
+        tab = self._table(d, p, kick, th)
+        x = np.asarray(excess_rad, dtype=float)
+        od = np.asarray(overdrive_rad, dtype=float)
+        aim = np.asarray(aim_rad, dtype=float)
+        x, od, aim = np.broadcast_arrays(x, od, aim)
+        xg, og, ag, moves = tab["excess"], tab["overdrive"], tab["aim"], tab["moves"]
+        fx = np.interp(x, xg, np.arange(len(xg)))
+        fo = np.interp(np.log(np.maximum(od, og[0])), np.log(og), np.arange(len(og)))
+        fa = np.interp(aim, ag, np.arange(len(ag)))
+        i0 = np.minimum(fx.astype(int), len(xg) - 2)
+        j0 = np.minimum(fo.astype(int), len(og) - 2)
+        k0 = np.minimum(fa.astype(int), len(ag) - 2)
+        ax, ao, aa = fx - i0, fo - j0, fa - k0
+        thr, last_ok = tab["second_break_aim"], tab["last_ok"]
+        v = np.zeros(x.shape)
+        t = np.zeros(x.shape)
+        beyond = ag[-1] + (ag[1] - ag[0])
+        for di, wx in ((0, 1.0 - ax), (1, ax)):
+            for dj, wo in ((0, 1.0 - ao), (1, ao)):
+                ii, jj = i0 + di, j0 + dj
+                # along the aim, linear over this corner's aims short of its second breakaway (flat beyond them)
+                kk = np.minimum(fa, last_ok[ii, jj])
+                k = np.minimum(kk.astype(int), len(ag) - 2)
+                w = kk - k
+                va = moves[ii, jj, k] * (1.0 - w) + moves[ii, jj, k + 1] * w
+                v = v + va * wx * wo
+                t = t + np.minimum(thr[ii, jj], beyond) * wx * wo
+        # the observe servo pulls the valve loose a second time (a whole further jump at a level drawn anew on the
+        # real valve): no prediction
+        v = np.where(aim >= t, np.nan, v)
+        eps = 1e-12
+        outside = ((x < -eps) | (x > xg[-1] * (1 + 1e-6) + eps) | (od > og[-1] * (1 + 1e-6))
+                   | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | ~np.isfinite(x) | ~np.isfinite(aim))
+        v = np.where(outside, np.nan, v)
+        # an apex below the level: no move -- unless the aim puts the observe servo's rebound into the level
+        # (then the servo breaks the valve loose, unpredicted: NaN)
+        ub = np.interp(x, xg, np.minimum(tab["servo_break_aim"], beyond))
+        unknown = (aim >= ub) | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | (x < -eps) | ~np.isfinite(x) \
+            | ~np.isfinite(aim)
+        return np.where(od > 0.0, v, np.where(unknown, np.nan, 0.0))
+
+    def table(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
+              valve_angle_rad: float | None = None) -> dict:
+        """The raw table behind :meth:`move`: ``excess``, ``overdrive``, ``aim`` (grids, rad) and ``moves``
+        [excess, overdrive, aim] (rad toward ``direction``), ``rise`` (rad), ``build_s`` (s of CPU it took)."""
+        return self._table(*self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad))
+
+    # ------------------------------------------------------------------ internals
+    def _key_parts(self, direction, pressure_kpa, kick_current_a, valve_angle_rad):
+        d = 1 if direction > 0 else -1
+        p = round(float(pressure_kpa), 3)
+        kick = self.kick if kick_current_a is None else float(kick_current_a)
+        th = 0.5 * self.m.stroke_rad if valve_angle_rad is None else float(valve_angle_rad)
+        # the load changes little over 0.01 rad of angle (spring rate + flow slope: < 0.1 % of K per 0.01 rad)
+        return d, p, round(kick, 6), round(th, 2)
+
+    def _load(self, th, p):
+        """``model.load_torque`` (N*m toward closed) over an array of valve angles ``th`` (rad) at Δp ``p``."""
+        m = self.m
+        frac = np.clip(th / m.stroke_rad, 0.0, 1.0)
+        return (m.spring_preload_nm + m.spring_rate_nm_per_rad * th
+                + m.flow_torque_max_nm * min(max(p / m.pressure_max_kpa, 0.0), 1.0) * np.sin(np.pi * frac))
+
+    def _levels(self, d, p, th):
+        """(T_c, T_s) at Δp (N*m) and the nominal static level's twist (rad, absolute) at angle ``th``."""
+        fl = self.m.friction(p)
+        load = self.m.load_torque(th, p)
+        return fl.valve_coulomb_nm, fl.valve_static_nm, (load + d * fl.valve_static_nm) / self.m.coupling_stiffness_nm_per_rad
+
+    def _table(self, d, p, kick, th) -> dict:
+        key = (d, p, kick, th)
+        if key in self._tables:
+            self._tables.move_to_end(key)
+            return self._tables[key]
+        t0 = time.process_time()
+        m = self.m
+        k = m.coupling_stiffness_nm_per_rad
+        fl = m.friction(p)
+        jump = max(fl.stick_slip_jump_rad(k), 1e-6)
+        xg = np.linspace(0.0, self.excess_fraction * fl.valve_static_nm / k, self.n_excess)
+        og = jump * np.geomspace(1e-3, 1.0, self.n_overdrive)
+        ag = np.linspace(0.0, self.aim_fraction * jump, self.n_aim)
+        rise = self.rise(d, p, kick, th)
+        X, O, A = np.meshgrid(xg, og, ag, indexing="ij")
+        load0 = m.load_torque(th, p)
+        level = (load0 + d * (fl.valve_coulomb_nm + k * X)) / k          # the static level's twist, rad
+        preload = level + d * (O - rise)
+        # ... and per excess x aim one doublet whose apex stays just short of the level (og[0] below it): where
+        # the observe servo's rebound from the retreat's trough overshoots into the level, even an apex below
+        # it moves the valve
+        X2, A2 = np.meshgrid(xg, ag, indexing="ij")
+        pre2 = (load0 + d * (fl.valve_coulomb_nm + k * X2)) / k + d * (-og[0] - rise)
+        end = self._simulate(d, p, kick, th, preload=np.concatenate([preload.ravel(), pre2.ravel()]),
+                             excess=np.concatenate([X.ravel(), X2.ravel()]),
+                             aim=np.concatenate([A.ravel(), A2.ravel()]))
+        moved = np.maximum(d * (end - th), 0.0)
+        moves = moved[:X.size].reshape(X.shape)
+        short = moved[X.size:].reshape(X2.shape) > 1e-6           # the unbroken doublet moved the valve
+        first2 = np.argmax(short, axis=1)
+        # the aim from which the servo breaks an unbroken valve loose (between the last still and first moved aim)
+        unbroken_thr = np.where(short.any(axis=1), np.where(first2 > 0, 0.5 * (ag[np.maximum(first2 - 1, 0)]
+                                                                           + ag[first2]), 0.0), np.inf)
+        # the aim at which the observe servo's overshoot breaks the valve loose a second time: the first step
+        # between neighbouring aims of more than AIM_STEP_JUMPS aim spacings (midway between them; inf: none)
+        step = np.abs(np.diff(moves, axis=2)) > AIM_STEP_JUMPS * (ag[1] - ag[0])
+        has = step.any(axis=2)
+        first = np.argmax(step, axis=2)
+        thr = np.full(has.shape, np.inf)
+        if has.any():
+            # refine the threshold between the two aims: 2**THRESHOLD_BISECTIONS - 1 aims evenly between them, all
+            # cells in one run (as fine as that many bisections, in one pass)
+            ci, cj = np.nonzero(has)
+            kf = first[ci, cj]
+            lo_a, hi_a = ag[kf], ag[kf + 1]
+            lo_m, hi_m = moves[ci, cj, kf], moves[ci, cj, kf + 1]
+            parts = 2 ** THRESHOLD_BISECTIONS
+            frac = np.arange(1, parts) / parts
+            mids = lo_a[:, None] + (hi_a - lo_a)[:, None] * frac[None, :]
+            xs = np.repeat(xg[ci], parts - 1)
+            pre = ((load0 + d * (fl.valve_coulomb_nm + k * xg[ci])) / k + d * (og[cj] - rise)).repeat(parts - 1)
+            mm = np.maximum(d * (self._simulate(d, p, kick, th, preload=pre, excess=xs, aim=mids.ravel()) - th), 0.0)
+            mm = mm.reshape(mids.shape)
+            dragged = np.abs(mm - lo_m[:, None]) > np.abs(mm - hi_m[:, None])
+            # the first dragged of the sub-aims (parts: none -- the upper tabulated aim), the threshold half a step below
+            j = np.where(dragged.any(axis=1), np.argmax(dragged, axis=1) + 1, parts)
+            thr[ci, cj] = lo_a + (hi_a - lo_a) * (j - 0.5) / parts
+        last_ok = np.where(has, first, len(ag) - 1).astype(float)
+        tab = {"excess": xg, "overdrive": og, "aim": ag, "moves": moves, "rise": rise,
+               "second_break_aim": thr, "last_ok": last_ok,
+               "servo_break_aim": unbroken_thr, "build_s": time.process_time() - t0}
+        self.builds += 1
+        self._tables[key] = tab
+        while len(self._tables) > CACHE_SIZE:
+            self._tables.popitem(last=False)
+        return tab
+
+    def _simulate(self, d, p, kick, th0, *, preload, excess, aim, track_apex=False, apex_torque=True):
+        """Run the doublet on every lane at once from rest at valve angle ``th0`` with the twist at ``preload``
+        (absolute, rad), the valve's static level ``T_c + K excess``; returns the valve angle at the end
+        (or, with ``track_apex``, the largest twist toward ``d`` reached, absolute rad)."""
+        m = self.m
+        n_gear, k, c = m.gear_ratio, m.coupling_stiffness_nm_per_rad, m.coupling_damping_nms
+        j1, jl, b1, bl = m.j1, m.valve_inertia_kgm2, m.b1, m.valve_viscous_nms
+        kt = m.torque_constant_nm_per_a
+        fl = m.friction(p)
+        tc = fl.valve_coulomb_nm
+        ts = np.where(np.isfinite(excess), tc + k * np.where(np.isfinite(excess), excess, 0.0), np.inf)
+        # motor friction at the gear output (the plant's motor-shaft levels x N)
+        tcm, tsm = fl.motor_coulomb_nm * n_gear, fl.motor_static_nm * n_gear
+        r_ohm, lq = m.motor_resistance_ohm, m.motor_lq_h
+        pole = m.motor_pole_pairs
+        psi = kt / (1.5 * pole)
+        per = self.period
+        dt = per / self.substeps
+        n = preload.shape[0]
+        # initial rest: valve at th0, gear output at th0 + preload, the drive holding K φp / N
+        thl = np.full(n, float(th0))
+        wl = np.zeros(n)
+        th1 = thl + preload
+        w1 = np.zeros(n)
+        hold = k * preload / n_gear                                        # N*m at the motor
+        if self.park_friction:
+            # the park climbed to the preload toward d: the servo's hold carries the motor's Coulomb friction
+            # too, which the stuck motor's reaction takes over (released by the kick: +5 % rise, docs §80)
+            hold = hold + d * fl.motor_coulomb_nm
+        iq = hold / kt
+        xq = r_ohm * iq                                                    # the current PI's integral at rest
+        cap = self.cap * kt
+        # the load, linear about th0 over the doublet's few mrad (its curvature: < 1e-6 rad of twist over 5e-3 rad)
+        load0 = m.load_torque(float(th0), p)
+        frac0 = float(th0) / m.stroke_rad
+        load_slope = m.spring_rate_nm_per_rad + (
+            m.flow_torque_max_nm * m.pressure_fraction(p) * math.pi / m.stroke_rad * math.cos(math.pi * frac0)
+            if 0.0 < frac0 < 1.0 else 0.0)
+        phi_e = (load0 + d * tc) / k
+        ref1 = thl + phi_e + d * aim / 2.0                                 # the observe servo's gear-output target
+        integral = np.zeros(n)
+        th1_prev = th1.copy()
+        apex = d * preload.copy()
+        vlim2 = None if self.vlim is None else self.vlim ** 2
+        if self.wc is not None:
+            kpc, kic = lq * self.wc, r_ohm * self.wc
+            a_rl = math.exp(-r_ohm * dt / lq) if r_ohm > 0.0 else 1.0
+            b_rl = (1.0 - a_rl) / r_ohm if r_ohm > 0.0 else dt / lq
+        c_emf, c_vd = psi * pole * n_gear, lq * pole * n_gear
+        n_pulse = 2 + self.retreat_full
+        for period in range(n_pulse + self.observe_periods):
+            if period == 0:
+                torque = hold + d * kick * kt
+            elif period <= self.retreat_full:
+                torque = hold - d * cap
+            elif period == self.retreat_full + 1:
+                frac = 0.5
+                if self.unmoved_fraction != 0.5 and self.tolerance > 0.0:
+                    unmoved = np.abs(thl - th0) < 0.5 * self.tolerance
+                    frac = np.where(unmoved, self.unmoved_fraction, 0.5)
+                torque = hold - d * frac * cap
+            else:
+                # the observe servo (FinePositioner._servo, a_ref = v_ref = 0), sampled at the period's start
+                w1s = (th1 - th1_prev) / per             # the stage's backward difference, every period
+                e = ref1 - th1
+                integral = integral + e * per
+                ff = k * (ref1 - thl) / n_gear
+                torque = ff + (self.kp * e - self.kd * w1s + self.ki * integral) / n_gear
+            th1_prev = th1.copy()
+            iq_ref = np.clip(torque, -cap, cap) / kt * np.ones(n)
+            for _ in range(self.substeps):
+                # ---- the drive's q current (decoupled PI, voltage circle with the back-EMF, exact R-L step)
+                if self.wc is None:
+                    iq_new = iq_mid = iq_ref
+                else:
+                    emf_q = c_emf * w1                                      # ωe ψ, ωe = p N ω1
+                    err = iq_ref - iq
+                    vq = kpc * err + xq + emf_q
+                    if vlim2 is not None:
+                        vd = c_vd * (w1 * iq)                               # |d-axis EMF| ωe Lq iq (id = 0)
+                        vq_max = np.sqrt(np.maximum(vlim2 - vd * vd, 0.0))
+                        sat = np.abs(vq) > vq_max
+                        np.clip(vq, -vq_max, vq_max, out=vq)
+                        xq = xq + np.where(sat, 0.0, kic * dt) * err        # conditional integration
+                    else:
+                        xq = xq + (kic * dt) * err
+                    iq_new = a_rl * iq + b_rl * (vq - emf_q)
+                    iq_mid = 0.5 * (iq + iq_new)
+                iq = iq_new
+                # ---- mechanics (the plant's semi-implicit Euler with exact stick-slip), gear-output coordinates
+                tk = k * (th1 - thl) + c * (w1 - wl)
+                text_m = (kt * n_gear) * iq_mid - tk - b1 * w1
+                text_l = tk - bl * wl - (load0 + load_slope * (thl - th0))
+                w1 = self._stick_slip(w1, text_m, j1, tcm, tsm, dt)
+                wl = self._stick_slip(wl, text_l, jl, tc, ts, dt)
+                th1 = th1 + dt * w1
+                thl = thl + dt * wl
+                if track_apex:
+                    # the coupling's torque over K (twist + its damping's share c (ω1 - ωL) / K): what the valve's
+                    # static level is met by -- the twist alone peaks ~4e-5 rad lower, while it still rises
+                    apex = np.maximum(apex, d * (k * (th1 - thl) + c * (w1 - wl)) / k if apex_torque
+                                      else d * (th1 - thl))
+        return d * apex if track_apex else thl
+
+    @staticmethod
+    def _stick_slip(w, t_ext, inertia, t_coulomb, t_static, dt):
+        """One step of a shaft with static / Coulomb friction (no Stribeck), as the plant's kernel: stuck
+        while the torque on it is within the static level (breaking away at the Coulomb level), stopped
+        where its speed would reverse within the step."""
+        stuck = w == 0.0
+        sgn = np.sign(w + stuck * t_ext)          # a moving shaft's own direction, a stuck one's torque's
+        w_new = w + (dt / inertia) * (t_ext - sgn * t_coulomb)
+        w_new[(stuck & (np.abs(t_ext) <= t_static)) | (w_new * w < 0.0)] = 0.0
+        return w_new
