@@ -189,45 +189,17 @@ START_SIGMAS_MIN, START_SIGMAS_MAX = 1e-3, 10.0
 APEX_LAW_POINTS, APEX_LAW_SIGMAS = 41, 3.0
 
 
-class _StandInMoves:
-    """TEMPORARY stand-in (task h33p) for h33m's ``core/pulse_moves.PulseMoves`` (same interface), to be deleted
-    once that model is merged: main's doublet (``fine.kick_current_a``, one whole retreat period) on the nominal
-    plant at max Δp, from the facts measured in closed loop (docs §33, task h22m: the 112 moved doublets of the
-    nominal box moved 0.64 x the true static excess - 0.44e-3 rad at ~0 overdrive, r² 0.70, residual rms 0.19e-3;
-    benchmarks/fine_doublet.py: +~4 rad per rad of overdrive) and the kick's rise seen on the unmoved doublets
-    (task h22f: 0.28-0.30e-3 rad).  Not scaled with the model or Δp: a stand-in."""
-
-    RISE_RAD = 2.9e-4                  # rad, the 4 A kick's rise above its preload (h22f)
-    SLOPE, OFFSET = 0.64, 4.4e-4       # move at ~0 overdrive = SLOPE x excess - OFFSET (rad/rad, rad; §33)
-    PER_OVERDRIVE = 4.0                # rad of move per rad of overdrive (benchmarks/fine_doublet.py)
-    SMALLEST = 5e-5                    # rad: a move is at least this (the fit crosses 0 at 0.69e-3 of excess)
-
-    def __init__(self, model, period_s, **_kw):
-        self.model, self.period_s = model, period_s
-
-    def rise(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
-             valve_angle_rad: float | None = None) -> float:
-        return self.RISE_RAD
-
-    def move(self, direction: int, pressure_kpa: float, excess_rad, overdrive_rad,
-             kick_current_a: float | None = None, aim_rad=0.0, valve_angle_rad: float | None = None) -> np.ndarray:
-        x, od = np.asarray(excess_rad, dtype=float), np.asarray(overdrive_rad, dtype=float)
-        m = np.maximum(self.SLOPE * x - self.OFFSET, self.SMALLEST) + self.PER_OVERDRIVE * np.maximum(od, 0.0)
-        return np.where(od > 0.0, m, 0.0)
-
-
-def _pulse_moves(model: NominalModel, period_s: float, cfg, kp: float, kd: float, ki: float) -> object:
-    """The doublet's move model for ``fine.apex_policy``: h33m's :class:`PulseMoves` (the stage's own doublet,
-    servo and current cap, simulated on the controller's model) once merged, else the temporary
-    :class:`_StandInMoves`."""
-    try:
-        from .pulse_moves import PulseMoves    # noqa: PLC0415 (task h33m)
-    except ImportError:
-        return _StandInMoves(model, period_s)
-    return PulseMoves(model, period_s, kick_current_a=cfg.kick_current_a, peak_current_a=cfg.peak_current_a,
-                      retreat_full_periods=cfg.apex_retreat_periods or cfg.retreat_full_periods, servo_kp=kp, servo_kd=kd, servo_ki=ki,
-                      supply_voltage_v=cfg.supply_voltage_v, observe_periods=cfg.observe_periods,
-                      retreat_unmoved_fraction=cfg.retreat_unmoved_fraction, tolerance_rad=cfg.tolerance_rad)
+def _pulse_moves(fine: "FinePositioner") -> object:
+    """The doublet's move model for ``fine.apex_policy``: :class:`~fuel_valve_control.core.pulse_moves.PulseMoves`
+    (task h33m, docs §80) of the stage ``fine`` -- its planning model, doublet, servo gains and current cap --
+    with its doublets' retreat (``fine.apex_retreat_periods``, else ``fine.retreat_full_periods``) and the drive's
+    bus voltage."""
+    from .pulse_moves import PulseMoves    # noqa: PLC0415 (imports this module's constants)
+    cfg = fine.cfg
+    kw = {"retreat_full_periods": cfg.apex_retreat_periods or cfg.retreat_full_periods}
+    if cfg.supply_voltage_v is not None:
+        kw["supply_voltage_v"] = cfg.supply_voltage_v
+    return PulseMoves.for_positioner(fine, **kw)
 
 
 def _norm_cdf(x):
@@ -1115,7 +1087,7 @@ class FinePositioner:
         counts only on this side of the target, any crossing as a worse |e|."""
         cfg = self.cfg
         if self._moves is None:
-            self._moves = _pulse_moves(self.m, self.period, cfg, self.kp, self.kd, self.ki)
+            self._moves = _pulse_moves(self)
         lv, w = self._apex_law(d, phi_b, sigma)
         top = lv[-1] if d * (lv[-1] - lv[0]) > 0 else lv[0]
         cand = np.concatenate([lv, top + d * sigma * np.linspace(0.1, 1.5, 8)])
