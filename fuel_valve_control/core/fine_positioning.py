@@ -187,6 +187,8 @@ START_SIGMAS_MIN, START_SIGMAS_MAX = 1e-3, 10.0
 #: fine.apex_policy (task h33p): the level's law is a clipped normal on this many points over +-APEX_LAW_SIGMAS
 #: learned scatters (plateau_floor's level_prior: 41 points over +-3 sigma)
 APEX_LAW_POINTS, APEX_LAW_SIGMAS = 41, 3.0
+#: ... and reads the move model at Δp rounded to this fraction of the rated Δp
+APEX_DP_STEP = 0.01
 
 
 def _pulse_moves(fine: "FinePositioner") -> object:
@@ -1089,6 +1091,10 @@ class FinePositioner:
         if self._moves is None:
             self._moves = _pulse_moves(self)
         lv, w = self._apex_law(d, phi_b, sigma)
+        # the model's tables are keyed by Δp and angle: read at 1 % of the rated Δp (the measured Δp's noise would
+        # build a new table at every try, 0.15 s of CPU each; the levels change < 1 % over it) and 0.01 rad
+        step = APEX_DP_STEP * self.m.pressure_max_kpa
+        pressure_kpa = round(pressure_kpa / step) * step
         top = lv[-1] if d * (lv[-1] - lv[0]) > 0 else lv[0]
         cand = np.concatenate([lv, top + d * sigma * np.linspace(0.1, 1.5, 8)])
         fl = self._apex_floor
