@@ -492,6 +492,7 @@ class FineConfig:
     apex_min_chance: float = 0.0  # ... no try whose chance of ending within apex_land_rad is not above this
     apex_kick_max_a: float = 0.0  # ... the kick chosen per try among kick_current_a x 1, 2, 4 ... up to this, A
                                   # (0 or below kick_current_a: kick_current_a only)
+    apex_kick_ratio: float = 2.0  # ... successive kicks of that set this many times the last
     apex_retreat_periods: int = 0  # ... its doublets retreat this many periods at the whole current (0: fine.retreat_full_periods)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
@@ -1060,14 +1061,14 @@ class FinePositioner:
         return lv, w / w.sum()
 
     def _apex_kicks(self) -> list[float]:
-        """(``fine.apex_policy``) The kick currents (A) the policy chooses among: ``fine.kick_current_a`` doubled
-        while within ``fine.apex_kick_max_a`` (docs §75.4: the kick's size sets how much the level's draw matters
+        """(``fine.apex_policy``) The kick currents (A) the policy chooses among: ``fine.kick_current_a`` times
+        ``fine.apex_kick_ratio`` (2) while within ``fine.apex_kick_max_a`` (docs §75.4: the kick's size sets how much the level's draw matters
         -- a larger kick rises further above its preload, breaks the valve loose earlier in its rise for a low
         level, and its move varies less with the level)."""
-        k0, top = self.cfg.kick_current_a, self.cfg.apex_kick_max_a
+        k0, top, r = self.cfg.kick_current_a, self.cfg.apex_kick_max_a, max(self.cfg.apex_kick_ratio, 1.05)
         kicks = [k0]
-        while kicks[-1] * 2.0 <= top + 1e-9:
-            kicks.append(kicks[-1] * 2.0)
+        while kicks[-1] * r <= top + 1e-9:
+            kicks.append(kicks[-1] * r)
         return kicks
 
     def _choose_apex(self, err: float, d: int, phi_e: float, phi_b: float, sigma: float, pressure_kpa: float,

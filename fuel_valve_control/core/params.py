@@ -574,6 +574,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "fine.apex_land_rad (this try or, after no move, the next) is not above this (0: every try not more "
           "likely to worsen the error; 0.1 stopped staircases main's finished, task h33p)", 0.0, 1.0,
           runtime=True),
+    Param("fine.apex_kick_ratio", 2.0, "", "fine.apex_policy: successive kicks of its set are this many times the "
+          "last (2: 4 / 8 / 16 A; smaller: a finer choice of the apex a kick's rise reaches from the last unmoved apex)",
+          1.05, 4.0, runtime=True),
     Param("fine.apex_retreat_periods", 0, "", "fine.apex_policy: its doublets retreat this many loop periods at the "
           "whole current (fine.peak_current_a) before the half one (0 = fine.retreat_full_periods; h33a: the deeper "
           "retreat carries plateau_floor's gain)", 0, 3, runtime=True),
