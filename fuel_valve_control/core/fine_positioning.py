@@ -138,6 +138,8 @@ import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 
+import numpy as np
+
 from ..common.hunting import HUNT_REVERSALS, ReversalCounter
 from .model import NominalModel
 
@@ -180,6 +182,31 @@ SCALE_HOLD_FRACTION = 0.8
 #: stays within [START_SIGMAS_MIN, START_SIGMAS_MAX] (the floor keeps 0 meaning "not learned yet"; the ceiling is
 #: fine.doublet_sigmas' own range)
 START_SIGMAS_MIN, START_SIGMAS_MAX = 1e-3, 10.0
+
+
+#: fine.apex_policy (task h33p): the level's law is a clipped normal on this many points over +-APEX_LAW_SIGMAS
+#: learned scatters (plateau_floor's level_prior: 41 points over +-3 sigma)
+APEX_LAW_POINTS, APEX_LAW_SIGMAS = 41, 3.0
+#: ... and reads the move model at Δp rounded to this fraction of the rated Δp
+APEX_DP_STEP = 0.01
+
+
+def _pulse_moves(fine: "FinePositioner") -> object:
+    """The doublet's move model for ``fine.apex_policy``: :class:`~fuel_valve_control.core.pulse_moves.PulseMoves`
+    (task h33m, docs §80) of the stage ``fine`` -- its planning model, doublet, servo gains and current cap --
+    with its doublets' retreat (``fine.apex_retreat_periods``, else ``fine.retreat_full_periods``) and the drive's
+    bus voltage."""
+    from .pulse_moves import PulseMoves    # noqa: PLC0415 (imports this module's constants)
+    cfg = fine.cfg
+    kw = {"retreat_full_periods": cfg.apex_retreat_periods or cfg.retreat_full_periods}
+    if cfg.supply_voltage_v is not None:
+        kw["supply_voltage_v"] = cfg.supply_voltage_v
+    return PulseMoves.for_positioner(fine, **kw)
+
+
+def _norm_cdf(x):
+    from math import erf
+    return 0.5 * (1.0 + np.vectorize(erf)(np.asarray(x) / math.sqrt(2.0)))
 
 
 @dataclass(frozen=True)
@@ -457,6 +484,17 @@ class FineConfig:
     stair_growth_after: int = 0   # doublet: after this many unmoved stairs of one staircase each further stair grows
                                   # (:meth:`FinePositioner._grown_stair`; task h32e, docs §77; 0: never)
     stair_growth_slope: float = 4.0  # ... bounded as fine.move_per_overdrive bounds it (this slope where that is 0)
+    apex_policy: bool = False     # doublet: each apex placed where the learned level's law (truncated by this stop's
+                                  # unmoved apexes) gives the best chance to land within apex_land_rad
+                                  # (:meth:`FinePositioner._choose_apex`; task h33p, docs §81), not a staircase
+    apex_land_rad: float = 4e-4   # ... the landing tolerance the policy aims into, rad
+    apex_move_sd_rad: float = 2e-4  # ... the rms error of the move model about its prediction, rad
+    apex_min_chance: float = 0.0  # ... no try whose chance of ending within apex_land_rad is not above this
+    apex_kick_max_a: float = 0.0  # ... the kick chosen per try among kick_current_a x 1, 2, 4 ... up to this, A
+                                  # (0 or below kick_current_a: kick_current_a only)
+    apex_kick_ratio: float = 2.0  # ... successive kicks of that set this many times the last
+    apex_retreat_periods: int = 0  # ... its doublets retreat this many periods at the whole current (0: fine.retreat_full_periods)
+    supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
                                          # that stop held an apex beyond it (task h32a, docs §73)
@@ -477,6 +515,7 @@ class FinePositioner:
         self.kd = 2.0 * 0.8 * w * j1       # N*m*s/rad
         self.ki = self.kp * w / 8.0        # slow integral: removes the feed-forward's error
         self.timeable = self.servo_margin_rad(j1, self.kp, self.kd, period_s) > 0.0
+        self._moves = None                 # fine.apex_policy: the doublet's move model (built when first needed)
         self._pushes = {}                  # fine.probe_reached: {(direction, Δp band): rad of twist (>= 0, toward the
                                            # move) a servo-blended pulse's planned peak lies beyond the learned level's}
         # fine.repark_from_state / fine.retreat_unmoved_fraction: kept across resets (the last gear-output
@@ -540,6 +579,12 @@ class FinePositioner:
         self._steady = 0
         self._new_plateau()
         self._stair = None
+        self._apex_floor = None       # fine.apex_policy: (direction, twist rad) the highest apex an unmoved doublet
+                                      # reached at this stop (None: none yet)
+        self._apex_plan = None        # fine.apex_policy: (apex, P(land), P(no move), score, kick) of the last choice
+        self._apex_kick = None        # fine.apex_policy: the kick current (A) of the doublet in progress (None: main's)
+        self._apex_try = None         # ... (direction, the model's mean move if it moves, rad) of that doublet
+        self._apex_rise = 0.0         # ... and its rise above the preload, rad
         self._safe = None             # fine.preload_cap: the furthest twist toward the move an unmoved pulse reached
                                       # at this stop, rad (None: none yet)
         self._stairs_unmoved = 0      # fine.stair_growth_after: unmoved stairs of the staircase in progress
@@ -959,6 +1004,7 @@ class FinePositioner:
         self._phi_start = th1 - thl
         self._k = 0
         self._doublet = doublet
+        self._apex_try = None
         if self._doublet:
             # the kick rises kick_rise above the preload; the retreat after it is the whole
             # current, so the valve breaks loose while the gear output is already turning back
@@ -975,9 +1021,128 @@ class FinePositioner:
                     # scatters below the twist the last one broke at, not below the learned level
                     self._stair = d * (phi_b - self._restair[1]) + cfg.restair_sigmas * self._scatter(d, band, gap)
             self._pre = phi_b - d * (self._kick_rise() + self._stair)
+            if cfg.apex_policy:
+                # (task h33p) the apex from the level's law, not the staircase's stair; the preload the model's
+                # kick rise below it
+                apex = self._choose_apex(err, d, phi_e, phi_b, self._scatter(d, band, gap), pressure_kpa, short, thl)
+                if apex is None:
+                    # no try more likely to land than the policy's floor, or more likely to worsen |e|: hold here
+                    self._judge(failed=abs(err) > self._err0 + cfg.tolerance_rad)
+                    # ... at the doublet's final twist (about φe, inside the static band), not at th1: after an
+                    # unmoved doublet th1 lies in its retreat's trough, ~5e-3 rad of twist back (§55.1), and held
+                    # there the valve broke loose backwards (traced, nominal box seed 1017 #5: 5.8e-3 rad)
+                    self.phase = HOLD
+                    self._hold_ref = thl + final
+                    return
+                self._pre = apex - d * self._apex_rise
         self._plan_park()
         self.phase = PARK
         self._peak_seen = th1 - thl
+
+    def _apex_law(self, d: int, phi_b: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+        """(``fine.apex_policy``) The law of the level (the breakaway twist, rad, absolute) this stop drew, toward
+        ``d``: the learned level ``phi_b`` and scatter ``sigma`` as a clipped normal on APEX_LAW_POINTS points over
+        +-APEX_LAW_SIGMAS scatters (the box's law as plateau_floor's (b') knows it), truncated from below by the
+        highest apex an unmoved doublet reached at this stop (``_apex_floor``: a measured twist, reset by a move).
+        Where the floor lies beyond the law's points the level is in the normal's far tail: there the law is the
+        tail's exponential (rate z / sigma, z the floor's distance in scatters) above the floor.
+        Returns (levels, weights summing to 1)."""
+        z = np.linspace(-APEX_LAW_SIGMAS, APEX_LAW_SIGMAS, APEX_LAW_POINTS)
+        lv, w = phi_b + d * sigma * z, np.exp(-0.5 * z * z)
+        fl = self._apex_floor
+        if fl is not None and fl[0] == d:
+            above = d * (lv - fl[1]) > 0.0
+            if (w * above).sum() < 1e-3 * w.sum():
+                zf = max(d * (fl[1] - phi_b) / sigma, 1.0)
+                t = np.linspace(0.0, 3.0 * sigma / zf, APEX_LAW_POINTS)[1:]
+                lv, w = fl[1] + d * t, np.exp(-t * zf / sigma)
+            else:
+                w = np.where(above, w, 0.0)
+        return lv, w / w.sum()
+
+    def _apex_kicks(self) -> list[float]:
+        """(``fine.apex_policy``) The kick currents (A) the policy chooses among: ``fine.kick_current_a`` times
+        ``fine.apex_kick_ratio`` (2) while within ``fine.apex_kick_max_a`` (docs §75.4: the kick's size sets how much the level's draw matters
+        -- a larger kick rises further above its preload, breaks the valve loose earlier in its rise for a low
+        level, and its move varies less with the level)."""
+        k0, top, r = self.cfg.kick_current_a, self.cfg.apex_kick_max_a, max(self.cfg.apex_kick_ratio, 1.05)
+        kicks = [k0]
+        while kicks[-1] * r <= top + 1e-9:
+            kicks.append(kicks[-1] * r)
+        return kicks
+
+    def _choose_apex(self, err: float, d: int, phi_e: float, phi_b: float, sigma: float, pressure_kpa: float,
+                     short: float, thl: float) -> float | None:
+        """(``fine.apex_policy``, task h33p, docs §81) The doublet's apex (absolute twist, rad) for the error
+        ``err`` (target - valve, rad) toward ``d`` from the valve angle ``thl``, or None (no try worth making: the
+        stage holds); sets the kick (:attr:`_apex_kick`, A) and its rise above the preload (:attr:`_apex_rise`).
+        Over the level's law (:meth:`_apex_law`, points L_k with weights w_k), each kick (:meth:`_apex_kicks`) and
+        candidate apex a (the law's points and up to 1.5 scatters above its top) moves the valve where it
+        exceeds the level (overdrive a - L_k > 0) by the move model's M(excess L_k - φe, overdrive, aim |e|)
+        (:func:`_pulse_moves`), read with an rms error ``fine.apex_move_sd_rad``; a level below the preload (a
+        - the kick's rise) breaks the valve loose while parked, a whole stick-slip jump.  Each scores
+        P(|e - M| <= ``fine.apex_land_rad``) + P(no move) x V1(a), V1 the best such landing chance of one more
+        try (main's kick) on the law truncated at a (benchmarks/plateau_floor.py's ``choose_bayes``, one step
+        ahead; the plateau's time left is not known to the stage: every try counts it).  Not made: a try more
+        likely to leave |e| larger than smaller, one more likely to break the valve loose in its preload than
+        main's staircase start (Φ(-``fine.doublet_sigmas``)), one whose score is not above
+        ``fine.apex_min_chance``.  ``short`` > 0 (:meth:`_cross_guard`: the move must not cross): a landing
+        counts only on this side of the target, any crossing as a worse |e|."""
+        cfg = self.cfg
+        if self._moves is None:
+            self._moves = _pulse_moves(self)
+        lv, w = self._apex_law(d, phi_b, sigma)
+        # the model's tables are keyed by Δp and angle: read at 1 % of the rated Δp (the measured Δp's noise would
+        # build a new table at every try, 0.15 s of CPU each; the levels change < 1 % over it) and 0.01 rad
+        step = APEX_DP_STEP * self.m.pressure_max_kpa
+        pressure_kpa = round(pressure_kpa / step) * step
+        top = lv[-1] if d * (lv[-1] - lv[0]) > 0 else lv[0]
+        cand = np.concatenate([lv, top + d * sigma * np.linspace(0.1, 1.5, 8)])
+        fl = self._apex_floor
+        if fl is not None and fl[0] == d:
+            cand = cand[d * (cand - fl[1]) > 0.0]
+        if len(cand) == 0:
+            return None
+        od = d * (cand[:, None] - lv[None, :])               # [a, k] overdrive, rad
+        excess = np.broadcast_to(np.maximum(d * (lv - phi_e), 0.0)[None, :], od.shape)   # the level above φe
+        moved = od > 0.0
+        e, s, tol = abs(err), max(cfg.apex_move_sd_rad, 1e-9), cfg.apex_land_rad
+        lo = 0.0 if short > 0.0 else -tol
+        worse_edge = 0.0 if short > 0.0 else -e
+        p_none = (~moved).astype(float) @ w
+        trunc = np.where(d * (lv[None, :] - cand[:, None]) > 0.0, w[None, :], 0.0)
+        tot = trunc.sum(axis=1, keepdims=True)
+        trunc = np.divide(trunc, tot, out=np.zeros_like(trunc), where=tot > 0.0)
+        break_limit = float(_norm_cdf(-cfg.doublet_sigmas)) + 1e-9
+        best, v1 = None, None
+        for kick in self._apex_kicks():
+            rise = self._moves.rise(d, pressure_kpa, kick_current_a=kick, valve_angle_rad=thl)
+            mv = np.asarray(self._moves.move(d, pressure_kpa, excess, od, kick_current_a=kick, aim_rad=e,
+                                             valve_angle_rad=thl), dtype=float)
+            # a level below the preload breaks the valve loose while parked: a quasi-static release, the whole
+            # stick-slip jump 2 x excess (main's staircase starts fine.doublet_sigmas scatters below the level for
+            # this; traced, task h33p: nominal box seed 1021, a preload 0.39e-3 below the learned level broke it
+            # loose for 3.4e-3 rad)
+            mv = np.where(od > rise, 2.0 * excess, mv)
+            left = e - np.where(np.isfinite(mv), mv, 2.0 * e + 1.0)   # |e| left toward the target (< 0: crossed)
+            hit = np.where(moved, _norm_cdf((tol - left) / s) - _norm_cdf((lo - left) / s), 0.0)
+            worse = np.where(moved, _norm_cdf((worse_edge - left) / s), 0.0)
+            p_hit, p_worse, p_break = hit @ w, worse @ w, (od > rise).astype(float) @ w
+            if v1 is None:
+                v1 = (hit @ trunc.T).max(axis=0)             # one more try after no move at a: the law beyond a
+            score = p_hit + p_none * v1
+            score = np.where((p_worse < 0.5) & (p_break <= break_limit), score, -np.inf)
+            j = int(np.argmax(score))
+            if best is None or score[j] > best[0]:
+                pm = float(moved[j].astype(float) @ w)
+                m_mean = float((np.where(moved[j] & np.isfinite(mv[j]), mv[j], 0.0) @ w) / pm) if pm > 0 else 0.0
+                best = (float(score[j]), float(cand[j]), kick, rise, float(p_hit[j]), float(p_none[j]), m_mean)
+        self._apex_plan = (best[1], best[4], best[5], best[0], best[2], best[6])
+        if not best[0] > cfg.apex_min_chance:
+            return None
+        self._apex_kick, self._apex_rise = best[2], best[3]
+        self._apex_try = (d, best[6])          # the model's mean move, if this try moves (traced in §81)
+        return best[1]
 
     def _start_sigmas(self, d: int, b: int) -> float:
         """How many learned scatters below the learned breakaway a new staircase starts (its first preload
@@ -1274,8 +1439,11 @@ class FinePositioner:
         if self._k == 1:
             # (a first stair's kick may be smaller: ``fine.first_kick_fraction``)
             kick = cfg.kick_current_a * (cfg.first_kick_fraction if self._first_stair else 1.0)
+            if cfg.apex_policy and self._apex_kick is not None:
+                kick = self._apex_kick             # (task h33p) the kick the policy chose for this try
             torque = self._hold_torque + d * kick * kt
-        elif self._k <= 1 + max(cfg.retreat_full_periods, 1):
+        elif self._k <= 1 + max(cfg.apex_retreat_periods if cfg.apex_policy and cfg.apex_retreat_periods > 0
+                                else cfg.retreat_full_periods, 1):
             torque = self._hold_torque - d * cap
         else:
             # (h28r, ``fine.retreat_unmoved_fraction``) a valve not yet moved by now may get less of it
@@ -1447,6 +1615,7 @@ class FinePositioner:
         below = self._safe                     # (fine.unbiased_samples) the stop's furthest unmoved apex, if any
         if abs(move) > 0.5 * cfg.tolerance_rad:
             self._stair = None                 # a new stop: a new breakaway level
+            floor, self._apex_floor = self._apex_floor, None
             if cfg.unbiased_samples:
                 self._pushes[(d, b)] = 0.0     # (h30u) a new stop: the climb was this stop's (its bound is learned)
             elif not self._doublet:
@@ -1484,7 +1653,15 @@ class FinePositioner:
                 # apex that broke it loose (the apex before did not), or below the preload it
                 # broke loose at (the staircase started too close: the scatter grows)
                 half_step = 0.5 * (self._stair_step or cfg.doublet_probe_step * gap0)
-                if cfg.unbiased_samples and pulsed:
+                if cfg.apex_policy and not self._cold:
+                    # (task h33p) the policy's apexes overdrive the level by up to its law's width: the level lay
+                    # between this stop's highest unmoved apex (if any) and the twist the valve let go at (the apex
+                    # seen plus the let-go offset; in the preload: the preload) -- a censored sample, not the apex
+                    # less half a stair
+                    lo = d * (floor[1] - b0) if floor is not None and floor[0] == d else -math.inf
+                    hi = d * ((self._peak_seen + d * self._let_go_offset() if pulsed else self._pre) - b0)
+                    self._learn_interval(d, b, lo, hi, gap0)
+                elif cfg.unbiased_samples and pulsed:
                     # (task h30u) the kick let it go: the level lies at the apex plus the let-go offset
                     # (:meth:`_let_go_offset`), not half a stair below it -- there every moved doublet's
                     # sample lay 1.3e-4 rad below the plant's true level (nominal box, h29q)
@@ -1523,7 +1700,8 @@ class FinePositioner:
                 new_b = d * min(d * (b0 + curb), d * seen) - d * 0.05 * gap0
                 self.learn.set("breakaway", d, b, curb + cfg.learn_gain * ((new_b - b0) - curb))
             cur = self.learn.min_move[d][b]
-            if pulsed and self._doublet:
+            if pulsed and self._doublet and not cfg.apex_policy:
+                # (fine.apex_policy: its moves come at the overdrive it chose, no sample of the smallest move)
                 # a doublet breaks the valve loose from its staircase at ~0 overdrive: each move
                 # it makes is a sample of the smallest move the stage can make -- their mean,
                 # not the smallest seen: the stopping rule weighs the move the next doublet will
@@ -1534,7 +1712,16 @@ class FinePositioner:
                 self.learn.set("min_move", d, b, m if cur <= 0.0 else cur + MOVE_GAIN * (m - cur))
         elif pulsed:
             # the pulse did not move it: breakaway lies beyond the peak reached
-            if self._doublet and self._stair is not None:
+            if self._doublet and self._stair is not None and cfg.apex_policy:
+                # (task h33p) the level lies beyond the apex the kick really reached (measured): the policy's law
+                # is truncated there until the valve moves
+                if self._apex_floor is None or self._apex_floor[0] != d or d * (self._kick_apex - self._apex_floor[1]) > 0:
+                    self._apex_floor = (d, self._kick_apex)
+                self._stairs_unmoved += 1
+                if d * (self._apex_floor[1] - b0) > self._plausible_offset_rad(pressure_kpa):
+                    # beyond any plausible learned level (:meth:`_plausible`): it is not this valve
+                    self._climbed_out = True
+            elif self._doublet and self._stair is not None:
                 # the kick's rise above the planned preload, seen where the valve stayed (a valve that
                 # let go cuts the rise short): a sample of the twist the next kick will add
                 rise = d * (self._kick_apex - self._pre)
@@ -1632,9 +1819,10 @@ class FinePositioner:
             # learned does not fit the model: the model does not describe this valve
             self._hand_back()
             return
-        if abs(err) <= cfg.tolerance_rad or self._spent() or self._below_min_move(err, pressure_kpa) \
+        policy = cfg.apex_policy and self._doublet and abs(err) <= cfg.doublet_max_error_rad
+        if abs(err) <= cfg.tolerance_rad or self._spent() or (not policy and (self._below_min_move(err, pressure_kpa) \
                 or (pulsed and self._doublet and self._stair is not None
-                    and self._level_outgrows_error(err, pressure_kpa, b0 + curb)) \
+                    and self._level_outgrows_error(err, pressure_kpa, b0 + curb)))) \
                 or self._cross_guard(err, pressure_kpa) is None:
             # close enough, or its moves are larger than the error left, or a move could make the
             # plateau hunt: hold where it is
@@ -1726,6 +1914,7 @@ class FinePositioner:
         self.phase = IDLE
         self._target = None
         self._stair = None
+        self._apex_floor = None
 
     def health(self) -> dict:
         return {"fine_phase": self.phase, "fine_pulses_total": self.learn.pulses,

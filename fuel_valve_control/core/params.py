@@ -563,6 +563,31 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.stair_growth_slope", 4.0, "rad/rad", "fine.stair_growth_after: the valve's move per twist overdrive "
           "at breakaway the grown stair is bounded with where fine.move_per_overdrive is 0 (benchmarks/fine_doublet.py: "
           "~4)", 0.1, 100.0, runtime=True),
+    Param("fine.apex_policy", False, "", "doublet: each apex placed where the learned breakaway level's law (normal, "
+          "the learned level and scatter, truncated from below by the highest apex an unmoved doublet reached at this "
+          "stop) and the doublet's move model give the largest P(land within fine.apex_land_rad) + P(no move) x the "
+          "next try's best such chance, instead of a staircase from fine.doublet_sigmas scatters below the level; no "
+          "try more likely to worsen the error than to improve it (it replaces the smallest-move stopping rules; task "
+          "h33p, docs/control_results.md section 81)", runtime=True),
+    Param("fine.apex_land_rad", 4e-4, "rad", "fine.apex_policy: the landing tolerance its tries aim into (issue 14's "
+          "5e-4 rad p95 target less a resolver count of noise; benchmarks/plateau_floor.py's stop tolerance)",
+          1e-4, 2e-3, runtime=True),
+    Param("fine.apex_move_sd_rad", 2e-4, "rad", "fine.apex_policy: rms error of the doublet's move model about its "
+          "prediction (docs section 33: the moved doublets' residual about the fit to the true static excess, "
+          "0.19e-3 rad)", 1e-5, 2e-3, runtime=True),
+    Param("fine.apex_min_chance", 0.0, "", "fine.apex_policy: no try whose chance of ending within "
+          "fine.apex_land_rad (this try or, after no move, the next) is not above this (0: every try not more "
+          "likely to worsen the error; 0.1 stopped staircases main's finished, task h33p)", 0.0, 1.0,
+          runtime=True),
+    Param("fine.apex_kick_ratio", 2.0, "", "fine.apex_policy: successive kicks of its set are this many times the "
+          "last (2: 4 / 8 / 16 A; smaller: a finer choice of the apex a kick's rise reaches from the last unmoved apex)",
+          1.05, 4.0, runtime=True),
+    Param("fine.apex_retreat_periods", 0, "", "fine.apex_policy: its doublets retreat this many loop periods at the "
+          "whole current (fine.peak_current_a) before the half one (0 = fine.retreat_full_periods; h33a: the deeper "
+          "retreat carries plateau_floor's gain)", 0, 3, runtime=True),
+    Param("fine.apex_kick_max_a", 0.0, "A", "fine.apex_policy: the kick is chosen per try among "
+          "fine.kick_current_a x 1, 2, 4 ... up to this (docs section 75.4: the kick's size sets how much the "
+          "level's draw matters; 0 = fine.kick_current_a only)", 0.0, 30.0, runtime=True),
     Param("fine.unbiased_preload_pull", False, "", "with fine.unbiased_samples: a servo-blended pulse whose preload "
           "broke the valve loose pulls the learned breakaway to below that preload with fine.learn_gain (main's "
           "treatment), instead of the censored sample's fine.scatter_gain step toward the conditional mean (that "
