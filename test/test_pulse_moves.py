@@ -47,51 +47,12 @@ def pm(fine) -> PulseMoves:
     return PulseMoves.for_positioner(fine, CS, dp_grid=TEST_DP_GRID, angle_grid=(0.5,))
 
 
-def plant_doublet(d: int, excess: float, overdrive: float, aim: float, rise: float, fine: FinePositioner,
-                  p: float = P_MAX) -> float:
-    """The valve's move (rad toward ``d``) on the bare nominal plant for the doublet ``fine`` commands, its
-    apex ``overdrive`` above a static level ``excess`` above the Coulomb-equilibrium twist (preload = apex - rise)."""
-    from fuel_valve_plant.physics import kernel as KN
-    from fuel_valve_plant.physics.params import PLANT_SPEC
-    from fuel_valve_plant.physics.plant import Plant
-
-    ps = PLANT_SPEC.defaults()
-    fl = MODEL.friction(p)
-    ts = fl.valve_coulomb_nm + K * excess
-    c0 = ps["friction.valve.static_nm"]
-    pl = Plant(ps.replace({"pressure_differential_kpa": p,
-                           "friction.valve.static_per_dp_nm": (ts - c0) / MODEL.pressure_fraction(p)}))
-    theta = 0.5 * MODEL.stroke_rad
-    pl.hold_at(theta)
-    n, kt, cfg = MODEL.gear_ratio, MODEL.torque_constant_nm_per_a, fine.cfg
-    load = MODEL.load_torque(theta, p)
-    phi = (load + d * ts) / K + d * (overdrive - rise)            # the preload twist
-    hold = (K * phi / n + d * fl.motor_coulomb_nm) / kt           # A (the park's climb: + the motor's Coulomb)
-    pl.S[KN.S_THM] = (theta + phi) * n                            # at rest, twisted to the preload
-    pl.S[KN.S_IQ] = hold
-    pl.S[KN.S_XQ] = ps["motor.resistance_ohm"] * hold
-    pl.set_command(hold, True)
-    ref = theta + (load + d * fl.valve_coulomb_nm) / K + d * aim / 2.0
-    cap, integral = cfg.peak_current_a, 0.0
-    th1_prev = pl.truth().motor_angle / n
-    for k in range(2 + cfg.retreat_full_periods + cfg.observe_periods):
-        t = pl.truth()
-        th1, thl = t.motor_angle / n, t.valve_angle
-        if k == 0:
-            iq = hold + d * cfg.kick_current_a
-        elif k <= cfg.retreat_full_periods:
-            iq = hold - d * cap
-        elif k == cfg.retreat_full_periods + 1:
-            iq = hold - d * 0.5 * cap
-        else:                                                     # FinePositioner._servo, observe phase
-            e = ref - th1
-            integral += e * PERIOD
-            iq = (K * (ref - thl) / n + (fine.kp * e - fine.kd * (th1 - th1_prev) / PERIOD
-                                         + fine.ki * integral) / n) / kt
-        th1_prev = th1
-        pl.set_command(min(max(iq, -cap), cap), True)
-        pl.advance(PERIOD)
-    return d * (pl.valve_angle - theta)
+def plant_doublet(d: int, excess: float, overdrive: float, aim: float, rise: float, p: float = P_MAX) -> float:
+    """The valve's move (rad toward ``d``) on the bare nominal plant at Δp ``p`` for the doublet the default stage
+    commands (preload ``rise`` below the apex, ``overdrive`` past a level ``excess`` above the Coulomb twist, aim
+    ``aim``): ``benchmarks/pulse_moves_check.py``'s replay, the one reference the model is validated against."""
+    from conftest import load_benchmark
+    return load_benchmark("pulse_moves_check").plant_doublet(d, excess, overdrive, aim, rise, p)
 
 
 def test_no_move_below_the_level(pm):
@@ -153,7 +114,7 @@ def test_agrees_with_the_bare_plant(pm, fine, d, dp_fraction):
         x = xf * x_nom
         aim = aim * dp_fraction                                   # the same share of the (smaller) jump
         model = float(pm.move(d, p, x, od, aim_rad=aim))
-        plant = plant_doublet(d, x, od, aim, rise, fine, p)
+        plant = plant_doublet(d, x, od, aim, rise, p)
         assert math.isfinite(model)
         assert abs(model - plant) <= max(0.1 * plant, 1e-4), (d, dp_fraction, xf, od, aim, model, plant)
 
