@@ -402,6 +402,17 @@ class PositionController:
         Raises if the law cannot be built."""
         return self._make_law(ps["mode"], ps)
 
+    def prepare(self, law: ControlLaw | None = None, build: bool = True) -> tuple[int, float]:
+        """Build ahead what ``law`` (None: the law in force; else one from :meth:`build_law`) would otherwise build
+        lazily inside :meth:`update` -- today the fine stage's move tables (``fine.apex_policy``,
+        :meth:`FinePositioner.prepare`).  Returns (tables that were still to build, CPU seconds spent); ``build``
+        False: count only, build nothing.  A real-time caller (the ROS controller node) calls it outside its
+        control callback; the offline simulator does not (a lazy build there only costs run time, and the tables
+        are shared in the process: a campaign's runs build them once)."""
+        law = self.law if law is None else law
+        fine = getattr(law, "fine", None)
+        return fine.prepare(build) if isinstance(fine, FinePositioner) else (0, 0.0)
+
     def reconfigure(self, ps: ParamSet, meas: Measurement | None, pressure_kpa: float,
                     prepared: tuple[ControlLaw, frozenset[str]] | None) -> bool:
         """Adopt run-time parameters ``ps``: current limits at once; the law ``prepared`` by
