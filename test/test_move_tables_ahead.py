@@ -28,9 +28,9 @@ import robustness as R  # noqa: E402
 SMALL_GRID = {"dp_grid": (0.0, 1.0), "angle_grid": (0.0, 1.0)}
 #: the nominal-box run driven (its first apex-policy doublet comes within the first plateaus)
 SEED = 1000
-#: periods run after the build: up to the first doublets the policy plans (nominal box seed 1000: the first
-#: choice at ~0.9 s)
-PERIODS = 2500
+#: periods run after the build: past the first doublets the policy plans (nominal box seed 1000: the first
+#: choice at period 357)
+PERIODS = 800
 
 
 @pytest.fixture
@@ -57,10 +57,10 @@ def test_prepare_builds_every_table_the_apex_policy_reads(small_grid, monkeypatc
     plan, plant, driver = R.held_case(R.sample_case(SEED, "nominal"), controller_sets={"fine.apex_policy": True})
     ctl = driver.controller
     fine = ctl.law.fine
-    assert fine._moves is None                         # lazy until asked
+    moves = fine._moves                                # made with the law, on the told model: no table built
+    assert moves is not None and moves.builds == 0 and moves.m is fine.m0
     pending, _ = ctl.prepare()
-    moves = fine._moves
-    assert moves is not None and moves.pending(kicks=fine._apex_kicks()) == []
+    assert fine._moves is moves and moves.pending(kicks=fine._apex_kicks()) == []
     assert pending <= 2 * 2 * 2                        # directions x Δp x angle points, one kick (some may be shared)
     assert ctl.prepare(build=False) == (0, 0.0)        # nothing left
     builds, runs = moves.builds, moves.runs

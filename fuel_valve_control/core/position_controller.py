@@ -277,8 +277,12 @@ class PositionController:
                                 snap_peak_nm=ps["fine.peak_current_a"] * m.torque_constant_nm_per_a)
         if mode != "observer_fp":
             return main
-        return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner),
-                                  min_jump_rad=ps["fine.min_jump_rad"])
+        fine = FinePositioner(m, period, self._fine_config(ps), self.learner)
+        # fine.apex_policy: its move model made with the law, on the told model (cheap: no table is built) -- the
+        # one the node's configure builds the tables of (prepare); made at the first doublet instead it would take
+        # a friction scale learned by then and need tables no configure built (offline and node alike, task h34t)
+        fine.prepare(build=False)
+        return FinePositioningLaw(mode, main, fine, min_jump_rad=ps["fine.min_jump_rad"])
 
     def _fine_config(self, ps: Mapping[str, Any]) -> FineConfig:
         per = self.period
