@@ -734,8 +734,9 @@ class FinePositioner:
         :meth:`_apex_kicks` (the default 114 tables, ~14 s of CPU; kicks to 16 A three times that).  A lazy build
         inside a 1 kHz period costs ~0.12 s of CPU per table: a real-time caller (the ROS controller node, at
         configure) calls this outside its control callback.  The move model is made from the model the stage plans
-        from now (the told one at configure; lazily, the one in force at the first doublet -- it is kept either way).
-        ``build`` False: count only.  Returns (tables that were still to build, CPU seconds spent building them);
+        from now and kept (:class:`PositionController` calls ``prepare(build=False)`` as it builds the law: the told
+        model, offline and in the node alike).  ``build`` False: make the model and count, build no table.
+        Returns (tables that were still to build, CPU seconds spent building them);
         (0, 0.0) without ``fine.apex_policy`` (nothing is made: no cost for the default)."""
         if not self.cfg.apex_policy:
             return 0, 0.0

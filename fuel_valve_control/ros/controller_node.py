@@ -179,6 +179,7 @@ class ControllerNode(LifecycleNode):
         self._reset_loop_state()
         self._bad_messages = 0
         self._prepared = None          # (changes, ParamChange) validated in on-set, queued in post-set
+        self._prepared_tables = 0      # fine.apex_policy: move tables the last configure built ahead
         self._last_enable = None
         # level of the last status logged; None so that the first one is always logged (with a
         # recorder in the run /diagnostics waits for its match, and a loop already running OK by
@@ -323,7 +324,8 @@ class ControllerNode(LifecycleNode):
         self._prepared_tables = tables
         if tables:
             wall = time.monotonic() - t0
-            self.get_logger().info(f"fine.apex_policy: {tables} move tables built ahead in {wall:.1f} s ({cpu:.1f} s CPU)")
+            self.get_logger().info(f"fine.apex_policy: {tables} move tables built ahead in {wall:.1f} s "
+                                   f"({cpu:.1f} s CPU)")
 
     def _refuse_unprepared(self, change) -> None:
         """Refuse (``ValueError``: the reason ``ros2 param set`` prints) a run-time change whose law would build
