@@ -72,7 +72,6 @@ import math
 import os
 import sys
 import time
-from dataclasses import replace
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -289,17 +288,11 @@ def _engage_run(seed: int) -> list[dict]:
     (demand - angle, rad) and plant time when the fine stage first engages (else when the valve last
     came to rest on the plateau), the budget left (s), the valve angle and main's final error."""
     import robustness as R
-    from fuel_valve_control.core.driver import ValveDriver
     from fuel_valve_control.core.fine_positioning import IDLE
     from fuel_valve_control.tools import sim
-    from fuel_valve_control.tools.run_plan import OFFLINE, plan_run
 
     case = R.sample_case(seed, "nominal")
-    sc = R.case_scenario(case)
-    p, c = sim.build(sc, R.plant_overrides(case), R.controller_knowledge(case), None, None)
-    plan = replace(plan_run(sc, OFFLINE), plant_params=p, controller_params=c)
-    plant, driver = Plant(plan.plant_params), ValveDriver(plan.controller_params)
-    plan.start_held(plant, driver)
+    plan, plant, driver = R.held_case(case)
     period = driver.period
     n = int(round(plan.duration_s / period))
     stroke = plan.plant_params["valve.stroke_rad"]

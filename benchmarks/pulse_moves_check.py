@@ -28,7 +28,6 @@ import json
 import math
 import sys
 import time
-from dataclasses import replace
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -181,16 +180,9 @@ def grid_check(pairs: int = 12, points: int = 500, seed: int = 11, dp_grid=None,
 
 def _closed_run(seed: int) -> list[dict]:
     import robustness as R
-    from fuel_valve_control.core.driver import ValveDriver
     from fuel_valve_control.tools import sim
-    from fuel_valve_control.tools.run_plan import OFFLINE, plan_run
 
-    case = R.sample_case(seed, "nominal")
-    sc = R.case_scenario(case)
-    p, c = sim.build(sc, R.plant_overrides(case), R.controller_knowledge(case), None, None)
-    plan = replace(plan_run(sc, OFFLINE), plant_params=p, controller_params=c)
-    plant, driver = Plant(plan.plant_params), ValveDriver(plan.controller_params)
-    plan.start_held(plant, driver)
+    plan, plant, driver = R.held_case(R.sample_case(seed, "nominal"))
     per = driver.period
     fine = driver.controller.law.fine
     kk = plan.plant_params["coupling.stiffness_nm_per_rad"]

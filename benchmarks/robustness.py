@@ -39,6 +39,7 @@ import math
 import os
 import sys
 import time
+from dataclasses import replace
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -50,12 +51,15 @@ if str(ROOT) not in sys.path:
 
 from fuel_valve_control.common.contract import PRESSURE_MAX_KPA, STROKE_RAD  # noqa: E402
 from fuel_valve_control.common.paramspec import ConfigError, parse_overrides  # noqa: E402
+from fuel_valve_control.core.driver import ValveDriver  # noqa: E402
 from fuel_valve_control.core.model import NominalModel  # noqa: E402
 from fuel_valve_control.core.params import CONTROLLER_SPEC, DEFAULT_MODE, MODES  # noqa: E402
 from fuel_valve_control.tools import metrics as M  # noqa: E402
 from fuel_valve_control.tools import sim  # noqa: E402
+from fuel_valve_control.tools.run_plan import OFFLINE, plan_run  # noqa: E402
 from fuel_valve_control.tools.scenarios import parse_scenario  # noqa: E402
 from fuel_valve_plant.physics.params import PLANT_SPEC  # noqa: E402
+from fuel_valve_plant.physics.plant import Plant  # noqa: E402
 
 DEFAULT_RUNS, QUICK_RUNS = 200, 30
 CURRENT_LIMIT_A = 37.0
@@ -210,11 +214,30 @@ def beyond_rating(case: dict, plateaus: list[dict]) -> bool:
                for pl in plateaus)
 
 
+def case_plan(case: dict, mode: str | None = None, controller_sets: dict | None = None):
+    """The offline run plan (:class:`~fuel_valve_control.tools.run_plan.RunPlan`) of a campaign ``case`` as
+    :func:`run_case` simulates it: its scenario (:func:`case_scenario`), the plant drawn (:func:`plant_overrides`),
+    the controller told what the case lets it know (:func:`controller_knowledge`) plus ``controller_sets``
+    (``{"section.key": value}``), in ``mode`` (None: the default)."""
+    sc = case_scenario(case)
+    p, c = sim.build(sc, plant_overrides(case), {**controller_knowledge(case), **(controller_sets or {})}, None, mode)
+    return replace(plan_run(sc, OFFLINE), plant_params=p, controller_params=c)
+
+
+def held_case(case: dict, mode: str | None = None, controller_sets: dict | None = None):
+    """``(plan, plant, driver)`` of a campaign ``case`` (:func:`case_plan`): the plant and the driver built and
+    started held at the first plateau exactly as :func:`run_case`'s ``sim.simulate_plan`` starts them, for a
+    caller that closes the loop itself (``sim.exchange_period`` per period) and reads the plant's truth or the
+    stage's state between periods (benchmarks/pulse_moves_check.py, benchmarks/plateau_floor.py, tests)."""
+    plan = case_plan(case, mode, controller_sets)
+    plant, driver = Plant(plan.plant_params), ValveDriver(plan.controller_params)
+    plan.start_held(plant, driver)
+    return plan, plant, driver
+
+
 def run_case(job: tuple) -> dict:
     case, mode, controller_sets = job
-    sc = case_scenario(case)
-    p, c = sim.build(sc, plant_overrides(case), {**controller_knowledge(case), **controller_sets}, None, mode)
-    res = sim.simulate(sc, p, c)
+    res = sim.simulate_plan(case_plan(case, mode, controller_sets))
     log = res.log
     tr = M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9], res.stroke_rad)
     plats = M.plateau_results(tr)

@@ -147,6 +147,11 @@ class ModuleRuns:
     def result(self, *key):
         return self._ahead.result(*key)
 
+    def waiting(self, *key) -> bool:
+        """Whether ``key`` is planned on the workers and not taken yet (:meth:`result` would hand back the
+        worker's run; else it computes it here)."""
+        return key in self._ahead._futures
+
     @contextlib.contextmanager
     def planned(self, keys: Iterable[Hashable], jobs: int):
         """Start ``keys`` on ``jobs`` workers for the duration of the ``with`` block (see

@@ -60,48 +60,82 @@ def true_friction_nm(pressure_kpa: float, friction_scale: float = 1.0) -> float:
     return lv.valve_coulomb_nm + n * lv.motor_coulomb_nm + viscous
 
 
-_cache: dict = {}
+def signature(pressure_kpa: float, friction_scale: float = 1.0, base_kpa: float | None = None):
+    """The short signature at ``pressure_kpa`` on the plant with ``friction_scale``; ``base_kpa``: judged against
+    the stored baseline of the nominal plant's signature at that Δp (None: no baseline, the run is its own)."""
+    return _result("signature", pressure_kpa, friction_scale,
+                   None if base_kpa is None else ("signature", base_kpa, 1.0, None))
 
 
-def signature(pressure_kpa: float, friction_scale: float = 1.0, baselines=()):
-    # keyed by the baselines' content: keyed by their number, a run judged against the Δp-0
-    # baseline was answered with the cached one judged against the 6206 kPa baseline
-    key = (pressure_kpa, friction_scale, json.dumps(list(baselines), sort_keys=True, default=repr))
-    if key not in _cache:
-        _cache[key] = _AHEAD.result("signature", pressure_kpa, friction_scale) if not baselines else \
-            run(signature_scenario(pressure_kpa), friction_scale, baselines)
-    return _cache[key]
+#: per process (this one, or a look-ahead worker): the runs made or taken here by key (:func:`_run_key`'s
+#: arguments) -- a judged run takes its baseline from here
+_RUNS: dict = {}
 
 
-def _simulate(what: str, pressure_kpa: float = 0.0, friction_scale: float = 1.0):
-    """A run without baselines (here or in a look-ahead worker, test/prefetch.py): the
-    signature at ``pressure_kpa``, or the nominal partial stroke."""
-    if what == "signature":
-        return run(signature_scenario(pressure_kpa), friction_scale)
-    return run(partial_scenario([(2.5, "partial_stroke_test")]))
+def _result(*key):
+    """The run ``key`` (:func:`_run_key`), once per test process: from the look-ahead where the module fixture
+    planned the bundle holding it (:data:`BUNDLES`), else simulated here (that run alone)."""
+    if key not in _RUNS:
+        bundle = next((b for b in BUNDLES if key in b), None)
+        if bundle is not None and _AHEAD.waiting(*bundle):
+            _RUNS.update(_AHEAD.result(*bundle))
+        else:
+            _RUNS[key] = _run_key(*key)
+    return _RUNS[key]
+
+
+def _run_key(what: str, pressure_kpa: float = 0.0, friction_scale: float = 1.0, base: tuple | None = None):
+    """A run: the signature at ``pressure_kpa``, or the nominal-Δp partial stroke (``pressure_kpa`` unused), on
+    the plant with ``friction_scale``; ``base``: the key of the baseline-free nominal run whose test result is
+    this run's stored baseline (None: none; made here first if this process has not made or taken it)."""
+    doc = signature_scenario(pressure_kpa) if what == "signature" else partial_scenario(PARTIAL_EVENTS)
+    if base is None:
+        return run(doc, friction_scale)
+    if base not in _RUNS:
+        _RUNS[base] = _run_key(*base)
+    stored = _RUNS[base].valve_tests[SIGNATURE if base[0] == "signature" else PARTIAL_STROKE]
+    return run(doc, friction_scale, [stored])
+
+
+def _simulate(*keys) -> dict:
+    """A bundle of runs (here or in a look-ahead worker, test/prefetch.py): ``{key: run}``, in order -- a judged
+    run after its baseline, which it reuses (one worker makes both: no baseline is simulated twice)."""
+    out = {}
+    for key in keys:
+        out[key] = _RUNS[key] = _run_key(*key)
+    return out
 
 
 #: the module's look-ahead runs (test/prefetch.py); none outside the module fixture below
 _AHEAD = ModuleRuns(_simulate)
-#: the runs without baselines each test asks for (those with a baseline wait for its result:
-#: simulated in the test, as before)
-_PLANNED = {"test_signature_detects_friction_x2_against_the_nominal_baseline": [("signature", 6206.0, 1.0)],
-            "test_baseline_taken_at_another_pressure_still_compares": [("signature", 0.0, 1.0)],
-            "test_partial_stroke_nominal_passes_and_friction_x2_is_flagged": [("partial",)],
-            "test_partial_stroke_returns_the_valve_to_its_start": [("partial",)],
-            "test_report_recognises_valve_tests_and_plots_them_next_to_the_baseline": [("signature", 6206.0, 1.0)]}
+#: the partial-stroke runs' events (the nominal partial stroke and the ones judged against it)
+PARTIAL_EVENTS = [(2.5, "partial_stroke_test")]
+_SIG0, _SIG3103, _SIG6206 = (("signature", p, 1.0, None) for p in (0.0, 3103.0, 6206.0))
+_PARTIAL = ("partial", 0.0, 1.0, None)
+#: the look-ahead's work units, the longest first (~5.5, 4.2, 3, 1.9 s of CPU): each baseline with the runs
+#: judged against it
+BUNDLES = ((_SIG6206, ("signature", 6206.0, 2.0, _SIG6206), ("signature", 6206.0, 1.0, _SIG6206)),
+           (_SIG0, ("signature", 6206.0, 1.0, _SIG0)),
+           (_PARTIAL, ("partial", 0.0, 1.0, _PARTIAL), ("partial", 0.0, 2.0, _PARTIAL)),
+           (_SIG3103,))
+#: the runs each test asks for (the bundles holding any of them are planned)
+_PLANNED = {"test_signature_detects_friction_x2_against_the_nominal_baseline": BUNDLES[0],
+            "test_baseline_taken_at_another_pressure_still_compares": BUNDLES[1],
+            "test_partial_stroke_nominal_passes_and_friction_x2_is_flagged": BUNDLES[2],
+            "test_partial_stroke_returns_the_valve_to_its_start": [_PARTIAL],
+            "test_report_recognises_valve_tests_and_plots_them_next_to_the_baseline": BUNDLES[0][:2]}
 
 
 @pytest.fixture(scope="module", autouse=True)
 def _look_ahead(request):
     """The module's 21 s signatures and its nominal partial stroke on both cores; each test
     still takes and asserts its own run."""
-    keys = []
+    keys = set()
     for item in selected_items(request):
         if item.originalname == "test_signature_recovers_true_friction":
-            keys.append(("signature", item.callspec.params["pressure_kpa"], 1.0))
-        keys += _PLANNED.get(item.originalname, [])
-    with _AHEAD.planned(keys, jobs(request.config)):
+            keys.add(("signature", item.callspec.params["pressure_kpa"], 1.0, None))
+        keys.update(_PLANNED.get(item.originalname, []))
+    with _AHEAD.planned([b for b in BUNDLES if keys.intersection(b)], jobs(request.config)):
         yield
 
 
@@ -141,21 +175,19 @@ def test_signature_recovers_true_friction(pressure_kpa):
 
 
 def test_signature_detects_friction_x2_against_the_nominal_baseline():
-    baseline = signature(6206.0).valve_tests[SIGNATURE]
-    worn = signature(6206.0, 2.0, baselines=[baseline]).valve_tests[SIGNATURE]
+    worn = signature(6206.0, 2.0, base_kpa=6206.0).valve_tests[SIGNATURE]
     assert worn["status"] == "completed"
     assert worn["baseline"]["source"] == "stored"
     assert worn["figures"]["friction_mean_to_baseline_ratio"] > 1.6
     assert any("maintenance required" in f and "friction_mean_nm" in f for f in worn["findings"])
     # the nominal plant against its own baseline: nothing to report
-    again = signature(6206.0, 1.0, baselines=[baseline]).valve_tests[SIGNATURE]
+    again = signature(6206.0, 1.0, base_kpa=6206.0).valve_tests[SIGNATURE]
     assert again["findings"] == [] and again["figures"]["friction_mean_to_baseline_ratio"] == pytest.approx(1.0, abs=0.05)
 
 
 def test_baseline_taken_at_another_pressure_still_compares():
     """A Δp-0 baseline judges a full-Δp run through the nominal friction schedule."""
-    base = signature(0.0).valve_tests[SIGNATURE]
-    res = signature(6206.0, 1.0, baselines=[base]).valve_tests[SIGNATURE]
+    res = signature(6206.0, 1.0, base_kpa=0.0).valve_tests[SIGNATURE]
     assert res["findings"] == [], res["findings"]
 
 
@@ -196,7 +228,7 @@ def partial_scenario(events, demand=None, duration_s=9.0) -> dict:
 @functools.cache
 def nominal_partial_stroke():
     """The nominal partial-stroke run (two tests read it; simulated once)."""
-    return _AHEAD.result("partial")
+    return _result(*_PARTIAL)
 
 
 def test_partial_stroke_nominal_passes_and_friction_x2_is_flagged():
@@ -208,9 +240,9 @@ def test_partial_stroke_nominal_passes_and_friction_x2_is_flagged():
     assert 0.0 < figs["travel_time_out_s"] < 2.0
     assert figs["friction_mean_nm"] == pytest.approx(true_friction_nm(6206.0), rel=0.15)
     assert figs["breakaway_nm"] > 0.9 * true_friction_nm(6206.0)
-    again = run(partial_scenario([(2.5, "partial_stroke_test")]), baselines=[base]).valve_tests[PARTIAL_STROKE]
+    again = _result("partial", 0.0, 1.0, _PARTIAL).valve_tests[PARTIAL_STROKE]
     assert again["findings"] == []
-    worn = run(partial_scenario([(2.5, "partial_stroke_test")]), 2.0, baselines=[base]).valve_tests[PARTIAL_STROKE]
+    worn = _result("partial", 0.0, 2.0, _PARTIAL).valve_tests[PARTIAL_STROKE]
     assert worn["status"] == "completed"
     assert any("maintenance required" in f for f in worn["findings"])
     assert worn["figures"]["friction_mean_to_baseline_ratio"] > 1.6
@@ -354,7 +386,7 @@ def test_report_recognises_valve_tests_and_plots_them_next_to_the_baseline(tmp_p
     from fuel_valve_control.tools.bag_io import Bag
 
     base = signature(6206.0).valve_tests[SIGNATURE]
-    worn = signature(6206.0, 2.0, baselines=[base]).valve_tests[SIGNATURE]
+    worn = signature(6206.0, 2.0, base_kpa=6206.0).valve_tests[SIGNATURE]
     bag = Bag(Path(tmp_path / "bag"), "mcap", {}, {}, {},
               texts={"/fuel_valve/valve_test": [json.dumps(base), json.dumps(worn)], "/other": ["not json"]})
     found = report.valve_test_results(bag)

@@ -727,6 +727,27 @@ class FinePositioner:
             self._engage(target, th1, thl, torque_now, pressure_kpa)
         return self._run(th1, w1, thl, pressure_kpa)
 
+    def prepare(self, build: bool = True) -> tuple[int, float]:
+        """Build ahead what the stage would otherwise build inside :meth:`update` (task h34t): with
+        ``fine.apex_policy``, the doublet's move model (:func:`_pulse_moves`) and every keyed table its
+        :meth:`_choose_apex` can read -- every Δp and angle point of the grid, both directions, every kick of
+        :meth:`_apex_kicks` (the default 114 tables, ~14 s of CPU; kicks to 16 A three times that).  A lazy build
+        inside a 1 kHz period costs ~0.12 s of CPU per table: a real-time caller (the ROS controller node, at
+        configure) calls this outside its control callback.  The move model is made from the model the stage plans
+        from now and kept (:class:`PositionController` calls ``prepare(build=False)`` as it builds the law: the told
+        model, offline and in the node alike).  ``build`` False: make the model and count, build no table.
+        Returns (tables that were still to build, CPU seconds spent building them);
+        (0, 0.0) without ``fine.apex_policy`` (nothing is made: no cost for the default)."""
+        if not self.cfg.apex_policy:
+            return 0, 0.0
+        if self._moves is None:
+            self._moves = _pulse_moves(self)
+        kicks = self._apex_kicks()
+        pending = len(self._moves.pending(kicks=kicks))
+        if not build or not pending:
+            return pending, 0.0
+        return pending, self._moves.prepare(kicks=kicks)
+
     def forget_scale(self) -> None:
         """Back to the told model: no friction scale read (``fine.learned_scale_*``)."""
         self.m = self.m0

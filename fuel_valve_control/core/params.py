@@ -568,7 +568,8 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "stop) and the doublet's move model give the largest P(land within fine.apex_land_rad) + P(no move) x the "
           "next try's best such chance, instead of a staircase from fine.doublet_sigmas scatters below the level; no "
           "try more likely to worsen the error than to improve it (it replaces the smallest-move stopping rules; task "
-          "h33p, docs/control_results.md section 81)", runtime=True),
+          "h33p, docs/control_results.md section 81).  Not at run time: with it on, the ROS controller node builds the "
+          "doublet's move tables at configure (~14 s of CPU; task h34t)"),
     Param("fine.apex_land_rad", 4e-4, "rad", "fine.apex_policy: the landing tolerance its tries aim into (issue 14's "
           "5e-4 rad p95 target less a resolver count of noise; benchmarks/plateau_floor.py's stop tolerance)",
           1e-4, 2e-3, runtime=True),

@@ -277,8 +277,12 @@ class PositionController:
                                 snap_peak_nm=ps["fine.peak_current_a"] * m.torque_constant_nm_per_a)
         if mode != "observer_fp":
             return main
-        return FinePositioningLaw(mode, main, FinePositioner(m, period, self._fine_config(ps), self.learner),
-                                  min_jump_rad=ps["fine.min_jump_rad"])
+        fine = FinePositioner(m, period, self._fine_config(ps), self.learner)
+        # fine.apex_policy: its move model made with the law, on the told model (cheap: no table is built) -- the
+        # one the node's configure builds the tables of (prepare); made at the first doublet instead it would take
+        # a friction scale learned by then and need tables no configure built (offline and node alike, task h34t)
+        fine.prepare(build=False)
+        return FinePositioningLaw(mode, main, fine, min_jump_rad=ps["fine.min_jump_rad"])
 
     def _fine_config(self, ps: Mapping[str, Any]) -> FineConfig:
         per = self.period
@@ -401,6 +405,17 @@ class PositionController:
         changes nothing (any thread: it reads only the model, the designs and the learner).
         Raises if the law cannot be built."""
         return self._make_law(ps["mode"], ps)
+
+    def prepare(self, law: ControlLaw | None = None, build: bool = True) -> tuple[int, float]:
+        """Build ahead what ``law`` (None: the law in force; else one from :meth:`build_law`) would otherwise build
+        lazily inside :meth:`update` -- today the fine stage's move tables (``fine.apex_policy``,
+        :meth:`FinePositioner.prepare`).  Returns (tables that were still to build, CPU seconds spent); ``build``
+        False: count only, build nothing.  A real-time caller (the ROS controller node) calls it outside its
+        control callback; the offline simulator does not (a lazy build there only costs run time, and the tables
+        are shared in the process: a campaign's runs build them once)."""
+        law = self.law if law is None else law
+        fine = getattr(law, "fine", None)
+        return fine.prepare(build) if isinstance(fine, FinePositioner) else (0, 0.0)
 
     def reconfigure(self, ps: ParamSet, meas: Measurement | None, pressure_kpa: float,
                     prepared: tuple[ControlLaw, frozenset[str]] | None) -> bool:

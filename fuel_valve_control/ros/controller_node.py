@@ -179,6 +179,7 @@ class ControllerNode(LifecycleNode):
         self._reset_loop_state()
         self._bad_messages = 0
         self._prepared = None          # (changes, ParamChange) validated in on-set, queued in post-set
+        self._prepared_tables = 0      # fine.apex_policy: move tables the last configure built ahead
         self._last_enable = None
         # level of the last status logged; None so that the first one is always logged (with a
         # recorder in the run /diagnostics waits for its match, and a loop already running OK by
@@ -291,6 +292,7 @@ class ControllerNode(LifecycleNode):
                 self.get_logger().info(message)
             else:
                 self.get_logger().warn(message)
+        self._prepare_law(driver)
         self.valve_tests.attach(driver)
         self.driver, self.stroke = driver, driver.stroke
         self._reset_loop_state()
@@ -310,6 +312,34 @@ class ControllerNode(LifecycleNode):
         self.get_logger().info(f"controller up: mode {ps['mode']}, loop {ps['loop_rate_hz']:g} Hz, demand from "
                                f"{ps['demand_source']}{', lockstep' if self.lockstep else ''}")
         return TransitionCallbackReturn.SUCCESS
+
+    def _prepare_law(self, driver: ValveDriver) -> None:
+        """Build ahead, here at configure (outside the control callback), what the law would otherwise build
+        lazily inside a 1 kHz period: with ``fine.apex_policy`` the doublet's move tables
+        (:meth:`PositionController.prepare`; ~0.12 s of CPU each, the default 114 ~14 s: built in the loop, the
+        first doublet in each Δp x angle cell would stall it ~120 periods).  Off (the default): nothing is built,
+        nothing logged.  Logs the count and the time it took."""
+        t0 = time.monotonic()
+        tables, cpu = driver.controller.prepare()
+        self._prepared_tables = tables
+        if tables:
+            wall = time.monotonic() - t0
+            self.get_logger().info(f"fine.apex_policy: {tables} move tables built ahead in {wall:.1f} s "
+                                   f"({cpu:.1f} s CPU)")
+
+    def _refuse_unprepared(self, change) -> None:
+        """Refuse (``ValueError``: the reason ``ros2 param set`` prints) a run-time change whose law would build
+        move tables inside the control callback: with ``fine.apex_policy`` on, a change of the doublet
+        (``fine.apex_kick_max_a``, ``fine.apex_retreat_periods``, the kick, the cap ...) that needs tables not built
+        at configure.  (``fine.apex_policy`` itself is not a run-time parameter -- read-only on the node: set it in
+        the parameter file or at start-up -- so it is never turned on under a running loop.)"""
+        if change.law is None:
+            return
+        pending, _ = self.driver.controller.prepare(change.law[0], build=False)
+        if pending:
+            raise ValueError(f"this change needs {pending} fine.apex_policy move tables (~{0.12 * pending:.0f} s of "
+                             "CPU) not built at configure, which the 1 kHz loop cannot build; start the node with it "
+                             "(its parameter file or overrides: configure builds them)")
 
     @transition
     def on_activate(self, state: State) -> TransitionCallbackReturn:
@@ -659,7 +689,9 @@ class ControllerNode(LifecycleNode):
         if self.driver is None:
             self._prepared = None
             return
-        self._prepared = (changes, self.driver.prepare_params(changes))
+        change = self.driver.prepare_params(changes)
+        self._refuse_unprepared(change)
+        self._prepared = (changes, change)
 
     def apply_parameters(self, changes: dict) -> None:
         """After acceptance (post-set): queue the prepared change; the loop swaps it in at the
