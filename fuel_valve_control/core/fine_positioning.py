@@ -199,6 +199,9 @@ def _pulse_moves(fine: "FinePositioner") -> object:
     from .pulse_moves import PulseMoves    # noqa: PLC0415 (imports this module's constants)
     cfg = fine.cfg
     kw = {"retreat_full_periods": cfg.apex_retreat_periods or cfg.retreat_full_periods}
+    if cfg.retreat_cap or cfg.observe_hold_integral:
+        # (task h34s) the doublet's shape and observe as the stage runs them (off: the model's signature unchanged)
+        kw.update(retreat_cap=cfg.retreat_cap, observe_hold_integral=cfg.observe_hold_integral)
     if cfg.supply_voltage_v is not None:
         kw["supply_voltage_v"] = cfg.supply_voltage_v
     return PulseMoves.for_positioner(fine, **kw)
