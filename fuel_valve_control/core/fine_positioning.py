@@ -199,9 +199,10 @@ def _pulse_moves(fine: "FinePositioner") -> object:
     from .pulse_moves import PulseMoves    # noqa: PLC0415 (imports this module's constants)
     cfg = fine.cfg
     kw = {"retreat_full_periods": cfg.apex_retreat_periods or cfg.retreat_full_periods}
-    if cfg.retreat_cap or cfg.observe_hold_integral:
+    if cfg.retreat_cap or cfg.observe_hold_integral or cfg.observe_hold_moved:
         # (task h34s) the doublet's shape and observe as the stage runs them (off: the model's signature unchanged)
-        kw.update(retreat_cap=cfg.retreat_cap, observe_hold_integral=cfg.observe_hold_integral)
+        kw.update(retreat_cap=cfg.retreat_cap, observe_hold_integral=cfg.observe_hold_integral,
+                  observe_hold_moved=cfg.observe_hold_moved)
     if cfg.supply_voltage_v is not None:
         kw["supply_voltage_v"] = cfg.supply_voltage_v
     return PulseMoves.for_positioner(fine, **kw)
@@ -501,6 +502,7 @@ class FineConfig:
                                   # periods, no half period (plateau_floor's deep shape; task h34s, docs §84)
     observe_hold_integral: bool = False  # doublet: the servo's integral held (not integrated) in the observe phase
                                          # after a doublet (task h34s, docs §84)
+    observe_hold_moved: bool = False  # ... only once that doublet has moved the valve half a tolerance (docs §84)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
@@ -1407,12 +1409,15 @@ class FinePositioner:
                 # proven to hold, not at the move's final twist -- the retreat's trough (5.7e-3 rad below
                 # the preload, §55.1) is what the next stair's slow park has to climb back
                 ref = self._pre - self._dir * cfg.park_approach_rad
-            if cfg.observe_hold_integral and self._doublet and self._pulsed:
+            if self._doublet and self._pulsed and (cfg.observe_hold_integral or cfg.observe_hold_moved and abs(
+                    thl - self._thl0) >= 0.5 * cfg.tolerance_rad):
                 # (task h34s) the pull-back from the retreat's trough runs at the cap for 3-4 periods with a position
                 # error of up to ~1.6e-2 rad: integrated, it wound the slow integral to ~3.4e-3 rad of equivalent
                 # error (main's doublet: 0.6e-3), the gear output overshot the final twist by 2-3e-3 rad and its
                 # rebound reached the kick's apex again -- a second breakaway (nominal box, fine.retreat_full_periods
-                # 2: 6 of 22 moves).  Held at the park's value, the swing is pulled back by the PD alone
+                # 2: 6 of 22 moves).  Held at the park's value, the swing is pulled back by the PD alone.
+                # (fine.observe_hold_moved: only once the valve has moved -- an unmoved stair's wind-up carries into
+                # the next park, which then ends beyond its plan: main's staircase climbs by it, held it climbed slower)
                 held = self._integral
                 torque = self._servo(base + ref, 0.0, th1, w1, thl)
                 self._integral = held

@@ -148,7 +148,7 @@ class PulseMoves:
                  overdrive_points: int = 20, aim_fraction: float = 1.0, aim_points: int = 17,
                  park_friction: bool = True, dp_grid=DP_GRID, angle_grid=ANGLE_GRID, extra_kicks=(),
                  exact: bool = False, coarse_aims: bool = True, share: bool = True, retreat_cap: bool = False,
-                 observe_hold_integral: bool = False):
+                 observe_hold_integral: bool = False, observe_hold_moved: bool = False):
         self.m = model
         self.period = float(period_s)
         self.kick = float(kick_current_a)
@@ -157,6 +157,7 @@ class PulseMoves:
         # (task h34s) fine.retreat_cap: the retreat periods command -cap itself, no half period;
         # fine.observe_hold_integral: the observe servo's integral is not integrated (stays at 0 here)
         self.retreat_cap, self.hold_integral = bool(retreat_cap), bool(observe_hold_integral)
+        self.hold_moved = bool(observe_hold_moved)     # ... only where the valve has moved half a tolerance
         self.kp, self.kd, self.ki = float(servo_kp), float(servo_kd), float(servo_ki)
         self.vlim = None if supply_voltage_v is None else supply_voltage_v / math.sqrt(3.0)
         self.wc = None if current_bandwidth_hz is None else 2.0 * math.pi * current_bandwidth_hz
@@ -183,7 +184,7 @@ class PulseMoves:
             sig = (model, self.period, self.cap, self.retreat_full, self.kp, self.kd, self.ki, self.vlim, self.wc,
                    self.observe_periods, self.substeps, self.unmoved_fraction, self.tolerance, self.excess_fraction,
                    self.n_excess, self.n_overdrive, self.aim_fraction, self.n_aim, self.park_friction, self.coarse_aims,
-                   self.retreat_cap, self.hold_integral)
+                   self.retreat_cap, self.hold_integral, self.hold_moved)
             store = _SHARED.get(sig)
             if store is None:
                 store = _SHARED[sig] = (self._tables, self._rises)
@@ -619,7 +620,9 @@ class PulseMoves:
                 # the observe servo (FinePositioner._servo, a_ref = v_ref = 0), sampled at the period's start
                 w1s = (th1 - th1_prev) / per             # the stage's backward difference, every period
                 e = ref1 - th1
-                if not self.hold_integral:
+                if self.hold_moved and not self.hold_integral:
+                    integral = integral + np.where(np.abs(thl - th0) >= 0.5 * self.tolerance, 0.0, e * per)
+                elif not self.hold_integral:
                     integral = integral + e * per
                 ff = k * (ref1 - thl) / n_gear
                 torque = ff + (self.kp * e - self.kd * w1s + self.ki * integral) / n_gear
