@@ -1,6 +1,7 @@
 """The doublet's deep retreat (task h34s, docs §84): ``fine.retreat_cap`` (the retreat is the -cap command itself for
 its whole periods, no half period: ``benchmarks/plateau_floor.py``'s deep shape, §82) and
-``fine.observe_hold_integral`` (the gear-output servo's integral held while it pulls the retreat's swing back).
+``fine.observe_hold_integral`` / ``fine.observe_hold_moved`` (the gear-output servo's integral held while it pulls the
+retreat's swing back: after every doublet / after one that moved the valve).
 
 The torque sequence runs the stage alone on a stuck valve (no plant); the closed-loop case runs the first 1.85 s of
 nominal box seed 1008 with the true valve angle watched: with two whole retreat periods, main's observe servo
@@ -46,20 +47,25 @@ def test_the_cap_retreat_is_the_cap_for_its_whole_periods_and_has_no_half_period
     assert out[-1] == pytest.approx(max(min(out[-5] - direction * 0.5 * cap, cap), -cap))
 
 
-def test_the_held_integral_is_not_wound_by_the_pull_back():
-    """In a doublet's observe the servo's integral stays where the park left it (option on); off, it winds."""
+@pytest.mark.parametrize("option", ["fine.observe_hold_integral", "fine.observe_hold_moved"])
+def test_the_held_integral_is_not_wound_by_the_pull_back(option):
+    """In a doublet's observe the servo's integral stays where the park left it: with fine.observe_hold_integral
+    always, with fine.observe_hold_moved once the valve has moved half a tolerance from the doublet's start (an
+    unmoved stair's observe winds it as main's does); off, it winds."""
     ps = CONTROLLER_SPEC.defaults()
+    assert ps[option] is False
     err = 0.5 * ps["fine.doublet_max_error_rad"]
-    for held in (True, False):
-        fine, m = _stage(**{"fine.retreat_full_periods": 2, "fine.retreat_cap": True,
-                            "fine.observe_hold_integral": held})
-        _torques_until_observe(fine, err, m.pressure_max_kpa)
-        thl = 0.5
-        before = fine._integral
-        th1 = thl + fine._final - 1e-2                   # the retreat's trough: the gear output far behind
-        for _ in range(3):
-            fine.update(thl + err, th1, thl, True, 0.3, m.pressure_max_kpa)
-        assert (fine._integral == before) is held
+    for on in (True, False):
+        for moved in (False, True):
+            fine, m = _stage(**{"fine.retreat_full_periods": 2, "fine.retreat_cap": True, option: on})
+            _torques_until_observe(fine, err, m.pressure_max_kpa)
+            thl = 0.5 + (fine.cfg.tolerance_rad if moved else 0.0)
+            before = fine._integral
+            th1 = 0.5 + fine._final - 1e-2              # the retreat's trough: the gear output far behind
+            for _ in range(3):
+                fine.update(0.5 + err, th1, thl, True, 0.3, m.pressure_max_kpa)
+            held = on and (moved or option == "fine.observe_hold_integral")
+            assert (fine._integral == before) is held, (on, moved)
 
 
 def _second_breaks(sets: dict, until_s: float) -> int:
@@ -104,3 +110,4 @@ def test_the_held_integral_leaves_the_deep_retreats_swing_alone_in_closed_loop()
     deep = {"fine.retreat_full_periods": 2, "fine.retreat_cap": True}
     assert _second_breaks(deep, 1.85) >= 1
     assert _second_breaks({**deep, "fine.observe_hold_integral": True}, 1.85) == 0
+    assert _second_breaks({**deep, "fine.observe_hold_moved": True}, 1.85) == 0
