@@ -47,6 +47,20 @@ def test_the_cap_retreat_is_the_cap_for_its_whole_periods_and_has_no_half_period
     assert out[-1] == pytest.approx(max(min(out[-5] - direction * 0.5 * cap, cap), -cap))
 
 
+@pytest.mark.parametrize("direction", [1, -1])
+def test_the_cap_retreat_may_keep_mains_half_period(direction):
+    """``fine.retreat_cap_half``: the two periods at -cap, then main's period of the hold less half the cap."""
+    ps = CONTROLLER_SPEC.defaults()
+    assert ps["fine.retreat_cap_half"] is False
+    fine, m = _stage(**{"fine.retreat_full_periods": 2, "fine.retreat_cap": True, "fine.retreat_cap_half": True})
+    cap = ps["fine.peak_current_a"] * m.torque_constant_nm_per_a
+    out = _torques_until_observe(fine, direction * 0.5 * ps["fine.doublet_max_error_rad"], m.pressure_max_kpa)
+    hold = out[-5]
+    assert out[-3] == pytest.approx(-direction * cap) == pytest.approx(out[-2])
+    assert out[-1] == pytest.approx(max(min(hold - direction * 0.5 * cap, cap), -cap))
+    assert fine.phase == "observe" and fine._k == 0
+
+
 @pytest.mark.parametrize("option", ["fine.observe_hold_integral", "fine.observe_hold_moved"])
 def test_the_held_integral_is_not_wound_by_the_pull_back(option):
     """In a doublet's observe the servo's integral stays where the park left it: with fine.observe_hold_integral

@@ -201,7 +201,8 @@ def _pulse_moves(fine: "FinePositioner") -> object:
     kw = {"retreat_full_periods": cfg.apex_retreat_periods or cfg.retreat_full_periods}
     if cfg.retreat_cap or cfg.observe_hold_integral or cfg.observe_hold_moved:
         # (task h34s) the doublet's shape and observe as the stage runs them (off: the model's signature unchanged)
-        kw.update(retreat_cap=cfg.retreat_cap, observe_hold_integral=cfg.observe_hold_integral,
+        kw.update(retreat_cap=cfg.retreat_cap and not cfg.retreat_cap_half, retreat_cap_full=cfg.retreat_cap,
+                  observe_hold_integral=cfg.observe_hold_integral,
                   observe_hold_moved=cfg.observe_hold_moved)
     if cfg.supply_voltage_v is not None:
         kw["supply_voltage_v"] = cfg.supply_voltage_v
@@ -500,6 +501,7 @@ class FineConfig:
     apex_retreat_periods: int = 0  # ... its doublets retreat this many periods at the whole current (0: fine.retreat_full_periods)
     retreat_cap: bool = False     # doublet: the retreat is -peak_current_a itself (direction-signed) for its whole
                                   # periods, no half period (plateau_floor's deep shape; task h34s, docs §84)
+    retreat_cap_half: bool = False  # ... but with main's half period kept after the whole ones (docs §84)
     observe_hold_integral: bool = False  # doublet: the servo's integral held (not integrated) in the observe phase
                                          # after a doublet (task h34s, docs §84)
     observe_hold_moved: bool = False  # ... only once that doublet has moved the valve half a tolerance (docs §84)
@@ -1472,7 +1474,7 @@ class FinePositioner:
             # (task h34s, ``fine.retreat_cap``) the cap itself backwards, not the hold less the cap (an opening
             # pulse at 0.5 rad, max Δp, holds ~+10.6 A: hold - cap is -19.4 A; plateau_floor's deep shape, §82)
             torque = -d * cap if cfg.retreat_cap else self._hold_torque - d * cap
-        elif cfg.retreat_cap:
+        elif cfg.retreat_cap and not cfg.retreat_cap_half:
             # ... and no half period: the observe servo takes this period (None: :meth:`_run` runs it)
             self.phase, self._k, self._pulsed = OBSERVE, 0, True
             return None

@@ -593,6 +593,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "and no half period -- benchmarks/plateau_floor.py's deep shape (docs section 82) -- instead of the hold "
           "less the whole current (-19.4 A for an opening pulse at 0.5 rad, max dp) and a period of half; false: "
           "main's doublet (task h34s, docs section 84)", runtime=True),
+    Param("fine.retreat_cap_half", False, "", "with fine.retreat_cap: keep main's period of half the current (the "
+          "hold less half of fine.peak_current_a) after the retreat's whole periods, before the observe servo (traced: "
+          "without it the servo's first period pushes toward the move while the valve still slides; task h34s, docs "
+          "section 84)", runtime=True),
     Param("fine.observe_hold_integral", False, "", "doublet: the gear-output servo's integral is not integrated while "
           "it pulls the retreat's swing back after a doublet (the observe phase): held at the value the park left. "
           "Saturated at the current cap for 3-4 periods, the deeper retreat's pull-back wound it to ~3.4e-3 rad of "

@@ -148,7 +148,8 @@ class PulseMoves:
                  overdrive_points: int = 20, aim_fraction: float = 1.0, aim_points: int = 17,
                  park_friction: bool = True, dp_grid=DP_GRID, angle_grid=ANGLE_GRID, extra_kicks=(),
                  exact: bool = False, coarse_aims: bool = True, share: bool = True, retreat_cap: bool = False,
-                 observe_hold_integral: bool = False, observe_hold_moved: bool = False):
+                 observe_hold_integral: bool = False, observe_hold_moved: bool = False,
+                 retreat_cap_full: bool = False):
         self.m = model
         self.period = float(period_s)
         self.kick = float(kick_current_a)
@@ -158,6 +159,8 @@ class PulseMoves:
         # fine.observe_hold_integral: the observe servo's integral is not integrated (stays at 0 here)
         self.retreat_cap, self.hold_integral = bool(retreat_cap), bool(observe_hold_integral)
         self.hold_moved = bool(observe_hold_moved)     # ... only where the valve has moved half a tolerance
+        # fine.retreat_cap with fine.retreat_cap_half: -cap for the whole periods, main's half period kept
+        self.cap_full = bool(retreat_cap_full) or self.retreat_cap
         self.kp, self.kd, self.ki = float(servo_kp), float(servo_kd), float(servo_ki)
         self.vlim = None if supply_voltage_v is None else supply_voltage_v / math.sqrt(3.0)
         self.wc = None if current_bandwidth_hz is None else 2.0 * math.pi * current_bandwidth_hz
@@ -184,7 +187,7 @@ class PulseMoves:
             sig = (model, self.period, self.cap, self.retreat_full, self.kp, self.kd, self.ki, self.vlim, self.wc,
                    self.observe_periods, self.substeps, self.unmoved_fraction, self.tolerance, self.excess_fraction,
                    self.n_excess, self.n_overdrive, self.aim_fraction, self.n_aim, self.park_friction, self.coarse_aims,
-                   self.retreat_cap, self.hold_integral, self.hold_moved)
+                   self.retreat_cap, self.hold_integral, self.hold_moved, self.cap_full)
             store = _SHARED.get(sig)
             if store is None:
                 store = _SHARED[sig] = (self._tables, self._rises)
@@ -609,7 +612,7 @@ class PulseMoves:
             if period == 0:
                 torque = hold + d * kick * kt
             elif period <= self.retreat_full:
-                torque = -d * cap * np.ones(n) if self.retreat_cap else hold - d * cap
+                torque = -d * cap * np.ones(n) if self.cap_full else hold - d * cap
             elif period == self.retreat_full + 1 and not self.retreat_cap:
                 frac = 0.5
                 if self.unmoved_fraction != 0.5 and self.tolerance > 0.0:
