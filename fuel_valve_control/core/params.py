@@ -603,10 +603,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "equivalent position error (main's doublet: 0.6e-3), the gear output overshot the final twist by 2-3e-3 rad "
           "and the rebound broke the valve loose a second time (task h34s, docs section 84)", runtime=True),
     Param("fine.observe_hold_moved", False, "", "doublet: as fine.observe_hold_integral, but only in the observe of a "
-          "doublet that has moved the valve (half a tolerance from its start): an unmoved stair's observe keeps "
-          "winding the integral toward the move, which carries into the next park and climbs main's staircase "
-          "beyond its planned stair (held there too: 12 vs 29 moves in 10 nominal runs, 549 vs 479 doublets; task "
-          "h34s, docs section 84)", runtime=True),
+          "doublet that has moved the valve (half a tolerance from its start): an unmoved stair's observe integrates as "
+          "main's, whose next park is tuned with it (held there too, the parks ended 0.57e-3 rad short of their planned "
+          "preload, median: 12 vs 29 moves in 10 nominal runs, 549 vs 479 doublets; task h34s, docs section 84)", runtime=True),
     Param("fine.unbiased_preload_pull", False, "", "with fine.unbiased_samples: a servo-blended pulse whose preload "
           "broke the valve loose pulls the learned breakaway to below that preload with fine.learn_gain (main's "
           "treatment), instead of the censored sample's fine.scatter_gain step toward the conditional mean (that "
