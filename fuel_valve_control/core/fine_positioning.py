@@ -199,6 +199,11 @@ def _pulse_moves(fine: "FinePositioner") -> object:
     from .pulse_moves import PulseMoves    # noqa: PLC0415 (imports this module's constants)
     cfg = fine.cfg
     kw = {"retreat_full_periods": cfg.apex_retreat_periods or cfg.retreat_full_periods}
+    if cfg.retreat_cap or cfg.observe_hold_integral or cfg.observe_hold_moved:
+        # (task h34s) the doublet's shape and observe as the stage runs them (off: the model's signature unchanged)
+        kw.update(retreat_cap=cfg.retreat_cap and not cfg.retreat_cap_half, retreat_cap_full=cfg.retreat_cap,
+                  observe_hold_integral=cfg.observe_hold_integral,
+                  observe_hold_moved=cfg.observe_hold_moved)
     if cfg.supply_voltage_v is not None:
         kw["supply_voltage_v"] = cfg.supply_voltage_v
     return PulseMoves.for_positioner(fine, **kw)
@@ -494,6 +499,12 @@ class FineConfig:
                                   # (0 or below kick_current_a: kick_current_a only)
     apex_kick_ratio: float = 2.0  # ... successive kicks of that set this many times the last
     apex_retreat_periods: int = 0  # ... its doublets retreat this many periods at the whole current (0: fine.retreat_full_periods)
+    retreat_cap: bool = False     # doublet: the retreat is -peak_current_a itself (direction-signed) for its whole
+                                  # periods, no half period (plateau_floor's deep shape; task h34s, docs §84)
+    retreat_cap_half: bool = False  # ... but with main's half period kept after the whole ones (docs §84)
+    observe_hold_integral: bool = False  # doublet: the servo's integral held (not integrated) in the observe phase
+                                         # after a doublet (task h34s, docs §84)
+    observe_hold_moved: bool = False  # ... only once that doublet has moved the valve half a tolerance (docs §84)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
@@ -1379,7 +1390,10 @@ class FinePositioner:
                 # proportional part moved into the integral: the re-park restores it (:meth:`_plan_repark`)
                 self._integral_held = self._integral + self.kp * (self._thl0 + self._pre - th1) / self.ki
             self._unmoved_now = abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad
-            return self._doublet_torque()
+            torque = self._doublet_torque()
+            if torque is not None:
+                return torque
+            self._k = 1                            # (fine.retreat_cap) the observe's first period is this one
         if self.phase == PULSE:
             # shaped pulse of the gear output: rise past breakaway, then fall to the final twist
             t = self._k * per
@@ -1418,6 +1432,19 @@ class FinePositioner:
                 # proven to hold, not at the move's final twist -- the retreat's trough (5.7e-3 rad below
                 # the preload, §55.1) is what the next stair's slow park has to climb back
                 ref = self._pre - self._dir * cfg.park_approach_rad
+            if self._doublet and self._pulsed and (cfg.observe_hold_integral or cfg.observe_hold_moved and abs(
+                    thl - self._thl0) >= 0.5 * cfg.tolerance_rad):
+                # (task h34s) the pull-back from the retreat's trough runs at the cap for 3-4 periods with a position
+                # error of up to ~1.6e-2 rad: integrated, it wound the slow integral to ~3.4e-3 rad of equivalent
+                # error (main's doublet: 0.6e-3), the gear output overshot the final twist by 2-3e-3 rad and its
+                # rebound reached the kick's apex again -- a second breakaway (nominal box, fine.retreat_full_periods
+                # 2: 6 of 22 moves).  Held at the park's value, the swing is pulled back by the PD alone.
+                # (fine.observe_hold_moved: only once the valve has moved -- held after an unmoved stair too, the next
+                # park, tuned with the observe integrating, ended 0.57e-3 rad short of its preload: 12 vs 29 moves)
+                held = self._integral
+                torque = self._servo(base + ref, 0.0, th1, w1, thl)
+                self._integral = held
+                return torque
             return self._servo(base + ref, 0.0, th1, w1, thl)
         # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
@@ -1465,7 +1492,13 @@ class FinePositioner:
             torque = self._hold_torque + d * kick * kt
         elif self._k <= 1 + max(cfg.apex_retreat_periods if cfg.apex_policy and cfg.apex_retreat_periods > 0
                                 else cfg.retreat_full_periods, 1):
-            torque = self._hold_torque - d * cap
+            # (task h34s, ``fine.retreat_cap``) the cap itself backwards, not the hold less the cap (an opening
+            # pulse at 0.5 rad, max Δp, holds ~+10.6 A: hold - cap is -19.4 A; plateau_floor's deep shape, §82)
+            torque = -d * cap if cfg.retreat_cap else self._hold_torque - d * cap
+        elif cfg.retreat_cap and not cfg.retreat_cap_half:
+            # ... and no half period: the observe servo takes this period (None: :meth:`_run` runs it)
+            self.phase, self._k, self._pulsed = OBSERVE, 0, True
+            return None
         else:
             # (h28r, ``fine.retreat_unmoved_fraction``) a valve not yet moved by now may get less of it
             frac = cfg.retreat_unmoved_fraction if self._unmoved_now else 0.5

@@ -589,6 +589,24 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.apex_kick_max_a", 0.0, "A", "fine.apex_policy: the kick is chosen per try among "
           "fine.kick_current_a x 1, 2, 4 ... up to this (docs section 75.4: the kick's size sets how much the "
           "level's draw matters; 0 = fine.kick_current_a only)", 0.0, 30.0, runtime=True),
+    Param("fine.retreat_cap", False, "", "doublet: the retreat is the whole current command itself, -fine.peak_current_a "
+          "toward the move's start, for its whole periods (fine.apex_retreat_periods, else fine.retreat_full_periods), "
+          "and no half period -- benchmarks/plateau_floor.py's deep shape (docs section 82) -- instead of the hold "
+          "less the whole current (-19.4 A for an opening pulse at 0.5 rad, max dp) and a period of half; false: "
+          "main's doublet (task h34s, docs section 84)", runtime=True),
+    Param("fine.retreat_cap_half", False, "", "with fine.retreat_cap: keep main's period of half the current (the "
+          "hold less half of fine.peak_current_a) after the retreat's whole periods, before the observe servo (traced: "
+          "without it the servo's first period pushes toward the move while the valve still slides; task h34s, docs "
+          "section 84)", runtime=True),
+    Param("fine.observe_hold_integral", False, "", "doublet: the gear-output servo's integral is not integrated while "
+          "it pulls the retreat's swing back after a doublet (the observe phase): held at the value the park left. "
+          "Saturated at the current cap for 3-4 periods, the deeper retreat's pull-back wound it to ~3.4e-3 rad of "
+          "equivalent position error (main's doublet: 0.6e-3), the gear output overshot the final twist by 2-3e-3 rad "
+          "and the rebound broke the valve loose a second time (task h34s, docs section 84)", runtime=True),
+    Param("fine.observe_hold_moved", False, "", "doublet: as fine.observe_hold_integral, but only in the observe of a "
+          "doublet that has moved the valve (half a tolerance from its start): an unmoved stair's observe integrates as "
+          "main's, whose next park is tuned with it (held there too, the parks ended 0.57e-3 rad short of their planned "
+          "preload, median: 12 vs 29 moves in 10 nominal runs, 549 vs 479 doublets; task h34s, docs section 84)", runtime=True),
     Param("fine.unbiased_preload_pull", False, "", "with fine.unbiased_samples: a servo-blended pulse whose preload "
           "broke the valve loose pulls the learned breakaway to below that preload with fine.learn_gain (main's "
           "treatment), instead of the censored sample's fine.scatter_gain step toward the conditional mean (that "

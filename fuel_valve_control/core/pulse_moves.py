@@ -147,12 +147,20 @@ class PulseMoves:
                  tolerance_rad: float = 0.0, excess_fraction: float = 0.5, excess_points: int = 41,
                  overdrive_points: int = 20, aim_fraction: float = 1.0, aim_points: int = 17,
                  park_friction: bool = True, dp_grid=DP_GRID, angle_grid=ANGLE_GRID, extra_kicks=(),
-                 exact: bool = False, coarse_aims: bool = True, share: bool = True):
+                 exact: bool = False, coarse_aims: bool = True, share: bool = True, retreat_cap: bool = False,
+                 observe_hold_integral: bool = False, observe_hold_moved: bool = False,
+                 retreat_cap_full: bool = False):
         self.m = model
         self.period = float(period_s)
         self.kick = float(kick_current_a)
         self.cap = float(peak_current_a)
         self.retreat_full = max(int(retreat_full_periods), 1)
+        # (task h34s) fine.retreat_cap: the retreat periods command -cap itself, no half period;
+        # fine.observe_hold_integral: the observe servo's integral is not integrated (stays at 0 here)
+        self.retreat_cap, self.hold_integral = bool(retreat_cap), bool(observe_hold_integral)
+        self.hold_moved = bool(observe_hold_moved)     # ... only where the valve has moved half a tolerance
+        # fine.retreat_cap with fine.retreat_cap_half: -cap for the whole periods, main's half period kept
+        self.cap_full = bool(retreat_cap_full) or self.retreat_cap
         self.kp, self.kd, self.ki = float(servo_kp), float(servo_kd), float(servo_ki)
         self.vlim = None if supply_voltage_v is None else supply_voltage_v / math.sqrt(3.0)
         self.wc = None if current_bandwidth_hz is None else 2.0 * math.pi * current_bandwidth_hz
@@ -178,7 +186,8 @@ class PulseMoves:
             # them (a campaign's runs with one told model build them once; read-only once built)
             sig = (model, self.period, self.cap, self.retreat_full, self.kp, self.kd, self.ki, self.vlim, self.wc,
                    self.observe_periods, self.substeps, self.unmoved_fraction, self.tolerance, self.excess_fraction,
-                   self.n_excess, self.n_overdrive, self.aim_fraction, self.n_aim, self.park_friction, self.coarse_aims)
+                   self.n_excess, self.n_overdrive, self.aim_fraction, self.n_aim, self.park_friction, self.coarse_aims,
+                   self.retreat_cap, self.hold_integral, self.hold_moved, self.cap_full)
             store = _SHARED.get(sig)
             if store is None:
                 store = _SHARED[sig] = (self._tables, self._rises)
@@ -593,7 +602,7 @@ class PulseMoves:
             a_rl = math.exp(-r_ohm * dt / lq) if r_ohm > 0.0 else 1.0
             b_rl = (1.0 - a_rl) / r_ohm if r_ohm > 0.0 else dt / lq
         c_emf, c_vd = psi * pole * n_gear, lq * pole * n_gear
-        n_pulse = 2 + self.retreat_full
+        n_pulse = 2 + self.retreat_full - (1 if self.retreat_cap else 0)
         for period in range(n_pulse + self.observe_periods):
             if base is not None and period == n_pulse:
                 # the doublet done on the base lanes: one lane per aim from here
@@ -603,8 +612,8 @@ class PulseMoves:
             if period == 0:
                 torque = hold + d * kick * kt
             elif period <= self.retreat_full:
-                torque = hold - d * cap
-            elif period == self.retreat_full + 1:
+                torque = -d * cap * np.ones(n) if self.cap_full else hold - d * cap
+            elif period == self.retreat_full + 1 and not self.retreat_cap:
                 frac = 0.5
                 if self.unmoved_fraction != 0.5 and self.tolerance > 0.0:
                     unmoved = np.abs(thl - th0) < 0.5 * self.tolerance
@@ -614,7 +623,10 @@ class PulseMoves:
                 # the observe servo (FinePositioner._servo, a_ref = v_ref = 0), sampled at the period's start
                 w1s = (th1 - th1_prev) / per             # the stage's backward difference, every period
                 e = ref1 - th1
-                integral = integral + e * per
+                if self.hold_moved and not self.hold_integral:
+                    integral = integral + np.where(np.abs(thl - th0) >= 0.5 * self.tolerance, 0.0, e * per)
+                elif not self.hold_integral:
+                    integral = integral + e * per
                 ff = k * (ref1 - thl) / n_gear
                 torque = ff + (self.kp * e - self.kd * w1s + self.ki * integral) / n_gear
             th1_prev = th1.copy()
