@@ -601,6 +601,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "by the move model's rise to reach each candidate apex (moves interpolated between the kick set's "
           "tables), within fine.kick_current_a .. fine.apex_kick_max_a and the current cap (task h34m, docs "
           "section 85)", runtime=True),
+    Param("fine.apex_worse_given_move", False, "", "fine.apex_policy: no try more likely to worsen the error than "
+          "to improve it *given that it moves* (the policy's rule counts P(no move) as not worse: at a stop whose "
+          "level lies high every move overshoots the error and the law's climb went on until one did; task h34m, "
+          "docs section 85)", runtime=True),
     Param("fine.unbiased_preload_pull", False, "", "with fine.unbiased_samples: a servo-blended pulse whose preload "
           "broke the valve loose pulls the learned breakaway to below that preload with fine.learn_gain (main's "
           "treatment), instead of the censored sample's fine.scatter_gain step toward the conditional mean (that "
