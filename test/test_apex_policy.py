@@ -105,7 +105,7 @@ def test_the_model_excess_is_taken_from_the_model_coulomb_equilibrium_not_the_le
     means = {}
     for opt in (False, True):
         for off in (0.0, 2e-4):
-            fine, model = _policy_stage(**{"fine.apex_excess_nominal": opt, "fine.apex_kick_max_a": 16.0})
+            fine, model = _policy_stage(**{"fine.apex_excess_nominal": opt})
             p = model.pressure_max_kpa
             band = fine.learn.band(1.0)
             fine.learn.equilibrium[d][band] = d * off
