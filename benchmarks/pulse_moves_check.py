@@ -178,13 +178,26 @@ def grid_check(pairs: int = 12, points: int = 500, seed: int = 11, dp_grid=None,
             "table_cpu_s_keyed_vs_reference": [float(np.mean([t["build_s"] for t in keyed._tables.values()])),
                                               float(np.mean([t["build_s"] for t in exact._tables.values()]))]}
 
-def _closed_run(seed: int) -> list[dict]:
+def _closed_run(job) -> list[dict]:
+    """The stage's doublets on nominal-box run ``seed`` (``job``: a seed, or (seed, controller sets)): per doublet the
+    plant's truth at the kick (twist, drawn levels, load, the stage's servo target as an aim) and, with
+    ``fine.apex_policy``, what the policy saw: the planned apex and kick, the stage's φe / learned level / scatter,
+    its measured twist at the kick and the measured apex (``_kick_apex``), all as absolute twists, rad."""
     import robustness as R
     from fuel_valve_control.tools import sim
 
-    plan, plant, driver = R.held_case(R.sample_case(seed, "nominal"))
+    seed, sets = (job, {}) if isinstance(job, int) else job
+    plan, plant, driver = R.held_case(R.sample_case(seed, "nominal"), None, sets)
     per = driver.period
     fine = driver.controller.law.fine
+    seen = {}
+    upd = fine.update
+
+    def update(target, th1, thl, *a, **kw):      # the stage's own readings (measured th1, thl, Δp)
+        seen["th1"], seen["thl"] = th1, thl
+        seen["p"] = a[-1] if a else kw.get("pressure_kpa")
+        return upd(target, th1, thl, *a, **kw)
+    fine.update = update
     kk = plan.plant_params["coupling.stiffness_nm_per_rad"]
     n = plan.plant_params["gearbox.ratio"]
     cc = plan.plant_params["coupling.damping_nms"]
@@ -198,10 +211,21 @@ def _closed_run(seed: int) -> list[dict]:
             tc, ts = plant.valve_friction_levels()
             load = float(plant.O[KN.O_TSPRING] + plant.O[KN.O_TFLOW])
             phi = tr.motor_angle / n - tr.valve_angle
+            kick = fine.cfg.kick_current_a * (fine.cfg.first_kick_fraction if fine._first_stair else 1.0)
             cur = {"seed": seed, "d": d, "thl0": tr.valve_angle, "phi0": phi, "x": (ts - tc) / kk,
                    "pre_rel": d * (phi - (load + d * ts) / kk),
-                   "aim": 2.0 * d * (fine._final - (load + d * tc) / kk), "apex": -1.0,
-                   "kick": fine.cfg.kick_current_a * (fine.cfg.first_kick_fraction if fine._first_stair else 1.0)}
+                   "aim": 2.0 * d * (fine._final - (load + d * tc) / kk), "apex": -1.0, "kick": kick,
+                   "level": (load + d * ts) / kk, "phi_e": (load + d * tc) / kk, "p": plant.params["pressure_differential_kpa"]}
+            if fine.cfg.apex_policy and fine._apex_kick is not None and fine._apex_try is not None:
+                phi_e_s, phi_b_s, band = fine._twists(seen["thl"], seen["p"], d)
+                e0, b0 = fine._nominal(seen["thl"], seen["p"], d)
+                cur.update(phi_e0=e0, phi_b0=b0)
+                plan_ = fine._apex_plan           # (apex, P(land), P(no move), score, kick, mean move if moved)
+                cur.update(kick=fine._apex_kick, policy=True, apex_plan=plan_[0], p_land=plan_[1], p_none=plan_[2],
+                           m_mean=plan_[5], pre_plan=fine._pre, rise_plan=fine._apex_rise,
+                           phi_m=seen["th1"] - seen["thl"], phi_e_s=phi_e_s, phi_b_s=phi_b_s,
+                           sigma_s=fine._scatter(d, band, max(d * (phi_b_s - phi_e_s), 1e-5)),
+                           err_s=fine._target - seen["thl"], p_s=seen["p"], thl_s=seen["thl"])
         out, _ = sim.exchange_period(driver, plant, t, plan.demand.value(t))
         plant.set_command(out.current_a, out.enable)
         if cur is None:
@@ -214,28 +238,117 @@ def _closed_run(seed: int) -> list[dict]:
                 cur["apex"] = max(cur["apex"], cur["d"] * (tk / kk - cur["phi0"]))
         if cur is not None and ((fine.phase != OBSERVE and prev == OBSERVE) or (fine.phase == IDLE and prev != IDLE)):
             cur["move"] = cur["d"] * (plant.valve_angle - cur["thl0"])
+            cur["apex_meas"] = fine._kick_apex    # the highest twist the stage read (a stale value if it left early)
             rows.append(cur)
             cur = None
         prev = fine.phase
     return rows
 
 
-def closed_check(runs: int, seed: int, jobs: int) -> dict:
-    seeds = list(range(seed, seed + runs))
+def _policy_rows(rows: list[dict], pm: PulseMoves, tol: float) -> dict:
+    """(``fine.apex_policy``) The policy's doublets per kick: the measured move against the model's, read
+    (T) at the plant's true excess and overdrive (the true preload + the model's rise above the true level: §80.3's
+    check), (A) at the true excess but the overdrive of the *planned* apex over the true level, the level taken into
+    the stage's measured coordinates (its twist reading's offset at the kick), (S) at the stage's φe too (excess
+    from it), and (L) the policy's own expectation given a move (its law's mean).  Ratios measured / predicted are
+    over the tries that moved (> tol / 2) with a finite, non-zero prediction; offsets in rad (toward the try)."""
+    out = {}
+    pol = [r for r in rows if r.get("policy")]
+    kset = sorted(FINE.cfg.kick_current_a * 2.0 ** np.arange(0, 4))      # 4 / 8 / 16 / 32 A: the report's bins
+
+    def label(k):            # a continuous kick (fine.apex_kick_continuous) reported with the nearest of 4 / 8 / 16 A
+        return float(min(kset, key=lambda v: abs(math.log(k / v))))
+
+    def at(fn, kick, *a, **kw):
+        # the model at a kick between the set's: linear in the kick between the neighbouring set kicks (the policy's
+        # own reading, FinePositioner._continuous_kick), so no table is built per continuous kick
+        if any(abs(kick - v) < 1e-9 for v in kset):
+            return float(fn(*a, kick_current_a=kick, **kw))
+        lo = max(v for v in kset if v < kick)
+        hi = min(v for v in kset if v > kick)
+        t = (kick - lo) / (hi - lo)
+        return (1 - t) * float(fn(*a, kick_current_a=lo, **kw)) + t * float(fn(*a, kick_current_a=hi, **kw))
+    for kick in sorted({label(r["kick"]) for r in pol}):
+        rs = [r for r in pol if label(r["kick"]) == kick]
+        o = {"tries": len(rs)}
+        mv = np.array([r["move"] for r in rs])
+        moved = mv > 0.5 * tol
+        o["moved"] = int(moved.sum())
+        o["landed_4e-4"] = int(sum(1 for r, m in zip(rs, moved) if m and abs(abs(r["err_s"]) - r["move"]) <= 4e-4))
+        dm = np.array([r["phi_m"] - r["phi0"] for r in rs])           # measured - true twist at the kick
+        d = np.array([r["d"] for r in rs])
+        lvl_m = np.array([r["level"] for r in rs]) + dm                 # the true level in measured coordinates
+        # offsets, toward the try
+        o["park_err_med"] = float(np.median(d * (np.array([r["phi_m"] for r in rs]) - np.array([r["pre_plan"] for r in rs]))))
+        o["rise_true_med"] = float(np.median([r["apex"] for r in rs]))
+        o["rise_plan_med"] = float(np.median([r["rise_plan"] for r in rs]))
+        o["apex_true_minus_plan_med"] = float(np.median(d * (np.array([r["phi_m"] + r["d"] * r["apex"] for r in rs])
+                                                            - np.array([r["apex_plan"] for r in rs]))))
+        o["learned_minus_level_med"] = float(np.median(d * (np.array([r["phi_b_s"] for r in rs]) - lvl_m)))
+        o["learned_minus_level_sigmas_med"] = float(np.median(d * (np.array([r["phi_b_s"] for r in rs]) - lvl_m)
+                                                               / np.array([r["sigma_s"] for r in rs])))
+        o["phi_e_s_minus_true_med"] = float(np.median(d * (np.array([r["phi_e_s"] for r in rs])
+                                                          - (np.array([r["phi_e"] for r in rs]) + dm))))
+        mr = [r for r, m in zip(rs, moved) if m]
+        if mr:
+            o["meas_apex_minus_level_moved_med"] = float(np.median([r["d"] * (r["apex_meas"] - r["level"] - (r["phi_m"] - r["phi0"])) for r in mr]))
+            o["true_apex_minus_level_moved_med"] = float(np.median([r["pre_rel"] + r["apex"] for r in mr]))
+            o["plan_apex_minus_level_moved_med"] = float(np.median([r["d"] * (r["apex_plan"] - r["level"] - (r["phi_m"] - r["phi0"])) for r in mr]))
+        preds = {}
+        for r in mr:
+            dmr = r["phi_m"] - r["phi0"]
+            k_r = r["kick"]
+            rise = at(pm.rise, k_r, r["d"], r["p"], valve_angle_rad=r["thl0"])
+            aim = abs(r["err_s"])
+            od_a = r["d"] * (r["apex_plan"] - r["level"] - dmr)
+            x_s = r["d"] * (r["level"] + dmr - r["phi_e_s"])
+            x_n = r["d"] * (r["level"] + dmr - r.get("phi_e0", r["phi_e_s"]))     # (N) from the stage model's φe
+            for key, x, od in (("T", r["x"], r["pre_rel"] + rise), ("A", r["x"], od_a), ("S", x_s, od_a), ("N", x_n, od_a)):
+                v = at(pm.move, k_r, r["d"], r["p"], x, od, aim_rad=aim, valve_angle_rad=r["thl0"]) if od > 0 else 0.0
+                preds.setdefault(key, []).append(v)
+            preds.setdefault("L", []).append(r["m_mean"])
+        mvm = mv[moved]
+        for key, v in preds.items():
+            v = np.array(v)
+            ok = np.isfinite(v) & (v > 0)
+            o[f"ratio_{key}_median"] = float(np.median(mvm[ok] / v[ok])) if ok.any() else None
+            o[f"ratio_{key}_n"] = int(ok.sum())
+            o[f"err_{key}_median_rad"] = float(np.median(v[ok] - mvm[ok])) if ok.any() else None
+        o["move_median"] = float(np.median(mvm)) if len(mvm) else None
+        out[f"{kick:g}"] = o
+    return out
+
+
+def closed_check(runs: int, seed: int, jobs: int, sets: dict | None = None, rows_out: list | None = None) -> dict:
+    """The closed-loop check (module docstring, 2.) on ``runs`` nominal-box runs from ``seed`` with the controller
+    ``sets`` (e.g. ``{"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0}``: then also the policy's tries per
+    kick, :func:`_policy_rows`); ``rows_out``: a list that receives every doublet's row."""
+    sets = dict(sets or {})
+    jobs_ = [(s, sets) for s in range(seed, seed + runs)]
     if jobs > 1:
         with Pool(jobs) as pool:
-            parts = pool.map(_closed_run, seeds, chunksize=1)
+            parts = pool.map(_closed_run, jobs_, chunksize=1)
     else:
-        parts = [_closed_run(s) for s in seeds]
+        parts = [_closed_run(j) for j in jobs_]
     rows = [r for part in parts for r in part]
-    pm = model()
+    if rows_out is not None:
+        rows_out.extend(rows)
+    if sets:
+        from fuel_valve_control.core.fine_positioning import _pulse_moves
+        cs = CONTROLLER_SPEC.load(None, sets)
+        pm = _pulse_moves(PositionController(cs).law.fine)
+    else:
+        pm = model()
     tol = FINE.cfg.tolerance_rad
     rise = {d: pm.rise(d, P_MAX) for d in (1, -1)}
     d_ = np.array([r["d"] for r in rows])
     mv = np.array([r["move"] for r in rows])
     od = np.array([r["pre_rel"] + rise[r["d"]] for r in rows])
     apex = np.array([r["apex"] for r in rows])
-    pred = np.array([float(pm.move(r["d"], P_MAX, r["x"], o, kick_current_a=r["kick"], aim_rad=max(r["aim"], 0.0)))
+    kset = FINE.cfg.kick_current_a * 2.0 ** np.arange(0, 4)
+    kick_of = (lambda k: float(min(kset, key=lambda v: abs(math.log(k / v)))))   # a continuous kick: nearest of the set
+    pred = np.array([float(pm.move(r["d"], P_MAX, r["x"], o, kick_current_a=kick_of(r["kick"]) if r.get("policy") else r["kick"],
+                                   aim_rad=max(r["aim"], 0.0)))
                      for r, o in zip(rows, od)])
     moved = np.abs(mv) > 0.5 * tol
     nan = np.isnan(pred)
@@ -254,6 +367,8 @@ def closed_check(runs: int, seed: int, jobs: int) -> dict:
         s = ~moved & (d_ == d)
         out[f"rise_measured_median_rad_{d:+d}"] = float(np.median(apex[s])) if s.any() else None
         out[f"rise_model_rad_{d:+d}"] = rise[d]
+    if any(r.get("policy") for r in rows):
+        out["policy_by_kick"] = _policy_rows(rows, pm, tol)
     return out
 
 
@@ -269,9 +384,25 @@ def main(argv=None) -> None:
     ap.add_argument("--dp-grid", type=str, default=None, help="comma-separated Δp grid, x max (grid check)")
     ap.add_argument("--angle-grid", type=str, default=None, help="comma-separated angle grid, x stroke (grid check)")
     ap.add_argument("--dp-range", type=str, default="0.02,1.0", help="Δp range of the grid check's random points, x max")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="controller.KEY=VALUE",
+                    help="controller parameter of the closed check's runs (e.g. controller.fine.apex_policy=true)")
+    ap.add_argument("--closed-only", action="store_true", help="only the closed-loop check")
+    ap.add_argument("--rows", type=Path, help="write the closed check's doublets (one row each) here as JSON")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args(argv)
     t0 = time.time()
+    from fuel_valve_control.common.paramspec import parse_overrides
+    sets = parse_overrides(a.overrides, ("controller",))["controller"] if a.overrides else {}
+    if a.closed_only:
+        rows = []
+        res = {"closed": closed_check(a.runs, a.seed, a.jobs, sets, rows), "controller_sets": sets,
+               "wall_s": round(time.time() - t0, 1)}
+        if a.rows:
+            a.rows.write_text(json.dumps(rows))
+        if a.json:
+            a.json.write_text(json.dumps(res, indent=1))
+        print(json.dumps(res))
+        return
     fl = (lambda v: None if v is None else [float(u) for u in v.split(",")])
     res = {"grid": grid_check(a.pairs, dp_grid=fl(a.dp_grid), angle_grid=fl(a.angle_grid),
                               dp_range=fl(a.dp_range))}
@@ -282,7 +413,7 @@ def main(argv=None) -> None:
     res["bare"] = bare_check(a.points, 7, a.dp_fraction)
     print("bare:", json.dumps(res["bare"]), flush=True)
     if a.runs > 0:
-        res["closed"] = closed_check(a.runs, a.seed, a.jobs)
+        res["closed"] = closed_check(a.runs, a.seed, a.jobs, sets)
         print("closed:", json.dumps(res["closed"]), flush=True)
     res["wall_s"] = round(time.time() - t0, 1)
     if a.json:

@@ -91,3 +91,90 @@ def test_a_nominal_plateau_main_leaves_off_ends_within_tolerance():
     res = rb.run_case((case, "observer_fp", {"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0}))
     assert res["plateaus"][3]["final_error_rad"] < 8e-4
     assert not res["hunts"] and not res["fault"]
+
+
+# --------------------------------------------------------------------------------------------- task h34m, docs §85
+@pytest.mark.parametrize("direction", [1, -1])
+def test_the_model_excess_is_taken_from_the_model_coulomb_equilibrium_not_the_learned_swing_centre(direction):
+    """``fine.apex_excess_nominal`` (task h34m, docs §85): the move model is built in the stage model's coordinates
+    -- excess = the level above (load + T_c)/K -- so the policy's expected move for a given level law must not
+    change when the learned swing centre (``learn.equilibrium``, the stage's own moves' φ_final - move / 2, 0.14-0.21e-3
+    rad toward the try on the nominal box) moves.  Without the option (main's reading) a learned offset of 0.2e-3 rad
+    shrinks the expected move (the 1.3-1.4 x the closed loop measured); with it the move is unchanged."""
+    d, sigma = direction, 3e-4
+    means = {}
+    for opt in (False, True):
+        for off in (0.0, 2e-4):
+            fine, model = _policy_stage(**{"fine.apex_excess_nominal": opt})
+            p = model.pressure_max_kpa
+            band = fine.learn.band(1.0)
+            fine.learn.equilibrium[d][band] = d * off
+            phi_e, phi_b = _twists(fine, d, p)
+            assert fine._choose_apex(d * 1.2e-3, d, phi_e, phi_b, sigma, p, 0.0, 0.5) is not None
+            means[opt, off] = (fine._apex_plan[0] - phi_b, fine._apex_try[1])
+    # main: the learned offset changes the plan (the model reads a smaller excess: smaller moves, another apex)
+    assert means[False, 0.0] != pytest.approx(means[False, 2e-4], rel=1e-6, abs=1e-9)
+    assert means[True, 0.0] == pytest.approx(means[True, 2e-4], rel=1e-9, abs=1e-12)
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_the_floor_climbs_from_the_planned_apex(direction):
+    """``fine.apex_floor_plan``: after an unmoved try the law is truncated at the higher of the measured apex (the
+    once-a-period reading, below the kick's peak) and the apex the try planned; off, at the reading."""
+    d, sigma = direction, 3e-4
+    for opt in (False, True):
+        fine, model = _policy_stage(**{"fine.apex_floor_plan": opt})
+        p = model.pressure_max_kpa
+        phi_e, phi_b = _twists(fine, d, p)
+        apex = fine._choose_apex(d * 0.9e-3, d, phi_e, phi_b, sigma, p, 0.0, 0.5)
+        fine._apex_floor = (d, apex - d * 1e-4)                   # the reading 1e-4 below the plan
+        lv, w = fine._apex_law(d, phi_b, sigma)
+        low = lv[w > 0].min() if d > 0 else lv[w > 0].max()
+        floor = apex if opt else apex - d * 1e-4
+        assert d * (low - floor) > 0.0
+        assert d * (low - floor) < 0.2 * sigma                     # the next law point above it
+    fine._apex_floor = None
+    assert fine._floor(d) is None
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_the_continuous_kick_is_sized_to_reach_the_apex_from_the_floor(direction):
+    """``fine.apex_kick_continuous``: after an unmoved try the preload stays at the floor (less 5 % of the smallest
+    kick's rise) and each candidate apex gets the kick whose rise reaches it: the model's rise *at that kick*
+    (a table built for it) lies within 3e-5 rad (the linear interpolation across the kick set, ~2 % of a 16 A kick's
+    rise) of the apex's height above the preload; kicks within fine.kick_current_a .. fine.apex_kick_max_a, the hold
+    plus the kick within the current cap; a candidate beyond the largest kick's rise is never sized."""
+    from fuel_valve_control.core.fine_positioning import APEX_PRE_MARGIN
+    d, sigma = direction, 3e-4
+    fine, model = _policy_stage(**{"fine.apex_kick_continuous": True, "fine.apex_kick_max_a": 16.0})
+    p = model.pressure_max_kpa
+    phi_e, phi_b = _twists(fine, d, p)
+    fine._moves = __import__("fuel_valve_control.core.fine_positioning", fromlist=["_pulse_moves"])._pulse_moves(fine)
+    pm = fine._moves
+    floor = phi_b - d * 1.0 * sigma
+    kicks = fine._apex_kicks()
+    r0 = pm.rise(d, p, kick_current_a=kicks[0], valve_angle_rad=0.5)
+    rmax = pm.rise(d, p, kick_current_a=kicks[-1], valve_angle_rad=0.5)
+    pre = floor - d * APEX_PRE_MARGIN * r0
+    cand = pre + d * np.array([0.5 * r0, 1.2 * r0, 0.5 * (r0 + rmax), 0.9 * rmax, 1.1 * rmax])
+    lv, _ = fine._apex_law(d, phi_b, sigma)
+    od = d * (cand[:, None] - lv[None, :])
+    ex = np.maximum(d * (lv - phi_e), 0.0)[None, :] + 0 * od
+    tabs = [(k, pm.rise(d, p, kick_current_a=k, valve_angle_rad=0.5),
+             np.asarray(pm.move(d, p, ex, od, kick_current_a=k, aim_rad=1e-3, valve_angle_rad=0.5))) for k in kicks]
+    kick, rise, mv = fine._continuous_kick(d, floor, cand, tabs)
+    assert np.isnan(kick[0]) and np.isnan(kick[-1])               # below the smallest kick's rise / beyond the largest
+    for j in (1, 2, 3):
+        assert kicks[0] <= kick[j] <= kicks[-1]
+        assert rise[j] == pytest.approx(d * (cand[j] - pre))
+        exact = pm.rise(d, p, kick_current_a=float(kick[j]), valve_angle_rad=0.5)
+        assert abs(exact - rise[j]) < 3e-5
+        hold = (model.coupling_stiffness_nm_per_rad * pre / model.gear_ratio + d * model.motor_coulomb_nm) \
+            / model.torque_constant_nm_per_a
+        assert abs(hold + d * kick[j]) <= fine.cfg.peak_current_a + 1e-9
+    # chosen through the policy: the preload is the floor's, the kick the continuous one when it wins
+    fine._apex_floor = (d, floor)
+    apex = fine._choose_apex(d * 1.5e-3, d, phi_e, phi_b, sigma, p, 0.0, 0.5)
+    assert apex is not None and d * (apex - floor) > 0.0
+    if fine._apex_kick not in kicks:
+        assert (apex - d * fine._apex_rise) == pytest.approx(pre, abs=1e-12)

@@ -189,6 +189,9 @@ START_SIGMAS_MIN, START_SIGMAS_MAX = 1e-3, 10.0
 APEX_LAW_POINTS, APEX_LAW_SIGMAS = 41, 3.0
 #: ... and reads the move model at Δp rounded to this fraction of the rated Δp
 APEX_DP_STEP = 0.01
+#: fine.apex_kick_continuous (task h34m): the preload lies this fraction of the smallest kick's rise below the last
+#: unmoved apex (the move model's rise reads the closed loop's +2-3 % high, docs §80.3)
+APEX_PRE_MARGIN = 0.05
 
 
 def _pulse_moves(fine: "FinePositioner") -> object:
@@ -505,6 +508,11 @@ class FineConfig:
     observe_hold_integral: bool = False  # doublet: the servo's integral held (not integrated) in the observe phase
                                          # after a doublet (task h34s, docs §84)
     observe_hold_moved: bool = False  # ... only once that doublet has moved the valve half a tolerance (docs §84)
+    apex_excess_nominal: bool = False  # ... the model's excess against the stage model's Coulomb equilibrium, not the
+                                       # learned swing centre (task h34m, docs §85)
+    apex_floor_plan: bool = False  # ... an unmoved try truncates the law at max(measured apex, planned apex)
+    apex_kick_continuous: bool = False  # ... after an unmoved try: preload at that apex, the kick sized to the apex
+    apex_worse_given_move: bool = False  # ... no try more likely to worsen |e| than not, given that it moves
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
@@ -596,6 +604,7 @@ class FinePositioner:
         self._apex_kick = None        # fine.apex_policy: the kick current (A) of the doublet in progress (None: main's)
         self._apex_try = None         # ... (direction, the model's mean move if it moves, rad) of that doublet
         self._apex_rise = 0.0         # ... and its rise above the preload, rad
+        self._apex_last = None        # ... (direction, planned apex rad) of the last try the policy chose
         self._safe = None             # fine.preload_cap: the furthest twist toward the move an unmoved pulse reached
                                       # at this stop, rad (None: none yet)
         self._stairs_unmoved = 0      # fine.stair_growth_after: unmoved stairs of the staircase in progress
@@ -1067,6 +1076,8 @@ class FinePositioner:
                     self._hold_ref = thl + final
                     return
                 self._pre = apex - d * self._apex_rise
+        else:
+            self._apex_last = None             # (fine.apex_floor_plan) a servo-blended pulse: no planned apex to climb from
         self._plan_park()
         self.phase = PARK
         self._peak_seen = th1 - thl
@@ -1081,8 +1092,8 @@ class FinePositioner:
         Returns (levels, weights summing to 1)."""
         z = np.linspace(-APEX_LAW_SIGMAS, APEX_LAW_SIGMAS, APEX_LAW_POINTS)
         lv, w = phi_b + d * sigma * z, np.exp(-0.5 * z * z)
-        fl = self._apex_floor
-        if fl is not None and fl[0] == d:
+        fl = self._floor(d)
+        if fl is not None:
             above = d * (lv - fl[1]) > 0.0
             if (w * above).sum() < 1e-3 * w.sum():
                 zf = max(d * (fl[1] - phi_b) / sigma, 1.0)
@@ -1091,6 +1102,21 @@ class FinePositioner:
             else:
                 w = np.where(above, w, 0.0)
         return lv, w / w.sum()
+
+    def _floor(self, d: int) -> tuple[int, float] | None:
+        """(``fine.apex_policy``) (direction, twist rad) below which this stop's level does not lie toward ``d``: the
+        highest apex an unmoved doublet reached (``_apex_floor``, as the resolvers read it) -- with
+        ``fine.apex_floor_plan`` the higher of that and the apex the last (unmoved) try planned: the twist is
+        sampled once a period and its reading misses the kick's peak (0.4-1.6e-4 rad below it for 4-8 A kicks,
+        docs §82.3; the true apex lay a median 2e-5 rad *past* the plan, §85), so a law truncated at the reading
+        keeps levels the try has already ruled out and the next try repeats it.  None: no floor."""
+        fl = self._apex_floor
+        if fl is None or fl[0] != d:
+            return None
+        last = self._apex_last
+        if self.cfg.apex_floor_plan and last is not None and last[0] == d and d * (last[1] - fl[1]) > 0.0:
+            return (d, last[1])
+        return fl
 
     def _apex_kicks(self) -> list[float]:
         """(``fine.apex_policy``) The kick currents (A) the policy chooses among: ``fine.kick_current_a`` times
@@ -1130,11 +1156,17 @@ class FinePositioner:
         pressure_kpa = round(pressure_kpa / step) * step
         top = lv[-1] if d * (lv[-1] - lv[0]) > 0 else lv[0]
         cand = np.concatenate([lv, top + d * sigma * np.linspace(0.1, 1.5, 8)])
-        fl = self._apex_floor
-        if fl is not None and fl[0] == d:
+        fl = self._floor(d)
+        if fl is not None:
             cand = cand[d * (cand - fl[1]) > 0.0]
         if len(cand) == 0:
             return None
+        if cfg.apex_excess_nominal:
+            # (task h34m, docs §85) the move model's excess is the level above the Coulomb equilibrium of the model
+            # it was built from (load + T_c)/K; the learned φe is the swing centre of the stage's own moves
+            # (φ_final - move / 2), which lies 0.14-0.21e-3 rad further toward the try (nominal box), and read the
+            # moves 1.3-1.4 x short
+            phi_e = self._nominal(thl, pressure_kpa, d)[0]
         od = d * (cand[:, None] - lv[None, :])               # [a, k] overdrive, rad
         excess = np.broadcast_to(np.maximum(d * (lv - phi_e), 0.0)[None, :], od.shape)   # the level above φe
         moved = od > 0.0
@@ -1147,10 +1179,17 @@ class FinePositioner:
         trunc = np.divide(trunc, tot, out=np.zeros_like(trunc), where=tot > 0.0)
         break_limit = float(_norm_cdf(-cfg.doublet_sigmas)) + 1e-9
         best, v1 = None, None
-        for kick in self._apex_kicks():
-            rise = self._moves.rise(d, pressure_kpa, kick_current_a=kick, valve_angle_rad=thl)
-            mv = np.asarray(self._moves.move(d, pressure_kpa, excess, od, kick_current_a=kick, aim_rad=e,
-                                             valve_angle_rad=thl), dtype=float)
+        kicks = self._apex_kicks()
+        tabs = [(kick, self._moves.rise(d, pressure_kpa, kick_current_a=kick, valve_angle_rad=thl),
+                 np.asarray(self._moves.move(d, pressure_kpa, excess, od, kick_current_a=kick, aim_rad=e,
+                                             valve_angle_rad=thl), dtype=float)) for kick in kicks]
+        options = list(tabs)
+        if cfg.apex_kick_continuous and fl is not None and len(tabs) > 1:
+            options.append(self._continuous_kick(d, fl[1], cand, tabs))
+        for kick, rise, mv in options:
+            if kick is None:
+                continue
+            rise = np.asarray(rise, dtype=float)[:, None] if np.ndim(rise) else rise
             # a level below the preload breaks the valve loose while parked: a quasi-static release, the whole
             # stick-slip jump 2 x excess (main's staircase starts fine.doublet_sigmas scatters below the level for
             # this; traced, task h33p: nominal box seed 1021, a preload 0.39e-3 below the learned level broke it
@@ -1163,18 +1202,58 @@ class FinePositioner:
             if v1 is None:
                 v1 = (hit @ trunc.T).max(axis=0)             # one more try after no move at a: the law beyond a
             score = p_hit + p_none * v1
-            score = np.where((p_worse < 0.5) & (p_break <= break_limit), score, -np.inf)
+            ok = p_worse < 0.5
+            if cfg.apex_worse_given_move:
+                # (task h34m, docs §85) more likely to worsen |e| than not *if it moves*: at a stop whose level lies
+                # high (excess 2.5-4.5e-3 rad, smallest move 1.2e-3 and more) every move overshoots the error, and
+                # the unconditional rule let the law's climb (P(no move) 0.8-0.9, P(land) 0) go on until the valve
+                # let go for 1.3-2.2e-3 rad against errors of 0.35-0.75e-3 (nominal box seed 1020)
+                ok = ok & (p_worse <= 0.5 * (1.0 - p_none))
+            score = np.where(ok & (p_break <= break_limit), score, -np.inf)
+            if np.ndim(kick):
+                score = np.where(np.isfinite(kick), score, -np.inf)   # a continuous kick the set cannot size
             j = int(np.argmax(score))
             if best is None or score[j] > best[0]:
                 pm = float(moved[j].astype(float) @ w)
                 m_mean = float((np.where(moved[j] & np.isfinite(mv[j]), mv[j], 0.0) @ w) / pm) if pm > 0 else 0.0
-                best = (float(score[j]), float(cand[j]), kick, rise, float(p_hit[j]), float(p_none[j]), m_mean)
+                kj, rj = (float(kick[j]), float(rise[j, 0])) if np.ndim(kick) else (kick, rise)
+                best = (float(score[j]), float(cand[j]), kj, rj, float(p_hit[j]), float(p_none[j]), m_mean)
         self._apex_plan = (best[1], best[4], best[5], best[0], best[2], best[6])
         if not best[0] > cfg.apex_min_chance:
             return None
         self._apex_kick, self._apex_rise = best[2], best[3]
+        self._apex_last = (d, best[1])
         self._apex_try = (d, best[6])          # the model's mean move, if this try moves (traced in §81)
         return best[1]
+
+    def _continuous_kick(self, d: int, floor: float, cand: np.ndarray, tabs: list) -> tuple:
+        """(``fine.apex_kick_continuous``, task h34m, docs §85) The continuous kick from the floor: the preload stays
+        at the stop's last unmoved apex ``floor`` (absolute twist, rad: a twist that held the valve, so the park
+        cannot break it loose), less APEX_PRE_MARGIN of the smallest kick's rise (the model's rise error against the
+        closed loop, +2-3 %, docs §80.3), and each candidate apex ``cand`` is reached by the kick whose rise (the
+        model's, :meth:`PulseMoves.rise`, inverted by interpolation over the kick set ``tabs`` = [(kick A, rise rad,
+        moves [candidate, level])]) is the apex's height above that preload; its moves interpolated linearly in the
+        kick between the set's two neighbouring kicks.  A candidate out of the set's range of rises, or whose kick
+        would take the command past the current cap (the hold at the preload + the kick), gets NaN moves (never
+        chosen).  Returns (kick per candidate A, rise per candidate rad, moves [candidate, level])."""
+        cfg, m = self.cfg, self.m
+        ks = np.array([t[0] for t in tabs], dtype=float)
+        rs = np.array([t[1] for t in tabs], dtype=float)
+        pre = floor - d * APEX_PRE_MARGIN * rs[0]
+        need = d * (cand - pre)                              # the rise each candidate asks of the kick, rad
+        kick = np.interp(need, rs, ks, left=np.nan, right=np.nan)
+        # the hold at the preload (the coupling's torque at the gear output, and the motor's Coulomb friction the park
+        # climbed against) plus the kick stays within the cap
+        hold = (m.coupling_stiffness_nm_per_rad * pre / m.gear_ratio
+                + d * m.motor_coulomb_nm) / m.torque_constant_nm_per_a
+        kick = np.where(kick <= cfg.peak_current_a - d * hold, kick, np.nan)
+        i = np.clip(np.searchsorted(ks, np.nan_to_num(kick, nan=ks[0]), side="right") - 1, 0, len(ks) - 2)
+        t = np.clip((np.nan_to_num(kick, nan=ks[0]) - ks[i]) / (ks[i + 1] - ks[i]), 0.0, 1.0)[:, None]
+        mvs = np.stack([tb[2] for tb in tabs])               # [kick, candidate, level]
+        rows = np.arange(len(cand))
+        mv = (1.0 - t) * mvs[i, rows] + t * mvs[i + 1, rows]
+        mv = np.where(np.isfinite(kick)[:, None], mv, np.nan)
+        return kick, np.where(np.isfinite(kick), need, 0.0), mv
 
     def _start_sigmas(self, d: int, b: int) -> float:
         """How many learned scatters below the learned breakaway a new staircase starts (its first preload

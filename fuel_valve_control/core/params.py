@@ -607,6 +607,23 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "doublet that has moved the valve (half a tolerance from its start): an unmoved stair's observe integrates as "
           "main's, whose next park is tuned with it (held there too, the parks ended 0.57e-3 rad short of their planned "
           "preload, median: 12 vs 29 moves in 10 nominal runs, 549 vs 479 doublets; task h34s, docs section 84)", runtime=True),
+    Param("fine.apex_excess_nominal", False, "", "fine.apex_policy: the move model's excess (the level above the "
+          "Coulomb-equilibrium twist) taken from the stage model's own Coulomb equilibrium (load + T_c)/K -- the "
+          "coordinate the model is built in -- not from the learned swing centre (fine.learn's equilibrium offset: "
+          "0.14-0.21e-3 rad toward the try on the nominal box, which read the moves 1.3-1.4 x short; task h34m, "
+          "docs section 85)", runtime=True),
+    Param("fine.apex_floor_plan", False, "", "fine.apex_policy: after an unmoved try the level's law is truncated "
+          "at the higher of the apex the resolvers read and the apex the try planned (the once-a-period sample "
+          "misses the kick's peak; plateau_floor's --floor plan, docs section 82.3; task h34m)", runtime=True),
+    Param("fine.apex_kick_continuous", False, "", "fine.apex_policy: after an unmoved try the preload stays at the "
+          "last unmoved apex (a twist that held the valve) and the kick current is the continuous variable, sized "
+          "by the move model's rise to reach each candidate apex (moves interpolated between the kick set's "
+          "tables), within fine.kick_current_a .. fine.apex_kick_max_a and the current cap (task h34m, docs "
+          "section 85)", runtime=True),
+    Param("fine.apex_worse_given_move", False, "", "fine.apex_policy: no try more likely to worsen the error than "
+          "to improve it *given that it moves* (the policy's rule counts P(no move) as not worse: at a stop whose "
+          "level lies high every move overshoots the error and the law's climb went on until one did; task h34m, "
+          "docs section 85)", runtime=True),
     Param("fine.unbiased_preload_pull", False, "", "with fine.unbiased_samples: a servo-blended pulse whose preload "
           "broke the valve loose pulls the learned breakaway to below that preload with fine.learn_gain (main's "
           "treatment), instead of the censored sample's fine.scatter_gain step toward the conditional mean (that "
