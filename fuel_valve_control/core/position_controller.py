@@ -336,7 +336,8 @@ class PositionController:
                           stair_growth_slope=ps["fine.stair_growth_slope"],
                           apex_policy=ps["fine.apex_policy"], apex_land_rad=ps["fine.apex_land_rad"],
                           apex_move_sd_rad=ps["fine.apex_move_sd_rad"], apex_min_chance=ps["fine.apex_min_chance"],
-                          apex_kick_max_a=ps["fine.apex_kick_max_a"], apex_kick_ratio=ps["fine.apex_kick_ratio"], apex_retreat_periods=ps["fine.apex_retreat_periods"], supply_voltage_v=ps["drive.supply_voltage_v"])
+                          apex_kick_max_a=ps["fine.apex_kick_max_a"], apex_kick_ratio=ps["fine.apex_kick_ratio"], apex_retreat_periods=ps["fine.apex_retreat_periods"], supply_voltage_v=ps["drive.supply_voltage_v"],
+                          hold_reversed=ps["fine.hold_reversed"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
