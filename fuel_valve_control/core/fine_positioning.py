@@ -1911,9 +1911,9 @@ class FinePositioner:
 
     def _hold_not_hand_back(self, th1: float, err: float, pressure_kpa: float) -> bool:
         """(``fine.hold_reversed``, in force also with ``fine.apex_policy``; task h34h, docs §86) Instead of handing the
-        plateau back to the main law, hold the gear output where it is (``th1``, rad; the valve at rest: :meth:`_after_move` judges
-        a move once it has stopped) and make no more pulses on this plateau, when the main law's move toward the
-        target (``err`` = target - valve, rad) could be the hunting metric's second reversal (:meth:`_cross_guard`:
+        plateau back to the main law, hold the gear output where it is (``th1``, rad; the valve is at rest:
+        :meth:`_after_move` judges a move once it has stopped) and make no more pulses on this plateau, when the main
+        law's move toward the target (``err`` = target - valve, rad) could be the hunting metric's second reversal (:meth:`_cross_guard`:
         not a free move).  Returns whether it holds.
 
         Why: the stage hands back after two preload breakaways on a plateau, a move away from the target, or a learned
