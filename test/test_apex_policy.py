@@ -178,3 +178,51 @@ def test_the_continuous_kick_is_sized_to_reach_the_apex_from_the_floor(direction
     assert apex is not None and d * (apex - floor) > 0.0
     if fine._apex_kick not in kicks:
         assert (apex - d * fine._apex_rise) == pytest.approx(pre, abs=1e-12)
+@pytest.mark.parametrize("sets, holds", [({}, False), ({"fine.hold_reversed": True}, True),
+                                         ({"fine.apex_policy": True}, True)])
+def test_a_plateau_the_valve_reversed_on_is_held_not_handed_back(sets, holds):
+    """(``fine.hold_reversed``, in force also with ``fine.apex_policy``; task h34h, docs §86) Where the stage would hand
+    the plateau back (two preload breakaways, a move away from the target, an unfit twist) after the valve has
+    reversed once on the plateau's late window, the main law's move back could be the hunting metric's second
+    reversal: the stage holds the gear output where it is and makes no more pulses.  A free move (no reversal yet,
+    the last move toward the target) is still handed back; main (both off) always hands back."""
+    from fuel_valve_control.common.hunting import ReversalCounter
+    fine, model = _stage(**sets)
+    p = model.pressure_max_kpa
+    fine._reversals = ReversalCounter(0.5)
+    fine._reversals.count, fine._reversals.direction = 1, -1        # reversed once, now moving down (closing)
+    held = fine._hold_not_hand_back(0.52, -3e-3, p)                  # the valve 3e-3 above its target
+    assert held is holds
+    if holds:
+        assert fine.phase == "hold" and fine._hold_ref == 0.52 and fine._spent()
+    fine, _ = _stage(**sets)
+    fine._reversals = ReversalCounter(0.5)
+    fine._reversals.direction = -1                                  # no reversal yet, moving toward the target
+    assert fine._hold_not_hand_back(0.52, -3e-3, p) is False
+
+
+def test_the_apex_policy_hunter_is_held_not_handed_back():
+    """Nominal box seed 2035 plateau 10 (a 1.56e-2 rad step, max Δp, static scatter 7.2 %) with ``fine.apex_policy``
+    (kicks to 16 A), replayed up to the next plateau's step: a doublet's park broke the valve loose 5.6e-3 rad across
+    the target (the learned level 1.4e-3 above the drawn one after 18 unmoved servo-blended pulses raised it), the
+    pulse back broke loose in its own park (1.6e-3 back, the first reversal), and handed back 3.3e-3 over, the main
+    law's hold slid the valve 1.9e-2 the other way and its ramp brought it back -- the metric's second reversal (it
+    hunted, 1.0e-2 rad, ending 4.8e-3 off; main 1.3e-4).  Held instead: no hunting, the plateau ends where the stage's
+    last move left the valve (measured 3.34e-3), not further."""
+    import robustness as rb
+    from fuel_valve_control.tools import metrics as M
+    from fuel_valve_control.tools import sim
+    case = rb.sample_case(2035, "nominal")
+    sc = rb.case_scenario(case)
+    sc.duration_s = 6.62                                             # plateau 10 ends at 6.591 s
+    p, c = sim.build(sc, rb.plant_overrides(case), {**rb.controller_knowledge(case), "fine.apex_policy": True,
+                                                    "fine.apex_kick_max_a": 16.0}, None, "observer_fp")
+    res = sim.simulate(sc, p, c)
+    log = res.log
+    plats = M.plateau_results(M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9],
+                                      res.stroke_rad))
+    pl = plats[10]
+    assert abs(pl["to_rad"] - pl["from_rad"]) == pytest.approx(1.558e-2, abs=1e-4)   # the traced plateau
+    assert not pl["hunts"] and pl["hunting_reversals"] <= 1
+    assert pl["final_error_rad"] < 3.5e-3
+    assert not any(q["hunts"] for q in plats[:11])

@@ -517,6 +517,9 @@ class FineConfig:
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
                                          # that stop held an apex beyond it (task h32a, docs §73)
+    hold_reversed: bool = False   # the stage holds instead of handing back a plateau on which the main law's move
+                                  # could be the hunting metric's second reversal (task h34h, docs §86; in force also
+                                  # with apex_policy)
 
 
 class FinePositioner:
@@ -1950,6 +1953,8 @@ class FinePositioner:
                 or not self._twist_fits(th1 - thl, thl, pressure_kpa):
             # it moved away from the target, or further than the stage handles, or what it
             # learned does not fit the model: the model does not describe this valve
+            if self._hold_not_hand_back(th1, err, pressure_kpa):
+                return
             self._hand_back()
             return
         policy = cfg.apex_policy and self._doublet and abs(err) <= cfg.doublet_max_error_rad
@@ -2036,6 +2041,37 @@ class FinePositioner:
         nominal box, h29q: a moved doublet's apex lay a median 0.94e-4 rad below the plant's quasi-static level,
         p10 / p90 -1.5e-4 / +0.1e-4; the kick's measured rise is 0.28-0.30e-3 rad)."""
         return 0.5 * self._kick_rise()
+
+    def _hold_not_hand_back(self, th1: float, err: float, pressure_kpa: float) -> bool:
+        """(``fine.hold_reversed``, in force also with ``fine.apex_policy``; task h34h, docs §86) Instead of handing the
+        plateau back to the main law, hold the gear output where it is (``th1``, rad; the valve is at rest:
+        :meth:`_after_move` judges a move once it has stopped) and make no more pulses on this plateau, when the main
+        law's move toward the target (``err`` = target - valve, rad) could be the hunting metric's second reversal (:meth:`_cross_guard`:
+        not a free move).  Returns whether it holds.
+
+        Why: the stage hands back after two preload breakaways on a plateau, a move away from the target, or a learned
+        state / twist that does not fit -- each time with the valve just stopped after a slide, its twist at the edge
+        of the static band it slid toward.  The main law restarts from the torque that holds that twist and, with the
+        error beyond its deadband, unwinds it: the valve at the edge lets go at once and slides on a whole stick-slip
+        jump or more.  Traced (nominal box seed 2035 plateau 10, ``fine.apex_policy`` with kicks to 16 A): a doublet's
+        park broke the valve loose 5.6e-3 rad across the target, the servo-blended pulse back broke loose in its own
+        park (1.6e-3 rad back: the first reversal), the stage handed back 3.3e-3 rad over; the main law's hold slid
+        the valve 1.9e-2 rad the other way and its ramp brought it back 1.1e-2 rad -- the metric's second reversal
+        (hunting, 1.0e-2 rad; the plateau ended 4.8e-3 off).  The stage's own moves never make that reversal
+        (:meth:`_cross_guard`); a hand-back must not give it to the main law either.  Held, the plateau ends where
+        the valve stopped (a known shortfall the next demand's move takes up), without hunting."""
+        cfg = self.cfg
+        if not (cfg.hold_reversed or cfg.apex_policy) or self._cold:
+            return False
+        if self._cross_guard(err, pressure_kpa) == 0.0:
+            return False                       # a main-law move across the target is still no hunt
+        self._judge(failed=True)
+        self._unfit = True                     # no more pulses on this plateau (as after a hand-back)
+        self._stair = None
+        self._apex_floor = None
+        self.phase = HOLD
+        self._hold_ref = th1
+        return True
 
     def _hand_back(self) -> None:
         """Leave the plateau to the main law (which restarts from :meth:`hold_torque`): the

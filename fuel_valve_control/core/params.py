@@ -532,6 +532,13 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "before the hunting metric's window (common.hunting.HUNT_SETTLE_S after the step) and never makes the "
           "one that would be the metric's second: the conditioned demand reaches it a few periods after the step, "
           "and counted from earlier it counts no fewer", 0.0, 0.3, runtime=True),
+    Param("fine.hold_reversed", False, "", "the stage does not hand a plateau back to the main law (a preload that "
+          "broke the valve loose twice, a move away from the target, a learned state or twist that does not fit) once "
+          "the valve has reversed on the plateau's late window or the main law's move back would reverse it: that move "
+          "starts from the edge of the static band the valve has just slid to, and where it crossed the target it was "
+          "the hunting metric's second reversal (nominal box seed 2035 plateau 10 with fine.apex_policy: 1.0e-2 rad, "
+          "2 reversals; task h34h, docs section 86) -- the stage holds the gear output where it is instead, and makes "
+          "no more pulses on the plateau; in force also whenever fine.apex_policy is", runtime=True),
     Param("fine.no_cross_short", 0.4, "", "a move that must not cross the target (the valve has reversed once on "
           "the plateau's late window, or this move would) aims this fraction of the nominal stick-slip jump "
           "2 (T_s - T_c(dp)) / K short, and is made only for an error of at least twice that (0 = never made)",

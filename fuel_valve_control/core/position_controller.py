@@ -345,7 +345,8 @@ class PositionController:
                           apex_kick_continuous=ps["fine.apex_kick_continuous"], apex_worse_given_move=ps["fine.apex_worse_given_move"],
                           retreat_cap=ps["fine.retreat_cap"], retreat_cap_half=ps["fine.retreat_cap_half"], observe_hold_integral=ps["fine.observe_hold_integral"],
                           observe_hold_moved=ps["fine.observe_hold_moved"],
-                          supply_voltage_v=ps["drive.supply_voltage_v"])
+                          supply_voltage_v=ps["drive.supply_voltage_v"],
+                          hold_reversed=ps["fine.hold_reversed"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
