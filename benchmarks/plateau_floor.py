@@ -525,13 +525,15 @@ def law_samples(row: dict, theta: float) -> tuple[np.ndarray, np.ndarray, np.nda
 # ------------------------------------------------------------------------------------------ learning the run's law (h34r)
 #: ``--policies bayes_learn / bayes_rms / bayes_level`` (task h34r, docs §87): the ``bayes_box`` policy whose level law is
 #: the posterior predictive of a learner carried across the run's plateaus in order, updated from its own tries
-LEARN_POLICIES = ("bayes_learn", "bayes_rms", "bayes_level")
+LEARN_POLICIES = ("bayes_learn", "bayes_rms", "bayes_level", "bayes_local")
 #: the learner's kinds: ``learn`` the run's law (scatter rms x ripple amplitude x ripple wavenumber x phase), ``rms`` the
 #: scatter rms only (the ripple at each stop a fresh draw of the box's law, as ``bayes_box`` has it), ``level`` one
 #: position-free level (a mean factor and a spread: what ``FineLearner`` holds -- the ripple is scatter to it)
-LEARN_KIND = {"bayes_learn": "learn", "bayes_rms": "rms", "bayes_level": "level"}
+LEARN_KIND = {"bayes_learn": "learn", "bayes_rms": "rms", "bayes_level": "level", "bayes_local": "local"}
 #: the box's ranges (``robustness.py --box nominal``): rms U(0.02, 0.08), ripple U(0, 0.05), period U(5, 50) mrad
 BOX_SIGMA_RANGE, BOX_RIPPLE_MAX, BOX_PERIOD_RANGE = (0.02, 0.08), 0.05, (0.005, 0.05)
+#: ``local``'s kernel width (rad): the angle over which the box's shortest ripple (5 mrad) turns one radian of phase
+LOCAL_WIDTH_RAD = BOX_PERIOD_RANGE[0] / (2.0 * math.pi)
 LEARN_SIGMAS = tuple(BOX_SIGMA_RANGE[0] + (i + 0.5) * (BOX_SIGMA_RANGE[1] - BOX_SIGMA_RANGE[0]) / 7 for i in range(7))
 LEARN_AMPS = tuple((i + 0.5) * BOX_RIPPLE_MAX / 6 for i in range(6))
 LEARN_PHASES = 16
@@ -574,7 +576,10 @@ class LevelLearner:
       likelihood and the predictive;
     * ``level``: one position-free law, a mean factor μ (11, prior the box's ripple at one position) x spread s (8):
       x = (T_s μ (1 + s n) - T_c)/K everywhere -- one level per direction and Δp band as ``FineLearner`` holds it,
-      the ripple read as scatter.
+      the ripple read as scatter;
+    * ``local``: a non-parametric map, the ``level`` law fitted per position by a kernel: at θ each stop's
+      log-likelihood counts with the weight exp(-(θ - θ_i)² / 2 w²), w = :data:`LOCAL_WIDTH_RAD` (a kernel-weighted
+      local likelihood; state: the stops' angles and their 88 log-likelihoods).
 
     :meth:`samples` gives the posterior predictive at θ as :func:`law_samples` does the box's law: (x_t, x_p, w)."""
 
@@ -590,7 +595,8 @@ class LevelLearner:
         elif kind == "rms":
             self.sigma = np.asarray(LEARN_SIGMAS, dtype=float)
             self.logw = np.zeros(len(self.sigma))
-        elif kind == "level":
+        elif kind in ("level", "local"):
+            self.obs: list = []                        # local: (θ, log-likelihood per hypothesis) of every stop
             m, s = np.meshgrid(np.asarray(LEVEL_MEANS), np.asarray(LEVEL_SPREADS), indexing="ij")
             self.mu, self.sigma = m.ravel(), s.ravel()
             # the box's ripple factor at one position: a ~ U(0, 0.05) x sin(uniform phase), by sampling
@@ -608,11 +614,21 @@ class LevelLearner:
         w = np.exp(self.logw - self.logw.max())
         return w / w.sum()
 
+    def weights(self, theta: float) -> np.ndarray:
+        """The posterior weights that hold at ``theta`` (all kinds but ``local``: :attr:`w`, the same everywhere)."""
+        if self.kind != "local":
+            return self.w
+        lw = self.logw.copy()
+        for th, ll in self.obs:
+            lw = lw + math.exp(-0.5 * ((theta - th) / LOCAL_WIDTH_RAD) ** 2) * ll
+        w = np.exp(lw - lw.max())
+        return w / w.sum()
+
     def ripple(self, theta: float) -> np.ndarray:
         """The ripple factor at ``theta`` of every hypothesis (``rms``: not one -- see :meth:`_components`)."""
         if self.kind == "learn":
             return 1.0 + self.amp * np.sin(2.0 * math.pi * self.k * (theta - self.theta0) + self.psi)
-        if self.kind == "level":
+        if self.kind in ("level", "local"):
             return self.mu
         raise ValueError("rms: the ripple is a fresh box draw at each stop")
 
@@ -636,19 +652,22 @@ class LevelLearner:
             p = self._interval_p(rs[None, :], self.sigma[:, None], lo, hi).mean(axis=1)
         else:
             p = self._interval_p(self.ripple(theta), self.sigma, lo, hi)
+        self.n_obs += 1
+        if self.kind == "local":
+            self.obs.append((float(theta), np.log(p + LEARN_OUTLIER)))
+            return
         self.logw = self.logw + np.log(p + LEARN_OUTLIER)
         self.logw -= self.logw.max()
-        self.n_obs += 1
 
     def _components(self, theta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(σ, ripple factor, weight) of the predictive's mixture at ``theta``."""
-        w = self.w
+        w = self.weights(theta)
         if self.kind == "rms":
             rs = np.asarray(BOX_RIPPLES)
             return (np.repeat(self.sigma, len(rs)), np.tile(rs, len(self.sigma)),
                     np.repeat(w, len(rs)) / len(rs))
         r = self.ripple(theta)
-        if self.kind == "level":
+        if self.kind in ("level", "local"):
             return self.sigma, r, w
         # bin the hypotheses' ripple factor here per σ: a mixture of (σ, r) components, r the bin's weighted mean
         nb = len(LEARN_R_BINS) - 1
@@ -677,7 +696,7 @@ class LevelLearner:
     def summary(self, theta: float, row: dict) -> dict:
         """What the learner knows at ``theta`` against the run's truth ``row``: posterior means of σ (and a), the
         predictive ripple factor's mean / sd here and the true one."""
-        w = self.w
+        w = self.weights(theta)
         out = {"n_obs": self.n_obs, "sigma_mean": float((w * self.sigma).sum()), "sigma_true": row["static_scatter"]}
         true_r = ripple_at(row, theta)
         out["r_true"] = true_r
@@ -1153,7 +1172,8 @@ def main(argv=None) -> int:
                       ("bayes_box", "(b') distribution-aware, knows only the box's law"),
                       ("bayes_learn", "(c) learns the run's law (rms, ripple) from its tries"),
                       ("bayes_rms", "(c-rms) learns the scatter rms only"),
-                      ("bayes_level", "(c-level) learns one position-free level")):
+                      ("bayes_level", "(c-level) learns one position-free level"),
+                      ("bayes_local", "(c-local) learns a kernel (position-binned) level map")):
         if key not in bounds:
             continue
         b = bounds[key]

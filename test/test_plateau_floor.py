@@ -200,3 +200,12 @@ def test_position_free_level_learner_reads_the_ripple_as_scatter(pf):
     assert float((w * lv.sigma).sum()) > 0.04
     a, b = (float((xp * ww).sum()) for _, xp, ww in (lv.samples(thetas[0]), lv.samples(thetas[1])))
     assert a == b
+    # the kernel map (``local``) told the same stops keeps the two positions apart: the crest's level above the
+    # trough's by most of 2 x 0.045 x 0.77 T_s / K (0.8e-3 rad); far from every stop it is the prior again
+    lc = pf.LevelLearner("local", theta0)
+    for th, lo, hi in _synthetic_stops(pf, np.random.default_rng(7), 40, 0.025, ripple, thetas, step=1e-4):
+        lc.observe(th, lo, hi)
+    a, b, far = (float((xp * ww).sum()) for _, xp, ww in (lc.samples(t) for t in (*thetas[:2], theta0 + 0.1)))
+    prior = float((lambda s: (s[1] * s[2]).sum())(pf.LevelLearner("local", theta0).samples(theta0)))
+    assert a - b > 0.5 * 2 * 0.045 * 0.77 * pf.TS / pf.K
+    assert abs(far - prior) < 1e-9
