@@ -982,12 +982,26 @@ def run_stop(job: tuple) -> dict:
             "spent_s": spent * PERIOD, "budget_s": row["budget_s"], "main_final_error_rad": row["final_error_rad"], "log": log}
 
 
+class _Frozen:
+    """A learner's prior that no outcome updates (``--learn-scope none``: the learning policies' control)."""
+
+    def __init__(self, learner: "LevelLearner"):
+        self.learner = learner
+
+    def samples(self, theta: float):
+        return self.learner.samples(theta)
+
+    def observe(self, theta, lo, hi) -> None:
+        pass
+
+
 def run_run(job: tuple) -> list[dict]:
     """(h34r) One run's plateaus in order under a learning policy (:data:`LEARN_POLICIES`): a :class:`LevelLearner`
     of the box's law as the prior, carried from plateau to plateau.  ``job`` = (rows of one run in order, policy,
     table, stop_tol, miss_value, realism); each stop's result gains ``index`` (the plateau's place in the run, 0..)
     and ``learned`` (:meth:`LevelLearner.summary` at the plateau's engage angle before it starts)."""
-    rows, policy, table, stop_tol, miss_value, realism = job
+    rows, policy, table, stop_tol, miss_value, realism = job[:6]
+    scope = job[6] if len(job) > 6 else "run"
     soft = LEARN_SOFT_RAD
     if realism is not None:
         # an apex planned in measured coordinates: the park's error, the valve count's quantisation
@@ -995,8 +1009,12 @@ def run_run(job: tuple) -> list[dict]:
     learner = LevelLearner(LEARN_KIND[policy], rows[0]["theta_rad"], soft)
     out = []
     for i, row in enumerate(rows):
+        if scope == "plateau" and i > 0:
+            # the control that forgets at every plateau: within-plateau learning only
+            learner = LevelLearner(LEARN_KIND[policy], rows[0]["theta_rad"], soft)
         known = learner.summary(row["theta_rad"], row)
-        res = run_stop((row, policy, table, stop_tol, miss_value, realism, learner))
+        told = _Frozen(learner) if scope == "none" else learner      # none: the prior, never told
+        res = run_stop((row, policy, table, stop_tol, miss_value, realism, told))
         res.update({"index": i, "learned": known})
         out.append(res)
     return out
@@ -1060,7 +1078,7 @@ def _init(table: Table) -> None:
 def _run_stop_global(job: tuple):
     row, policy, stop_tol, miss_value = job[:4]
     if policy in LEARN_POLICIES:                       # row: the run's rows in order
-        return run_run((row, policy, _TABLE, stop_tol, miss_value, job[4] if len(job) > 4 else None))
+        return run_run((row, policy, _TABLE, stop_tol, miss_value) + tuple(job[4:]))
     return run_stop((row, policy, _TABLE, stop_tol, miss_value) + tuple(job[4:]))
 
 
@@ -1108,6 +1126,9 @@ def main(argv=None) -> int:
                     "truncates the level's law at the measured apex (default: true states)")
     ap.add_argument("--apex-rms", type=float, default=APEX_RMS_RAD, help=f"rad: with --realism, the apex's "
                     f"realisation error, a seeded zero-mean normal of this rms (default {APEX_RMS_RAD:g})")
+    ap.add_argument("--learn-scope", choices=("run", "plateau", "none"), default="run", help="the learning policies' "
+                    "learner: carried across the run's plateaus (run, default), forgotten at every plateau (plateau: "
+                    "within-plateau learning only), or its prior never updated (none: the control)")
     ap.add_argument("--json", metavar="PATH", help="also write the JSON with every stop here")
     ap.add_argument("--markdown", metavar="PATH", help="also write the tables here")
     ap.add_argument("--floor", choices=("peak", "park", "plan"), default="peak", help="with --realism, the apex an unmoved "
@@ -1137,7 +1158,8 @@ def main(argv=None) -> int:
     # the learning policies take a run's plateaus in order as one job (the learner is carried across them)
     jobs = [((r, pol, a.stop_tol, a.miss_value) + ((realism,) if realism else ())) for pol in pols if pol not in LEARN_POLICIES
             for r in rows]
-    jobs += [(rr, pol, a.stop_tol, a.miss_value, realism) for pol in pols if pol in LEARN_POLICIES for rr in runs.values()]
+    jobs += [(rr, pol, a.stop_tol, a.miss_value, realism, a.learn_scope) for pol in pols if pol in LEARN_POLICIES
+             for rr in runs.values()]
     if a.jobs > 1:
         with Pool(a.jobs, initializer=_init, initargs=(table,)) as pool:
             got = pool.map(_run_stop_global, jobs, chunksize=1 if learn else 8)
