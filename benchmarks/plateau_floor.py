@@ -55,10 +55,19 @@ few shapes near it, with main's final twist phi_e + e/2 (:data:`FAMILIES`); ``--
 aware policies the resolvers' readings, an apex placed in measured coordinates with a seeded park error
 (``--apex-rms``) and the truncation at the measured apex (``--floor``).
 
+Learning policies (task h34r, docs §87; off unless named in ``--policies``): ``bayes_learn`` / ``bayes_rms`` /
+``bayes_level`` / ``bayes_local`` are ``bayes_box`` with the level's law the posterior predictive of a
+:class:`LevelLearner` (the box's law as its prior) carried across each run's plateaus in order and told every stop's
+censored outcome -- the run's law (rms x ripple amplitude x wavenumber x phase), the rms only, one position-free level
+(what ``FineLearner`` holds) or a kernel map of it; ``--learn-scope plateau|none`` are the controls (forgotten at every
+plateau; never told).  They add a learning-curve table (p95 by the plateau's place in its run).
+
     python benchmarks/plateau_floor.py [--jobs 2] [--runs 40] [--seed 1000] [--engage PATH.json]
                                        [--stop-tol 4e-4] [--policies oracle,bayes,bayes_box] [--miss-value]
                                        [--family full|main|kicks|kicks2|strong|deep|deep4]
                                        [--realism [--apex-rms 6e-5] [--floor peak|park|plan]]
+                                       [--policies ...,bayes_learn,bayes_rms,bayes_level,bayes_local
+                                        [--learn-scope run|plateau|none]]
                                        [--json PATH] [--markdown PATH]
 
 Last stdout line: one JSON object.
