@@ -920,12 +920,14 @@ def run_stop(job: tuple) -> dict:
     if policy.startswith("bayes") and miss_value:
         errs = np.linspace(-4e-3, 4e-3, 81)
         cont = (errs, continuation(row, table, pl.valve_angle, stop_tol, errs))
-    stop_theta = read()                                # (h34r) where the stop the learner will be told of is
+    stop_theta = None                                  # (h34r) where the stop the learner will be told of is
     while policy != "none":
         th_m = read()
         e = target - th_m
         if abs(e) <= stop_tol:
             break
+        if stop_theta is None:
+            stop_theta = th_m                          # the stop's first reading (no extra resolver read: its noise)
         d = 1 if e > 0 else -1
         if policy == "oracle":
             got = choose_oracle(pl, row, table, e, budget - spent)
@@ -956,7 +958,7 @@ def run_stop(job: tuple) -> dict:
                 if moved_seen:
                     if learner is not None:
                         learner.observe(stop_theta, floor_x, float(xa))
-                        stop_theta = read()
+                    stop_theta = None
                     floor_x = None
                 elif seen.get("peak") is not None:
                     # the apex the resolvers showed, in the law's coordinate (above the Coulomb twist toward d); with
@@ -975,7 +977,8 @@ def run_stop(job: tuple) -> dict:
                 _, per = try_pulse(pl, d, apex, rise, member, tcr, table=False)
                 if learner is not None and abs(pl.valve_angle - before) > 1e-7:
                     learner.observe(stop_theta, floor_x, float(xa))
-                    stop_theta = pl.valve_angle
+                if abs(pl.valve_angle - before) > 1e-7:
+                    stop_theta = None
                 floor_x = None if abs(pl.valve_angle - before) > 1e-7 else xa
                 log.append({"e": e, "member": member, "apex_excess": xa, "move": pl.valve_angle - before})
             moved = abs(pl.valve_angle - before) > 1e-7
@@ -984,7 +987,7 @@ def run_stop(job: tuple) -> dict:
         spent += per
         if spent >= budget:
             break
-    if learner is not None and floor_x is not None:
+    if learner is not None and floor_x is not None and stop_theta is not None:
         learner.observe(stop_theta, floor_x, None)    # the plateau ends on a stop whose level lies above its tries
     return {"seed": row["seed"], "policy": policy, "start_error_rad": row["error_rad"],
             "final_error_rad": float(abs(target - pl.valve_angle)), "tries": tries, "moves": int(moves),
