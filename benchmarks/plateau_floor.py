@@ -55,10 +55,19 @@ few shapes near it, with main's final twist phi_e + e/2 (:data:`FAMILIES`); ``--
 aware policies the resolvers' readings, an apex placed in measured coordinates with a seeded park error
 (``--apex-rms``) and the truncation at the measured apex (``--floor``).
 
+Learning policies (task h34r, docs §87; off unless named in ``--policies``): ``bayes_learn`` / ``bayes_rms`` /
+``bayes_level`` / ``bayes_local`` are ``bayes_box`` with the level's law the posterior predictive of a
+:class:`LevelLearner` (the box's law as its prior) carried across each run's plateaus in order and told every stop's
+censored outcome -- the run's law (rms x ripple amplitude x wavenumber x phase), the rms only, one position-free level
+(what ``FineLearner`` holds) or a kernel map of it; ``--learn-scope plateau|none`` are the controls (forgotten at every
+plateau; never told).  They add a learning-curve table (p95 by the plateau's place in its run).
+
     python benchmarks/plateau_floor.py [--jobs 2] [--runs 40] [--seed 1000] [--engage PATH.json]
                                        [--stop-tol 4e-4] [--policies oracle,bayes,bayes_box] [--miss-value]
                                        [--family full|main|kicks|kicks2|strong|deep|deep4]
                                        [--realism [--apex-rms 6e-5] [--floor peak|park|plan]]
+                                       [--policies ...,bayes_learn,bayes_rms,bayes_level,bayes_local
+                                        [--learn-scope run|plateau|none]]
                                        [--json PATH] [--markdown PATH]
 
 Last stdout line: one JSON object.
@@ -499,6 +508,8 @@ def law_samples(row: dict, theta: float) -> tuple[np.ndarray, np.ndarray, np.nda
     if row.get("law", "run") == "run":
         x, w = level_prior(row["static_scatter"], ripple_at(row, theta))
         return x, x, w
+    if row.get("law") == "learn":
+        return row["_learner"].samples(theta)        # the posterior predictive of the run's tries so far (h34r)
     n = np.linspace(-KN.SCATTER_CLIP, KN.SCATTER_CLIP, BOX_LEVELS)
     wn = np.exp(-0.5 * n * n)
     xt, xp, w = [], [], []
@@ -511,6 +522,194 @@ def law_samples(row: dict, theta: float) -> tuple[np.ndarray, np.ndarray, np.nda
             w.append(wn)
     w = np.concatenate(w)
     return np.concatenate(xt), np.concatenate(xp), w / w.sum()
+
+
+# ------------------------------------------------------------------------------------------ learning the run's law (h34r)
+#: ``--policies bayes_learn / bayes_rms / bayes_level`` (task h34r, docs §87): the ``bayes_box`` policy whose level law is
+#: the posterior predictive of a learner carried across the run's plateaus in order, updated from its own tries
+LEARN_POLICIES = ("bayes_learn", "bayes_rms", "bayes_level", "bayes_local")
+#: the learner's kinds: ``learn`` the run's law (scatter rms x ripple amplitude x ripple wavenumber x phase), ``rms`` the
+#: scatter rms only (the ripple at each stop a fresh draw of the box's law, as ``bayes_box`` has it), ``level`` one
+#: position-free level (a mean factor and a spread: what ``FineLearner`` holds -- the ripple is scatter to it)
+LEARN_KIND = {"bayes_learn": "learn", "bayes_rms": "rms", "bayes_level": "level", "bayes_local": "local"}
+#: the box's ranges (``robustness.py --box nominal``): rms U(0.02, 0.08), ripple U(0, 0.05), period U(5, 50) mrad
+BOX_SIGMA_RANGE, BOX_RIPPLE_MAX, BOX_PERIOD_RANGE = (0.02, 0.08), 0.05, (0.005, 0.05)
+#: ``local``'s kernel width (rad): the angle over which the box's shortest ripple (5 mrad) turns one radian of phase
+LOCAL_WIDTH_RAD = BOX_PERIOD_RANGE[0] / (2.0 * math.pi)
+LEARN_SIGMAS = tuple(BOX_SIGMA_RANGE[0] + (i + 0.5) * (BOX_SIGMA_RANGE[1] - BOX_SIGMA_RANGE[0]) / 7 for i in range(7))
+LEARN_AMPS = tuple((i + 0.5) * BOX_RIPPLE_MAX / 6 for i in range(6))
+LEARN_PHASES = 16
+#: the wavenumber grid's step (1/rad): a hypothesis' phase is then within pi/4 of the nearest grid point's out to
+#: LEARN_SPAN_RAD from the run's first plateau (a run of 12 nominal plateaus spans 0.02-0.2 rad)
+LEARN_SPAN_RAD = 0.25
+LEARN_DK = 1.0 / (4.0 * LEARN_SPAN_RAD)
+#: the position-free level's hypotheses: mean factor (the box's ripple at one position, 0.95..1.05) x spread
+LEVEL_MEANS = tuple(float(v) for v in np.linspace(0.95, 1.05, 11))
+LEVEL_SPREADS = tuple(float(v) for v in np.linspace(0.02, 0.09, 8))
+#: the predictive's ripple-factor bins (the learned law as a mixture of (rms, ripple factor) components)
+LEARN_R_BINS = np.linspace(1.0 - BOX_RIPPLE_MAX, 1.0 + BOX_RIPPLE_MAX, 22)
+#: a tie's odds against any one reading being wrong (the model's error: a move judged wrongly, a rise off the table)
+LEARN_OUTLIER = 1e-3
+#: rad: the softness of the censoring in true states (the bare-plant rise calibration vs this stop's)
+LEARN_SOFT_RAD = 2e-5
+
+
+def _phi(z):
+    from scipy.special import ndtr
+    return ndtr(z)
+
+
+class LevelLearner:
+    """Posterior over the run's static-level law from the policy's censored tries (task h34r, docs §87).
+
+    The plant draws the static level anew at every stop, ``T_s r(θ) (1 + σ n)``, n ~ N(0, 1) clipped to ±3, with the
+    run's ripple ``r(θ) = 1 + a sin(2π θ/λ + φ)`` (:mod:`fuel_valve_plant.physics.kernel`).  In the policy's apex
+    coordinate (twist above the nominal Coulomb twist toward the try, rad) the level is x = (T_s r (1 + σ n) - T_c)/K.
+    A stop tells, once it ends, the interval the level lay in: above the highest apex that did not move the valve
+    (``lo``), below the apex that did (``hi``; None: the plateau ended first) -- each apex known to ``soft`` rad rms.
+    Each stop is one draw of n: the likelihood of a hypothesis is P(lo < x < hi | σ, r(θ)), a normal CDF difference.
+
+    Kinds (hypotheses h, weights a discrete posterior, the prior the box's law):
+
+    * ``learn``: σ (7) x a (6) x wavenumber k = 1/λ (``LEARN_DK`` steps over 20..200 /rad, prior ∝ 1/k² as λ is
+      uniform) x phase ψ at the run's first plateau θ0 (16): r = 1 + a sin(2π k (θ - θ0) + ψ) -- ~1.2e5 hypotheses,
+      one update ~5 ms;
+    * ``rms``: σ (7) only; the ripple at each stop a fresh draw of the box's law (:data:`BOX_RIPPLES`) in both the
+      likelihood and the predictive;
+    * ``level``: one position-free law, a mean factor μ (11, prior the box's ripple at one position) x spread s (8):
+      x = (T_s μ (1 + s n) - T_c)/K everywhere -- one level per direction and Δp band as ``FineLearner`` holds it,
+      the ripple read as scatter;
+    * ``local``: a non-parametric map, the ``level`` law fitted per position by a kernel: at θ each stop's
+      log-likelihood counts with the weight exp(-(θ - θ_i)² / 2 w²), w = :data:`LOCAL_WIDTH_RAD` (a kernel-weighted
+      local likelihood; state: the stops' angles and their 88 log-likelihoods).
+
+    :meth:`samples` gives the posterior predictive at θ as :func:`law_samples` does the box's law: (x_t, x_p, w)."""
+
+    def __init__(self, kind: str, theta0: float, soft: float = LEARN_SOFT_RAD):
+        self.kind, self.theta0, self.soft = kind, float(theta0), float(soft)
+        self.n_obs = 0
+        if kind == "learn":
+            ks = np.arange(1.0 / BOX_PERIOD_RANGE[1], 1.0 / BOX_PERIOD_RANGE[0] + 1e-9, LEARN_DK)
+            s, a, k, p = np.meshgrid(np.asarray(LEARN_SIGMAS), np.asarray(LEARN_AMPS), ks,
+                                     2.0 * math.pi * np.arange(LEARN_PHASES) / LEARN_PHASES, indexing="ij")
+            self.sigma, self.amp, self.k, self.psi = s.ravel(), a.ravel(), k.ravel(), p.ravel()
+            self.logw = -2.0 * np.log(self.k)
+        elif kind == "rms":
+            self.sigma = np.asarray(LEARN_SIGMAS, dtype=float)
+            self.logw = np.zeros(len(self.sigma))
+        elif kind in ("level", "local"):
+            self.obs: list = []                        # local: (θ, log-likelihood per hypothesis) of every stop
+            m, s = np.meshgrid(np.asarray(LEVEL_MEANS), np.asarray(LEVEL_SPREADS), indexing="ij")
+            self.mu, self.sigma = m.ravel(), s.ravel()
+            # the box's ripple factor at one position: a ~ U(0, 0.05) x sin(uniform phase), by sampling
+            rng = np.random.default_rng(0)
+            rr = 1.0 + rng.uniform(0, BOX_RIPPLE_MAX, 20000) * np.sin(rng.uniform(0, 2 * math.pi, 20000))
+            edges = np.concatenate([[-np.inf], 0.5 * (np.asarray(LEVEL_MEANS)[1:] + np.asarray(LEVEL_MEANS)[:-1]), [np.inf]])
+            pm = np.histogram(rr, edges)[0] / len(rr)
+            self.logw = np.log(np.maximum(np.repeat(pm, len(LEVEL_SPREADS)), 1e-12))
+        else:
+            raise ValueError(kind)
+        self.logw = self.logw - self.logw.max()
+
+    @property
+    def w(self) -> np.ndarray:
+        w = np.exp(self.logw - self.logw.max())
+        return w / w.sum()
+
+    def weights(self, theta: float) -> np.ndarray:
+        """The posterior weights that hold at ``theta`` (all kinds but ``local``: :attr:`w`, the same everywhere)."""
+        if self.kind != "local":
+            return self.w
+        lw = self.logw.copy()
+        for th, ll in self.obs:
+            lw = lw + math.exp(-0.5 * ((theta - th) / LOCAL_WIDTH_RAD) ** 2) * ll
+        w = np.exp(lw - lw.max())
+        return w / w.sum()
+
+    def ripple(self, theta: float) -> np.ndarray:
+        """The ripple factor at ``theta`` of every hypothesis (``rms``: not one -- see :meth:`_components`)."""
+        if self.kind == "learn":
+            return 1.0 + self.amp * np.sin(2.0 * math.pi * self.k * (theta - self.theta0) + self.psi)
+        if self.kind in ("level", "local"):
+            return self.mu
+        raise ValueError("rms: the ripple is a fresh box draw at each stop")
+
+    def _interval_p(self, r, sigma, lo, hi) -> np.ndarray:
+        """P(lo < x < hi) of the level x = (T_s r (1 + σ n) - T_c)/K, each bound known to ``soft`` rad rms."""
+        out = np.ones(np.broadcast(r, sigma).shape)
+        sn = K * self.soft / (TS * r * sigma)
+        c = 1.0 / np.sqrt(1.0 + sn * sn)
+        if hi is not None:
+            out = _phi(((K * hi + TC) / (TS * r) - 1.0) / sigma * c)
+        if lo is not None:
+            out = out - _phi(((K * lo + TC) / (TS * r) - 1.0) / sigma * c)
+        return np.maximum(out, 0.0)
+
+    def observe(self, theta: float, lo: float | None, hi: float | None) -> None:
+        """One stop's outcome at ``theta`` (rad): the level above ``lo`` and below ``hi`` (apex coordinates, rad)."""
+        if lo is None and hi is None:
+            return
+        if self.kind == "rms":
+            rs = np.asarray(BOX_RIPPLES)
+            p = self._interval_p(rs[None, :], self.sigma[:, None], lo, hi).mean(axis=1)
+        else:
+            p = self._interval_p(self.ripple(theta), self.sigma, lo, hi)
+        self.n_obs += 1
+        if self.kind == "local":
+            self.obs.append((float(theta), np.log(p + LEARN_OUTLIER)))
+            return
+        self.logw = self.logw + np.log(p + LEARN_OUTLIER)
+        self.logw -= self.logw.max()
+
+    def _components(self, theta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(σ, ripple factor, weight) of the predictive's mixture at ``theta``."""
+        w = self.weights(theta)
+        if self.kind == "rms":
+            rs = np.asarray(BOX_RIPPLES)
+            return (np.repeat(self.sigma, len(rs)), np.tile(rs, len(self.sigma)),
+                    np.repeat(w, len(rs)) / len(rs))
+        r = self.ripple(theta)
+        if self.kind in ("level", "local"):
+            return self.sigma, r, w
+        # bin the hypotheses' ripple factor here per σ: a mixture of (σ, r) components, r the bin's weighted mean
+        nb = len(LEARN_R_BINS) - 1
+        b = np.clip(np.searchsorted(LEARN_R_BINS, r) - 1, 0, nb - 1)
+        si = np.searchsorted(np.asarray(LEARN_SIGMAS), self.sigma - 1e-12)
+        idx = si * nb + b
+        ws = np.bincount(idx, weights=w, minlength=len(LEARN_SIGMAS) * nb)
+        wr = np.bincount(idx, weights=w * r, minlength=len(LEARN_SIGMAS) * nb)
+        keep = ws > 1e-5 * ws.max()
+        cs = np.repeat(np.asarray(LEARN_SIGMAS), nb)[keep]
+        return cs, wr[keep] / ws[keep], ws[keep] / ws[keep].sum()
+
+    def samples(self, theta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(table excess x_t, apex coordinate x_p, weight) of the posterior predictive level law at ``theta``."""
+        sig, r, wc = self._components(theta)
+        n = np.linspace(-KN.SCATTER_CLIP, KN.SCATTER_CLIP, BOX_LEVELS)
+        wn = np.exp(-0.5 * n * n)
+        wn /= wn.sum()
+        f = 1.0 + sig[:, None] * n[None, :]
+        ts = np.maximum(TS * f * r[:, None], TC * r[:, None])
+        xt = (ts - TC * r[:, None]) / K
+        xp = (ts - TC) / K
+        w = wc[:, None] * wn[None, :]
+        return xt.ravel(), xp.ravel(), w.ravel() / w.sum()
+
+    def summary(self, theta: float, row: dict) -> dict:
+        """What the learner knows at ``theta`` against the run's truth ``row``: posterior means of σ (and a), the
+        predictive ripple factor's mean / sd here and the true one."""
+        w = self.weights(theta)
+        out = {"n_obs": self.n_obs, "sigma_mean": float((w * self.sigma).sum()), "sigma_true": row["static_scatter"]}
+        true_r = ripple_at(row, theta)
+        out["r_true"] = true_r
+        if self.kind != "rms":
+            r = self.ripple(theta)
+            mr = float((w * r).sum())
+            out.update({"r_mean": mr, "r_sd": float(math.sqrt(max((w * (r - mr) ** 2).sum(), 0.0)))})
+        if self.kind == "learn":
+            out["amp_mean"] = float((w * self.amp).sum())
+            out["amp_true"] = row["ripple"]
+        return out
 
 
 def _est_periods(pl: Plant, d: int, apex: float, rise: float, member: tuple) -> int:
@@ -691,7 +890,12 @@ def run_stop(job: tuple) -> dict:
     resolver, once a period: the highest since the last move), not at the apex it planned."""
     row, policy, table, stop_tol, miss_value = job[:5]
     realism = job[5] if len(job) > 5 else None
-    row = {**row, "law": "box" if policy == "bayes_box" else "run"}
+    #: (h34r) a :class:`LevelLearner` carried across the run's plateaus: its predictive is the level's law, and every
+    #: stop's outcome (the interval its tries left the level in) updates it once the stop ends -- within a stop the
+    #: law is truncated by its unmoved apexes as for the other policies, which is the same Bayes update, made once
+    learner = job[6] if len(job) > 6 else None
+    law = "learn" if policy in LEARN_POLICIES else "box" if policy == "bayes_box" else "run"
+    row = {**row, "law": law, **({"_learner": learner} if learner is not None else {})}
     pl = stop_plant(row)
     target = pl.valve_angle + row["error_rad"]
     budget = int(round(row["budget_s"] / PERIOD))
@@ -709,11 +913,14 @@ def run_stop(job: tuple) -> dict:
     if policy.startswith("bayes") and miss_value:
         errs = np.linspace(-4e-3, 4e-3, 81)
         cont = (errs, continuation(row, table, pl.valve_angle, stop_tol, errs))
+    stop_theta = None                                  # (h34r) where the stop the learner will be told of is
     while policy != "none":
         th_m = read()
         e = target - th_m
         if abs(e) <= stop_tol:
             break
+        if stop_theta is None:
+            stop_theta = th_m                          # the stop's first reading (no extra resolver read: its noise)
         d = 1 if e > 0 else -1
         if policy == "oracle":
             got = choose_oracle(pl, row, table, e, budget - spent)
@@ -742,6 +949,9 @@ def run_stop(job: tuple) -> dict:
                 seen_move = read() - th_m
                 moved_seen = abs(seen_move) >= MOVED_RAD
                 if moved_seen:
+                    if learner is not None:
+                        learner.observe(stop_theta, floor_x, float(xa))
+                    stop_theta = None
                     floor_x = None
                 elif seen.get("peak") is not None:
                     # the apex the resolvers showed, in the law's coordinate (above the Coulomb twist toward d); with
@@ -758,6 +968,10 @@ def run_stop(job: tuple) -> dict:
                             "floor": floor_x, "move": pl.valve_angle - before, "move_seen": seen_move})
             else:
                 _, per = try_pulse(pl, d, apex, rise, member, tcr, table=False)
+                if learner is not None and abs(pl.valve_angle - before) > 1e-7:
+                    learner.observe(stop_theta, floor_x, float(xa))
+                if abs(pl.valve_angle - before) > 1e-7:
+                    stop_theta = None
                 floor_x = None if abs(pl.valve_angle - before) > 1e-7 else xa
                 log.append({"e": e, "member": member, "apex_excess": xa, "move": pl.valve_angle - before})
             moved = abs(pl.valve_angle - before) > 1e-7
@@ -766,9 +980,49 @@ def run_stop(job: tuple) -> dict:
         spent += per
         if spent >= budget:
             break
+    if learner is not None and floor_x is not None and stop_theta is not None:
+        learner.observe(stop_theta, floor_x, None)    # the plateau ends on a stop whose level lies above its tries
     return {"seed": row["seed"], "policy": policy, "start_error_rad": row["error_rad"],
             "final_error_rad": float(abs(target - pl.valve_angle)), "tries": tries, "moves": int(moves),
             "spent_s": spent * PERIOD, "budget_s": row["budget_s"], "main_final_error_rad": row["final_error_rad"], "log": log}
+
+
+class _Frozen:
+    """A learner's prior that no outcome updates (``--learn-scope none``: the learning policies' control)."""
+
+    def __init__(self, learner: "LevelLearner"):
+        self.learner = learner
+
+    def samples(self, theta: float):
+        return self.learner.samples(theta)
+
+    def observe(self, theta, lo, hi) -> None:
+        pass
+
+
+def run_run(job: tuple) -> list[dict]:
+    """(h34r) One run's plateaus in order under a learning policy (:data:`LEARN_POLICIES`): a :class:`LevelLearner`
+    of the box's law as the prior, carried from plateau to plateau.  ``job`` = (rows of one run in order, policy,
+    table, stop_tol, miss_value, realism); each stop's result gains ``index`` (the plateau's place in the run, 0..)
+    and ``learned`` (:meth:`LevelLearner.summary` at the plateau's engage angle before it starts)."""
+    rows, policy, table, stop_tol, miss_value, realism = job[:6]
+    scope = job[6] if len(job) > 6 else "run"
+    soft = LEARN_SOFT_RAD
+    if realism is not None:
+        # an apex planned in measured coordinates: the park's error, the valve count's quantisation
+        soft = math.sqrt(LEARN_SOFT_RAD ** 2 + realism["apex_rms"] ** 2 + LSB_RAD ** 2 / 12.0)
+    learner = LevelLearner(LEARN_KIND[policy], rows[0]["theta_rad"], soft)
+    out = []
+    for i, row in enumerate(rows):
+        if scope == "plateau" and i > 0:
+            # the control that forgets at every plateau: within-plateau learning only
+            learner = LevelLearner(LEARN_KIND[policy], rows[0]["theta_rad"], soft)
+        known = learner.summary(row["theta_rad"], row)
+        told = _Frozen(learner) if scope == "none" else learner      # none: the prior, never told
+        res = run_stop((row, policy, table, stop_tol, miss_value, realism, told))
+        res.update({"index": i, "learned": known})
+        out.append(res)
+    return out
 
 
 # ------------------------------------------------------------------------------------------ reports
@@ -826,9 +1080,33 @@ def _init(table: Table) -> None:
     _TABLE = table
 
 
-def _run_stop_global(job: tuple) -> dict:
+def _run_stop_global(job: tuple):
     row, policy, stop_tol, miss_value = job[:4]
+    if policy in LEARN_POLICIES:                       # row: the run's rows in order
+        return run_run((row, policy, _TABLE, stop_tol, miss_value) + tuple(job[4:]))
     return run_stop((row, policy, _TABLE, stop_tol, miss_value) + tuple(job[4:]))
+
+
+def _plateau_index(rows: list[dict]) -> list[int]:
+    """Each engage row's place in its run (0..): the rows are in the run's order, runs one after another."""
+    out, last, i = [], None, 0
+    for r in rows:
+        i = i + 1 if r["seed"] == last else 0
+        last = r["seed"]
+        out.append(i)
+    return out
+
+
+def learning_curve(stops: list[dict], policy: str, index: list[int] | None = None) -> list[dict]:
+    """(h34r) p95 / > 5e-4 count of ``policy``'s final errors by the plateau's place in its run (1-based)."""
+    sel = [s for s in stops if s["policy"] == policy]
+    idx = [s["index"] for s in sel] if index is None else index
+    out = []
+    for i in sorted(set(idx)):
+        v = np.array([s["final_error_rad"] for s, j in zip(sel, idx) if j == i])
+        out.append({"plateau": i + 1, "n": int(len(v)), "p95": float(np.percentile(v, 95)),
+                    "over_5e-4": int((v > TOL_TARGET).sum()), "median": float(np.median(v))})
+    return out
 
 
 def main(argv=None) -> int:
@@ -841,7 +1119,8 @@ def main(argv=None) -> int:
     ap.add_argument("--miss-value", action="store_true", help="(b) values a move that misses by a fresh try's "
                     "chance from where it leaves the valve (measured worse: the table's bare-plant moves are optimistic "
                     "for the large moves it then gambles on); default: only landings and no-moves count")
-    ap.add_argument("--policies", default=",".join(POLICIES), help=f"comma list of {', '.join(POLICIES)} (default all)")
+    ap.add_argument("--policies", default=",".join(POLICIES), help=f"comma list of {', '.join(POLICIES + LEARN_POLICIES)} (default: "
+                    f"{', '.join(POLICIES)}; the learning ones (h34r) carry a learner across each run's plateaus)")
     ap.add_argument("--family", choices=FAMILIES, default="full", help="the pulses the policies choose from (default "
                     "full: the 128-member grid; main: main's doublet only, 4 A kick, whole / half retreat, final twist "
                     "phi_e + e/2; kicks: the same with a 4, 8 or 16 A kick; strong: 16 A kick, two periods at the cap; "
@@ -852,6 +1131,9 @@ def main(argv=None) -> int:
                     "truncates the level's law at the measured apex (default: true states)")
     ap.add_argument("--apex-rms", type=float, default=APEX_RMS_RAD, help=f"rad: with --realism, the apex's "
                     f"realisation error, a seeded zero-mean normal of this rms (default {APEX_RMS_RAD:g})")
+    ap.add_argument("--learn-scope", choices=("run", "plateau", "none"), default="run", help="the learning policies' "
+                    "learner: carried across the run's plateaus (run, default), forgotten at every plateau (plateau: "
+                    "within-plateau learning only), or its prior never updated (none: the control)")
     ap.add_argument("--json", metavar="PATH", help="also write the JSON with every stop here")
     ap.add_argument("--markdown", metavar="PATH", help="also write the tables here")
     ap.add_argument("--floor", choices=("peak", "park", "plan"), default="peak", help="with --realism, the apex an unmoved "
@@ -873,14 +1155,29 @@ def main(argv=None) -> int:
     t1 = time.perf_counter()
     table = pulse_table(a.jobs, a.family)
     t2 = time.perf_counter()
-    pols = [p for p in POLICIES if p in a.policies.split(",")]
-    jobs = [(r, pol, a.stop_tol, a.miss_value) + ((realism,) if realism else ()) for pol in pols for r in rows]
+    pols = [p for p in POLICIES + LEARN_POLICIES if p in a.policies.split(",")]
+    learn = any(p in LEARN_POLICIES for p in pols)
+    runs: dict = {}
+    for r in rows:
+        runs.setdefault(r["seed"], []).append(r)
+    # the learning policies take a run's plateaus in order as one job (the learner is carried across them)
+    jobs = [((r, pol, a.stop_tol, a.miss_value) + ((realism,) if realism else ())) for pol in pols if pol not in LEARN_POLICIES
+            for r in rows]
+    jobs += [(rr, pol, a.stop_tol, a.miss_value, realism, a.learn_scope) for pol in pols if pol in LEARN_POLICIES
+             for rr in runs.values()]
     if a.jobs > 1:
         with Pool(a.jobs, initializer=_init, initargs=(table,)) as pool:
-            stops = pool.map(_run_stop_global, jobs, chunksize=8)
+            got = pool.map(_run_stop_global, jobs, chunksize=1 if learn else 8)
     else:
         _init(table)
-        stops = [_run_stop_global(j) for j in jobs]
+        got = [_run_stop_global(j) for j in jobs]
+    stops = [s for g in got for s in (g if isinstance(g, list) else [g])]
+    if learn:
+        index = _plateau_index(rows)
+        for pol in pols:
+            if pol not in LEARN_POLICIES:
+                for s, i in zip([s for s in stops if s["policy"] == pol], index):
+                    s["index"] = i
     t3 = time.perf_counter()
     main_final = [r["final_error_rad"] for r in rows]
     start = [abs(r["error_rad"]) for r in rows]
@@ -899,13 +1196,26 @@ def main(argv=None) -> int:
     for key, name in (("start", "start (main's at the policies' take-over)"), ("main", "main (a3beb09)"),
                       ("oracle", "(a) oracle (knows each stop's level)"),
                       ("bayes", "(b) distribution-aware, knows the run's law (scatter rms, ripple map)"),
-                      ("bayes_box", "(b') distribution-aware, knows only the box's law")):
+                      ("bayes_box", "(b') distribution-aware, knows only the box's law"),
+                      ("bayes_learn", "(c) learns the run's law (rms, ripple) from its tries"),
+                      ("bayes_rms", "(c-rms) learns the scatter rms only"),
+                      ("bayes_level", "(c-level) learns one position-free level"),
+                      ("bayes_local", "(c-local) learns a kernel (position-binned) level map")):
         if key not in bounds:
             continue
         b = bounds[key]
         lines.append(f"| {name} | {b['median']:.3g} | {b['p95']:.3g} | {b['max']:.3g} | {100 * b['over_5e-4']:.1f} % | "
                      f"{100 * b['over_8e-4']:.1f} % | {b.get('tries_mean', float('nan')):.2f} |"
                      + (f" moves / plateau {b['moves_mean']:.2f}" if "moves_mean" in b else ""))
+    curves = {}
+    if learn:
+        curves = {pol: learning_curve(stops, pol) for pol in pols}
+        lines += ["", "learning curve: p95 of the final error (rad) by the plateau's place in its run "
+                  "(> 5e-4 count in brackets):", "",
+                  "| policy | " + " | ".join(str(c["plateau"]) for c in curves[pols[0]]) + " |",
+                  "|---|" + "---|" * len(curves[pols[0]])]
+        for pol in pols:
+            lines.append(f"| {pol} | " + " | ".join(f"{c['p95'] * 1e4:.2f}e-4 ({c['over_5e-4']})" for c in curves[pol]) + " |")
     lines += ["", "smallest move of any member just past the level (overdrive 1e-5 rad), rad:", "",
               "| excess twist (T_s - T_c)/K | " + " | ".join(f"{r['excess_rad'] * 1e3:.2f}e-3" for r in small[1][::3]) + " |",
               "|---|" + "---|" * len(small[1][::3])]
@@ -929,6 +1239,8 @@ def main(argv=None) -> int:
            "family": FAMILY, "wall_time_s": round(t3 - t0, 1)}
     if extra:
         doc.update({"pulse_family": a.family, "members": table.members, "realism": realism})
+    if learn:
+        doc["learning_curve"] = curves
     if a.json:
         Path(a.json).write_text(json.dumps({**doc, "stops": stops, "engage": rows}, indent=1, default=str) + "\n")
     print(json.dumps(doc, default=str))

@@ -122,3 +122,90 @@ def test_realism_reads_the_twist_through_the_resolvers_within_a_few_counts(pf):
     move, _ = pf.try_pulse(pl, d, level - 3e-4, rise, MAIN_DOUBLET, pf.TC, seen=seen)
     assert move == 0.0
     assert seen["park"] < seen["peak"] < level - 3e-4 + 2 * pf.LSB_RAD
+
+
+# ---------------------------------------------------------------- h34r: learning the run's law from censored tries
+def _synthetic_stops(pf, rng, n, sigma, ripple=None, thetas=None, step=1.5e-4):
+    """``n`` stops as the policies see them: the plant's level x = (T_s r (1 + σ n) - T_c)/K drawn at each stop, a
+    staircase of apexes from 2e-3 below the nominal level's excess in ``step`` rad stairs: the highest that did not
+    move it (lo) and the one that did (hi) -- every third stop ends unmoved (hi None), as a plateau's last stop can."""
+    out = []
+    for i in range(n):
+        th = float(thetas[i]) if thetas is not None else 0.5
+        r = 1.0 if ripple is None else ripple(th)
+        f = 1.0 + sigma * float(np.clip(rng.standard_normal(), -3.0, 3.0))
+        x = (pf.TS * r * f - pf.TC) / pf.K
+        a0 = (pf.TS - pf.TC) / pf.K - 2e-3
+        j = int(np.floor((x - a0) / step))
+        lo, hi = a0 + j * step, a0 + (j + 1) * step
+        out.append((th, lo, None if i % 3 == 2 else hi))
+    return out
+
+
+@pytest.mark.parametrize("sigma_true", (0.025, 0.075))
+def test_rms_learner_moves_toward_the_runs_scatter(pf, sigma_true):
+    """The rms-only learner's posterior mean of σ leaves the box's prior (0.05) toward the run's rms after
+    30 stops of censored readings (the ripple a box draw per stop, as the policy models it)."""
+    rng = np.random.default_rng(3)
+    lr = pf.LevelLearner("rms", 0.5)
+    prior = lr.summary(0.5, {"static_scatter": sigma_true, "ripple": 0.0, "ripple_period_rad": 0.02,
+                             "ripple_phase_rad": 0.0})["sigma_mean"]
+    for th, lo, hi in _synthetic_stops(pf, rng, 30, sigma_true):
+        lr.observe(th, lo, hi)
+    post = float((lr.w * lr.sigma).sum())
+    assert abs(prior - 0.05) < 1e-9
+    assert abs(post - sigma_true) < 0.5 * abs(prior - sigma_true)
+
+
+def test_ripple_learner_finds_the_phase_and_predicts_the_map(pf):
+    """The run's-law learner (σ x a x k x ψ): readings at 40 stops spread over 0.1 rad of a run with a strong ripple
+    (a 0.046, λ 20 mrad) and a small scatter put most of the weight within π/4 of the true phase within 2.5 /rad of
+    the true wavenumber (over a 0.1 rad span the wavenumber is resolved to ~1/0.1 rad), and its predictive ripple factor at fresh positions in the span follows the true map."""
+    theta0, k_true, psi_true, a_true = 0.40, 50.0, 2.0, 0.046
+    ripple = lambda th: 1.0 + a_true * math.sin(2.0 * math.pi * k_true * (th - theta0) + psi_true)   # noqa: E731
+    rng = np.random.default_rng(5)
+    thetas = theta0 + rng.uniform(0.0, 0.1, 40)
+    lr = pf.LevelLearner("learn", theta0)
+    w0 = lr.w
+    near = (np.abs(lr.k - k_true) < 2.5) & (np.abs(np.angle(np.exp(1j * (lr.psi - psi_true)))) <= math.pi / 4 + 1e-9)
+    for th, lo, hi in _synthetic_stops(pf, rng, 40, 0.025, ripple, thetas, step=1e-4):
+        lr.observe(th, lo, hi)
+    w = lr.w
+    assert w[near].sum() > 0.9 > 50 * w0[near].sum()   # the prior: 0.011
+    for th in theta0 + np.array([0.013, 0.037, 0.071, 0.094]):
+        r = lr.ripple(th)
+        mean = float((w * r).sum())
+        assert abs(mean - ripple(th)) < 0.25 * a_true
+    # the predictive law it hands the policy: where the level lies (the apex coordinate x_p) at a trough of the map is
+    # lower than at a crest, by most of the map's 2 a T_s / K (1.05e-3 rad)
+    crest = theta0 + (0.25 - psi_true / (2 * math.pi)) % 1.0 / k_true
+    trough = crest + 0.5 / k_true
+    mx = [float((xp * ww).sum()) for _, xp, ww in (lr.samples(crest), lr.samples(trough))]
+    assert mx[0] - mx[1] > pf.TS * a_true / pf.K
+
+
+def test_position_free_level_learner_reads_the_ripple_as_scatter(pf):
+    """The position-free learner (what ``FineLearner`` holds) on a run whose ripple alternates between two
+    positions: its mean factor stays near the average and its spread grows beyond the scatter's rms -- it cannot
+    tell the two positions apart, where the run's-law learner's predictive differs between them."""
+    rng = np.random.default_rng(7)
+    theta0 = 0.3
+    ripple = lambda th: 1.0 + 0.045 * math.sin(2.0 * math.pi * 40.0 * (th - theta0) + 1.0)   # noqa: E731
+    thetas = np.where(np.arange(40) % 2 == 0, theta0 + 0.005, theta0 + 0.0175)   # 2.45 and 0.55 rad of phase
+    lv = pf.LevelLearner("level", theta0)
+    for th, lo, hi in _synthetic_stops(pf, rng, 40, 0.025, ripple, thetas, step=1e-4):
+        lv.observe(th, lo, hi)
+    w = lv.w
+    assert abs(float((w * lv.mu).sum()) - 1.0) < 0.02
+    assert float((w * lv.sigma).sum()) > 0.04
+    a, b = (float((xp * ww).sum()) for _, xp, ww in (lv.samples(thetas[0]), lv.samples(thetas[1])))
+    assert a == b
+    # the kernel map (``local``) told the same stops keeps the two positions apart: the crest's level above the
+    # trough's by most of 2 x 0.045 x 0.77 T_s / K (0.8e-3 rad); far from every stop it is the prior again
+    lc = pf.LevelLearner("local", theta0)
+    for th, lo, hi in _synthetic_stops(pf, np.random.default_rng(7), 40, 0.025, ripple, thetas, step=1e-4):
+        lc.observe(th, lo, hi)
+    a, b, far = (float((xp * ww).sum()) for _, xp, ww in (lc.samples(t) for t in (*thetas[:2], theta0 + 0.1)))
+    prior = float((lambda s: (s[1] * s[2]).sum())(pf.LevelLearner("local", theta0).samples(theta0)))
+    assert a - b > 0.5 * 2 * 0.045 * 0.77 * pf.TS / pf.K
+    assert abs(far - prior) < 1e-9
