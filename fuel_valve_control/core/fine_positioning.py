@@ -1510,10 +1510,22 @@ class FinePositioner:
             # and 14 of its 73 plateaus > 8e-4 rad ended mid-staircase; task h20p.)
             unmoved = self._pulsed and self._k >= cfg.no_move_periods \
                 and abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad
-            if unmoved and self._doublet and cfg.retreat_return_guard and self._excursion >= cfg.tolerance_rad:
-                # (task h35v) back at its start, but it went a tolerance toward the try: the kick moved it and the
-                # retreat's trough pulled it back -- a move there and back, judged once it rests (below)
-                unmoved = False
+            if cfg.retreat_return_guard and self._doublet and self._pulsed and self._excursion >= cfg.tolerance_rad \
+                    and self._excursion - self._dir * (thl - self._thl0) >= cfg.tolerance_rad:
+                # (task h35v) the valve went a tolerance toward the try and is now a tolerance back from there: the kick
+                # broke it loose and the retreat's trough, deeper than this valve's static band, broke it loose the
+                # other way (other valves, friction x0.4, campaign seed 1001: the trough's twist 9.3e-3 rad below the
+                # preload, at the closing level; +1.25e-3 and back to the start, judged "unmoved" and repeated 10 times
+                # -- hunting; seed 1003: +0.5e-3, -2.5e-3, then the observe's rebound +4.4e-3 across the target).
+                # Every later doublet on this plant retreats one whole period; this plateau is left as after a move
+                # away from the target (the main law takes it, or with fine.hold_reversed / the apex policy the stage
+                # holds where a hand-back could be the second reversal)
+                self._deep_unfit = True
+                self.pulses_this_plateau += 1
+                if self._hold_not_hand_back(th1, self._target - thl, pressure_kpa):
+                    return self._servo(self._hold_ref, 0.0, th1, w1, thl)
+                self._hand_back()
+                return None
             if unmoved and self._doublet and cfg.unmoved_settled and self._k < cfg.observe_periods \
                     and abs(w1) > cfg.park_approach_speed:
                 # (task h35v) the retreat's swing still rebounds: judged now, the next park is planned from rest at
@@ -1754,23 +1766,6 @@ class FinePositioner:
     def _after_move(self, th1, thl, pressure_kpa, pulsed: bool):
         cfg, d, b = self.cfg, self._dir, self._band
         move = thl - self._thl0
-        if cfg.retreat_return_guard and pulsed and self._doublet and self._excursion >= cfg.tolerance_rad \
-                and self._excursion - d * move >= cfg.tolerance_rad:
-            # (task h35v) the valve went a tolerance toward the try and came back at least a tolerance: the kick
-            # broke it loose and the retreat's trough, deeper than this valve's static band, broke it loose the
-            # other way (other valves, friction x0.4, campaign seed 1001: the trough's twist 9.3e-3 rad below the
-            # preload, at the closing level; +0.57e-3 then -0.96e-3, later +1.25e-3 and back to the start, 11
-            # doublets in a row judged "unmoved" and repeated -- hunting).  Every later doublet on this plant
-            # retreats one whole period; one that ended back at its start is counted as a pulse and the plateau
-            # held where it is (the same try would go there and back again)
-            self._deep_unfit = True
-            if abs(move) <= 0.5 * cfg.tolerance_rad:
-                self.pulses_this_plateau += 1
-                self.learn.pulses += 1
-                self._judge(failed=False)
-                self.phase = HOLD
-                self._hold_ref = th1
-                return
         if not (pulsed and self._doublet and abs(move) <= 0.5 * cfg.tolerance_rad):
             # a doublet that did not move the valve is a stair of its staircase, not a move: the
             # staircase is bounded by its climb instead (below).  Counted, they used up
