@@ -520,6 +520,8 @@ class FineConfig:
     retreat_return_guard: bool = False  # a doublet whose valve went a tolerance toward the try and came back is a
                                         # move (counted, the plateau held) and the deep retreat is cut to one whole
                                         # period for the rest of the run (task h35v, docs §89)
+    retreat_return_hold: bool = False  # ... and the stage then holds the gear output where it is instead of handing
+                                       # the plateau back (task h35v, docs §89)
     unmoved_settled: bool = False  # a doublet is judged unmoved only once the gear output's speed is below
                                    # fine.park_approach_speed_rad_s (or at fine.observe_time_s; task h35v, docs §89)
     hold_reversed: bool = False   # the stage holds instead of handing back a plateau on which the main law's move
@@ -1522,6 +1524,16 @@ class FinePositioner:
                 # holds where a hand-back could be the second reversal)
                 self._deep_unfit = True
                 self.pulses_this_plateau += 1
+                if cfg.retreat_return_hold:
+                    # hold the gear output where it is: the observe servo's pull toward the final twist is what threw
+                    # seed 1003's valve back across the target; no more pulses on this plateau
+                    self._judge(failed=False)
+                    self._unfit = True
+                    self._stair = None
+                    self._apex_floor = None
+                    self.phase = HOLD
+                    self._hold_ref = th1
+                    return self._servo(self._hold_ref, 0.0, th1, w1, thl)
                 if self._hold_not_hand_back(th1, self._target - thl, pressure_kpa):
                     return self._servo(self._hold_ref, 0.0, th1, w1, thl)
                 self._hand_back()

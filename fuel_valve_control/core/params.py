@@ -616,6 +616,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "(its trough passed the other way's breakaway: the slippery valve, friction x0.4, with fine.retreat_cap and "
           "fine.apex_retreat_periods 2 repeated such doublets 20 times -- hunting; task h35v, docs section 89)",
           runtime=True),
+    Param("fine.retreat_return_hold", False, "", "with fine.retreat_return_guard: when the return is seen the stage holds "
+          "the gear output where it is (no more pulses on the plateau) instead of handing the plateau back (task h35v, "
+          "docs section 89)", runtime=True),
     Param("fine.unmoved_settled", False, "", "doublet: an unmoved doublet is judged (and the next park planned "
           "from rest) only once the gear output's speed is below fine.park_approach_speed_rad_s, or at the end of "
           "fine.observe_time_s (after a 16 A kick the retreat's rebound still ran ~0.65 rad/s toward the level and "

@@ -348,6 +348,7 @@ class PositionController:
                           supply_voltage_v=ps["drive.supply_voltage_v"],
                           hold_reversed=ps["fine.hold_reversed"],
                           retreat_return_guard=ps["fine.retreat_return_guard"],
+                          retreat_return_hold=ps["fine.retreat_return_hold"],
                           unmoved_settled=ps["fine.unmoved_settled"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
