@@ -61,6 +61,11 @@ def test_a_doublet_whose_valve_came_back_leaves_the_plateau_and_cuts_the_deep_re
     _torques_until_observe(fine, err, m.pressure_max_kpa)
     assert _observe_there_and_back(fine, m, direction, err) == "hold"
     assert fine.pulses_this_plateau == 1 and fine._deep_unfit and fine._unfit
+    # fine.retreat_return_rest: the observe's reference frozen, judged at rest -- back at its start: counted and held
+    fine, m = _stage(**DEEP, **{"fine.retreat_return_guard": True, "fine.retreat_return_rest": True})
+    _torques_until_observe(fine, err, m.pressure_max_kpa)
+    assert _observe_there_and_back(fine, m, direction, err) == "hold"
+    assert fine.pulses_this_plateau == 1 and fine._deep_unfit and fine._k >= fine.cfg.observe_periods
     # a stage that has seen it retreats one whole period at -cap, then the observe servo
     cap = ps["fine.peak_current_a"] * m.torque_constant_nm_per_a
     fine2, m = _stage(**DEEP, **{"fine.retreat_return_guard": True})

@@ -520,6 +520,8 @@ class FineConfig:
     retreat_return_guard: bool = False  # a doublet whose valve went a tolerance toward the try and came back is a
                                         # move (counted, the plateau held) and the deep retreat is cut to one whole
                                         # period for the rest of the run (task h35v, docs §89)
+    retreat_return_rest: bool = False  # ... or: the observe's reference frozen where the return is seen, the doublet
+                                       # judged at rest (back at its start: counted, held; task h35v, docs §89)
     retreat_return_hold: bool = False  # ... and the stage then holds the gear output where it is instead of handing
                                        # the plateau back (task h35v, docs §89)
     unmoved_settled: bool = False  # a doublet is judged unmoved only once the gear output's speed is below
@@ -556,6 +558,7 @@ class FinePositioner:
         self._unmoved_now = False          # the valve within half a tolerance of the pulse's start (this period)
         self._excursion = 0.0              # (fine.retreat_return_guard) the furthest the valve went toward the try
                                            # since this doublet's kick, rad (>= 0)
+        self._returned = False             # (fine.retreat_return_rest) this doublet's return has been seen
         self._deep_unfit = False           # (fine.retreat_return_guard) a doublet's valve came back on this plant:
                                            # its retreat's trough passes the other way's breakaway (kept for the run)
         self.main_deadband_rad = None  # the main law's integrator deadband in force (rad; set by the law each period;
@@ -1453,6 +1456,7 @@ class FinePositioner:
                 self.phase, self._k = PULSE, 0
                 self._kick_apex = th1 - thl       # the kick's apex is tracked from the preload reached
                 self._excursion = 0.0
+                self._returned = False
             if self._dir * (thl - self._thl0) < -2.0 * cfg.tolerance_rad or (
                     self._anchor is not None and self._dir * (thl - self._anchor[0]) < -2.0 * cfg.tolerance_rad):
                 # (h21h) the second reading: from the furthest start toward the target since the
@@ -1523,6 +1527,21 @@ class FinePositioner:
                 # away from the target (the main law takes it, or with fine.hold_reversed / the apex policy the stage
                 # holds where a hand-back could be the second reversal)
                 self._deep_unfit = True
+                if cfg.retreat_return_rest:
+                    # the observe's reference frozen at the gear output's present angle (no rebound toward the final
+                    # twist), the doublet judged once the valve rests (:meth:`_after_move`)
+                    if not self._returned:
+                        self._returned = True
+                        self._final = th1 - self._thl0
+                    unmoved = False
+                    if not (self._k >= cfg.observe_periods and self._rest >= 3):
+                        return self._servo(self._thl0 + self._final, 0.0, th1, w1, thl)
+                    self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed)
+                    if self.phase == IDLE:
+                        return None
+                    if self.phase == HOLD:
+                        return self._servo(self._hold_ref, 0.0, th1, w1, thl)
+                    return self._servo(self._thl0 + self._final, 0.0, th1, w1, thl)
                 self.pulses_this_plateau += 1
                 if cfg.retreat_return_hold:
                     # hold the gear output where it is: the observe servo's pull toward the final twist is what threw
@@ -1778,6 +1797,16 @@ class FinePositioner:
     def _after_move(self, th1, thl, pressure_kpa, pulsed: bool):
         cfg, d, b = self.cfg, self._dir, self._band
         move = thl - self._thl0
+        if cfg.retreat_return_rest and self._returned and pulsed and self._doublet:
+            self._returned = False
+            if abs(move) <= 0.5 * cfg.tolerance_rad:
+                # (task h35v) there and back to its start: counted, the plateau held (the same try would repeat it)
+                self.pulses_this_plateau += 1
+                self.learn.pulses += 1
+                self._judge(failed=False)
+                self.phase = HOLD
+                self._hold_ref = th1
+                return
         if not (pulsed and self._doublet and abs(move) <= 0.5 * cfg.tolerance_rad):
             # a doublet that did not move the valve is a stair of its staircase, not a move: the
             # staircase is bounded by its climb instead (below).  Counted, they used up

@@ -616,6 +616,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "(its trough passed the other way's breakaway: the slippery valve, friction x0.4, with fine.retreat_cap and "
           "fine.apex_retreat_periods 2 repeated such doublets 20 times -- hunting; task h35v, docs section 89)",
           runtime=True),
+    Param("fine.retreat_return_rest", False, "", "with fine.retreat_return_guard: when the return is seen the observe "
+          "servo's reference is frozen at the gear output's present angle and the doublet is judged once the valve rests "
+          "(back at its start: counted and the plateau held; else as any move) instead of leaving the plateau (task "
+          "h35v, docs section 89)", runtime=True),
     Param("fine.retreat_return_hold", False, "", "with fine.retreat_return_guard: when the return is seen the stage holds "
           "the gear output where it is (no more pulses on the plateau) instead of handing the plateau back (task h35v, "
           "docs section 89)", runtime=True),

@@ -349,6 +349,7 @@ class PositionController:
                           hold_reversed=ps["fine.hold_reversed"],
                           retreat_return_guard=ps["fine.retreat_return_guard"],
                           retreat_return_hold=ps["fine.retreat_return_hold"],
+                          retreat_return_rest=ps["fine.retreat_return_rest"],
                           unmoved_settled=ps["fine.unmoved_settled"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
