@@ -517,6 +517,15 @@ class FineConfig:
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
                                          # that stop held an apex beyond it (task h32a, docs §73)
+    retreat_return_guard: bool = False  # a doublet whose valve went a tolerance toward the try and came back is a
+                                        # move (counted, the plateau held) and the deep retreat is cut to one whole
+                                        # period for the rest of the run (task h35v, docs §89)
+    retreat_return_rest: bool = False  # ... or: the observe's reference frozen where the return is seen, the doublet
+                                       # judged at rest (back at its start: counted, held; task h35v, docs §89)
+    retreat_return_hold: bool = False  # ... and the stage then holds the gear output where it is instead of handing
+                                       # the plateau back (task h35v, docs §89)
+    unmoved_settled: bool = False  # a doublet is judged unmoved only once the gear output's speed is below
+                                   # fine.park_approach_speed_rad_s (or at fine.observe_time_s; task h35v, docs §89)
     hold_reversed: bool = False   # the stage holds instead of handing back a plateau on which the main law's move
                                   # could be the hunting metric's second reversal (task h34h, docs §86; in force also
                                   # with apex_policy)
@@ -547,6 +556,11 @@ class FinePositioner:
         self._repark: tuple[float, float, float, float] | None = None
         self._integral_held: float | None = None
         self._unmoved_now = False          # the valve within half a tolerance of the pulse's start (this period)
+        self._excursion = 0.0              # (fine.retreat_return_guard) the furthest the valve went toward the try
+                                           # since this doublet's kick, rad (>= 0)
+        self._returned = False             # (fine.retreat_return_rest) this doublet's return has been seen
+        self._deep_unfit = False           # (fine.retreat_return_guard) a doublet's valve came back on this plant:
+                                           # its retreat's trough passes the other way's breakaway (kept for the run)
         self.main_deadband_rad = None  # the main law's integrator deadband in force (rad; set by the law each period;
                                        # None: its hold may move the valve inside it -- a probe), fine.engage_inside_deadband
         self.reset()
@@ -1441,6 +1455,8 @@ class FinePositioner:
             if self._k >= self._park_n + 2:
                 self.phase, self._k = PULSE, 0
                 self._kick_apex = th1 - thl       # the kick's apex is tracked from the preload reached
+                self._excursion = 0.0
+                self._returned = False
             if self._dir * (thl - self._thl0) < -2.0 * cfg.tolerance_rad or (
                     self._anchor is not None and self._dir * (thl - self._anchor[0]) < -2.0 * cfg.tolerance_rad):
                 # (h21h) the second reading: from the furthest start toward the target since the
@@ -1472,6 +1488,7 @@ class FinePositioner:
                 # proportional part moved into the integral: the re-park restores it (:meth:`_plan_repark`)
                 self._integral_held = self._integral + self.kp * (self._thl0 + self._pre - th1) / self.ki
             self._unmoved_now = abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad
+            self._excursion = max(self._excursion, self._dir * (thl - self._thl0))
             torque = self._doublet_torque()
             if torque is not None:
                 return torque
@@ -1490,6 +1507,7 @@ class FinePositioner:
             return self._servo(base + x, a, th1, w1, thl, v)
         if self.phase == OBSERVE:
             self._track_peak(th1 - thl)
+            self._excursion = max(self._excursion, self._dir * (thl - self._thl0))
             # a pulse that has not moved the valve a count or two a few periods after its apex
             # did not break it loose (a valve that breaks moves 1.5 counts within ~0.7 ms): a
             # doublet's apex is its kick, a servo-blended pulse's lies its fall time before this
@@ -1498,6 +1516,55 @@ class FinePositioner:
             # and 14 of its 73 plateaus > 8e-4 rad ended mid-staircase; task h20p.)
             unmoved = self._pulsed and self._k >= cfg.no_move_periods \
                 and abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad
+            if cfg.retreat_return_guard and self._doublet and self._pulsed and self._excursion >= cfg.tolerance_rad \
+                    and self._excursion - self._dir * (thl - self._thl0) >= cfg.tolerance_rad:
+                # (task h35v) the valve went a tolerance toward the try and is now a tolerance back from there: the kick
+                # broke it loose and the retreat's trough, deeper than this valve's static band, broke it loose the
+                # other way (other valves, friction x0.4, campaign seed 1001: the trough's twist 9.3e-3 rad below the
+                # preload, at the closing level; +1.25e-3 and back to the start, judged "unmoved" and repeated 10 times
+                # -- hunting; seed 1003: +0.5e-3, -2.5e-3, then the observe's rebound +4.4e-3 across the target).
+                # Every later doublet on this plant retreats one whole period; this plateau is left as after a move
+                # away from the target (the main law takes it, or with fine.hold_reversed / the apex policy the stage
+                # holds where a hand-back could be the second reversal)
+                self._deep_unfit = True
+                if cfg.retreat_return_rest:
+                    # the observe's reference frozen at the gear output's present angle (no rebound toward the final
+                    # twist), the doublet judged once the valve rests (:meth:`_after_move`)
+                    if not self._returned:
+                        self._returned = True
+                        self._final = th1 - self._thl0
+                    unmoved = False
+                    if not (self._k >= cfg.observe_periods and self._rest >= 3):
+                        return self._servo(self._thl0 + self._final, 0.0, th1, w1, thl)
+                    self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed)
+                    if self.phase == IDLE:
+                        return None
+                    if self.phase == HOLD:
+                        return self._servo(self._hold_ref, 0.0, th1, w1, thl)
+                    return self._servo(self._thl0 + self._final, 0.0, th1, w1, thl)
+                self.pulses_this_plateau += 1
+                if cfg.retreat_return_hold:
+                    # hold the gear output where it is: the observe servo's pull toward the final twist is what threw
+                    # seed 1003's valve back across the target; no more pulses on this plateau
+                    self._judge(failed=False)
+                    self._unfit = True
+                    self._stair = None
+                    self._apex_floor = None
+                    self.phase = HOLD
+                    self._hold_ref = th1
+                    return self._servo(self._hold_ref, 0.0, th1, w1, thl)
+                if self._hold_not_hand_back(th1, self._target - thl, pressure_kpa):
+                    return self._servo(self._hold_ref, 0.0, th1, w1, thl)
+                self._hand_back()
+                return None
+            if unmoved and self._doublet and cfg.unmoved_settled and self._k < cfg.observe_periods \
+                    and abs(w1) > cfg.park_approach_speed:
+                # (task h35v) the retreat's swing still rebounds: judged now, the next park is planned from rest at
+                # a twist the gear output is leaving at up to ~0.65 rad/s after a 16 A kick, and carries that swing
+                # 0.36e-3 rad (median; max 1.3e-3) past its preload -- 12 of 120 such parks broke the valve loose a
+                # whole jump (docs §86.2).  Judged once the gear output moves no faster than the park's own final
+                # approach (fine.park_approach_speed_rad_s), or at the observe window's end
+                unmoved = False
             if unmoved or (self._k >= cfg.observe_periods and self._rest >= 3):
                 self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed)
                 if self.phase == IDLE:
@@ -1572,8 +1639,10 @@ class FinePositioner:
             if cfg.apex_policy and self._apex_kick is not None:
                 kick = self._apex_kick             # (task h33p) the kick the policy chose for this try
             torque = self._hold_torque + d * kick * kt
-        elif self._k <= 1 + max(cfg.apex_retreat_periods if cfg.apex_policy and cfg.apex_retreat_periods > 0
-                                else cfg.retreat_full_periods, 1):
+        elif self._k <= 1 + (1 if self._deep_unfit else max(
+                cfg.apex_retreat_periods if cfg.apex_policy and cfg.apex_retreat_periods > 0
+                else cfg.retreat_full_periods, 1)):
+            # (fine.retreat_return_guard: one whole period once a doublet's valve came back on this plant)
             # (task h34s, ``fine.retreat_cap``) the cap itself backwards, not the hold less the cap (an opening
             # pulse at 0.5 rad, max Δp, holds ~+10.6 A: hold - cap is -19.4 A; plateau_floor's deep shape, §82)
             torque = -d * cap if cfg.retreat_cap else self._hold_torque - d * cap
@@ -1728,6 +1797,16 @@ class FinePositioner:
     def _after_move(self, th1, thl, pressure_kpa, pulsed: bool):
         cfg, d, b = self.cfg, self._dir, self._band
         move = thl - self._thl0
+        if cfg.retreat_return_rest and self._returned and pulsed and self._doublet:
+            self._returned = False
+            if abs(move) <= 0.5 * cfg.tolerance_rad:
+                # (task h35v) there and back to its start: counted, the plateau held (the same try would repeat it)
+                self.pulses_this_plateau += 1
+                self.learn.pulses += 1
+                self._judge(failed=False)
+                self.phase = HOLD
+                self._hold_ref = th1
+                return
         if not (pulsed and self._doublet and abs(move) <= 0.5 * cfg.tolerance_rad):
             # a doublet that did not move the valve is a stair of its staircase, not a move: the
             # staircase is bounded by its climb instead (below).  Counted, they used up

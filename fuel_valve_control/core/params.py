@@ -610,6 +610,24 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "Saturated at the current cap for 3-4 periods, the deeper retreat's pull-back wound it to ~3.4e-3 rad of "
           "equivalent position error (main's doublet: 0.6e-3), the gear output overshot the final twist by 2-3e-3 rad "
           "and the rebound broke the valve loose a second time (task h34s, docs section 84)", runtime=True),
+    Param("fine.retreat_return_guard", False, "", "doublet: a doublet whose valve went a tolerance toward the try and "
+          "came back to within half a tolerance of its start is a move there and back, not an unmoved stair: counted "
+          "as a pulse, the plateau held where it is, and every later doublet on this plant retreats one whole period "
+          "(its trough passed the other way's breakaway: the slippery valve, friction x0.4, with fine.retreat_cap and "
+          "fine.apex_retreat_periods 2 repeated such doublets 20 times -- hunting; task h35v, docs section 89)",
+          runtime=True),
+    Param("fine.retreat_return_rest", False, "", "with fine.retreat_return_guard: when the return is seen the observe "
+          "servo's reference is frozen at the gear output's present angle and the doublet is judged once the valve rests "
+          "(back at its start: counted and the plateau held; else as any move) instead of leaving the plateau (task "
+          "h35v, docs section 89)", runtime=True),
+    Param("fine.retreat_return_hold", False, "", "with fine.retreat_return_guard: when the return is seen the stage holds "
+          "the gear output where it is (no more pulses on the plateau) instead of handing the plateau back (task h35v, "
+          "docs section 89)", runtime=True),
+    Param("fine.unmoved_settled", False, "", "doublet: an unmoved doublet is judged (and the next park planned "
+          "from rest) only once the gear output's speed is below fine.park_approach_speed_rad_s, or at the end of "
+          "fine.observe_time_s (after a 16 A kick the retreat's rebound still ran ~0.65 rad/s toward the level and "
+          "the next park carried it 0.36e-3 rad past its preload, breaking the valve loose in 12 of 120 parks; "
+          "task h35v, docs section 89)", runtime=True),
     Param("fine.observe_hold_moved", False, "", "doublet: as fine.observe_hold_integral, but only in the observe of a "
           "doublet that has moved the valve (half a tolerance from its start): an unmoved stair's observe integrates as "
           "main's, whose next park is tuned with it (held there too, the parks ended 0.57e-3 rad short of their planned "

@@ -346,7 +346,11 @@ class PositionController:
                           retreat_cap=ps["fine.retreat_cap"], retreat_cap_half=ps["fine.retreat_cap_half"], observe_hold_integral=ps["fine.observe_hold_integral"],
                           observe_hold_moved=ps["fine.observe_hold_moved"],
                           supply_voltage_v=ps["drive.supply_voltage_v"],
-                          hold_reversed=ps["fine.hold_reversed"])
+                          hold_reversed=ps["fine.hold_reversed"],
+                          retreat_return_guard=ps["fine.retreat_return_guard"],
+                          retreat_return_hold=ps["fine.retreat_return_hold"],
+                          retreat_return_rest=ps["fine.retreat_return_rest"],
+                          unmoved_settled=ps["fine.unmoved_settled"])
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
