@@ -1404,16 +1404,19 @@ class FinePositioner:
         if self.phase in (PULSE, OBSERVE) and self._dir * phi > self._dir * self._kick_apex:
             self._kick_apex = phi
 
-    def _servo(self, th1_ref, a_ref, th1, w1, thl, v_ref=0.0):
+    def _servo(self, th1_ref, a_ref, th1, w1, thl, v_ref=0.0, integrate=True):
         """Torque holding the gear output on ``th1_ref`` (feed-forward: the engage torque plus
-        the nominal coupling-torque change, and J1 a_ref for the pulse)."""
+        the nominal coupling-torque change, and J1 a_ref for the pulse).  ``integrate`` False: this
+        period's error acts through the integral term but is not kept in it (``fine.observe_hold_*``)."""
         m = self.m
         n = m.gear_ratio
         # coupling torque of the *reference* twist (the valve is stuck until breakaway)
         ff = self._ff0 + m.coupling_stiffness_nm_per_rad * ((th1_ref - thl) - self._phi0) / n
         e = th1_ref - th1
-        self._integral += e * self.period
-        torque = ff + (m.j1 * a_ref + self.kp * e + self.kd * (v_ref - w1) + self.ki * self._integral) / n
+        integral = self._integral + e * self.period
+        if integrate:
+            self._integral = integral
+        torque = ff + (m.j1 * a_ref + self.kp * e + self.kd * (v_ref - w1) + self.ki * integral) / n
         # the pulse's acceleration is what draws the peak current: capped, the pulse is slower,
         # not wrong (the twist it reached is measured and learned from)
         cap = self.cfg.peak_current_a * m.torque_constant_nm_per_a
@@ -1546,12 +1549,7 @@ class FinePositioner:
                 if cfg.retreat_return_hold:
                     # hold the gear output where it is: the observe servo's pull toward the final twist is what threw
                     # seed 1003's valve back across the target; no more pulses on this plateau
-                    self._judge(failed=False)
-                    self._unfit = True
-                    self._stair = None
-                    self._apex_floor = None
-                    self.phase = HOLD
-                    self._hold_ref = th1
+                    self._hold_here(th1, failed=False)
                     return self._servo(self._hold_ref, 0.0, th1, w1, thl)
                 if self._hold_not_hand_back(th1, self._target - thl, pressure_kpa):
                     return self._servo(self._hold_ref, 0.0, th1, w1, thl)
@@ -1590,10 +1588,7 @@ class FinePositioner:
                 # 2: 6 of 22 moves).  Held at the park's value, the swing is pulled back by the PD alone.
                 # (fine.observe_hold_moved: only once the valve has moved -- held after an unmoved stair too, the next
                 # park, tuned with the observe integrating, ended 0.57e-3 rad short of its preload: 12 vs 29 moves)
-                held = self._integral
-                torque = self._servo(base + ref, 0.0, th1, w1, thl)
-                self._integral = held
-                return torque
+                return self._servo(base + ref, 0.0, th1, w1, thl, integrate=False)
             return self._servo(base + ref, 0.0, th1, w1, thl)
         # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
@@ -2144,13 +2139,19 @@ class FinePositioner:
             return False
         if self._cross_guard(err, pressure_kpa) == 0.0:
             return False                       # a main-law move across the target is still no hunt
-        self._judge(failed=True)
-        self._unfit = True                     # no more pulses on this plateau (as after a hand-back)
+        self._hold_here(th1, failed=True)
+        return True
+
+    def _hold_here(self, th1: float, failed: bool) -> None:
+        """Hold the gear output at ``th1`` (rad) for the rest of the plateau, with no more pulses on it (as after a
+        hand-back, but the stage keeps the valve): the plateau judged ``failed`` (:meth:`_judge`), the staircase and
+        the policy's floor dropped."""
+        self._judge(failed=failed)
+        self._unfit = True
         self._stair = None
         self._apex_floor = None
         self.phase = HOLD
         self._hold_ref = th1
-        return True
 
     def _hand_back(self) -> None:
         """Leave the plateau to the main law (which restarts from :meth:`hold_torque`): the
