@@ -427,6 +427,18 @@ class PositionController:
         fine = getattr(law, "fine", None)
         return fine.prepare(build) if isinstance(fine, FinePositioner) else (0, 0.0)
 
+    def defer_tables(self, law: ControlLaw | None = None) -> tuple | None:
+        """(task h36b) For a real-time caller that builds ``law``'s move tables off its control thread (None: the law
+        in force): ``(fine stage, its move model, the keys to build)`` when any is missing -- the stage then runs
+        main's staircase until the caller has adopted them into the model and called ``fine.release_tables()``
+        (:meth:`FinePositioner.defer_tables`) -- else None (nothing to build, or no ``fine.apex_policy``)."""
+        law = self.law if law is None else law
+        fine = getattr(law, "fine", None)
+        if not isinstance(fine, FinePositioner):
+            return None
+        keys = fine.defer_tables()
+        return (fine, fine.moves, keys) if keys else None
+
     def reconfigure(self, ps: ParamSet, meas: Measurement | None, pressure_kpa: float,
                     prepared: tuple[ControlLaw, frozenset[str]] | None) -> bool:
         """Adopt run-time parameters ``ps``: current limits at once; the law ``prepared`` by
