@@ -3,10 +3,15 @@
 With ``fine.apex_policy`` the fine stage reads keyed Δp x angle tables of the doublet's move
 (:class:`~fuel_valve_control.core.pulse_moves.PulseMoves`); built lazily, each costs ~0.12 s of CPU inside the
 period that first needs it.  :meth:`PositionController.prepare` (the fine stage's :meth:`FinePositioner.prepare`)
-builds every table the policy can ask for; the ROS controller node calls it at configure, and refuses a run-time
-change whose law would need a table not built then.  Here: after ``prepare()`` no update builds or simulates
-anything; with the option off nothing is made; the node builds at configure and refuses (a reason given) what it
-cannot serve from its tables (``fine.apex_policy`` itself is read-only on the node: not a run-time parameter).
+builds every table the policy can ask for.  Here: after ``prepare()`` no update builds or simulates anything; with
+the option off nothing is made.
+
+Task h36b: the ROS node no longer builds them in its configure (C1: 342 tables, ~41 s): the tables are cached on disk
+(one ``.npz`` per key under a signature hash) and built by a background process (``TableBuild``); the fine stage runs
+main's staircase until they are adopted (``FinePositioner.defer_tables`` / ``release_tables``), and a run-time change
+that needs new tables starts such a build instead of being refused (``fine.apex_policy`` itself stays read-only).
+Tested here: the cache's round trip (bit-equal), its signature, bad files, the worker (built, failed, cancelled), the
+stage's gate (main's commands exactly until released, the policy from the next plateau), and the node.
 
 The tables are built on a 2 x 2 (Δp x angle) grid here (the grid's corners: every Δp and angle still lies inside
 it) instead of the default 19 x 3 -- the wiring is what is tested, not the grid (~1 s of CPU instead of ~14 s).

@@ -779,8 +779,8 @@ class FinePositioner:
         ``fine.apex_policy``, the doublet's move model (:func:`_pulse_moves`) and every keyed table its
         :meth:`_choose_apex` can read -- every Δp and angle point of the grid, both directions, every kick of
         :meth:`_apex_kicks` (the default 114 tables, ~14 s of CPU; kicks to 16 A three times that).  A lazy build
-        inside a 1 kHz period costs ~0.12 s of CPU per table: a real-time caller (the ROS controller node, at
-        configure) calls this outside its control callback.  The move model is made from the model the stage plans
+        inside a 1 kHz period costs ~0.12 s of CPU per table: a real-time caller calls this outside its control
+        callback (the ROS controller node builds them in a background process instead: :meth:`defer_tables`).  The move model is made from the model the stage plans
         from now and kept (:class:`PositionController` calls ``prepare(build=False)`` as it builds the law: the told
         model, offline and in the node alike).  ``build`` False: make the model and count, build no table.
         Returns (tables that were still to build, CPU seconds spent building them);

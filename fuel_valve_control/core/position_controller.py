@@ -420,7 +420,7 @@ class PositionController:
         """Build ahead what ``law`` (None: the law in force; else one from :meth:`build_law`) would otherwise build
         lazily inside :meth:`update` -- today the fine stage's move tables (``fine.apex_policy``,
         :meth:`FinePositioner.prepare`).  Returns (tables that were still to build, CPU seconds spent); ``build``
-        False: count only, build nothing.  A real-time caller (the ROS controller node) calls it outside its
+        False: count only, build nothing.  A real-time caller calls it outside its
         control callback; the offline simulator does not (a lazy build there only costs run time, and the tables
         are shared in the process: a campaign's runs build them once)."""
         law = self.law if law is None else law

@@ -64,6 +64,17 @@ controller node) must call ``prepare()`` at configure / activate, outside its co
 6 tables).  ``exact=True`` keeps h33m's per-key tables (Δp to 1e-3 kPa, angle to 0.01 rad): the reference the keyed
 grid's error is measured against (``benchmarks/pulse_moves_check.py --grid``).
 
+The disk cache and the background build (task h36b)
+----------------------------------------------------
+C1's kicks to 16 A read 342 tables (~41 s of CPU): too long for a node's configure.  Each keyed table can be saved to
+and read from a cache directory (:meth:`PulseMoves.save_table`, :meth:`PulseMoves.read_cached`: one ``.npz`` per key,
+~130 kB, under a directory named by :meth:`PulseMoves.signature_hash` -- the model, every setting, :data:`TABLE_VERSION`
+and the source of :data:`SOURCE_FILES`; written atomically; a partial, corrupt or foreign file is built again, never
+raised), and :class:`TableBuild` makes a set of keys ready off the caller's thread: it reads what the cache has and
+builds the rest in a separate low-priority process (``nice 19``) that writes the cache.  Read back, a table equals the
+one built in the process bit for bit.  The ROS controller node uses it (its fine stage runs main's staircase until the
+tables are in, :meth:`FinePositioner.defer_tables`); offline nothing touches the disk (lazy builds, as before).
+
 Validation (docs §80): bare nominal plant, 300 random points, 99.3 % within max(10 %, 1e-4 rad), p95 1.6e-4,
 max 3.9e-4 rad, rise to 1e-8 rad; the stage's own 2310 doublets on the nominal box (40 runs): rise -2..-3 %,
 no break misclassified beyond the rise's error, moves within +0.02 (median) / 0.07 (p90 |err|) e-3 rad.
@@ -312,7 +323,8 @@ class PulseMoves:
         / -1.  ``kicks`` (A): None, ``kicks`` (``kick_current_a`` and ``extra_kicks``).  Every angle point.
         Keyed mode only.  **The ROS controller node must call it at configure / activate, outside its 1 kHz
         control callback** (one table costs ~0.12 s of CPU: built lazily inside the callback it would stall the
-        loop ~150 periods); offline a lazy build is harmless (docs §80.9).  ``max_s`` (s of CPU, optional): stop after
+        loop ~150 periods; it now builds them in a background process instead, :class:`TableBuild`, task h36b); offline a
+        lazy build is harmless (docs §80.9).  ``max_s`` (s of CPU, optional): stop after
         the table that passes this budget (a caller spreading the work over idle time calls again until ``prepared``
         / :meth:`pending` says nothing is left)."""
         if self.exact:
