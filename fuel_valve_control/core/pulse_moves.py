@@ -376,6 +376,7 @@ class PulseMoves:
         try:
             with os.fdopen(fd, "wb") as f:
                 np.savez(f, signature=np.asarray(self.signature_hash()), key=np.asarray(key, dtype=float), **arrays)
+            os.chmod(tmp, 0o644)                # (mkstemp's 0600: another user's node may read the cache too)
             os.replace(tmp, path)
         except BaseException:
             try:
@@ -953,9 +954,11 @@ class TableBuild:
         return f"{self.state}: {self.reason}"
 
     def cancel(self, timeout: float = 5.0) -> None:
-        """End the worker and the thread (the cache keeps every table finished so far)."""
+        """End the worker (terminated now) and the thread (waited for up to ``timeout`` s; it ends the worker
+        itself if it starts one after this); the cache keeps every table finished so far."""
         self._cancel.set()
-        if self._thread.is_alive() and self._thread is not threading.current_thread():
+        self._stop_process()
+        if timeout > 0.0 and self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout)
         self._stop_process()
 
@@ -1043,6 +1046,8 @@ class TableBuild:
         except Exception as exc:               # noqa: BLE001 - a failed build is a state, reported by the caller
             self.state, self.reason = "failed", f"{type(exc).__name__}: {exc}"
         finally:
+            if getattr(self, "_err", None) is not None:
+                self._err.close()
             if tmp is not None:
                 import shutil
                 shutil.rmtree(tmp, ignore_errors=True)

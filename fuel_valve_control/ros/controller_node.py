@@ -328,6 +328,7 @@ class ControllerNode(LifecycleNode):
         else built in a background process (:meth:`_start_tables`) while the fine stage runs main's staircase.
         Off (the default): nothing is made, nothing logged."""
         self._cancel_tables()
+        self._tables_failed = False
         deferred = driver.controller.defer_tables()
         if deferred is None:
             self._tables_status = "off" if not driver.ps["fine.apex_policy"] else "ready (nothing to build)"
@@ -358,10 +359,10 @@ class ControllerNode(LifecycleNode):
         self._table_waiters = [*older, fine]
         self._tables_failed = False
         self._tables_status = self._table_build.status()
-        self.get_logger().info(f"fine.apex_policy: move tables: {len(keys)} not ready, building them in a background "
-                               f"process (nice {self._table_build.nice}, ~{0.12 * len(keys):.0f} s of CPU; cache "
-                               f"{root if root is not None else 'off'}); the fine stage runs main's staircase until "
-                               "they are")
+        self.get_logger().info(f"fine.apex_policy: move tables: {len(keys)} needed, not all in the cache "
+                               f"({moves.cache_dir(root) if root is not None else 'off'}): reading it and building the "
+                               f"missing ones in a background process (nice {self._table_build.nice}, ~0.12 s of CPU "
+                               "each); the fine stage runs main's staircase until they are ready")
         from rclpy.clock import Clock, ClockType
         self._table_timer = self.create_timer(0.25, self._poll_tables, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
@@ -398,18 +399,20 @@ class ControllerNode(LifecycleNode):
         self.get_logger().warn(f"fine.apex_policy: move tables {self._tables_status}: the fine stage stays on main's "
                                "staircase (a reconfigure retries)")
 
-    def _cancel_tables(self) -> None:
-        """End a background build (its worker process too; the cache keeps every table it finished)."""
+    def _cancel_tables(self, wait_s: float = 0.0) -> None:
+        """End a background build: its worker process terminated now, its reading thread left to end by itself
+        within ``wait_s`` (0: not waited for -- called under the loop's lock, it must not hold the loop up behind
+        a cache read); the cache keeps every table the worker finished."""
         if self._table_timer is not None:
             self.destroy_timer(self._table_timer)
             self._table_timer = None
         if self._table_build is not None:
-            self._table_build.cancel()
+            self._table_build.cancel(wait_s)
             self._table_build = None
         self._table_waiters = []
 
     def destroy_node(self):
-        self._cancel_tables()
+        self._cancel_tables(wait_s=5.0)
         return super().destroy_node()
 
     def _defer_unprepared(self, change):
