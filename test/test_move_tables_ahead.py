@@ -49,13 +49,19 @@ def small_grid(monkeypatch):
     monkeypatch.setattr(PulseMoves, "for_positioner", classmethod(small))
 
 
-def _run(plan, plant, driver, periods):
+def _step(plan, plant, driver, k):
+    """Period ``k`` of the closed loop (the simulator's exchange); returns the driver's output."""
     per = driver.period
+    t = k * per
+    out, _ = exchange_period(driver, plant, t, plan.demand.value(t))
+    plant.set_command(out.current_a, out.enable)
+    plant.advance(per)
+    return out
+
+
+def _run(plan, plant, driver, periods):
     for k in range(periods):
-        t = k * per
-        out, _ = exchange_period(driver, plant, t, plan.demand.value(t))
-        plant.set_command(out.current_a, out.enable)
-        plant.advance(per)
+        _step(plan, plant, driver, k)
 
 
 def test_prepare_builds_every_table_the_apex_policy_reads(small_grid, monkeypatch):
@@ -327,13 +333,7 @@ def test_the_stage_runs_main_staircase_until_the_tables_are_released(small_grid,
     per = driver.period
     # deferred through the periods where the policy would have chosen (period 357): main's commands exactly
     for k in range(PERIODS):
-        t = k * per
-        out, _ = exchange_period(driver, plant, t, plan.demand.value(t))
-        plant.set_command(out.current_a, out.enable)
-        plant.advance(per)
-        ref, _ = exchange_period(ref_driver, ref_plant, t, ref_plan.demand.value(t))
-        ref_plant.set_command(ref.current_a, ref.enable)
-        ref_plant.advance(per)
+        out, ref = _step(plan, plant, driver, k), _step(ref_plan, ref_plant, ref_driver, k)
         assert out.current_a == ref.current_a, k
     assert not choices and fine_moves.builds == 0 and fine_moves.runs == 0
     assert not fine.release_tables()                       # nothing adopted yet: stays closed
@@ -349,9 +349,7 @@ def test_the_stage_runs_main_staircase_until_the_tables_are_released(small_grid,
         t = k * per
         if switched is None and abs(plan.demand.value(t) - plateau) > 1e-9:
             switched = k
-        out, _ = exchange_period(driver, plant, t, plan.demand.value(t))
-        plant.set_command(out.current_a, out.enable)
-        plant.advance(per)
+        _step(plan, plant, driver, k)
         if switched is None:
             assert fine.tables_deferred                    # not taken mid-plateau
         k += 1

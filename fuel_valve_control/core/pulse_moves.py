@@ -123,17 +123,19 @@ SHARED_SIGNATURES = 4
 _SHARED: OrderedDict = OrderedDict()
 #: the keyed tables' disk cache (:meth:`PulseMoves.save_table` / :meth:`PulseMoves.read_cached`, task h36b): the version
 #: of what a table holds and how it is built.  The cache signature also hashes the source of :data:`SOURCE_FILES` (any
-#: edit there rebuilds the cache by itself); **bump this by hand** when the tables change for a reason those files do not
-#: show: a table-building helper moved to another module, a numpy whose arithmetic changed the tables, a new field
+#: edit there rebuilds the cache by itself); **bump this by hand** when the tables change for a reason those files
+#: do not show: a table-building helper moved to another module, a numpy whose arithmetic changed the tables, a new
+#: field
 TABLE_VERSION = 1
 #: the modules (relative to this one) whose source the cache signature hashes: the table physics (this module's
 #: ``_table`` / ``_simulate``, the model's friction and load)
 SOURCE_FILES = ("pulse_moves.py", "model.py", "../common/friction.py")
-#: environment variable naming the cache directory ("" / "off": no disk cache); default ``$ROS_HOME/fuel_valve/move_tables``
-#: (``ROS_HOME`` default ``~/.ros``)
+#: environment variable naming the cache directory ("" / "off": no disk cache); default
+#: ``$ROS_HOME/fuel_valve/move_tables`` (``ROS_HOME`` default ``~/.ros``)
 CACHE_ENV = "FUEL_VALVE_MOVE_TABLES"
 #: a table's fields as saved (``_flat``, derived on first read, is not)
-_TABLE_FIELDS = ("excess", "overdrive", "aim", "moves", "rise", "second_break_aim", "last_ok", "servo_break_aim", "build_s")
+_TABLE_FIELDS = ("excess", "overdrive", "aim", "moves", "rise", "second_break_aim", "last_ok", "servo_break_aim",
+                 "build_s")
 #: tables kept per PulseMoves in the ``exact`` mode (the keyed grid keeps all of its finite set; each (direction, Δp,
 #: kick, valve angle) key one table of ~20k floats)
 CACHE_SIZE = 32
@@ -323,8 +325,8 @@ class PulseMoves:
         / -1.  ``kicks`` (A): None, ``kicks`` (``kick_current_a`` and ``extra_kicks``).  Every angle point.
         Keyed mode only.  **The ROS controller node must call it at configure / activate, outside its 1 kHz
         control callback** (one table costs ~0.12 s of CPU: built lazily inside the callback it would stall the
-        loop ~150 periods; it now builds them in a background process instead, :class:`TableBuild`, task h36b); offline a
-        lazy build is harmless (docs §80.9).  ``max_s`` (s of CPU, optional): stop after
+        loop ~150 periods; it now builds them in a background process instead, :class:`TableBuild`, task h36b);
+        offline a lazy build is harmless (docs §80.9).  ``max_s`` (s of CPU, optional): stop after
         the table that passes this budget (a caller spreading the work over idle time calls again until ``prepared``
         / :meth:`pending` says nothing is left)."""
         if self.exact:

@@ -22,7 +22,8 @@ from ..core.pulse_moves import default_cache_dir
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m fuel_valve_control.tools.move_tables", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m fuel_valve_control.tools.move_tables",
+                                 description=__doc__.split("\n\n")[0])
     ap.add_argument("--params", default="default", help="controller parameter file (default: config/controller.yaml)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="controller parameter override, e.g. fine.apex_policy=true (repeatable)")
@@ -44,8 +45,8 @@ def main(argv=None) -> int:
     _, moves, keys = deferred
     t0 = time.process_time()
     built = moves.build_and_save(root, keys)
-    print(f"move tables: {built} built, {len(keys) - built} already in the cache, {time.process_time() - t0:.1f} s CPU: "
-          f"{moves.cache_dir(root)}")
+    print(f"move tables: {built} built, {len(keys) - built} already in the cache, {time.process_time() - t0:.1f} s "
+          f"CPU: {moves.cache_dir(root)}")
     return 0
 
 
