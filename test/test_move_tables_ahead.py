@@ -150,10 +150,22 @@ def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_bu
         assert node._table_build is None
         node.destroy_node()
 
-        # a restart: every table in the cache -- read at configure, no build, the policy from the first plateau
+        # a restart in real time: every table in the cache -- read by the build's thread, no worker process
+        monkeypatch.setattr(pmod, "_SHARED", OrderedDict())
+        node = ControllerNode(context=ctx, namespace="/tables_warm_rt", parameter_overrides=[
+            Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True)])
+        node.trigger_configure()
+        build = node._table_build
+        assert build is not None and node.driver.controller.law.fine.tables_deferred
+        _settle(node)
+        assert build.process is None and "loaded from cache" in node._tables_status, node._tables_status
+        assert node.driver.controller.law.fine._tables_gate == "released"
+        node.destroy_node()
+        # ... in lockstep: read at configure itself (no build), the policy from the first plateau as offline
         monkeypatch.setattr(pmod, "_SHARED", OrderedDict())
         node = ControllerNode(context=ctx, namespace="/tables_warm", parameter_overrides=[
-            Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True)])
+            Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True),
+            Parameter("lockstep", value=True)])
         node.trigger_configure()
         fine = node.driver.controller.law.fine
         assert node._table_build is None and "loaded from cache" in node._tables_status, node._tables_status

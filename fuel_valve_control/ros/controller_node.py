@@ -324,9 +324,10 @@ class ControllerNode(LifecycleNode):
         """Make ready, here at configure and never inside the control callback, what the law would otherwise build
         lazily inside a 1 kHz period: with ``fine.apex_policy`` the doublet's move tables (~0.12 s of CPU each; C1,
         kicks to 16 A: 342 tables, ~41 s).  Read from the disk cache (:func:`~fuel_valve_control.core.pulse_moves.
-        default_cache_dir`) when every one is there (~1 s for 342: the policy in force from the first plateau);
-        else built in a background process (:meth:`_start_tables`) while the fine stage runs main's staircase.
-        Off (the default): nothing is made, nothing logged."""
+        default_cache_dir`) when every one is there and the node runs lockstep (~1 s for 342: the policy in force
+        from the first plateau, as offline); else read and, what is missing, built in a background process
+        (:meth:`_start_tables`) while the fine stage runs main's staircase.
+        Off (the default): nothing is made, nothing logged.  (The cache read at configure: in lockstep only.)"""
         self._cancel_tables()
         self._tables_failed = False
         deferred = driver.controller.defer_tables()
@@ -335,7 +336,10 @@ class ControllerNode(LifecycleNode):
             return
         fine, moves, keys = deferred
         root = default_cache_dir()
-        if root is not None and all(moves.table_file(root, k).is_file() for k in keys):
+        if self.lockstep and root is not None and all(moves.table_file(root, k).is_file() for k in keys):
+            # lockstep (simulated time stands still meanwhile): a whole cache is read here, so the run is the
+            # offline simulator's from its first plateau (real time: read by the build's thread, configure returns
+            # at once -- 342 files took 1.1 s of wall time alone, 25 s on a machine at load ~10)
             t0 = time.monotonic()
             got = moves.read_cached(root, keys)
             if len(got) == len(keys):
