@@ -11,6 +11,8 @@ is checked over every command the probe received during a hold, not against a cl
 from __future__ import annotations
 
 import json
+import os
+import re
 import time
 
 import pytest
@@ -34,10 +36,18 @@ HOLD_S = 1.0
 START_S = 120.0
 
 
+#: (task h36b) controller parameters every test here adds (JSON in this environment variable), e.g. the fine stage's
+#: C1 build to run the whole module with it: ``FUEL_VALVE_TEST_CONTROLLER_SETS='{"fine.apex_policy": true, ...}'``
+EXTRA_SETS = json.loads(os.environ.get("FUEL_VALVE_TEST_CONTROLLER_SETS") or "{}")
+#: the fine stage's combination C1 (docs §88): fine.apex_policy with kicks to 16 A reads 342 move tables (~41 s of CPU)
+C1 = {"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0, "fine.apex_retreat_periods": 2, "fine.retreat_cap": True,
+      "fine.observe_hold_moved": True, "fine.apex_excess_nominal": True}
+
+
 def _launch(tmp_path, namespace, **overrides):
     # timeouts a starved process (load 30 on 2 cores was seen) does not trip
     plan = plan_run(None, REAL_TIME, controller_overrides={"faults.resolver_timeout_s": 3.0, "demand_timeout_s": 5.0,
-                                                           "diagnostics_rate_hz": 10.0, **overrides})
+                                                           "diagnostics_rate_hz": 10.0, **EXTRA_SETS, **overrides})
     s = Launcher(plan, namespace, tmp_path)
     s.start(("plant", "controller"))
     probe = Probe(namespace, keep_all=(contract.CURRENT_COMMAND,))
@@ -189,3 +199,50 @@ def test_autostart_default_gives_an_active_controller(tmp_path):
     finally:
         probe.close()
         s.stop()
+
+
+def _worker(values: dict) -> int | None:
+    """The table worker's pid /diagnostics names (``move_tables``: "building: ... (worker pid N ...)"), or None."""
+    m = re.search(r"^building: .*worker pid (\d+)", values.get("move_tables", ""))
+    return int(m.group(1)) if m else None
+
+
+def _running(pid: int) -> bool:
+    """The process ``pid`` exists and is not a zombie (a container's init may not reap an orphan's zombie)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_c1_configure_returns_at_once_on_a_cold_table_cache_and_the_worker_ends_with_the_node(tmp_path, monkeypatch):
+    """(task h36b) With C1 the node's configure answers within the probe's 15 s (it built 342 tables there, ~41 s of
+    CPU, before); the tables are built by a background process /diagnostics names; a cleanup ends it, and so does
+    the launch's SIGINT (the node exits cleanly, no orphan builds on)."""
+    monkeypatch.setenv("FUEL_VALVE_MOVE_TABLES", str(tmp_path / "move_tables"))        # a cold cache
+    s, probe = _launch(tmp_path, "/lcc1", autostart=False, **C1)
+    codes = {}
+    try:
+        assert probe.lifecycle_state("controller", timeout=START_S) == "unconfigured"
+        pids = []
+        for _ in range(2):
+            assert probe.change_state("controller", CONFIGURE)           # 15 s: no table is built in it
+            probe.wait_for(lambda: _values(probe).get("lifecycle_state") == "inactive"
+                           and _worker(_values(probe)) not in (None, *pids), 60.0,
+                           "/diagnostics move_tables building (a new worker)")
+            pid = _worker(_values(probe))
+            assert _running(pid), _values(probe).get("move_tables")
+            pids.append(pid)
+            if len(pids) == 1:
+                assert probe.change_state("controller", CLEANUP)
+                probe.wait_for(lambda: not _running(pids[0]), 30.0, "the worker ended at cleanup")
+        assert "in a background process" in s.log("controller")
+    finally:
+        probe.close()
+        codes = s.stop()
+    assert codes.get("controller") in (0, -2), (codes, s.log("controller")[-2000:])
+    t0 = time.monotonic()
+    while _running(pids[-1]) and time.monotonic() - t0 < 30.0:
+        time.sleep(0.1)
+    assert not _running(pids[-1]), "the table worker outlived its node"

@@ -3,10 +3,15 @@
 With ``fine.apex_policy`` the fine stage reads keyed Δp x angle tables of the doublet's move
 (:class:`~fuel_valve_control.core.pulse_moves.PulseMoves`); built lazily, each costs ~0.12 s of CPU inside the
 period that first needs it.  :meth:`PositionController.prepare` (the fine stage's :meth:`FinePositioner.prepare`)
-builds every table the policy can ask for; the ROS controller node calls it at configure, and refuses a run-time
-change whose law would need a table not built then.  Here: after ``prepare()`` no update builds or simulates
-anything; with the option off nothing is made; the node builds at configure and refuses (a reason given) what it
-cannot serve from its tables (``fine.apex_policy`` itself is read-only on the node: not a run-time parameter).
+builds every table the policy can ask for.  Here: after ``prepare()`` no update builds or simulates anything; with
+the option off nothing is made.
+
+Task h36b: the ROS node no longer builds them in its configure (C1: 342 tables, ~41 s): the tables are cached on disk
+(one ``.npz`` per key under a signature hash) and built by a background process (``TableBuild``); the fine stage runs
+main's staircase until they are adopted (``FinePositioner.defer_tables`` / ``release_tables``), and a run-time change
+that needs new tables starts such a build instead of being refused (``fine.apex_policy`` itself stays read-only).
+Tested here: the cache's round trip (bit-equal), its signature, bad files, the worker (built, failed, cancelled), the
+stage's gate (main's commands exactly until released, the policy from the next plateau), and the node.
 
 The tables are built on a 2 x 2 (Δp x angle) grid here (the grid's corners: every Δp and angle still lies inside
 it) instead of the default 19 x 3 -- the wiring is what is tested, not the grid (~1 s of CPU instead of ~14 s).
@@ -44,13 +49,19 @@ def small_grid(monkeypatch):
     monkeypatch.setattr(PulseMoves, "for_positioner", classmethod(small))
 
 
-def _run(plan, plant, driver, periods):
+def _step(plan, plant, driver, k):
+    """Period ``k`` of the closed loop (the simulator's exchange); returns the driver's output."""
     per = driver.period
+    t = k * per
+    out, _ = exchange_period(driver, plant, t, plan.demand.value(t))
+    plant.set_command(out.current_a, out.enable)
+    plant.advance(per)
+    return out
+
+
+def _run(plan, plant, driver, periods):
     for k in range(periods):
-        t = k * per
-        out, _ = exchange_period(driver, plant, t, plan.demand.value(t))
-        plant.set_command(out.current_a, out.enable)
-        plant.advance(per)
+        _step(plan, plant, driver, k)
 
 
 def test_prepare_builds_every_table_the_apex_policy_reads(small_grid, monkeypatch):
@@ -87,12 +98,29 @@ def test_prepare_makes_nothing_with_the_apex_policy_off():
     assert ctl.law.fine._moves is None
 
 
+def _settle(node, timeout=120.0):
+    """Run the node's table poll (its steady timer's callback) until no build is left."""
+    t0 = time.monotonic()
+    while node._table_build is not None:
+        assert time.monotonic() - t0 < timeout, node._tables_status
+        node._poll_tables()
+        time.sleep(0.05)
+
+
 @pytest.mark.ros
-def test_node_builds_the_tables_at_configure_and_refuses_changes_it_cannot_serve(small_grid):
+def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_build(small_grid, tmp_path,
+                                                                                    monkeypatch):
+    """(task h36b) The node's configure builds no table: a background process does (the stage on main's staircase
+    meanwhile), the poll adopts them and releases the stage; a run-time change that needs new tables starts another
+    build instead of being refused; a restart reads the cache; a cleanup ends a build still running."""
+    from collections import OrderedDict
     rclpy = pytest.importorskip("rclpy")
     from rclpy.parameter import Parameter
     from fuel_valve_control.ros.controller_node import ControllerNode
+    from fuel_valve_control.core import pulse_moves as pmod
 
+    monkeypatch.setenv(pmod.CACHE_ENV, str(tmp_path / "cache"))
+    monkeypatch.setattr(pmod, "_SHARED", OrderedDict())
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
     try:
@@ -101,25 +129,241 @@ def test_node_builds_the_tables_at_configure_and_refuses_changes_it_cannot_serve
         assert node.driver is None
         node.trigger_configure()
         fine = node.driver.controller.law.fine
-        assert fine._moves is not None and fine._moves.pending(kicks=fine._apex_kicks()) == []
-        law = node.driver.controller.law
-        # kicks to 16 A: tables for 8 and 16 A the loop would build -> refused, the law stays
+        moves = fine.moves
+        assert fine.tables_deferred and not fine.cfg.apex_policy and moves.builds == 0     # nothing built here
+        assert node._table_build is not None and node._tables_status.startswith(("reading", "building"))
+        _settle(node)
+        assert node._tables_status.startswith("ready") and "built" in node._tables_status, node._tables_status
+        assert fine._tables_gate == "released" and moves.pending(kicks=fine._apex_kicks()) == [] and moves.builds == 0
+        # kicks to 16 A: tables for 8 and 16 A -- accepted, built in the background (the new law on the staircase)
         res = node.set_parameters([Parameter("fine.apex_kick_max_a", value=16.0)])[0]
-        assert not res.successful and "move tables" in res.reason and "configure" in res.reason, res.reason
+        assert res.successful, res.reason
+        assert node._table_build is not None
+        new_fine = node._table_waiters[-1]
+        assert new_fine is not fine and new_fine.tables_deferred and new_fine.cfg.apex_kick_max_a == 16.0
+        _settle(node)
+        assert new_fine._tables_gate == "released" and node._tables_status.startswith("ready"), node._tables_status
         res = node.set_parameters([Parameter("fine.apex_policy", value=False)])[0]
         assert not res.successful and "read-only" in res.reason, res.reason        # not a run-time parameter
-        assert node.driver.ps["fine.apex_kick_max_a"] == 0.0 and node.driver.ps["fine.apex_policy"] is True
-        # a change its tables serve: accepted
-        res = node.set_parameters([Parameter("fine.apex_land_rad", value=3e-4)])[0]
+        res = node.set_parameters([Parameter("fine.apex_land_rad", value=3e-4)])[0]   # its tables serve it
         assert res.successful, res.reason
-        assert node.driver.params_pending or node.driver.controller.law is not law
+        assert node._table_build is None
+        node.destroy_node()
+
+        # a restart in real time: every table in the cache -- read by the build's thread, no worker process
+        monkeypatch.setattr(pmod, "_SHARED", OrderedDict())
+        node = ControllerNode(context=ctx, namespace="/tables_warm_rt", parameter_overrides=[
+            Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True)])
+        node.trigger_configure()
+        build = node._table_build
+        assert build is not None and node.driver.controller.law.fine.tables_deferred
+        _settle(node)
+        assert build.process is None and "loaded from cache" in node._tables_status, node._tables_status
+        assert node.driver.controller.law.fine._tables_gate == "released"
+        node.destroy_node()
+        # ... in lockstep: read at configure itself (no build), the policy from the first plateau as offline
+        monkeypatch.setattr(pmod, "_SHARED", OrderedDict())
+        node = ControllerNode(context=ctx, namespace="/tables_warm", parameter_overrides=[
+            Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True),
+            Parameter("lockstep", value=True)])
+        node.trigger_configure()
+        fine = node.driver.controller.law.fine
+        assert node._table_build is None and "loaded from cache" in node._tables_status, node._tables_status
+        assert fine._tables_gate == "released" and fine.moves.builds == 0
+        # another signature (two retreat periods): a build; cleanup while it runs ends its worker
+        node.trigger_cleanup()
+        res = node.set_parameters([Parameter("fine.apex_retreat_periods", value=2)])[0]
+        assert res.successful, res.reason
+        node.trigger_configure()
+        build = node._table_build
+        assert build is not None and node.driver.controller.law.fine.tables_deferred
+        t0 = time.monotonic()
+        while build.state == "reading":
+            assert time.monotonic() - t0 < 60.0
+            time.sleep(0.02)
+        node.trigger_cleanup()
+        assert node._table_build is None
+        assert build.process is None or build.process.poll() is not None        # ended at once: no orphan
+        build._thread.join(30.0)                                                  # (the reader ends by itself)
+        assert build.state in ("cancelled", "ready"), build.status()
         node.destroy_node()
 
         node = ControllerNode(context=ctx, namespace="/tables_off", parameter_overrides=[
             Parameter("autostart", value=False)])
         node.trigger_configure()
-        assert node.driver.controller.law.fine._moves is None       # off: nothing made at configure
+        assert node.driver.controller.law.fine.moves is None       # off: nothing made at configure
+        assert node._tables_status == "off" and node._table_build is None
         assert not node.set_parameters([Parameter("fine.apex_policy", value=True)])[0].successful
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+# ---------------------------------------------------------------------- task h36b: the disk cache, the background build
+import dataclasses  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from fuel_valve_control.core import pulse_moves as pmod  # noqa: E402
+from fuel_valve_control.core.model import NominalModel  # noqa: E402
+from fuel_valve_control.core.params import CONTROLLER_SPEC  # noqa: E402
+
+#: two keys of a small model (a table each, ~0.1 s): (direction, Δp kPa, kick A, angle rad) at max Δp, angle 0
+MODEL = NominalModel.from_params(CONTROLLER_SPEC.defaults())
+
+
+def _moves(**kw) -> PulseMoves:
+    args = dict(kick_current_a=4.0, peak_current_a=29.6, retreat_full_periods=1, servo_kp=50.0, servo_kd=0.3,
+                servo_ki=600.0, share=False, **SMALL_GRID)
+    args.update(kw)
+    return PulseMoves(kw.pop("model", MODEL) if "model" in kw else MODEL, 1e-3,
+                      **{k: v for k, v in args.items() if k != "model"})
+
+
+def _keys(moves, n=2):
+    return moves._needed(None, (1, -1), None)[:n]
+
+
+def test_cache_round_trip_is_bit_equal(tmp_path):
+    """A table saved and read back (another PulseMoves of the same settings, as the node's loader thread reads what
+    the worker process wrote) equals the one built, bit for bit, and answers the same moves."""
+    built = _moves()
+    keys = _keys(built)
+    assert built.build_and_save(tmp_path, keys) == 2
+    other = _moves()
+    got = other.read_cached(tmp_path, keys)
+    assert sorted(got) == sorted(keys)
+    for key in keys:
+        tab, rise = got[key]
+        ref = built._tables[key]
+        for name in pmod._TABLE_FIELDS:
+            a, b = np.asarray(tab[name]), np.asarray(ref[name])
+            assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b, equal_nan=True), name
+        assert rise == built._rises[key]
+    assert other.adopt(got) == 2 and other.builds == 0
+    d, p, kick, th = keys[0]
+    x, od, aim = np.meshgrid(np.linspace(0, 2e-3, 7), np.geomspace(1e-5, 1e-3, 5), np.linspace(0, 5e-4, 3))
+    np.testing.assert_array_equal(other.move(d, p, x, od, kick_current_a=kick, aim_rad=aim, valve_angle_rad=th),
+                                  built.move(d, p, x, od, kick_current_a=kick, aim_rad=aim, valve_angle_rad=th))
+    assert other.builds == 0 and other.runs == 0                 # read from the adopted table: nothing simulated
+    assert built.build_and_save(tmp_path, keys) == 0              # in the cache: nothing built again
+
+
+def test_signature_follows_the_model_the_settings_the_version_and_the_code(monkeypatch):
+    base = _moves().signature_hash()
+    assert _moves().signature_hash() == base
+    assert _moves(servo_kp=50).signature_hash() == base           # 50 and 50.0 are one setting (as in the share)
+    assert _moves(model=dataclasses.replace(MODEL, coupling_stiffness_nm_per_rad=MODEL.coupling_stiffness_nm_per_rad
+                                            * 1.01)).signature_hash() != base
+    assert _moves(retreat_cap=True).signature_hash() != base
+    assert _moves(servo_kp=51.0).signature_hash() != base
+    monkeypatch.setattr(pmod, "TABLE_VERSION", pmod.TABLE_VERSION + 1)
+    assert _moves().signature_hash() != base
+    monkeypatch.undo()
+    monkeypatch.setattr(pmod, "_SOURCE_DIGEST", "another build of the code")
+    assert _moves().signature_hash() != base
+
+
+def test_corrupt_partial_and_foreign_files_are_rebuilt_not_raised(tmp_path):
+    moves = _moves()
+    keys = _keys(moves)
+    moves.build_and_save(tmp_path, keys)
+    good = moves.table_file(tmp_path, keys[0]).read_bytes()
+    # a partial write (a crash mid-file without the atomic replace), garbage, another key's file under this name
+    moves.table_file(tmp_path, keys[0]).write_bytes(good[: len(good) // 2])
+    moves.table_file(tmp_path, keys[1]).write_bytes(b"not a table")
+    fresh = _moves()
+    assert fresh.read_cached(tmp_path, keys) == {}
+    foreign = _moves(retreat_cap=True)                            # another signature's file copied in
+    foreign.build_and_save(tmp_path, keys[:1])
+    moves.table_file(tmp_path, keys[1]).write_bytes(foreign.table_file(tmp_path, keys[0]).read_bytes())
+    assert fresh.read_cached(tmp_path, keys) == {}
+    assert fresh.build_and_save(tmp_path, keys) == 2              # rebuilt over them
+    assert sorted(_moves().read_cached(tmp_path, keys)) == sorted(keys)
+    assert not [p for p in moves.cache_dir(tmp_path).iterdir() if p.name.startswith(".tmp_")]   # no temporaries left
+
+
+def _wait(build, states, timeout=120.0):
+    t0 = time.monotonic()
+    while build.state not in states:
+        assert time.monotonic() - t0 < timeout, build.status()
+        time.sleep(0.05)
+
+
+def test_background_build_writes_the_cache_and_a_second_one_reads_it(tmp_path):
+    """The worker process builds the tables into the cache; the next build (a restart) only reads them."""
+    moves = _moves()
+    keys = _keys(moves, 3)
+    build = pmod.TableBuild(moves, keys, tmp_path, nice=0)
+    _wait(build, ("ready", "failed"))
+    assert build.state == "ready", build.status()
+    assert build.built == 3 and build.from_cache == 0 and build.process.returncode == 0
+    assert moves.builds == 0 and moves.adopt(build.tables) == 3 and moves.builds == 0   # built elsewhere
+    again = pmod.TableBuild(_moves(), keys, tmp_path)
+    _wait(again, ("ready", "failed"))
+    assert again.state == "ready" and again.from_cache == 3 and again.process is None    # no worker started
+    assert "3 of 3" in again.status() and "loaded from cache" in again.status()
+
+
+def test_a_failed_worker_is_a_state_not_an_exception(tmp_path, monkeypatch):
+    monkeypatch.setattr(pmod, "WORKER_CODE", "import sys; sys.stderr.write('boom\\n'); sys.exit(3)")
+    build = pmod.TableBuild(_moves(), _keys(_moves()), tmp_path)
+    _wait(build, ("ready", "failed"))
+    assert build.state == "failed" and "code 3" in build.reason and "boom" in build.reason, build.reason
+    assert build.tables is None
+
+
+def test_cancel_ends_the_worker_process(tmp_path):
+    big = _moves(dp_grid=pmod.DP_GRID, angle_grid=pmod.ANGLE_GRID)
+    build = pmod.TableBuild(big, big._needed(None, (1, -1), None), tmp_path)
+    _wait(build, ("building", "failed"))
+    proc = build.process
+    build.cancel()
+    assert build.state == "cancelled" and proc.poll() is not None     # ended, not orphaned
+
+
+def test_the_stage_runs_main_staircase_until_the_tables_are_released(small_grid, monkeypatch):
+    """Deferred (the node's path): the stage with ``fine.apex_policy`` runs exactly as with it off -- the same
+    commands period for period -- and reads no table; released mid-plateau, the policy takes over at the next
+    plateau (not mid-engagement), from the adopted tables (nothing built in an update)."""
+    from collections import OrderedDict
+    monkeypatch.setattr(pmod, "_SHARED", OrderedDict())  # no table another test built in this process
+    sets = {"fine.apex_policy": True}
+    plan, plant, driver = R.held_case(R.sample_case(SEED, "nominal"), controller_sets=sets)
+    ref_plan, ref_plant, ref_driver = R.held_case(R.sample_case(SEED, "nominal"))
+    ctl = driver.controller
+    fine = ctl.law.fine
+    deferred = ctl.defer_tables()
+    assert deferred is not None and deferred[0] is fine
+    fine_moves, keys = deferred[1], deferred[2]
+    assert keys and fine.tables_deferred and not fine.cfg.apex_policy
+    assert fine.defer_tables() == keys and fine.tables_deferred          # asked again: the same, still closed
+    choices = []
+    choose = fine._choose_apex
+    monkeypatch.setattr(fine, "_choose_apex", lambda *a, **kw: choices.append(a) or choose(*a, **kw))
+    per = driver.period
+    # deferred through the periods where the policy would have chosen (period 357): main's commands exactly
+    for k in range(PERIODS):
+        out, ref = _step(plan, plant, driver, k), _step(ref_plan, ref_plant, ref_driver, k)
+        assert out.current_a == ref.current_a, k
+    assert not choices and fine_moves.builds == 0 and fine_moves.runs == 0
+    assert not fine.release_tables()                       # nothing adopted yet: stays closed
+    # "the background build": another model of the same signature builds them, this one adopts them
+    other = PulseMoves(*fine_moves.spec()[:2], share=False, **fine_moves.spec()[2])
+    other.prepare(kicks=fine._apex_kicks())
+    fine_moves.adopt({k: (other._tables[k], other._rises[k]) for k in keys})
+    assert fine.release_tables() and fine.tables_deferred
+    builds, runs = fine_moves.builds, fine_moves.runs
+    plateau = plan.demand.value(PERIODS * per)
+    k, switched = PERIODS, None
+    while not choices and k < PERIODS + 20000:
+        t = k * per
+        if switched is None and abs(plan.demand.value(t) - plateau) > 1e-9:
+            switched = k
+        _step(plan, plant, driver, k)
+        if switched is None:
+            assert fine.tables_deferred                    # not taken mid-plateau
+        k += 1
+    assert choices and switched is not None and not fine.tables_deferred and fine.cfg.apex_policy
+    assert (fine_moves.builds, fine_moves.runs) == (builds, runs)

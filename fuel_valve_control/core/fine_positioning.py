@@ -535,6 +535,12 @@ class FinePositioner:
     """The fine-positioning stage: a state machine run once per loop period while the main law
     holds.  :meth:`update` returns a motor torque (N*m) while it is in charge, else ``None``."""
 
+    #: (task h36b) ``fine.apex_policy``'s tables built elsewhere (:meth:`defer_tables`): None (not deferred: offline,
+    #: tables built lazily), "closed" (the stage runs with ``apex_policy`` off: main's staircase), "released" (the
+    #: tables are in: the policy's configuration comes back at the next plateau the stage starts idle)
+    _tables_gate: str | None = None
+    _full_cfg: FineConfig | None = None
+
     def __init__(self, model: NominalModel, period_s: float, cfg: FineConfig, learner: FineLearner):
         self.m, self.period, self.cfg, self.learn = model, period_s, cfg, learner
         self.m0 = model                    # the told model (self.m: the one the stage plans from)
@@ -688,6 +694,10 @@ class FinePositioner:
         """``target`` valve angle, measured ``th1`` (motor resolver / N) and ``thl`` (valve
         resolver), ``holding``: the main law's reference has arrived at ``target``;
         ``torque_now``: the torque applied last period (N*m, motor)."""
+        if self._tables_gate == "released" and self.phase == IDLE and (
+                self._plateau is None or abs(target - self._plateau) > self.cfg.tolerance_rad):
+            # (task h36b) the deferred move tables are in: the policy from this plateau on (never mid-engagement)
+            self.cfg, self._tables_gate = self._full_cfg, None
         cfg = self.cfg
         w1 = 0.0 if self._last_th1 is None else (th1 - self._last_th1) / self.period
         at_rest = self._last_valve is not None and abs(thl - self._last_valve) < 0.5 * cfg.tolerance_rad
@@ -769,13 +779,13 @@ class FinePositioner:
         ``fine.apex_policy``, the doublet's move model (:func:`_pulse_moves`) and every keyed table its
         :meth:`_choose_apex` can read -- every Δp and angle point of the grid, both directions, every kick of
         :meth:`_apex_kicks` (the default 114 tables, ~14 s of CPU; kicks to 16 A three times that).  A lazy build
-        inside a 1 kHz period costs ~0.12 s of CPU per table: a real-time caller (the ROS controller node, at
-        configure) calls this outside its control callback.  The move model is made from the model the stage plans
+        inside a 1 kHz period costs ~0.12 s of CPU per table: a real-time caller calls this outside its control
+        callback (the ROS controller node builds them in a background process instead: :meth:`defer_tables`).  The move model is made from the model the stage plans
         from now and kept (:class:`PositionController` calls ``prepare(build=False)`` as it builds the law: the told
         model, offline and in the node alike).  ``build`` False: make the model and count, build no table.
         Returns (tables that were still to build, CPU seconds spent building them);
         (0, 0.0) without ``fine.apex_policy`` (nothing is made: no cost for the default)."""
-        if not self.cfg.apex_policy:
+        if not (self._full_cfg if self._tables_gate else self.cfg).apex_policy:
             return 0, 0.0
         if self._moves is None:
             self._moves = _pulse_moves(self)
@@ -784,6 +794,45 @@ class FinePositioner:
         if not build or not pending:
             return pending, 0.0
         return pending, self._moves.prepare(kicks=kicks)
+
+    def defer_tables(self) -> list:
+        """(task h36b) For a real-time caller that builds the tables elsewhere (a background process,
+        :class:`~fuel_valve_control.core.pulse_moves.TableBuild`): the keys :meth:`prepare` would build ([]: none,
+        or ``fine.apex_policy`` off -- nothing changes).  With keys pending the stage runs with ``fine.apex_policy``
+        off -- main's staircase, exactly -- until :meth:`release_tables`; the move model (:attr:`moves`) is made
+        here.  No table is ever built inside :meth:`update` meanwhile."""
+        if not (self._full_cfg if self._tables_gate else self.cfg).apex_policy:
+            return []
+        self.prepare(build=False)
+        keys = self._moves.pending(kicks=self._apex_kicks())
+        if keys and self._tables_gate is None:
+            from dataclasses import replace    # noqa: PLC0415
+            self._full_cfg, self.cfg = self.cfg, replace(self.cfg, apex_policy=False)
+            self._tables_gate = "closed"
+        elif keys:
+            self._tables_gate = "closed"
+        return keys
+
+    def release_tables(self) -> bool:
+        """(task h36b) The deferred tables are in the move model (:meth:`PulseMoves.adopt`): the policy takes over
+        at the next plateau the stage starts idle (:meth:`update`).  False (still closed) while any table it can
+        read is missing."""
+        if self._tables_gate is None:
+            return True
+        if self._moves.pending(kicks=self._apex_kicks()):
+            return False
+        self._tables_gate = "released"
+        return True
+
+    @property
+    def tables_deferred(self) -> bool:
+        """(task h36b) The stage runs main's staircase while its ``fine.apex_policy`` tables are being made."""
+        return self._tables_gate is not None
+
+    @property
+    def moves(self):
+        """``fine.apex_policy``'s move model (:class:`~fuel_valve_control.core.pulse_moves.PulseMoves`) or None."""
+        return self._moves
 
     def forget_scale(self) -> None:
         """Back to the told model: no friction scale read (``fine.learned_scale_*``)."""

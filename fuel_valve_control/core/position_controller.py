@@ -420,12 +420,24 @@ class PositionController:
         """Build ahead what ``law`` (None: the law in force; else one from :meth:`build_law`) would otherwise build
         lazily inside :meth:`update` -- today the fine stage's move tables (``fine.apex_policy``,
         :meth:`FinePositioner.prepare`).  Returns (tables that were still to build, CPU seconds spent); ``build``
-        False: count only, build nothing.  A real-time caller (the ROS controller node) calls it outside its
+        False: count only, build nothing.  A real-time caller calls it outside its
         control callback; the offline simulator does not (a lazy build there only costs run time, and the tables
         are shared in the process: a campaign's runs build them once)."""
         law = self.law if law is None else law
         fine = getattr(law, "fine", None)
         return fine.prepare(build) if isinstance(fine, FinePositioner) else (0, 0.0)
+
+    def defer_tables(self, law: ControlLaw | None = None) -> tuple | None:
+        """(task h36b) For a real-time caller that builds ``law``'s move tables off its control thread (None: the law
+        in force): ``(fine stage, its move model, the keys to build)`` when any is missing -- the stage then runs
+        main's staircase until the caller has adopted them into the model and called ``fine.release_tables()``
+        (:meth:`FinePositioner.defer_tables`) -- else None (nothing to build, or no ``fine.apex_policy``)."""
+        law = self.law if law is None else law
+        fine = getattr(law, "fine", None)
+        if not isinstance(fine, FinePositioner):
+            return None
+        keys = fine.defer_tables()
+        return (fine, fine.moves, keys) if keys else None
 
     def reconfigure(self, ps: ParamSet, meas: Measurement | None, pressure_kpa: float,
                     prepared: tuple[ControlLaw, frozenset[str]] | None) -> bool:

@@ -64,15 +64,31 @@ controller node) must call ``prepare()`` at configure / activate, outside its co
 6 tables).  ``exact=True`` keeps h33m's per-key tables (Δp to 1e-3 kPa, angle to 0.01 rad): the reference the keyed
 grid's error is measured against (``benchmarks/pulse_moves_check.py --grid``).
 
+The disk cache and the background build (task h36b)
+----------------------------------------------------
+C1's kicks to 16 A read 342 tables (~41 s of CPU): too long for a node's configure.  Each keyed table can be saved to
+and read from a cache directory (:meth:`PulseMoves.save_table`, :meth:`PulseMoves.read_cached`: one ``.npz`` per key,
+~130 kB, under a directory named by :meth:`PulseMoves.signature_hash` -- the model, every setting, :data:`TABLE_VERSION`
+and the source of :data:`SOURCE_FILES`; written atomically; a partial, corrupt or foreign file is built again, never
+raised), and :class:`TableBuild` makes a set of keys ready off the caller's thread: it reads what the cache has and
+builds the rest in a separate low-priority process (``nice 19``) that writes the cache.  Read back, a table equals the
+one built in the process bit for bit.  The ROS controller node uses it (its fine stage runs main's staircase until the
+tables are in, :meth:`FinePositioner.defer_tables`); offline nothing touches the disk (lazy builds, as before).
+
 Validation (docs §80): bare nominal plant, 300 random points, 99.3 % within max(10 %, 1e-4 rad), p95 1.6e-4,
 max 3.9e-4 rad, rise to 1e-8 rad; the stage's own 2310 doublets on the nominal box (40 runs): rise -2..-3 %,
 no break misclassified beyond the rise's error, moves within +0.02 (median) / 0.07 (p90 |err|) e-3 rad.
 """
 from __future__ import annotations
 
+import hashlib
 import math
+import os
+import tempfile
+import threading
 import time
 from collections import OrderedDict
+from pathlib import Path
 
 import numpy as np
 
@@ -105,6 +121,21 @@ BLEND_CACHE_SIZE = 16
 #: one signature (``share``)
 SHARED_SIGNATURES = 4
 _SHARED: OrderedDict = OrderedDict()
+#: the keyed tables' disk cache (:meth:`PulseMoves.save_table` / :meth:`PulseMoves.read_cached`, task h36b): the version
+#: of what a table holds and how it is built.  The cache signature also hashes the source of :data:`SOURCE_FILES` (any
+#: edit there rebuilds the cache by itself); **bump this by hand** when the tables change for a reason those files
+#: do not show: a table-building helper moved to another module, a numpy whose arithmetic changed the tables, a new
+#: field
+TABLE_VERSION = 1
+#: the modules (relative to this one) whose source the cache signature hashes: the table physics (this module's
+#: ``_table`` / ``_simulate``, the model's friction and load)
+SOURCE_FILES = ("pulse_moves.py", "model.py", "../common/friction.py")
+#: environment variable naming the cache directory ("" / "off": no disk cache); default
+#: ``$ROS_HOME/fuel_valve/move_tables`` (``ROS_HOME`` default ``~/.ros``)
+CACHE_ENV = "FUEL_VALVE_MOVE_TABLES"
+#: a table's fields as saved (``_flat``, derived on first read, is not)
+_TABLE_FIELDS = ("excess", "overdrive", "aim", "moves", "rise", "second_break_aim", "last_ok", "servo_break_aim",
+                 "build_s")
 #: tables kept per PulseMoves in the ``exact`` mode (the keyed grid keeps all of its finite set; each (direction, Δp,
 #: kick, valve angle) key one table of ~20k floats)
 CACHE_SIZE = 32
@@ -150,6 +181,9 @@ class PulseMoves:
                  exact: bool = False, coarse_aims: bool = True, share: bool = True, retreat_cap: bool = False,
                  observe_hold_integral: bool = False, observe_hold_moved: bool = False,
                  retreat_cap_full: bool = False):
+        # what a worker process needs to make the same model (:meth:`spec`): the constructor's arguments
+        self._spec = (model, float(period_s), {k: v for k, v in locals().items()
+                                               if k not in ("self", "model", "period_s", "share")})
         self.m = model
         self.period = float(period_s)
         self.kick = float(kick_current_a)
@@ -181,13 +215,16 @@ class PulseMoves:
         self.kicks = tuple(dict.fromkeys(round(float(k), 6) for k in (self.kick, *extra_kicks)))
         self._tables: OrderedDict = OrderedDict()
         self._rises: dict = {}
+        # the keyed tables depend on nothing but these (and the key): the process-wide share and the disk cache's
+        # signature (:meth:`signature_hash`)
+        sig = (model, self.period, self.cap, self.retreat_full, self.kp, self.kd, self.ki, self.vlim, self.wc,
+               self.observe_periods, self.substeps, self.unmoved_fraction, self.tolerance, self.excess_fraction,
+               self.n_excess, self.n_overdrive, self.aim_fraction, self.n_aim, self.park_friction, self.coarse_aims,
+               self.retreat_cap, self.hold_integral, self.hold_moved, self.cap_full)
+        self._sig, self._sig_hash = sig, None
         if share and not self.exact:
-            # the keyed tables depend on nothing but these: every PulseMoves of one signature in the process shares
-            # them (a campaign's runs with one told model build them once; read-only once built)
-            sig = (model, self.period, self.cap, self.retreat_full, self.kp, self.kd, self.ki, self.vlim, self.wc,
-                   self.observe_periods, self.substeps, self.unmoved_fraction, self.tolerance, self.excess_fraction,
-                   self.n_excess, self.n_overdrive, self.aim_fraction, self.n_aim, self.park_friction, self.coarse_aims,
-                   self.retreat_cap, self.hold_integral, self.hold_moved, self.cap_full)
+            # every PulseMoves of one signature in the process shares them (a campaign's runs with one told model
+            # build them once; read-only once built)
             store = _SHARED.get(sig)
             if store is None:
                 store = _SHARED[sig] = (self._tables, self._rises)
@@ -288,7 +325,8 @@ class PulseMoves:
         / -1.  ``kicks`` (A): None, ``kicks`` (``kick_current_a`` and ``extra_kicks``).  Every angle point.
         Keyed mode only.  **The ROS controller node must call it at configure / activate, outside its 1 kHz
         control callback** (one table costs ~0.12 s of CPU: built lazily inside the callback it would stall the
-        loop ~150 periods); offline a lazy build is harmless (docs §80.9).  ``max_s`` (s of CPU, optional): stop after
+        loop ~150 periods; it now builds them in a background process instead, :class:`TableBuild`, task h36b);
+        offline a lazy build is harmless (docs §80.9).  ``max_s`` (s of CPU, optional): stop after
         the table that passes this budget (a caller spreading the work over idle time calls again until ``prepared``
         / :meth:`pending` says nothing is left)."""
         if self.exact:
@@ -301,6 +339,109 @@ class PulseMoves:
             if max_s is not None and time.process_time() - t0 >= max_s:
                 break
         return time.process_time() - t0
+
+    # ------------------------------------------------------------------ disk cache (task h36b)
+    def spec(self) -> tuple:
+        """(model, period s, keyword arguments): what makes an equal PulseMoves in another process (picklable)."""
+        return self._spec
+
+    def signature_hash(self) -> str:
+        """The disk cache's signature (hex): a hash of every setting a keyed table depends on (the process-wide
+        share's signature, the model's parameters), :data:`TABLE_VERSION` and the source of :data:`SOURCE_FILES`.
+        Two PulseMoves with equal hashes build equal tables for equal keys; any model, setting, version or code
+        change gives another hash (and another cache directory: the old files are never read)."""
+        if self._sig_hash is None:
+            h = hashlib.sha256(f"fuel_valve move tables v{TABLE_VERSION}\n{_canon(self._sig)}\n".encode())
+            h.update(_source_digest().encode())
+            self._sig_hash = h.hexdigest()[:32]
+        return self._sig_hash
+
+    def cache_dir(self, root) -> Path:
+        """This signature's directory under the cache ``root``: one ``.npz`` per (direction, Δp, kick, angle) key."""
+        return Path(root) / self.signature_hash()
+
+    def table_file(self, root, key) -> Path:
+        """The file of one key's table under ``root`` (named by a hash of the key; the key is stored inside too)."""
+        return self.cache_dir(root) / f"t_{hashlib.sha256(_canon(tuple(key)).encode()).hexdigest()[:24]}.npz"
+
+    def save_table(self, root, key) -> Path:
+        """Write the built table of ``key`` (direction, Δp kPa, kick A, angle rad) and its rise to the cache
+        ``root`` atomically (a temporary file in the same directory, then ``os.replace``: a reader sees the whole
+        file or none).  Returns the path."""
+        key = tuple(key)
+        tab = self._tables[key]
+        path = self.table_file(root, key)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays = {name: np.asarray(tab[name]) for name in _TABLE_FIELDS}
+        arrays["rise_at"] = np.asarray(self._rises[key])
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp_", suffix=".npz")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, signature=np.asarray(self.signature_hash()), key=np.asarray(key, dtype=float), **arrays)
+            os.chmod(tmp, 0o644)                # (mkstemp's 0600: another user's node may read the cache too)
+            os.replace(tmp, path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
+        return path
+
+    def read_cached(self, root, keys) -> dict:
+        """{key: (table, rise)} of the ``keys`` whose files in the cache ``root`` are whole and this signature's;
+        a missing, partial, corrupt or foreign file (another signature or key, wrong shapes) is skipped (the key
+        is to build), never raised.  Reads only: safe from any thread (:meth:`adopt` takes them in)."""
+        out = {}
+        for key in keys:
+            key = tuple(key)
+            path = self.table_file(root, key)
+            if not path.is_file():
+                continue
+            try:
+                with np.load(path, allow_pickle=False) as z:
+                    if str(z["signature"]) != self.signature_hash() or z["key"].shape != (4,) \
+                            or not np.array_equal(z["key"], np.asarray(key, dtype=float)):
+                        continue
+                    tab = {name: z[name] for name in _TABLE_FIELDS}
+                    rise = float(z["rise_at"])
+            except Exception:          # noqa: BLE001 - a bad file is a table to build again, never a crash
+                continue
+            nx, no, na = self.n_excess, self.n_overdrive, self.n_aim
+            if tab["moves"].shape != (nx, no, na) or tab["second_break_aim"].shape != (nx, no) \
+                    or tab["excess"].shape != (nx,) or tab["overdrive"].shape != (no,) or tab["aim"].shape != (na,):
+                continue
+            for name in ("rise", "build_s"):
+                tab[name] = float(tab[name])
+            out[key] = (tab, rise)
+        return out
+
+    def adopt(self, tables: dict) -> int:
+        """Take in tables read by :meth:`read_cached` (keys not built yet only; a built table is never replaced);
+        returns how many were new.  The keyed store is shared with every PulseMoves of this signature."""
+        new = 0
+        for key, (tab, rise) in tables.items():
+            if key not in self._tables:
+                self._tables[key] = tab
+                new += 1
+            self._rises.setdefault(key, rise)
+        return new
+
+    def build_and_save(self, root, keys, stop=None) -> int:
+        """Build each of ``keys`` not in the cache ``root`` yet and save it there, one file per table as it is
+        done (a build cut short keeps what it finished); ``stop()`` (optional) is asked between tables.  Returns
+        the tables built."""
+        built = 0
+        for key in keys:
+            key = tuple(key)
+            if stop is not None and stop():
+                break
+            if self.read_cached(root, [key]):
+                continue                       # another process built it meanwhile
+            self._table(*key)
+            self.save_table(root, key)
+            built += 1
+        return built
 
     # ------------------------------------------------------------------ internals
     def _key_parts(self, direction, pressure_kpa, kick_current_a, valve_angle_rad):
@@ -675,3 +816,240 @@ class PulseMoves:
         w_new = w + (dt / inertia) * (t_ext - sgn * t_coulomb)
         w_new[(stuck & (np.abs(t_ext) <= t_static)) | (w_new * w < 0.0)] = 0.0
         return w_new
+
+
+# ---------------------------------------------------------------------- the disk cache and the background build
+def default_cache_dir() -> Path | None:
+    """The move tables' cache root: ``$FUEL_VALVE_MOVE_TABLES`` if set ("", "off", "none": no disk cache, None), else
+    ``$ROS_HOME/fuel_valve/move_tables`` (``ROS_HOME`` default ``~/.ros``); ``~`` and ``$VARS`` expanded."""
+    env = os.environ.get(CACHE_ENV)
+    if env is not None:
+        if env.strip().lower() in ("", "off", "none"):
+            return None
+        return Path(os.path.expanduser(os.path.expandvars(env))).absolute()
+    return Path(os.path.expanduser(os.environ.get("ROS_HOME") or "~/.ros")).absolute() / "fuel_valve" / "move_tables"
+
+
+def _canon(obj) -> str:
+    """A stable text of a signature: numbers as ``float.hex`` (so 4 and 4.0 agree, as they do in the process-wide
+    share), dataclasses by field, tuples element-wise."""
+    if obj is None or isinstance(obj, (bool, str)):
+        return repr(obj)
+    if isinstance(obj, (int, float, np.integer, np.floating)):
+        return float(obj).hex()
+    if isinstance(obj, (tuple, list)):
+        return "(" + ",".join(_canon(v) for v in obj) + ")"
+    fields = getattr(obj, "__dataclass_fields__", None)
+    if fields is not None:
+        return type(obj).__name__ + "{" + ",".join(f"{n}={_canon(getattr(obj, n))}" for n in fields) + "}"
+    raise TypeError(f"no stable signature text for {type(obj).__name__}")
+
+
+_SOURCE_DIGEST = None
+
+
+def _source_digest() -> str:
+    """A hash of :data:`SOURCE_FILES`' bytes ("unread" for a file that cannot be read: then only
+    :data:`TABLE_VERSION` guards the cache against a code change)."""
+    global _SOURCE_DIGEST
+    if _SOURCE_DIGEST is None:
+        h = hashlib.sha256()
+        here = Path(__file__).resolve().parent
+        for name in SOURCE_FILES:
+            try:
+                h.update((here / name).read_bytes())
+            except OSError:
+                h.update(b"unread")
+        _SOURCE_DIGEST = h.hexdigest()
+    return _SOURCE_DIGEST
+
+
+def _worker(spec, keys, root, nice: int, parent: int) -> None:
+    """The background build's process body: builds ``keys`` of the PulseMoves ``spec`` into the cache ``root`` at
+    niceness ``nice``, one file per table; stops between tables once the process ``parent`` is gone (no orphan
+    building on).  One builder per signature at a time (a lock file: two valves of one model build it once)."""
+    if nice:
+        try:
+            os.nice(nice)
+        except OSError:
+            pass
+    model, period, kw = spec
+    moves = PulseMoves(model, period, share=False, **kw)
+    try:
+        import fcntl
+        moves.cache_dir(root).mkdir(parents=True, exist_ok=True)
+        lock = open(moves.cache_dir(root) / ".lock", "a")
+        fcntl.flock(lock, fcntl.LOCK_EX)
+    except (ImportError, OSError):
+        lock = None
+    try:
+        moves.build_and_save(root, keys, stop=lambda: os.getppid() != parent)
+    finally:
+        if lock is not None:
+            lock.close()
+
+
+def _worker_main() -> None:
+    """Entry of the worker process (:class:`TableBuild`): its arguments pickled on stdin."""
+    import pickle
+    import signal
+    import sys
+    signal.signal(signal.SIGINT, signal.SIG_IGN)     # the parent ends it (its own session: a launch's Ctrl-C stays out)
+    _worker(*pickle.load(sys.stdin.buffer))
+
+
+#: the worker process's program (``python -c``; tests replace it)
+WORKER_CODE = "from fuel_valve_control.core.pulse_moves import _worker_main; _worker_main()"
+
+
+class TableBuild:
+    """The keyed tables ``keys`` of ``moves`` made ready off the control thread (task h36b): a thread reads the
+    cache ``root`` (None: no disk cache -- a temporary directory carries the worker's tables and is removed), and
+    starts, for the keys it lacks, a separate low-priority process (spawn context, :func:`_worker`) that builds them
+    into it; then reads them.  :attr:`state`: "reading", "building", "ready", "failed", "cancelled"; :attr:`tables`
+    ({key: (table, rise)}, for :meth:`PulseMoves.adopt`) once ready; :meth:`status` a line for diagnostics.  The
+    caller adopts the tables on its own thread.  :meth:`cancel` ends the worker (terminate, then kill) and the
+    thread.  ``start=False``: call :meth:`start` later (tests)."""
+
+    def __init__(self, moves: PulseMoves, keys, root=None, nice: int = 19, start: bool = True):
+        self.moves, self.keys = moves, [tuple(k) for k in keys]
+        self.root = None if root is None else Path(root)
+        self.nice = nice
+        self.state, self.reason = "reading", ""
+        self.tables: dict | None = None
+        self.from_cache = 0               # tables found in the cache
+        self.built = 0                    # tables the worker built (found on disk after it)
+        self.build_wall_s = None          # the worker's wall time, s
+        self.process = None
+        self._cancel = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="move-tables", daemon=True)
+        if start:
+            self.start()
+
+    def start(self) -> None:
+        self._thread.start()
+
+    @property
+    def total(self) -> int:
+        return len(self.keys)
+
+    def done(self) -> bool:
+        return self.state in ("ready", "failed", "cancelled")
+
+    def progress(self) -> int:
+        """Tables ready so far (in the cache or built; a file count while the worker runs)."""
+        if self.state == "building" and self._dir is not None:
+            return self.from_cache + sum(self.moves.table_file(self._dir, k).is_file() for k in self._missing)
+        return self.from_cache + self.built
+
+    def status(self) -> str:
+        where = f" ({self.root})" if self.root is not None else " (no disk cache)"
+        if self.state == "ready":
+            how = f"{self.from_cache} loaded from cache" + (f", {self.built} built in {self.build_wall_s:.0f} s"
+                                                             if self.built else "")
+            return f"ready: {self.total} of {self.total} ({how}){where}"
+        if self.state == "building":
+            pid = self.process.pid if self.process is not None else "?"
+            return f"building: {self.progress()} of {self.total} ready (worker pid {pid}, nice {self.nice}){where}"
+        if self.state == "reading":
+            return f"reading the cache{where}"
+        return f"{self.state}: {self.reason}"
+
+    def cancel(self, timeout: float = 5.0) -> None:
+        """End the worker (terminated now) and the thread (waited for up to ``timeout`` s; it ends the worker
+        itself if it starts one after this); the cache keeps every table finished so far."""
+        self._cancel.set()
+        self._stop_process()
+        if timeout > 0.0 and self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout)
+        self._stop_process()
+
+    def _stop_process(self) -> None:
+        import subprocess
+        proc = self.process
+        if proc is not None and proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(2.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(2.0)
+
+    def _stderr_tail(self) -> str:
+        try:
+            self._err.seek(0)
+            lines = self._err.read().decode(errors="replace").strip().splitlines()
+            return f" ({lines[-1]})" if lines else ""
+        except (OSError, AttributeError):
+            return ""
+
+    _dir = None
+    _missing = ()
+
+    def _run(self) -> None:
+        tmp = None
+        try:
+            found = {} if self.root is None else self.moves.read_cached(self.root, self.keys)
+            self.from_cache = len(found)
+            missing = [k for k in self.keys if k not in found]
+            if missing and not self._cancel.is_set():
+                self._dir = self.root
+                if self._dir is not None:
+                    try:
+                        self.moves.cache_dir(self._dir).mkdir(parents=True, exist_ok=True)
+                    except OSError:
+                        self._dir = None             # an unwritable cache: the worker's tables go through a tmp dir
+                if self._dir is None:
+                    self._dir = tmp = Path(tempfile.mkdtemp(prefix="fuel_valve_tables_"))
+                self._missing = missing
+                # a fresh interpreter (fork + exec at once: never a fork of a process with rclpy / DDS threads that
+                # runs on; multiprocessing's spawn would do the same but re-runs the parent's __main__ script), in
+                # its own session (a launch's Ctrl-C reaches the parent, which ends it), at low priority (nice)
+                import pickle
+                import subprocess
+                import sys
+                env = dict(os.environ)
+                pkg_root = str(Path(__file__).resolve().parents[2])
+                env["PYTHONPATH"] = os.pathsep.join(p for p in (pkg_root, env.get("PYTHONPATH")) if p)
+                self._err = tempfile.TemporaryFile()
+                t0 = time.monotonic()
+                self.process = subprocess.Popen(
+                    [sys.executable, "-c", WORKER_CODE],
+                    stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._err, env=env, close_fds=True,
+                    start_new_session=True)
+                self.state = "building"
+                try:
+                    self.process.stdin.write(pickle.dumps((self.moves.spec(), missing, str(self._dir), self.nice,
+                                                           os.getpid())))
+                    self.process.stdin.close()
+                except OSError:
+                    pass                                  # it died at once: its exit code says why
+                while self.process.poll() is None:
+                    if self._cancel.wait(0.2):
+                        self._stop_process()
+                        break
+                self.build_wall_s = time.monotonic() - t0
+                if self._cancel.is_set():
+                    self.state, self.reason = "cancelled", "cancelled"
+                    return
+                got = self.moves.read_cached(self._dir, missing)
+                self.built = len(got)
+                found.update(got)
+                if self.process.returncode != 0 or len(got) < len(missing):
+                    self.state = "failed"
+                    self.reason = (f"the build worker exited with code {self.process.returncode}, "
+                                   f"{len(missing) - len(got)} of {self.total} tables missing{self._stderr_tail()}")
+                    return
+            if self._cancel.is_set():
+                self.state, self.reason = "cancelled", "cancelled"
+                return
+            self.tables = found
+            self.state = "ready"
+        except Exception as exc:               # noqa: BLE001 - a failed build is a state, reported by the caller
+            self.state, self.reason = "failed", f"{type(exc).__name__}: {exc}"
+        finally:
+            if getattr(self, "_err", None) is not None:
+                self._err.close()
+            if tmp is not None:
+                import shutil
+                shutil.rmtree(tmp, ignore_errors=True)

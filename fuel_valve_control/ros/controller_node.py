@@ -63,6 +63,7 @@ from ..common.paramspec import ConfigError
 from ..core.params import CONTROLLER_NODE_SPEC, CONTROLLER_SPEC, load_controller_params
 from ..core.driver import Health, ValveDriver
 from ..core.period_inputs import PeriodInputs
+from ..core.pulse_moves import TableBuild, default_cache_dir
 from ..core.health import NE107_DIAGNOSTIC_LEVEL, FUNCTION_CHECK, load_state, save_state, state_owner
 
 LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR"}
@@ -179,7 +180,13 @@ class ControllerNode(LifecycleNode):
         self._reset_loop_state()
         self._bad_messages = 0
         self._prepared = None          # (changes, ParamChange) validated in on-set, queued in post-set
-        self._prepared_tables = 0      # fine.apex_policy: move tables the last configure built ahead
+        #: fine.apex_policy's move tables (task h36b): the background build in progress (TableBuild or None), the
+        #: fine stages waiting for it, and the line /diagnostics shows (``move_tables``)
+        self._table_build = None
+        self._table_waiters = []
+        self._table_timer = None
+        self._tables_status = "off"
+        self._tables_failed = False
         self._last_enable = None
         # level of the last status logged; None so that the first one is always logged (with a
         # recorder in the run /diagnostics waits for its match, and a loop already running OK by
@@ -314,32 +321,113 @@ class ControllerNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def _prepare_law(self, driver: ValveDriver) -> None:
-        """Build ahead, here at configure (outside the control callback), what the law would otherwise build
-        lazily inside a 1 kHz period: with ``fine.apex_policy`` the doublet's move tables
-        (:meth:`PositionController.prepare`; ~0.12 s of CPU each, the default 114 ~14 s: built in the loop, the
-        first doublet in each Δp x angle cell would stall it ~120 periods).  Off (the default): nothing is built,
-        nothing logged.  Logs the count and the time it took."""
-        t0 = time.monotonic()
-        tables, cpu = driver.controller.prepare()
-        self._prepared_tables = tables
-        if tables:
-            wall = time.monotonic() - t0
-            self.get_logger().info(f"fine.apex_policy: {tables} move tables built ahead in {wall:.1f} s "
-                                   f"({cpu:.1f} s CPU)")
-
-    def _refuse_unprepared(self, change) -> None:
-        """Refuse (``ValueError``: the reason ``ros2 param set`` prints) a run-time change whose law would build
-        move tables inside the control callback: with ``fine.apex_policy`` on, a change of the doublet
-        (``fine.apex_kick_max_a``, ``fine.apex_retreat_periods``, the kick, the cap ...) that needs tables not built
-        at configure.  (``fine.apex_policy`` itself is not a run-time parameter -- read-only on the node: set it in
-        the parameter file or at start-up -- so it is never turned on under a running loop.)"""
-        if change.law is None:
+        """Make ready, here at configure and never inside the control callback, what the law would otherwise build
+        lazily inside a 1 kHz period: with ``fine.apex_policy`` the doublet's move tables (~0.12 s of CPU each; C1,
+        kicks to 16 A: 342 tables, ~41 s).  Read from the disk cache (:func:`~fuel_valve_control.core.pulse_moves.
+        default_cache_dir`) when every one is there and the node runs lockstep (~1 s for 342: the policy in force
+        from the first plateau, as offline); else read and, what is missing, built in a background process
+        (:meth:`_start_tables`) while the fine stage runs main's staircase.
+        Off (the default): nothing is made, nothing logged.  (The cache read at configure: in lockstep only.)"""
+        self._cancel_tables()
+        self._tables_failed = False
+        deferred = driver.controller.defer_tables()
+        if deferred is None:
+            self._tables_status = "off" if not driver.ps["fine.apex_policy"] else "ready (nothing to build)"
             return
-        pending, _ = self.driver.controller.prepare(change.law[0], build=False)
-        if pending:
-            raise ValueError(f"this change needs {pending} fine.apex_policy move tables (~{0.12 * pending:.0f} s of "
-                             "CPU) not built at configure, which the 1 kHz loop cannot build; start the node with it "
-                             "(its parameter file or overrides: configure builds them)")
+        fine, moves, keys = deferred
+        root = default_cache_dir()
+        if self.lockstep and root is not None and all(moves.table_file(root, k).is_file() for k in keys):
+            # lockstep (simulated time stands still meanwhile): a whole cache is read here, so the run is the
+            # offline simulator's from its first plateau (real time: read by the build's thread, configure returns
+            # at once -- 342 files took 1.1 s of wall time alone, 25 s on a machine at load ~10)
+            t0 = time.monotonic()
+            got = moves.read_cached(root, keys)
+            if len(got) == len(keys):
+                moves.adopt(got)
+                fine.release_tables()
+                self._tables_status = f"ready: {len(keys)} of {len(keys)} loaded from cache ({moves.cache_dir(root)})"
+                self.get_logger().info(f"fine.apex_policy: move tables: {len(keys)} loaded from cache "
+                                       f"({moves.cache_dir(root)}) in {time.monotonic() - t0:.1f} s")
+                return
+        self._start_tables(fine, moves, keys, root)
+
+    def _start_tables(self, fine, moves, keys, root) -> None:
+        """Build ``keys`` of ``moves`` for the fine stage ``fine`` off the control thread: a low-priority process
+        writes them to the cache ``root``, a thread reads them back, and :meth:`_poll_tables` (a steady-clock timer,
+        not the control callback) adopts them and releases the stage.  A build already running is ended first."""
+        # a build still running for a law this change replaces: its stages wait on (released if the new build
+        # covers their tables too; the law in force until the swap runs main's staircase meanwhile)
+        older = self._table_waiters if self._table_build is not None else []
+        self._cancel_tables()
+        self._table_build = TableBuild(moves, keys, root)
+        self._table_waiters = [*older, fine]
+        self._tables_failed = False
+        self._tables_status = self._table_build.status()
+        self.get_logger().info(f"fine.apex_policy: move tables: {len(keys)} needed, not all in the cache "
+                               f"({moves.cache_dir(root) if root is not None else 'off'}): reading it and building the "
+                               f"missing ones in a background process (nice {self._table_build.nice}, ~0.12 s of CPU "
+                               "each); the fine stage runs main's staircase until they are ready")
+        from rclpy.clock import Clock, ClockType
+        self._table_timer = self.create_timer(0.25, self._poll_tables, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    @locked
+    def _poll_tables(self) -> None:
+        """The background build's progress; once done, its tables adopted and the waiting fine stages released
+        (the policy takes over at each one's next plateau), or -- failed -- a WARN, the stage left on main's
+        staircase (not a fault)."""
+        build = self._table_build
+        if build is None:
+            return
+        if not build.done():
+            self._tables_status = build.status()
+            return
+        self.destroy_timer(self._table_timer)
+        self._table_timer, self._table_build = None, None
+        waiters, self._table_waiters = self._table_waiters, []
+        if build.state == "ready":
+            build.moves.adopt(build.tables)
+            released = [fine.release_tables() for fine in waiters]
+            self._tables_status = build.status()
+            if released[-1]:                   # the newest law's (older ones: released where their tables are in)
+                self.get_logger().info(f"fine.apex_policy: move tables {self._tables_status}; the policy takes over "
+                                       "at the next plateau")
+                return
+            self._tables_failed = True
+            self._tables_status = f"failed: tables still missing after the build ({build.status()})"
+        elif build.state == "failed":
+            self._tables_failed = True
+            self._tables_status = f"failed: {build.reason}"
+        else:
+            self._tables_status = build.status()
+            return
+        self.get_logger().warn(f"fine.apex_policy: move tables {self._tables_status}: the fine stage stays on main's "
+                               "staircase (a reconfigure retries)")
+
+    def _cancel_tables(self, wait_s: float = 0.0) -> None:
+        """End a background build: its worker process terminated now, its reading thread left to end by itself
+        within ``wait_s`` (0: not waited for -- called under the loop's lock, it must not hold the loop up behind
+        a cache read); the cache keeps every table the worker finished."""
+        if self._table_timer is not None:
+            self.destroy_timer(self._table_timer)
+            self._table_timer = None
+        if self._table_build is not None:
+            self._table_build.cancel(wait_s)
+            self._table_build = None
+        self._table_waiters = []
+
+    def destroy_node(self):
+        self._cancel_tables(wait_s=5.0)
+        return super().destroy_node()
+
+    def _defer_unprepared(self, change):
+        """A run-time change whose law needs move tables its configure did not make (``fine.apex_policy`` on and,
+        e.g., ``fine.apex_kick_max_a`` raised): the new law's fine stage is set to run main's staircase until they
+        are built (returned: ``(fine, moves, keys)`` for :meth:`_start_tables` once the change is accepted), never
+        a build inside the control callback.  None: nothing to build.  (``fine.apex_policy`` itself is not a
+        run-time parameter -- read-only on the node: set it in the parameter file or at start-up.)"""
+        if change.law is None:
+            return None
+        return self.driver.controller.defer_tables(change.law[0])
 
     @transition
     def on_activate(self, state: State) -> TransitionCallbackReturn:
@@ -395,6 +483,7 @@ class ControllerNode(LifecycleNode):
         self.get_logger().warn(f"controller {why}: drive disabled, the return spring closes the valve")
 
     def _drop_driver(self) -> None:
+        self._cancel_tables()
         for timer in self._loop_timers:
             self.destroy_timer(timer)
         self._loop_timers = []
@@ -690,8 +779,7 @@ class ControllerNode(LifecycleNode):
             self._prepared = None
             return
         change = self.driver.prepare_params(changes)
-        self._refuse_unprepared(change)
-        self._prepared = (changes, change)
+        self._prepared = (changes, change, self._defer_unprepared(change))
 
     def apply_parameters(self, changes: dict) -> None:
         """After acceptance (post-set): queue the prepared change; the loop swaps it in at the
@@ -702,8 +790,12 @@ class ControllerNode(LifecycleNode):
             return
         try:
             if prepared is None or prepared[0] != changes:        # not the change validated: redo
-                prepared = (changes, self.driver.prepare_params(changes))
+                change = self.driver.prepare_params(changes)
+                prepared = (changes, change, self._defer_unprepared(change))
             self.driver.request_params(prepared[1])
+            if prepared[2] is not None:
+                with self._lock:
+                    self._start_tables(*prepared[2], default_cache_dir())
         except Exception as exc:           # noqa: BLE001 - accepted but not applicable: fail safe
             with self._lock:
                 self.fail_safe("apply_parameters", exc)
@@ -735,8 +827,12 @@ class ControllerNode(LifecycleNode):
             conflicts, counts = [], {}
             self.get_logger().warn(f"input publishers not checked: {type(exc).__name__}: {exc}",
                                    throttle_duration_sec=10.0)
-        values.update(counts, learned_state=self._state_status,
+        values.update(counts, learned_state=self._state_status, move_tables=self._tables_status,
                       ignored_parameters=",".join(self._unknown_params) or "none")
+        if self._tables_failed and self.driver is not None:
+            # not a fault: the fine stage runs main's staircase (the default's behaviour) without its tables
+            level = max(level, 1)
+            message = f"{message}; fine.apex_policy move tables {self._tables_status} (fine stage on main's staircase)"
         if conflicts:
             # not latched: it lasts as long as the graph shows it (a warning, the loop runs on)
             level = max(level, 1)
