@@ -194,6 +194,64 @@ APEX_DP_STEP = 0.01
 APEX_PRE_MARGIN = 0.05
 
 
+#: fine.apex_level_law (task h36l, docs §92): a non-normal level law is weighed on this many points (the mixture spans
+#: +-3 of its largest scatter, several of the learned one: the normal's 41 points over +-3 learned scatters would
+#: space them ~0.5 learned scatters apart), and a scale mixture over this many scatters (log-spaced midpoints)
+APEX_MIX_POINTS, APEX_MIX_SCALES = 81, 7
+
+
+def level_law_scales(kind: str, sigma: float, sigma_hi: float, nu: float) -> tuple[np.ndarray, np.ndarray]:
+    """(``fine.apex_level_law``, task h36l, docs §92) The level's law as a scale mixture of normals about the learned
+    level: (rms scatters, rad; their weights, summing to 1).
+
+    * ``"normal"``: the learned scatter ``sigma`` alone (today's law).
+    * ``"mixture"``: scatters log-uniform between ``sigma`` and ``sigma_hi`` (rad; the widest scatter the stage is
+      designed for): the box draws each valve's scatter rms from a range and per stop the level is normal with that
+      rms, so with a scatter known only within a range the level's law is the normals' mixture over it -- heavier
+      tailed than one normal.  ``sigma_hi <= sigma`` collapses it to ``"normal"``.
+    * ``"student"``: a Student-t of ``nu`` degrees of freedom with scale ``sigma`` (the learned rms taken from
+      ~``nu`` + 1 stops): its precision Gamma(nu/2, nu/2), on APEX_MIX_SCALES equal-probability quantiles.
+    """
+    if kind == "mixture" and sigma_hi > sigma * (1.0 + 1e-6):
+        u = (np.arange(APEX_MIX_SCALES) + 0.5) / APEX_MIX_SCALES
+        return sigma * (sigma_hi / sigma) ** u, np.full(APEX_MIX_SCALES, 1.0 / APEX_MIX_SCALES)
+    if kind == "student" and np.isfinite(nu) and nu > 0.0:
+        # equal-probability quantiles of the precision lambda ~ Gamma(nu/2, rate nu/2) (Wilson-Hilferty for the
+        # chi-square quantile: no scipy in the core); the scatter sigma / sqrt(lambda)
+        from statistics import NormalDist     # noqa: PLC0415
+        u = (np.arange(APEX_MIX_SCALES) + 0.5) / APEX_MIX_SCALES
+        zq = np.array([NormalDist().inv_cdf(float(x)) for x in u])
+        c = 2.0 / (9.0 * nu)
+        chi = nu * np.maximum(1.0 - c + zq * math.sqrt(c), 1e-3) ** 3
+        return sigma / np.sqrt(chi / nu), np.full(APEX_MIX_SCALES, 1.0 / APEX_MIX_SCALES)
+    return np.array([sigma]), np.array([1.0])
+
+
+def mixture_level_law(center: float, d: int, scales: np.ndarray, weights: np.ndarray,
+                      floor: float | None = None, points: int = APEX_MIX_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """(``fine.apex_level_law``, task h36l, docs §92) The level (absolute twist, rad) toward ``d`` as the mixture
+    sum_j weights_j N(``center``, scales_j^2) on ``points`` equally spaced levels over +-APEX_LAW_SIGMAS of the
+    largest scatter, truncated from below by ``floor`` (absolute twist, rad, or None): the points then span from just
+    above the floor to the larger of the law's top and the floor + the largest scatter (a floor beyond the top: the
+    mixture's own far tail above it, no point mass).  Returns (levels ordered toward ``d``, weights summing to 1)."""
+    smax = float(np.max(scales))
+    lo, hi = -APEX_LAW_SIGMAS * smax, APEX_LAW_SIGMAS * smax
+    if floor is not None:
+        f = d * (floor - center)
+        if f >= lo:
+            hi = max(hi, f + smax)
+            t = np.linspace(f, hi, points + 1)[1:]
+        else:
+            t = np.linspace(lo, hi, points)
+    else:
+        t = np.linspace(lo, hi, points)
+    # each component's density in log form (the far tail of the widest one must not underflow to an all-zero law)
+    logp = -0.5 * (t[None, :] / scales[:, None]) ** 2 - np.log(scales)[:, None] + np.log(weights)[:, None]
+    top = logp.max()
+    w = np.exp(logp - top).sum(axis=0)
+    return center + d * t, w / w.sum()
+
+
 def _pulse_moves(fine: "FinePositioner") -> object:
     """The doublet's move model for ``fine.apex_policy``: :class:`~fuel_valve_control.core.pulse_moves.PulseMoves`
     (task h33m, docs §80) of the stage ``fine`` -- its planning model, doublet, servo gains and current cap --
@@ -513,6 +571,9 @@ class FineConfig:
     apex_floor_plan: bool = False  # ... an unmoved try truncates the law at max(measured apex, planned apex)
     apex_kick_continuous: bool = False  # ... after an unmoved try: preload at that apex, the kick sized to the apex
     apex_worse_given_move: bool = False  # ... no try more likely to worsen |e| than not, given that it moves
+    apex_level_law: str = "normal"  # ... the level's law: "normal" (the learned scatter), "mixture" (normals over scatters
+                                    # log-uniform from the learned one to breakaway_fit / 3 x T_s/K), "student" (a t with
+                                    # the learned scatter and (2 - scatter_gain) / scatter_gain - 1 degrees of freedom)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
@@ -1148,17 +1209,24 @@ class FinePositioner:
         self.phase = PARK
         self._peak_seen = th1 - thl
 
-    def _apex_law(self, d: int, phi_b: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    def _apex_law(self, d: int, phi_b: float, sigma: float,
+                  pressure_kpa: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(``fine.apex_policy``) The law of the level (the breakaway twist, rad, absolute) this stop drew, toward
         ``d``: the learned level ``phi_b`` and scatter ``sigma`` as a clipped normal on APEX_LAW_POINTS points over
         +-APEX_LAW_SIGMAS scatters (the box's law as plateau_floor's (b') knows it), truncated from below by the
         highest apex an unmoved doublet reached at this stop (``_apex_floor``: a measured twist, reset by a move).
         Where the floor lies beyond the law's points the level is in the normal's far tail: there the law is the
-        tail's exponential (rate z / sigma, z the floor's distance in scatters) above the floor.
+        tail's exponential (rate z / sigma, z the floor's distance in scatters) above the floor.  With
+        ``fine.apex_level_law`` not "normal" the law is :func:`mixture_level_law` over :meth:`_level_scales` (at
+        ``pressure_kpa``, None: the rated Δp).
         Returns (levels, weights summing to 1)."""
+        fl = self._floor(d)
+        if self.cfg.apex_level_law != "normal":
+            scales, weights = self._level_scales(sigma, pressure_kpa)
+            if len(scales) > 1:
+                return mixture_level_law(phi_b, d, scales, weights, None if fl is None else fl[1])
         z = np.linspace(-APEX_LAW_SIGMAS, APEX_LAW_SIGMAS, APEX_LAW_POINTS)
         lv, w = phi_b + d * sigma * z, np.exp(-0.5 * z * z)
-        fl = self._floor(d)
         if fl is not None:
             above = d * (lv - fl[1]) > 0.0
             if (w * above).sum() < 1e-3 * w.sum():
@@ -1168,6 +1236,20 @@ class FinePositioner:
             else:
                 w = np.where(above, w, 0.0)
         return lv, w / w.sum()
+
+    def _level_scales(self, sigma: float, pressure_kpa: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """(``fine.apex_level_law``, task h36l, docs §92) The scatters (rad) and weights of the level's law
+        (:func:`level_law_scales`): for "mixture" from the learned ``sigma`` up to the widest scatter the stage is
+        designed for -- a level within ``fine.breakaway_fit`` x T_s(Δp)/K of nominal (the engage gate's bound) at
+        APEX_LAW_SIGMAS scatters: breakaway_fit / 3 x T_s/K (0.1 T_s/K = 1.15e-3 rad at the rated Δp, nominal
+        valve); for "student" the degrees of freedom of the learned scatter, an exponentially weighted mean of
+        squares with weight ``fine.scatter_gain`` g: (2 - g) / g samples' worth, less one."""
+        cfg, m = self.cfg, self.m
+        p = m.pressure_max_kpa if pressure_kpa is None else pressure_kpa
+        hi = cfg.breakaway_fit / APEX_LAW_SIGMAS * m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
+        g = min(max(cfg.scatter_gain, 1e-6), 1.0)
+        nu = max((2.0 - g) / g - 1.0, 1.0)
+        return level_law_scales(cfg.apex_level_law, sigma, hi if np.isfinite(hi) else sigma, nu)
 
     def _floor(self, d: int) -> tuple[int, float] | None:
         """(``fine.apex_policy``) (direction, twist rad) below which this stop's level does not lie toward ``d``: the
@@ -1215,7 +1297,7 @@ class FinePositioner:
         cfg = self.cfg
         if self._moves is None:
             self._moves = _pulse_moves(self)
-        lv, w = self._apex_law(d, phi_b, sigma)
+        lv, w = self._apex_law(d, phi_b, sigma, pressure_kpa)
         # the model's tables are keyed by Δp and angle: read at 1 % of the rated Δp (the measured Δp's noise would
         # build a new table at every try, 0.15 s of CPU each; the levels change < 1 % over it) and 0.01 rad
         step = APEX_DP_STEP * self.m.pressure_max_kpa

@@ -649,6 +649,14 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "to improve it *given that it moves* (the policy's rule counts P(no move) as not worse: at a stop whose "
           "level lies high every move overshoots the error and the law's climb went on until one did; task h34m, "
           "docs section 85)", runtime=True),
+    Param("fine.apex_level_law", "normal", "", "fine.apex_policy: the law of the static level the apex is placed on: "
+          "normal = the learned level and scatter (a normal clipped at 3 scatters); mixture = a mixture of normals "
+          "about the learned level with scatters log-uniform from the learned one to the widest the stage is designed "
+          "for (fine.breakaway_fit / 3 x T_s(dp)/K: a level within the engage gate's bound at 3 scatters) -- the "
+          "campaign draws each valve's scatter from a range and the learned one is a few stops' estimate, so the law "
+          "is heavier tailed than one normal; student = a Student-t with the learned scatter and (2 - "
+          "fine.scatter_gain) / fine.scatter_gain - 1 degrees of freedom (the learned scatter's sample count; task "
+          "h36l, docs section 92)", choices=("normal", "mixture", "student"), runtime=True),
     Param("fine.unbiased_preload_pull", False, "", "with fine.unbiased_samples: a servo-blended pulse whose preload "
           "broke the valve loose pulls the learned breakaway to below that preload with fine.learn_gain (main's "
           "treatment), instead of the censored sample's fine.scatter_gain step toward the conditional mean (that "
