@@ -1,4 +1,4 @@
-"""``fine.apex_policy`` (task h33p, docs §81, off by default): the doublet's apex placed from the learned level's
+"""``fine.apex_policy`` (task h33p, docs §81; on by default since stop 25 with C1, docs §91): the doublet's apex placed from the learned level's
 law, truncated from below by this stop's unmoved apexes, instead of a staircase.
 
 The stage alone (no plant) for the law and the choice; one nominal-box run in closed loop."""
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fuel_valve_control.core.params import CONTROLLER_SPEC
-from test_fine_positioning import _stage
+from test_fine_positioning import MAIN_DOUBLET, _stage
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT / "benchmarks") not in sys.path:
@@ -17,7 +17,9 @@ if str(ROOT / "benchmarks") not in sys.path:
 
 
 def _policy_stage(**changes):
-    fine, model = _stage(**{"fine.apex_policy": True, **changes})
+    """The stage with §81's policy alone (main's 4 A kick, main's retreat: C1's other options off, as these
+    stage-alone tests were written; C1 is the default since stop 25, docs §91) under ``changes``."""
+    fine, model = _stage(**{**MAIN_DOUBLET, "fine.apex_policy": True, **changes})
     return fine, model
 
 
@@ -75,9 +77,19 @@ def test_the_choice_keeps_the_preload_safe_climbs_past_an_unmoved_apex_and_skips
     assert fine._choose_apex(d * 9e-4, d, phi_e, phi_b, sigma, p, 0.0, 0.5) is not None
 
 
-def test_off_by_default():
-    assert CONTROLLER_SPEC.defaults()["fine.apex_policy"] is False
+#: C1 (docs §88), the default since stop 25 (task h36f, docs §91): the apex policy with kicks to 16 A, the deep
+#: retreat (two periods at -cap), the observe servo's integral held after a move, the move model's excess coordinate
+C1 = {"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0, "fine.apex_retreat_periods": 2, "fine.retreat_cap": True,
+      "fine.observe_hold_moved": True, "fine.apex_excess_nominal": True}
+
+
+def test_c1_is_the_default_and_off_is_main():
+    """C1's six options are the defaults (task h36f, docs §91); with the policy off the stage makes no move model."""
+    ps = CONTROLLER_SPEC.defaults()
+    assert {k: ps[k] for k in C1} == C1
     fine, _ = _stage()
+    assert fine.cfg.apex_policy is True and fine._moves is not None
+    fine, _ = _stage(**{"fine.apex_policy": False})
     assert fine.cfg.apex_policy is False and fine._moves is None
 
 
@@ -88,7 +100,8 @@ def test_a_nominal_plateau_main_leaves_off_ends_within_tolerance():
     which the branch measured §81 with)."""
     import robustness as rb
     case = rb.sample_case(1015, "nominal")
-    res = rb.run_case((case, "observer_fp", {"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0}))
+    # §81's build as measured: the policy with kicks to 16 A on main's retreat (C1's other options off)
+    res = rb.run_case((case, "observer_fp", {**MAIN_DOUBLET, "fine.apex_policy": True, "fine.apex_kick_max_a": 16.0}))
     assert res["plateaus"][3]["final_error_rad"] < 8e-4
     assert not res["hunts"] and not res["fault"]
 
@@ -178,7 +191,9 @@ def test_the_continuous_kick_is_sized_to_reach_the_apex_from_the_floor(direction
     assert apex is not None and d * (apex - floor) > 0.0
     if fine._apex_kick not in kicks:
         assert (apex - d * fine._apex_rise) == pytest.approx(pre, abs=1e-12)
-@pytest.mark.parametrize("sets, holds", [({}, False), ({"fine.hold_reversed": True}, True),
+# main = the policy off explicitly (C1, with the policy, is the default since stop 25: docs §91)
+@pytest.mark.parametrize("sets, holds", [({"fine.apex_policy": False}, False),
+                                         ({"fine.apex_policy": False, "fine.hold_reversed": True}, True),
                                          ({"fine.apex_policy": True}, True)])
 def test_a_plateau_the_valve_reversed_on_is_held_not_handed_back(sets, holds):
     """(``fine.hold_reversed``, in force also with ``fine.apex_policy``; task h34h, docs §86) Where the stage would hand
@@ -215,8 +230,10 @@ def test_the_apex_policy_hunter_is_held_not_handed_back():
     case = rb.sample_case(2035, "nominal")
     sc = rb.case_scenario(case)
     sc.duration_s = 6.62                                             # plateau 10 ends at 6.591 s
-    p, c = sim.build(sc, rb.plant_overrides(case), {**rb.controller_knowledge(case), "fine.apex_policy": True,
-                                                    "fine.apex_kick_max_a": 16.0}, None, "observer_fp")
+    # the traced build: §81's policy with kicks to 16 A on main's retreat (C1's other options off; C1 is the default)
+    p, c = sim.build(sc, rb.plant_overrides(case), {**rb.controller_knowledge(case), **MAIN_DOUBLET,
+                                                    "fine.apex_policy": True, "fine.apex_kick_max_a": 16.0},
+                     None, "observer_fp")
     res = sim.simulate(sc, p, c)
     log = res.log
     plats = M.plateau_results(M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9],

@@ -109,7 +109,7 @@ def test_the_staircase_starts_the_learned_scatters_below_the_learned_breakaway()
     ps = CONTROLLER_SPEC.defaults()
     pres = []
     for scatter in (0.0, 2e-4, 6e-4):
-        fine, m = _stage()
+        fine, m = _main_stage()
         p = m.pressure_max_kpa
         band = fine.learn.band(m.pressure_fraction(p))
         _break_loose(fine, 0.5, p)
@@ -310,6 +310,18 @@ def _stage(**changes):
     return pc.law.fine, pc.model
 
 
+#: main's doublet before stop 25: the staircase (no apex policy), the hold - cap retreat with its period of half the
+#: cap, the observe servo's integral wound as ever -- C1's six options (docs §88) off.  C1 is the default since stop
+#: 25 (task h36f, docs §91); the tests of the staircase and of main's doublet shape set this explicitly.
+MAIN_DOUBLET = {"fine.apex_policy": False, "fine.apex_kick_max_a": 0.0, "fine.apex_retreat_periods": 0,
+                "fine.retreat_cap": False, "fine.observe_hold_moved": False, "fine.apex_excess_nominal": False}
+
+
+def _main_stage(**changes):
+    """:func:`_stage` with main's doublet (:data:`MAIN_DOUBLET`) under ``changes``."""
+    return _stage(**{**MAIN_DOUBLET, **changes})
+
+
 def _torques_until_observe(fine, error_rad, pressure_kpa, hold_nm=0.3, periods=400):
     """Torques the stage commands for a stuck valve ``error_rad`` short of a steady target,
     until its first pulse is over (phase ``observe``); while it preloads, the gear output is
@@ -336,7 +348,7 @@ def test_small_errors_get_a_torque_doublet_against_the_current_slew(direction):
     backwards (SPEC §6: the retreat must be at full current when the valve breaks), half the
     next period; larger errors get the servo-blended pulse, which never reverses that hard."""
     ps = CONTROLLER_SPEC.defaults()
-    fine, m = _stage()
+    fine, m = _main_stage()
     kt = m.torque_constant_nm_per_a
     cap = ps["fine.peak_current_a"] * kt
     small = 0.5 * ps["fine.doublet_max_error_rad"]
@@ -346,7 +358,7 @@ def test_small_errors_get_a_torque_doublet_against_the_current_slew(direction):
     assert out[-3] == pytest.approx(hold + direction * ps["fine.kick_current_a"] * kt)
     assert out[-2] == pytest.approx(max(min(hold - direction * cap, cap), -cap))
     assert out[-1] == pytest.approx(max(min(hold - direction * 0.5 * cap, cap), -cap))
-    fine, m = _stage()
+    fine, m = _main_stage()
     large = 2.0 * ps["fine.doublet_max_error_rad"]
     out = _torques_until_observe(fine, direction * large, m.pressure_max_kpa)
     assert all(abs(t) <= cap + 1e-12 for t in out)
@@ -634,7 +646,7 @@ def test_doublets_that_do_not_move_the_valve_climb_until_the_plausible_bound_not
     seeds 2000-2039, 5 plateaus 0.9-1e-3 rad off; task h20p).  The staircase stops instead where
     its preload would lie beyond the nominal breakaway twist by more than a plausible learned
     offset (half the nominal static twist, :meth:`FinePositioner._plausible`)."""
-    fine, m = _stage()
+    fine, m = _main_stage()
     p = m.pressure_max_kpa
     err = direction * 0.6e-3
     _torques_until_observe(fine, err, p)
@@ -669,7 +681,7 @@ def test_a_staircase_in_progress_stays_a_staircase_when_the_error_reads_a_count_
     a fresh stop beyond the limit still gets the servo-blended pulse."""
     from fuel_valve_control.common.contract import RESOLVER_COUNT_RAD as count
     lim = CONTROLLER_SPEC.defaults()["fine.doublet_max_error_rad"]
-    fine, m = _stage()
+    fine, m = _main_stage()
     p = m.pressure_max_kpa
     err = direction * (lim - 0.2 * count)
     _torques_until_observe(fine, err, p)
@@ -681,7 +693,7 @@ def test_a_staircase_in_progress_stays_a_staircase_when_the_error_reads_a_count_
             break
     assert fine.phase == "park" and abs(0.5 + err - thl) > lim
     assert fine._doublet
-    fine, m = _stage()
+    fine, m = _main_stage()
     _torques_until_observe(fine, direction * (lim + 0.8 * count), p)
     assert not fine._doublet
 
@@ -715,9 +727,9 @@ def test_stairs_sized_to_the_error_climb_faster_and_their_worst_move_still_impro
     an error of about the smallest move the stairs stay the fixed ones."""
     slope = 4.0
     lim = CONTROLLER_SPEC.defaults()["fine.doublet_max_error_rad"]
-    fixed, m = _stage()
+    fixed, m = _main_stage()
     p = m.pressure_max_kpa
-    sized, _ = _stage(**{"fine.move_per_overdrive": slope})
+    sized, _ = _main_stage(**{"fine.move_per_overdrive": slope})
     err = direction * 0.95 * lim
     n_fixed, c_fixed = _stuck_staircase(fixed, err, p)
     n_sized, c_sized = _stuck_staircase(sized, err, p)
@@ -729,7 +741,7 @@ def test_stairs_sized_to_the_error_climb_faster_and_their_worst_move_still_impro
     assert all(m0 + slope * c <= 1.5 * abs(err) + 1e-12 for c in c_sized)
     # twist climbed per period of staircase: the same stairs, each taking about as long
     assert sum(c_sized) / n_sized > 1.5 * sum(c_fixed) / n_fixed
-    small, _ = _stage(**{"fine.move_per_overdrive": slope})
+    small, _ = _main_stage(**{"fine.move_per_overdrive": slope})
     _, c_small = _stuck_staircase(small, direction * 0.95 * (m0 + slope * floor) / 1.5, p, stairs=4)
     assert all(c == pytest.approx(floor) for c in c_small)
 
@@ -767,7 +779,7 @@ def test_a_staircase_stops_where_the_level_makes_the_move_larger_than_twice_the_
     excess over the learned breakaway -- is more than twice the error stops and holds, at the first
     such stair; without the slope the staircase climbs on."""
     slope, rise = 0.64, 2.7e-4
-    fine, m = _stage(**{"fine.move_per_level": slope})
+    fine, m = _main_stage(**{"fine.move_per_level": slope})
     p = m.pressure_max_kpa
     m0 = fine.cfg.min_move_prior * m.friction(p).stick_slip_jump_rad(m.coupling_stiffness_nm_per_rad)
     err = direction * 0.6 * m0
@@ -776,7 +788,7 @@ def test_a_staircase_stops_where_the_level_makes_the_move_larger_than_twice_the_
     b = fine._nominal(0.5, p, direction)[1] + fine.learn.breakaway[direction][fine.learn.band(m.pressure_fraction(p))]
     expected = [m0 + slope * max(direction * (a - b), 0.0) for a in apexes]
     assert expected[-1] > 2.0 * abs(err) >= expected[-2]
-    plain, _ = _stage()
+    plain, _ = _main_stage()
     phase, more = _staircase_with_apex(plain, err, p, rise)
     assert phase != "hold" and len(more) > len(apexes) + 3
 
@@ -787,7 +799,7 @@ def test_a_longer_whole_current_retreat_is_an_option(direction):
     h22m): after the kick the doublet pulls the whole current backwards for that many periods, then
     half of it for one."""
     ps = CONTROLLER_SPEC.defaults()
-    fine, m = _stage(**{"fine.retreat_full_periods": 2})
+    fine, m = _main_stage(**{"fine.retreat_full_periods": 2})
     kt = m.torque_constant_nm_per_a
     cap = ps["fine.peak_current_a"] * kt
     out = _torques_until_observe(fine, direction * 0.5 * ps["fine.doublet_max_error_rad"], m.pressure_max_kpa)
@@ -834,8 +846,8 @@ def test_a_learned_kick_rise_puts_each_apex_on_its_planned_stair(direction):
         phi_b = fine._twists(thl, p, direction)[1]
         return [direction * (phi_b - apex) - s for apex, s in rows]   # apex below its planned stair, rad
 
-    learned = staircase(*_stage(**{"fine.learn_kick_rise": True}))
-    plain_fine, m = _stage()
+    learned = staircase(*_main_stage(**{"fine.learn_kick_rise": True}))
+    plain_fine, m = _main_stage()
     plain = staircase(plain_fine, m)
     excess = rise - plain_fine.cfg.kick_rise_rad
     assert all(x == pytest.approx(-excess, abs=1e-9) for x in plain)
@@ -851,7 +863,7 @@ def test_a_first_stair_may_kick_smaller_and_the_next_stairs_kick_whole(direction
     fraction of ``fine.kick_rise_rad`` below its apex; the stairs after it kick with the whole current."""
     ps = CONTROLLER_SPEC.defaults()
     frac = 0.5
-    fine, m = _stage(**{"fine.first_kick_fraction": frac})
+    fine, m = _main_stage(**{"fine.first_kick_fraction": frac})
     kt = m.torque_constant_nm_per_a
     p = m.pressure_max_kpa
     out = _torques_until_observe(fine, direction * 0.5 * ps["fine.doublet_max_error_rad"], p)
@@ -1006,7 +1018,7 @@ def test_after_two_preload_breakaways_a_staircase_starts_below_the_twist_it_brok
     with ``fine.restair_sigmas`` > 0 it goes on with a doublet staircase whose first apex lies that many
     learned scatters below the preload reference the second one broke at (nominal box seed 2018 #1 was
     handed back 6.1e-3 rad off; task h30b, docs §66)."""
-    fine, m = _stage(**{"fine.restair_sigmas": sigmas})
+    fine, m = _main_stage(**{"fine.restair_sigmas": sigmas})
     p = m.pressure_max_kpa
     thl = 0.5
     phi = _rest_twist(fine, thl, p)

@@ -9,7 +9,8 @@ where the stage wants it), so each test costs a few thousand stage periods, no p
 
 import pytest
 
-from test_fine_positioning import _stage, _torques_until_observe
+# the staircase and main's doublet: C1 (the default since stop 25, docs §91) off -- these options act on the staircase
+from test_fine_positioning import _main_stage as _stage, _torques_until_observe
 
 
 def _stuck_staircase(fine, err, p, stairs):

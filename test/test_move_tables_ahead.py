@@ -72,7 +72,8 @@ def test_prepare_builds_every_table_the_apex_policy_reads(small_grid, monkeypatc
     assert moves is not None and moves.builds == 0 and moves.m is fine.m0
     pending, _ = ctl.prepare()
     assert fine._moves is moves and moves.pending(kicks=fine._apex_kicks()) == []
-    assert pending <= 2 * 2 * 2                        # directions x Δp x angle points, one kick (some may be shared)
+    # directions x Δp x angle points x kicks (some may be shared; C1's default kicks 4 / 8 / 16 A since stop 25, docs §91)
+    assert pending <= 2 * 2 * 2 * len(fine._apex_kicks())
     assert ctl.prepare(build=False) == (0, 0.0)        # nothing left
     builds, runs = moves.builds, moves.runs
     choices = []
@@ -90,7 +91,8 @@ def test_prepare_builds_every_table_the_apex_policy_reads(small_grid, monkeypatc
 
 
 def test_prepare_makes_nothing_with_the_apex_policy_off():
-    plan, plant, driver = R.held_case(R.sample_case(SEED, "nominal"))
+    # off explicitly: C1 (the apex policy with kicks to 16 A) is the default since stop 25 (task h36f, docs §91)
+    plan, plant, driver = R.held_case(R.sample_case(SEED, "nominal"), controller_sets={"fine.apex_policy": False})
     ctl = driver.controller
     assert ctl.prepare() == (0, 0.0)
     assert ctl.law.fine._moves is None
@@ -125,7 +127,8 @@ def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_bu
     rclpy.init(context=ctx)
     try:
         node = ControllerNode(context=ctx, namespace="/tables_on", parameter_overrides=[
-            Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True)])
+            Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True),
+            Parameter("fine.apex_kick_max_a", value=0.0)])     # main's 4 A kick only (C1's 16 A is the default)
         assert node.driver is None
         node.trigger_configure()
         fine = node.driver.controller.law.fine
@@ -189,7 +192,7 @@ def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_bu
         node.destroy_node()
 
         node = ControllerNode(context=ctx, namespace="/tables_off", parameter_overrides=[
-            Parameter("autostart", value=False)])
+            Parameter("autostart", value=False), Parameter("fine.apex_policy", value=False)])   # on by default (C1)
         node.trigger_configure()
         assert node.driver.controller.law.fine.moves is None       # off: nothing made at configure
         assert node._tables_status == "off" and node._table_build is None

@@ -18,7 +18,9 @@ from pathlib import Path
 import pytest
 
 from fuel_valve_control.core.params import CONTROLLER_SPEC
-from test_fine_positioning import _stage, _torques_until_observe
+# the stage-alone cases are main's staircase with the deep retreat (DEEP), as measured (task h35v); C1 is the default
+# since stop 25 (docs §91)
+from test_fine_positioning import _main_stage as _stage, _torques_until_observe
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT / "benchmarks") not in sys.path:
@@ -107,7 +109,8 @@ def test_the_slippery_valve_hunter_is_cured():
     plateau hunted (3 reversals, 10 doublets went there and back); with fine.retreat_return_guard no plateau hunts."""
     import other_valves as OV
     b = {"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0, "fine.apex_retreat_periods": 2,
-         "fine.retreat_cap": True, "fine.observe_hold_moved": True, "fine.retreat_return_guard": True}
+         "fine.retreat_cap": True, "fine.observe_hold_moved": True, "fine.retreat_return_guard": True,
+         "fine.apex_excess_nominal": False}                      # build (b), as traced (C1 = b + this, the default)
     orig = OV.overrides
     try:
         OV.overrides = lambda v: (orig(v)[0], {**orig(v)[1], **b})
