@@ -164,19 +164,31 @@ def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_bu
         assert build.process is None and "loaded from cache" in node._tables_status, node._tables_status
         assert node.driver.controller.law.fine._tables_gate == "released"
         node.destroy_node()
-        # ... in lockstep: read at configure itself (no build), the policy from the first plateau as offline
+        # ... in lockstep: what the cache holds read at configure itself, never a gate or a worker (simulated time
+        # waits for the controller: the rest would be built lazily, as offline) -- the policy from the first plateau
         monkeypatch.setattr(pmod, "_SHARED", OrderedDict())
         node = ControllerNode(context=ctx, namespace="/tables_warm", parameter_overrides=[
             Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True),
             Parameter("lockstep", value=True)])
         node.trigger_configure()
         fine = node.driver.controller.law.fine
-        assert node._table_build is None and "loaded from cache" in node._tables_status, node._tables_status
-        assert fine._tables_gate == "released" and fine.moves.builds == 0
-        # another signature (two retreat periods): a build; cleanup while it runs ends its worker
+        n = len(fine.moves._tables)
+        assert node._table_build is None and f"lockstep: {n} of {n} loaded from cache" in node._tables_status, \
+            node._tables_status
+        assert fine._tables_gate is None and not fine.tables_deferred and fine.moves.builds == 0
+        # ... and in lockstep on another signature (one retreat period, not in the cache): still no gate, no worker
         node.trigger_cleanup()
-        res = node.set_parameters([Parameter("fine.apex_retreat_periods", value=2)])[0]
-        assert res.successful, res.reason
+        assert node.set_parameters([Parameter("fine.apex_retreat_periods", value=1)])[0].successful
+        node.trigger_configure()
+        fine = node.driver.controller.law.fine
+        assert node._table_build is None and node._tables_status.startswith("lockstep: 0 of "), node._tables_status
+        assert fine._tables_gate is None and fine.cfg.apex_policy and fine.moves.builds == 0
+        node.destroy_node()
+        # another signature in real time: a build; cleanup while it runs ends its worker
+        monkeypatch.setattr(pmod, "_SHARED", OrderedDict())
+        node = ControllerNode(context=ctx, namespace="/tables_cleanup", parameter_overrides=[
+            Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True),
+            Parameter("fine.apex_retreat_periods", value=1)])
         node.trigger_configure()
         build = node._table_build
         assert build is not None and node.driver.controller.law.fine.tables_deferred
@@ -334,7 +346,10 @@ def test_the_stage_runs_main_staircase_until_the_tables_are_released(small_grid,
     monkeypatch.setattr(pmod, "_SHARED", OrderedDict())  # no table another test built in this process
     sets = {"fine.apex_policy": True}
     plan, plant, driver = R.held_case(R.sample_case(SEED, "nominal"), controller_sets=sets)
-    ref_plan, ref_plant, ref_driver = R.held_case(R.sample_case(SEED, "nominal"))
+    # main's staircase: the policy and the options measured with it as one build off (C1 is the default)
+    from fuel_valve_control.core.fine_positioning import APEX_BUILD_OFF
+    ref_plan, ref_plant, ref_driver = R.held_case(R.sample_case(SEED, "nominal"), controller_sets={
+        f"fine.{f}": False for f in APEX_BUILD_OFF})
     ctl = driver.controller
     fine = ctl.law.fine
     deferred = ctl.defer_tables()

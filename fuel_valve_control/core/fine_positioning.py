@@ -139,6 +139,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
+from scipy.special import erf as _erf
 
 from ..common.hunting import HUNT_REVERSALS, ReversalCounter
 from .model import NominalModel
@@ -189,6 +190,10 @@ START_SIGMAS_MIN, START_SIGMAS_MAX = 1e-3, 10.0
 APEX_LAW_POINTS, APEX_LAW_SIGMAS = 41, 3.0
 #: ... and reads the move model at Δp rounded to this fraction of the rated Δp
 APEX_DP_STEP = 0.01
+#: the FineConfig options measured together with ``fine.apex_policy`` as one build (C1, docs §88, default since stop
+#: 25): while the policy's move tables are not ready (:meth:`FinePositioner.defer_tables`) the stage runs main's
+#: staircase with these off -- the build measured before them (stop 24's default), not an unmeasured mix
+APEX_BUILD_OFF = ("apex_policy", "retreat_cap", "observe_hold_moved")
 #: fine.apex_kick_continuous (task h34m): the preload lies this fraction of the smallest kick's rise below the last
 #: unmoved apex (the move model's rise reads the closed loop's +2-3 % high, docs §80.3)
 APEX_PRE_MARGIN = 0.05
@@ -271,8 +276,9 @@ def _pulse_moves(fine: "FinePositioner") -> object:
 
 
 def _norm_cdf(x):
-    from math import erf
-    return 0.5 * (1.0 + np.vectorize(erf)(np.asarray(x) / math.sqrt(2.0)))
+    """The standard normal's CDF, elementwise (scipy's ufunc ``erf``: ``math.erf`` through ``np.vectorize`` was
+    half of the apex policy's ~1.6-4 ms per try, measured in a nominal run)."""
+    return 0.5 * (1.0 + _erf(np.asarray(x) / math.sqrt(2.0)))
 
 
 @dataclass(frozen=True)
@@ -856,19 +862,24 @@ class FinePositioner:
             return pending, 0.0
         return pending, self._moves.prepare(kicks=kicks)
 
-    def defer_tables(self) -> list:
+    def defer_tables(self, gate: bool = True) -> list:
         """(task h36b) For a real-time caller that builds the tables elsewhere (a background process,
         :class:`~fuel_valve_control.core.pulse_moves.TableBuild`): the keys :meth:`prepare` would build ([]: none,
         or ``fine.apex_policy`` off -- nothing changes).  With keys pending the stage runs with ``fine.apex_policy``
-        off -- main's staircase, exactly -- until :meth:`release_tables`; the move model (:attr:`moves`) is made
-        here.  No table is ever built inside :meth:`update` meanwhile."""
+        and its build's other options off (:data:`APEX_BUILD_OFF`) -- main's staircase, exactly -- until
+        :meth:`release_tables`; the move model (:attr:`moves`) is made
+        here.  No table is ever built inside :meth:`update` meanwhile.  ``gate`` False: the keys and the model only,
+        the stage unchanged (it builds what it asks for lazily, as offline: a lockstep caller, whose simulated time
+        waits for it, so its run is the offline simulator's whatever the cache holds)."""
         if not (self._full_cfg if self._tables_gate else self.cfg).apex_policy:
             return []
         self.prepare(build=False)
         keys = self._moves.pending(kicks=self._apex_kicks())
+        if not gate:
+            return keys
         if keys and self._tables_gate is None:
             from dataclasses import replace    # noqa: PLC0415
-            self._full_cfg, self.cfg = self.cfg, replace(self.cfg, apex_policy=False)
+            self._full_cfg, self.cfg = self.cfg, replace(self.cfg, **dict.fromkeys(APEX_BUILD_OFF, False))
             self._tables_gate = "closed"
         elif keys:
             self._tables_gate = "closed"

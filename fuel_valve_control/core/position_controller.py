@@ -427,16 +427,17 @@ class PositionController:
         fine = getattr(law, "fine", None)
         return fine.prepare(build) if isinstance(fine, FinePositioner) else (0, 0.0)
 
-    def defer_tables(self, law: ControlLaw | None = None) -> tuple | None:
+    def defer_tables(self, law: ControlLaw | None = None, gate: bool = True) -> tuple | None:
         """(task h36b) For a real-time caller that builds ``law``'s move tables off its control thread (None: the law
         in force): ``(fine stage, its move model, the keys to build)`` when any is missing -- the stage then runs
         main's staircase until the caller has adopted them into the model and called ``fine.release_tables()``
-        (:meth:`FinePositioner.defer_tables`) -- else None (nothing to build, or no ``fine.apex_policy``)."""
+        (:meth:`FinePositioner.defer_tables`) -- else None (nothing to build, or no ``fine.apex_policy``).  ``gate``
+        False: the same answer, the stage left to build what it asks for lazily (lockstep)."""
         law = self.law if law is None else law
         fine = getattr(law, "fine", None)
         if not isinstance(fine, FinePositioner):
             return None
-        keys = fine.defer_tables()
+        keys = fine.defer_tables(gate)
         return (fine, fine.moves, keys) if keys else None
 
     def reconfigure(self, ps: ParamSet, meas: Measurement | None, pressure_kpa: float,

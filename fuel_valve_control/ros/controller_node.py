@@ -324,31 +324,30 @@ class ControllerNode(LifecycleNode):
         """Make ready, here at configure and never inside the control callback, what the law would otherwise build
         lazily inside a 1 kHz period: with ``fine.apex_policy`` the doublet's move tables (~0.12 s of CPU each; C1,
         kicks to 16 A: 342 tables, ~41 s).  Read from the disk cache (:func:`~fuel_valve_control.core.pulse_moves.
-        default_cache_dir`) when every one is there and the node runs lockstep (~1 s for 342: the policy in force
-        from the first plateau, as offline); else read and, what is missing, built in a background process
-        (:meth:`_start_tables`) while the fine stage runs main's staircase.
-        Off (the default): nothing is made, nothing logged.  (The cache read at configure: in lockstep only.)"""
+        default_cache_dir`) in lockstep, the rest built lazily as offline (simulated time waits for the controller);
+        in real time read and, what is missing, built in a background process (:meth:`_start_tables`) while the
+        fine stage runs main's staircase.  ``fine.apex_policy`` off: nothing is made, nothing logged."""
         self._cancel_tables()
         self._tables_failed = False
-        deferred = driver.controller.defer_tables()
+        # lockstep: simulated time stands still while the controller computes, so the stage is not gated -- what
+        # the cache holds is read here, the rest built lazily in the period that first asks for it, as offline:
+        # the run is the offline simulator's from its first plateau, cold cache or warm
+        deferred = driver.controller.defer_tables(gate=not self.lockstep)
         if deferred is None:
             self._tables_status = "off" if not driver.ps["fine.apex_policy"] else "ready (nothing to build)"
             return
         fine, moves, keys = deferred
         root = default_cache_dir()
-        if self.lockstep and root is not None and all(moves.table_file(root, k).is_file() for k in keys):
-            # lockstep (simulated time stands still meanwhile): a whole cache is read here, so the run is the
-            # offline simulator's from its first plateau (real time: read by the build's thread, configure returns
-            # at once -- 342 files took 1.1 s of wall time alone, 25 s on a machine at load ~10)
+        if self.lockstep:
             t0 = time.monotonic()
-            got = moves.read_cached(root, keys)
-            if len(got) == len(keys):
-                moves.adopt(got)
-                fine.release_tables()
-                self._tables_status = f"ready: {len(keys)} of {len(keys)} loaded from cache ({moves.cache_dir(root)})"
-                self.get_logger().info(f"fine.apex_policy: move tables: {len(keys)} loaded from cache "
-                                       f"({moves.cache_dir(root)}) in {time.monotonic() - t0:.1f} s")
-                return
+            got = moves.read_cached(root, keys) if root is not None else {}
+            moves.adopt(got)
+            self._tables_status = (f"lockstep: {len(got)} of {len(keys)} loaded from cache, the rest built when "
+                                   "first asked for (simulated time waits)")
+            self.get_logger().info(f"fine.apex_policy: move tables: {self._tables_status} "
+                                   f"({moves.cache_dir(root) if root is not None else 'cache off'}, "
+                                   f"{time.monotonic() - t0:.1f} s)")
+            return
         self._start_tables(fine, moves, keys, root)
 
     def _start_tables(self, fine, moves, keys, root) -> None:
