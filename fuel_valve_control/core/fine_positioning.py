@@ -197,6 +197,9 @@ APEX_BUILD_OFF = ("apex_policy", "retreat_cap", "observe_hold_moved")
 #: fine.apex_kick_continuous (task h34m): the preload lies this fraction of the smallest kick's rise below the last
 #: unmoved apex (the move model's rise reads the closed loop's +2-3 % high, docs §80.3)
 APEX_PRE_MARGIN = 0.05
+#: fine.retreat_trough_bound (task h36g): one retreat period's scale is read between this many points from the full
+#: retreat (1) to the hold (0) of the move model's trough (a resolution: interpolated linearly between them)
+TROUGH_SCALES = 11
 
 
 #: fine.apex_level_law (task h36l, docs §92): a non-normal level law is weighed on this many points (the mixture spans
@@ -593,6 +596,12 @@ class FineConfig:
                                        # the plateau back (task h35v, docs §89)
     unmoved_settled: bool = False  # a doublet is judged unmoved only once the gear output's speed is below
                                    # fine.park_approach_speed_rad_s (or at fine.observe_time_s; task h35v, docs §89)
+    retreat_trough_bound: bool = False  # doublet: a retreat whose trough, predicted by the move model on a stuck valve,
+                                        # would pass the other way's learned breakaway less fine.doublet_sigmas learned
+                                        # scatters is made shallower: fewer whole periods, then one period's current
+                                        # scaled toward the hold (:meth:`FinePositioner._retreat_plan`; task h36g, §90)
+    retreat_trough_misfit: bool = False  # ... the margin also fine.breakaway_fit x T_s/K (the level misfit the stage
+                                         # engages with)
     hold_reversed: bool = False   # the stage holds instead of handing back a plateau on which the main law's move
                                   # could be the hunting metric's second reversal (task h34h, docs §86; in force also
                                   # with apex_policy)
@@ -634,6 +643,8 @@ class FinePositioner:
         self._returned = False             # (fine.retreat_return_rest) this doublet's return has been seen
         self._deep_unfit = False           # (fine.retreat_return_guard) a doublet's valve came back on this plant:
                                            # its retreat's trough passes the other way's breakaway (kept for the run)
+        self._retreat = None               # (fine.retreat_trough_bound) the doublet in progress' retreat: (whole
+                                           # periods, scale) (:meth:`_retreat_plan`)
         self.main_deadband_rad = None  # the main law's integrator deadband in force (rad; set by the law each period;
                                        # None: its hold may move the valve inside it -- a probe), fine.engage_inside_deadband
         self.reset()
@@ -1634,7 +1645,7 @@ class FinePositioner:
                 self._integral_held = self._integral + self.kp * (self._thl0 + self._pre - th1) / self.ki
             self._unmoved_now = abs(thl - self._thl0) < 0.5 * cfg.tolerance_rad
             self._excursion = max(self._excursion, self._dir * (thl - self._thl0))
-            torque = self._doublet_torque()
+            torque = self._doublet_torque(pressure_kpa)
             if torque is not None:
                 return torque
             self._k = 1                            # (fine.retreat_cap) the observe's first period is this one
@@ -1759,7 +1770,59 @@ class FinePositioner:
             return seen
         return cfg.kick_rise_rad * (cfg.first_kick_fraction if first else 1.0)
 
-    def _doublet_torque(self) -> float:
+    def _retreat_plan(self, pressure_kpa: float | None, kick: float, periods: int) -> tuple[int, float]:
+        """(``fine.retreat_trough_bound``, task h36g, docs §90) The doublet's retreat, decided in its kick period:
+        (whole periods, scale) -- each period's command moved ``scale`` of the way from the hold torque to the
+        retreat's (1: the planned retreat).  The deep retreat's trough (two periods at the 30 A cap, docs §84) lies
+        7-17e-3 rad of twist below the preload: at max Δp the nominal valve's static band (2 T_s / K, ~23e-3 rad) holds
+        it, but at low Δp, on low friction or a stiff coupling (full box 1069, Δp 0.98 MPa: band ~5.4e-3 nominal; other
+        valves' slippery, stiff_coupling) it passes the other way's breakaway and the valve breaks loose backwards
+        (docs §88.4b, §89).  The trough is predicted by the move model on a valve that stays stuck
+        (:meth:`PulseMoves.trough`) from the doublet's actual start -- the twist, the gear output's speed and the hold
+        torque of this period (a park still ringing adds its swing to the retreat's) -- and must stay above the other
+        way's learned breakaway twist by ``fine.doublet_sigmas`` of its learned scatter (the staircase's own margin
+        against a park break).  The deepest of: the planned periods, fewer whole periods, one period scaled toward
+        the hold (linear between TROUGH_SCALES points); none: one period at the hold (scale 0)."""
+        cfg, d = self.cfg, self._dir
+        if not cfg.retreat_trough_bound or pressure_kpa is None or self._last_th1 is None:
+            return periods, 1.0
+        step = APEX_DP_STEP * self.m.pressure_max_kpa
+        p = round(pressure_kpa / step) * step
+        thl = self._last_valve
+        pre = self._last_th1 - thl                   # the twist the kick starts from (rad)
+        phi_eo, phi_bo, band = self._twists(thl, p, -d)
+        margin = cfg.doublet_sigmas * self._scatter(-d, band, max(abs(phi_bo - phi_eo), 1e-5))
+        if cfg.retreat_trough_misfit and not math.isinf(cfg.breakaway_fit):
+            # the stage engages on a valve whose breakaway lies up to fine.breakaway_fit x T_s/K off the model's: the
+            # other way's level, not learned at this stop, may lie that much nearer (full box 1069, K x0.91 untold:
+            # the true closing level 1.5e-3 rad above the learned one)
+            m = self.m
+            margin += cfg.breakaway_fit * m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
+        room = d * (pre - phi_bo) - margin           # rad of twist the trough may lie below the start
+        if self._moves is None:
+            self._moves = _pulse_moves(self)
+        mv = self._moves
+        # the kick's actual start (the park may still ring: 1069's ran +1 rad/s into the kick) and the stage's own
+        # observe servo (its feed-forward's engage offset and integral, its final twist)
+        kn = self.m.coupling_stiffness_nm_per_rad / self.m.gear_ratio
+        state = dict(kick_current_a=kick, valve_angle_rad=thl, speed0=self._w1_now, hold0=self._hold_torque,
+                     servo_offset=self._ff0 - kn * self._phi0 + self.ki * self._integral / self.m.gear_ratio,
+                     ref_twist=self._final)
+        for n in range(periods, 1, -1):
+            if d * (pre - float(mv.trough(d, p, pre, retreat_periods=n, **state)[0])) <= room:
+                return n, 1.0
+        scales = np.linspace(1.0, 0.0, TROUGH_SCALES)
+        one = d * (pre - mv.trough(d, p, np.full(TROUGH_SCALES, pre), retreat_periods=1, retreat_scale=scales, **state))
+        if one[0] <= room:
+            return 1, 1.0
+        for j in range(1, TROUGH_SCALES):
+            if one[j] <= room:
+                # linear between the last point that crossed and this one (the trough falls with the scale)
+                f = (one[j - 1] - room) / max(one[j - 1] - one[j], 1e-12)
+                return 1, float(scales[j - 1] + f * (scales[j] - scales[j - 1]))
+        return 1, 0.0
+
+    def _doublet_torque(self, pressure_kpa: float | None = None) -> float:
         """The doublet's torque in its period ``_k`` (1: kick; then ``fine.retreat_full_periods`` of the
         whole current backwards and one of half of it), N*m.  The valve lets go at the end of the first
         retreat period (nominal box, task h22m: 2.9-3.4 ms after the doublet's start, the twist's apex at
@@ -1776,13 +1839,18 @@ class FinePositioner:
             if cfg.apex_policy and self._apex_kick is not None:
                 kick = self._apex_kick             # (task h33p) the kick the policy chose for this try
             torque = self._hold_torque + d * kick * kt
-        elif self._k <= 1 + (1 if self._deep_unfit else max(
-                cfg.apex_retreat_periods if cfg.apex_policy and cfg.apex_retreat_periods > 0
-                else cfg.retreat_full_periods, 1)):
             # (fine.retreat_return_guard: one whole period once a doublet's valve came back on this plant)
+            periods = 1 if self._deep_unfit else max(
+                cfg.apex_retreat_periods if cfg.apex_policy and cfg.apex_retreat_periods > 0
+                else cfg.retreat_full_periods, 1)
+            # (fine.retreat_trough_bound) fewer / scaled periods where the trough would break the valve loose backwards
+            self._retreat = self._retreat_plan(pressure_kpa, kick, periods)
+        elif self._k <= 1 + self._retreat[0]:
             # (task h34s, ``fine.retreat_cap``) the cap itself backwards, not the hold less the cap (an opening
             # pulse at 0.5 rad, max Δp, holds ~+10.6 A: hold - cap is -19.4 A; plateau_floor's deep shape, §82)
             torque = -d * cap if cfg.retreat_cap else self._hold_torque - d * cap
+            if self._retreat[1] != 1.0:
+                torque = self._hold_torque + self._retreat[1] * (torque - self._hold_torque)
         elif cfg.retreat_cap and not cfg.retreat_cap_half:
             # ... and no half period: the observe servo takes this period (None: :meth:`_run` runs it)
             self.phase, self._k, self._pulsed = OBSERVE, 0, True

@@ -616,6 +616,17 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "(its trough passed the other way's breakaway: the slippery valve, friction x0.4, with fine.retreat_cap and "
           "fine.apex_retreat_periods 2 repeated such doublets 20 times -- hunting; task h35v, docs section 89)",
           runtime=True),
+    Param("fine.retreat_trough_bound", False, "", "doublet: a retreat whose trough -- the twist the move model "
+          "(fine.apex_policy's PulseMoves) predicts after the kick on a valve that stays stuck -- would pass the other "
+          "way's learned breakaway twist less fine.doublet_sigmas of its learned scatter is made shallower: fewer whole "
+          "periods, then one period's command scaled toward the hold.  The deep retreat (fine.retreat_cap, two periods) "
+          "swings the twist 7-17e-3 rad below the preload: inside the nominal valve's static band at max Δp, past the "
+          "other breakaway at low Δp (full box run 1069) or on a narrow band (friction x0.4, stiff coupling) -- the "
+          "valve broke loose backwards (task h36g, docs section 90)", runtime=True),
+    Param("fine.retreat_trough_misfit", False, "", "with fine.retreat_trough_bound: the trough's margin above the other "
+          "way's learned breakaway also fine.breakaway_fit x T_s(dp)/K -- the level misfit the stage engages with (full "
+          "box run 1069, coupling x0.91 untold: the true closing level lay 1.5e-3 rad above the learned one; task h36g, "
+          "docs section 90)", runtime=True),
     Param("fine.retreat_return_rest", False, "", "with fine.retreat_return_guard: when the return is seen the observe "
           "servo's reference is frozen at the gear output's present angle and the doublet is judged once the valve rests "
           "(back at its start: counted and the plateau held; else as any move) instead of leaving the plateau (task "

@@ -348,6 +348,8 @@ class PositionController:
                           supply_voltage_v=ps["drive.supply_voltage_v"],
                           hold_reversed=ps["fine.hold_reversed"],
                           retreat_return_guard=ps["fine.retreat_return_guard"],
+                          retreat_trough_bound=ps["fine.retreat_trough_bound"],
+                          retreat_trough_misfit=ps["fine.retreat_trough_misfit"],
                           retreat_return_hold=ps["fine.retreat_return_hold"],
                           retreat_return_rest=ps["fine.retreat_return_rest"],
                           unmoved_settled=ps["fine.unmoved_settled"])

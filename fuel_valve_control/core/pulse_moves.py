@@ -306,6 +306,33 @@ class PulseMoves:
             th = float(self.angle_grid[np.argmin(np.abs(self.angle_grid - th))])
         return self._table(d, p, kick, th)
 
+    def trough(self, direction: int, pressure_kpa: float, preload_rad, kick_current_a: float | None = None,
+               valve_angle_rad: float | None = None, aim_rad: float = 0.0, retreat_periods: int | None = None,
+               retreat_scale=1.0, speed0: float | None = None, hold0: float | None = None, servo_offset: float = 0.0,
+               ref_twist: float | None = None) -> np.ndarray:
+        """(task h36g, docs §90) The retreat's trough on a valve that stays stuck: the smallest coupling torque over K
+        toward ``direction`` (absolute twist, rad, the static levels' coordinate) the doublet from a quasi-static
+        preload ``preload_rad`` (absolute twist, rad; an array: one lane each) reaches after its kick -- through the
+        retreat periods and the observe servo's pull back (toward ``φe + d aim / 2``) -- where the *other* direction's
+        static level ``(load - d T_s) / K`` meets it: below that level the retreat itself breaks the valve loose
+        backwards.  ``retreat_periods`` (None: the model's ``retreat_full_periods``; 0: the kick then the observe
+        servo) and ``retreat_scale`` (broadcast with ``preload_rad``: each retreat period's command moved this fraction
+        of the way from the hold torque to the model's own retreat command -- 1 the model's doublet, 0 the hold)
+        reshape the doublet; ``speed0`` (rad/s, the gear output's speed at the kick, signed) and ``hold0`` (N*m at the
+        motor: the torque the kick is added to) start it from the stage's actual state (None: at rest on the
+        quasi-static hold); ``servo_offset`` (N*m at the motor: the stage's servo's static torque less the model's
+        ``K φ / N`` at the same twist -- its feed-forward's engage offset and its integral) and ``ref_twist`` (absolute
+        twist, rad: the stage's final twist; None: ``φe + d aim / 2``) make the observe servo the stage's.  Simulated until the servo has turned the swing (one run of a few lanes, ~5 ms of CPU);
+        not tabulated."""
+        d, p, kick, th = self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad)
+        pre, scale = np.broadcast_arrays(np.atleast_1d(np.asarray(preload_rad, dtype=float)),
+                                         np.atleast_1d(np.asarray(retreat_scale, dtype=float)))
+        n = pre.shape[0]
+        return self._simulate(d, p, kick, th, preload=pre.copy(), excess=np.full(n, np.inf),
+                              aim=np.full(n, float(aim_rad)), track_trough=True, retreat_periods=retreat_periods,
+                              retreat_scale=scale.copy(), speed0=speed0, hold0=hold0, servo_offset=servo_offset,
+                              ref_twist=ref_twist)
+
     def pending(self, pressures_kpa=None, directions=(1, -1), kicks=None) -> list:
         """The (direction, Δp, kick, angle) keys :meth:`prepare` with these arguments would still build (tables or
         rises not built yet); [] once prepared.  Keyed mode only (``exact``: every new key is a new table)."""
@@ -689,13 +716,23 @@ class PulseMoves:
             self._tables.popitem(last=False)
         return tab
 
-    def _simulate(self, d, p, kick, th0, *, preload, excess, aim, track_apex=False, apex_torque=True, base=None):
+    def _simulate(self, d, p, kick, th0, *, preload, excess, aim, track_apex=False, apex_torque=True, base=None,
+                  track_trough=False, retreat_periods=None, retreat_scale=None, speed0=None, hold0=None,
+                  servo_offset=0.0, ref_twist=None):
         """Run the doublet on every lane at once from rest at valve angle ``th0`` with the twist at ``preload``
         (absolute, rad), the valve's static level ``T_c + K excess``; returns the valve angle at the end
         (or, with ``track_apex``, the largest twist toward ``d`` reached, absolute rad).  ``base`` (int array,
         optional): ``preload`` and ``excess`` are per *base* lane and ``aim`` per final lane, lane i starting from
         base lane ``base[i]``: the doublet itself (kick and retreat) does not depend on the aim, so it is run once
-        per base lane and the state copied out to the final lanes for the observe servo (the same answers)."""
+        per base lane and the state copied out to the final lanes for the observe servo (the same answers).
+        (:meth:`trough`, task h36g) ``track_trough``: return the smallest coupling torque over K toward ``d`` reached
+        after the kick instead (absolute twist, rad); ``retreat_periods`` (None: the model's own) and ``retreat_scale``
+        (per lane, in [0, 1]: the retreat periods' command moved this fraction of the way from the hold to the model's
+        own retreat command; None: the model's own) reshape the doublet for it; ``speed0`` (rad/s at the gear output,
+        toward +) and ``hold0`` (N*m at the motor) the gear output's speed and the hold torque the kick starts on (None:
+        at rest on the quasi-static hold); ``servo_offset`` (N*m at the motor) added to the observe servo's torque and
+        ``ref_twist`` (absolute twist, rad; None: ``φe + d aim / 2``) its reference: the stage's own servo; the run
+        stops once every lane's twist rises again after the retreat."""
         self.runs += 1
         m = self.m
         n_gear, k, c = m.gear_ratio, m.coupling_stiffness_nm_per_rad, m.coupling_damping_nms
@@ -716,12 +753,14 @@ class PulseMoves:
         thl = np.full(n, float(th0))
         wl = np.zeros(n)
         th1 = thl + preload
-        w1 = np.zeros(n)
+        w1 = np.zeros(n) if speed0 is None else np.full(n, float(speed0))
         hold = k * preload / n_gear                                        # N*m at the motor
         if self.park_friction:
             # the park climbed to the preload toward d: the servo's hold carries the motor's Coulomb friction
             # too, which the stuck motor's reaction takes over (released by the kick: +5 % rise, docs §80)
             hold = hold + d * fl.motor_coulomb_nm
+        if hold0 is not None:
+            hold = np.full(n, float(hold0))
         iq = hold / kt
         xq = r_ohm * iq                                                    # the current PI's integral at rest
         cap = self.cap * kt
@@ -734,6 +773,8 @@ class PulseMoves:
         phi_e = (load0 + d * tc) / k
         # the observe servo's gear-output target (per final lane)
         ref1 = (thl + phi_e if base is None else float(th0) + phi_e) + d * aim / 2.0
+        if ref_twist is not None:
+            ref1 = np.full(len(ref1), float(th0) + float(ref_twist))
         integral = np.zeros(n)
         th1_prev = th1.copy()
         apex = d * preload.copy()
@@ -743,8 +784,12 @@ class PulseMoves:
             a_rl = math.exp(-r_ohm * dt / lq) if r_ohm > 0.0 else 1.0
             b_rl = (1.0 - a_rl) / r_ohm if r_ohm > 0.0 else dt / lq
         c_emf, c_vd = psi * pole * n_gear, lq * pole * n_gear
-        n_pulse = 2 + self.retreat_full - (1 if self.retreat_cap else 0)
+        retreat_full = self.retreat_full if retreat_periods is None else max(int(retreat_periods), 0)
+        n_pulse = 2 + retreat_full - (1 if self.retreat_cap else 0)
+        trough = d * preload.copy()
         for period in range(n_pulse + self.observe_periods):
+            if track_trough and period > n_pulse and np.all(d * (w1 - wl) > 0.0):
+                break                                    # the servo has turned every lane's swing: the trough is past
             if base is not None and period == n_pulse:
                 # the doublet done on the base lanes: one lane per aim from here
                 thl, wl, th1, w1, iq, xq, th1_prev, ts = (v[base] for v in (thl, wl, th1, w1, iq, xq, th1_prev, ts))
@@ -752,9 +797,11 @@ class PulseMoves:
                 integral = np.zeros(n)
             if period == 0:
                 torque = hold + d * kick * kt
-            elif period <= self.retreat_full:
+            elif period <= retreat_full:
                 torque = -d * cap * np.ones(n) if self.cap_full else hold - d * cap
-            elif period == self.retreat_full + 1 and not self.retreat_cap:
+                if retreat_scale is not None:
+                    torque = hold + retreat_scale * (torque - hold)
+            elif period == retreat_full + 1 and not self.retreat_cap:
                 frac = 0.5
                 if self.unmoved_fraction != 0.5 and self.tolerance > 0.0:
                     unmoved = np.abs(thl - th0) < 0.5 * self.tolerance
@@ -768,7 +815,7 @@ class PulseMoves:
                     integral = integral + np.where(np.abs(thl - th0) >= 0.5 * self.tolerance, 0.0, e * per)
                 elif not self.hold_integral:
                     integral = integral + e * per
-                ff = k * (ref1 - thl) / n_gear
+                ff = k * (ref1 - thl) / n_gear + servo_offset
                 torque = ff + (self.kp * e - self.kd * w1s + self.ki * integral) / n_gear
             th1_prev = th1.copy()
             iq_ref = np.clip(torque, -cap, cap) / kt * np.ones(n)
@@ -804,6 +851,10 @@ class PulseMoves:
                     # static level is met by -- the twist alone peaks ~4e-5 rad lower, while it still rises
                     apex = np.maximum(apex, d * (k * (th1 - thl) + c * (w1 - wl)) / k if apex_torque
                                       else d * (th1 - thl))
+                if track_trough and period >= 1:
+                    trough = np.minimum(trough, d * (k * (th1 - thl) + c * (w1 - wl)) / k)
+        if track_trough:
+            return d * trough
         return d * apex if track_apex else thl
 
     @staticmethod
