@@ -107,11 +107,12 @@ class Launch:
 
     def wait_for(self, pattern: str, timeout: float = UP_S) -> re.Match:
         """The first match of ``pattern`` in the launch's output.  Fails when the launch exits
-        first, or when its output has not grown for ``timeout`` s (stalled; on the loaded 2-core
-        machine the six or eight node processes of a two-valve launch took up to two minutes to
-        come up, each saying so as it did), or after ``STALL_CAP`` x ``timeout`` s in all."""
+        first, or when it has made no progress for ``timeout`` s -- its output has not grown and
+        its processes have used no CPU (stalled: on the loaded 2-core machine the eight node
+        processes of a two-valve launch spent over a minute importing before the first said it
+        was up, and up to two minutes in all) --, or after ``STALL_CAP`` x ``timeout`` s in all."""
         start = last = time.monotonic()
-        size = -1
+        progress = None
         while True:
             text = self.output()
             m = re.search(pattern, text)
@@ -119,12 +120,25 @@ class Launch:
                 return m
             assert self.proc.poll() is None, f"launch exited ({self.proc.returncode}):\n{text}"
             now = time.monotonic()
-            if len(text) != size:
-                size, last = len(text), now
+            if (len(text), self.cpu_ticks()) != progress:
+                progress, last = (len(text), self.cpu_ticks()), now
             if now - last > timeout or now - start > STALL_CAP * timeout:
                 raise AssertionError(f"no {pattern!r} (output still for {now - last:.0f} s, "
                                      f"{now - start:.0f} s in all):\n{text}")
             time.sleep(0.2)
+
+    def cpu_ticks(self) -> int:
+        """CPU time used so far by the launch's processes (its session: launch and its nodes),
+        clock ticks; 0 where ``/proc`` cannot tell."""
+        total = 0
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rsplit(")", 1)[1].split()
+            except OSError:                 # the process ended meanwhile
+                continue
+            if int(fields[3]) == self.proc.pid:          # session id (field 6)
+                total += int(fields[11]) + int(fields[12])   # utime + stime (fields 14, 15)
+        return total
 
     def ctrl_c(self, timeout: float = 30.0) -> int:
         """SIGINT to the process group (what Ctrl-C does); the launch's exit code."""
