@@ -243,7 +243,7 @@ def tear_down(node, executor, code: int = 0, budget_s: float | None = TEARDOWN_B
     ``budget_s`` (None: none): if all that takes longer, the stacks of every thread are printed
     to stderr and the process ends with ``code`` (see the module docstring)."""
     import rclpy
-    timer = _arm_budget(budget_s, code) if budget_s is not None else None
+    armed = budget_s is not None and _arm_budget(budget_s, code)
     if node is not None:
         if executor is not None:
             executor.remove_node(node)
@@ -254,30 +254,27 @@ def tear_down(node, executor, code: int = 0, budget_s: float | None = TEARDOWN_B
     # the participant leaves now (others drop it at once, not after its lease), not in the
     # interpreter's finalization that end_process skips
     rclpy.get_default_context().destroy()
-    if budget_s is not None:
+    if armed:
         import faulthandler
         faulthandler.cancel_dump_traceback_later()
-    if timer is not None:
-        disarm_exit_timer(timer)        # end_process may take its time (a coverage save)
+        # (the exit timer stays armed: end_process follows at once and ends the process first)
     ignore_signals()
 
 
-def _arm_budget(budget_s: float, code: int):
-    """Arm :func:`tear_down`'s budget: the stack dump a little before it, the exit at it
-    (:func:`arm_exit_timer`'s timer, None if none).  What is printed so far is flushed first
-    (``_exit`` flushes nothing)."""
+def _arm_budget(budget_s: float, code: int) -> bool:
+    """Arm :func:`tear_down`'s budget: the stack dump a little before it, the exit at it.
+    What is printed so far is flushed first (``_exit`` flushes nothing)."""
     import faulthandler
     flush_output()
     faulthandler.dump_traceback_later(max(budget_s - 0.5, 0.5 * budget_s), exit=False)
     return arm_exit_timer(budget_s, code)
 
 
-def arm_exit_timer(seconds: float, code: int):
+def arm_exit_timer(seconds: float, code: int) -> bool:
     """End the process with ``_exit(code)`` ``seconds`` from now, from a thread of the C library
     (a POSIX timer with ``SIGEV_THREAD`` notification calling ``_exit``), never from Python: a
     main thread blocked in C code with the GIL held (a DDS tear-down that hangs) cannot delay
-    it.  The timer (for :func:`disarm_exit_timer`); None where the call is not available (not
-    Linux/glibc): nothing armed."""
+    it.  False where the call is not available (not Linux/glibc): nothing armed."""
     import ctypes
 
     class _Thread(ctypes.Structure):
@@ -304,20 +301,11 @@ def arm_exit_timer(seconds: float, code: int):
         event.un.thread.function = ctypes.cast(libc._exit, ctypes.c_void_p).value
         timer = ctypes.c_void_p()
         if libc.timer_create(clock_monotonic, ctypes.byref(event), ctypes.byref(timer)) != 0:
-            return None
+            return False
         spec = _Itimerspec(value=_Timespec(int(seconds), int(round((seconds % 1.0) * 1e9))))
-        if libc.timer_settime(timer, 0, ctypes.byref(spec), None) != 0:
-            libc.timer_delete(timer)
-            return None
-        return timer
+        return libc.timer_settime(timer, 0, ctypes.byref(spec), None) == 0
     except (OSError, AttributeError):        # no libc handle / no timer_create: not Linux
-        return None
-
-
-def disarm_exit_timer(timer) -> None:
-    """Delete a timer :func:`arm_exit_timer` armed (its ``_exit`` does not happen)."""
-    import ctypes
-    ctypes.CDLL(None).timer_delete(timer)
+        return False
 
 
 def flush_output() -> None:
