@@ -111,3 +111,34 @@ def test_signals_end_every_node_with_exit_0(tmp_path, signals):
         assert code == 0, (name, code, log)
         assert seconds < EXIT_WITHIN_S, (name, seconds)
         assert "Traceback" not in log and "KeyboardInterrupt" not in log, (name, log)
+
+
+#: a node whose DDS tear-down never ends, holding the GIL (as a blocked ``publisher.destroy``
+#: in C code does): ``tear_down`` must still end the process, with the run's exit code
+_HUNG_TEAR_DOWN = """
+import ctypes, sys
+import rclpy
+from fuel_valve_control.ros import node_runner
+
+class Node:
+    def destroy_node(self):
+        print("destroying", flush=True)
+        ctypes.PyDLL(None).sleep(120)          # C code, GIL held: no Python thread runs meanwhile
+
+rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+node_runner.tear_down(Node(), None, code=int(sys.argv[1]), budget_s=1.0)
+print("tear-down returned", flush=True)
+"""
+
+
+@pytest.mark.parametrize("code", [0, 2])
+def test_a_hung_tear_down_ends_the_process_with_its_exit_code(code):
+    """h36r: under ``ros2 launch`` on a loaded machine a node's tear-down (after its exit report)
+    hung 15 s, ignored SIGTERM (by design) and was killed (-9, "process has died").  Past
+    ``budget_s`` the stacks are printed and the process ends with the code it would have had."""
+    proc = subprocess.run([sys.executable, "-c", _HUNG_TEAR_DOWN, str(code)], capture_output=True, text=True,
+                          timeout=100)            # (a guard: without the budget it sleeps 120 s)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == code, out
+    assert "destroying" in out and "tear-down returned" not in out, out
+    assert "in destroy_node" in out and "in tear_down" in out, out        # where it hung

@@ -30,6 +30,18 @@ process (measured), and all the nodes of a launch exit at the same moment: on a 
 machine a node got ~5 % of a core and took more than launch's 5 s between its SIGINT and its
 escalation to SIGTERM (ignored here) and then SIGKILL (exit -9: "process has died").  Nothing
 is left for it to do: the bag is closed, the logs are flushed, the participant is gone.
+
+Tear-down budget: the DDS tear-down itself (destroying the node's publishers, the executor,
+the context) took 2-3 s per node when the six or eight nodes of a two-valve launch all stopped
+at once on the loaded 2-core machine (load 20-40: the ``publisher.destroy`` calls, measured by
+a stack dump), and now and then it did not end at all: a demand node, then a plant, printed its
+exit report, sat in the tear-down 15 s, ignored launch's SIGTERM (by design, above) and was
+killed (exit -9, "process has died"; the real-CLI two-valve tests' flake, h36r).  So
+:func:`tear_down` runs under :data:`TEARDOWN_BUDGET_S`: past it, the stacks are printed (where
+it hung) and the process ends with its exit code all the same (:func:`arm_exit_timer`: a C
+library timer thread, so a main thread blocked in C code holding the GIL cannot stop it).
+Nothing is lost: the node's work and its exit report are done before the tear-down starts;
+only the participant's goodbye may be missing (the others then drop it at its lease's end).
 """
 from __future__ import annotations
 
@@ -57,6 +69,11 @@ GC_FREEZE = False
 TIMER_SLACK_ENV = "FUEL_VALVE_TIMER_SLACK_NS"
 #: timer slack of the plant's tick thread, ns (0: the kernel default of the thread, 50 us)
 LOOP_TIMER_SLACK_NS = 0
+#: longest time :func:`tear_down` may take, s, before the process ends anyway (see the module
+#: docstring): under launch's SIGINT-to-SIGTERM escalation (5 s) with room for the spin loop to
+#: see the signal and the exit report; a tear-down takes 0.1-0.5 s quiet, 2-3 s on the loaded
+#: machine
+TEARDOWN_BUDGET_S = 3.0
 
 
 def make_executor(context=None):
@@ -213,16 +230,20 @@ def run_node(factory, args=None, on_exit=None) -> int:
                 print(f"[{node.get_name()}] published: {json.dumps(dict(gate.published))}", flush=True)
                 print(f"[{node.get_name()}] published before the recorder matched: "
                       f"{json.dumps(dict(gate.before_recorder))}", flush=True)
-        tear_down(node, executor)
+        tear_down(node, executor, code)
     end_process(code)
 
 
-def tear_down(node, executor) -> None:
+def tear_down(node, executor, code: int = 0, budget_s: float | None = TEARDOWN_BUDGET_S) -> None:
     """The end of a node process, in the order that cannot race: the node leaves the executor
     and is destroyed, the executor shuts down, then the context (its logging flushed) and its
     DDS participant; signals arriving after that are ignored (a late one must not turn a clean
-    exit into -2)."""
+    exit into -2).
+
+    ``budget_s`` (None: none): if all that takes longer, the stacks of every thread are printed
+    to stderr and the process ends with ``code`` (see the module docstring)."""
     import rclpy
+    armed = budget_s is not None and _arm_budget(budget_s, code)
     if node is not None:
         if executor is not None:
             executor.remove_node(node)
@@ -233,24 +254,63 @@ def tear_down(node, executor) -> None:
     # the participant leaves now (others drop it at once, not after its lease), not in the
     # interpreter's finalization that end_process skips
     rclpy.get_default_context().destroy()
+    if armed:
+        import faulthandler
+        faulthandler.cancel_dump_traceback_later()
+        # (the exit timer stays armed: end_process follows at once and ends the process first)
     ignore_signals()
 
 
-def end_process(code: int) -> None:
-    """End a node process whose :func:`tear_down` is done: flush stdout/stderr (Python's and
-    the C library's, where rcutils' console logging writes), then ``os._exit(code)`` without
-    the interpreter's finalization (see the module docstring: on a loaded machine it outlasted
-    launch's SIGINT-to-SIGTERM escalation)."""
+def _arm_budget(budget_s: float, code: int) -> bool:
+    """Arm :func:`tear_down`'s budget: the stack dump a little before it, the exit at it.
+    What is printed so far is flushed first (``_exit`` flushes nothing)."""
+    import faulthandler
+    flush_output()
+    faulthandler.dump_traceback_later(max(budget_s - 0.5, 0.5 * budget_s), exit=False)
+    return arm_exit_timer(budget_s, code)
+
+
+def arm_exit_timer(seconds: float, code: int) -> bool:
+    """End the process with ``_exit(code)`` ``seconds`` from now, from a thread of the C library
+    (a POSIX timer with ``SIGEV_THREAD`` notification calling ``_exit``), never from Python: a
+    main thread blocked in C code with the GIL held (a DDS tear-down that hangs) cannot delay
+    it.  False where the call is not available (not Linux/glibc): nothing armed."""
     import ctypes
-    cov = sys.modules.get("coverage")
-    if cov is not None:                     # subprocess coverage saves at exit, which is skipped
-        try:
-            current = cov.Coverage.current()
-            if current is not None:
-                current.stop()
-                current.save()
-        except Exception:                   # noqa: BLE001 - measuring must not change the exit
-            pass
+
+    class _Thread(ctypes.Structure):
+        _fields_ = [("function", ctypes.c_void_p), ("attribute", ctypes.c_void_p)]
+
+    class _Union(ctypes.Union):
+        _fields_ = [("pad", ctypes.c_int * 12), ("tid", ctypes.c_int), ("thread", _Thread)]
+
+    class _Sigevent(ctypes.Structure):       # <bits/types/sigevent_t.h>, 64 bytes
+        _fields_ = [("value", ctypes.c_void_p), ("signo", ctypes.c_int), ("notify", ctypes.c_int),
+                    ("un", _Union)]
+
+    class _Timespec(ctypes.Structure):
+        _fields_ = [("sec", ctypes.c_long), ("nsec", ctypes.c_long)]
+
+    class _Itimerspec(ctypes.Structure):
+        _fields_ = [("interval", _Timespec), ("value", _Timespec)]
+
+    sigev_thread, clock_monotonic = 2, 1
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        event = _Sigevent(value=int(code) or None, notify=sigev_thread)
+        # _exit(int) called with the sigval union, whose int sits where an int argument goes
+        event.un.thread.function = ctypes.cast(libc._exit, ctypes.c_void_p).value
+        timer = ctypes.c_void_p()
+        if libc.timer_create(clock_monotonic, ctypes.byref(event), ctypes.byref(timer)) != 0:
+            return False
+        spec = _Itimerspec(value=_Timespec(int(seconds), int(round((seconds % 1.0) * 1e9))))
+        return libc.timer_settime(timer, 0, ctypes.byref(spec), None) == 0
+    except (OSError, AttributeError):        # no libc handle / no timer_create: not Linux
+        return False
+
+
+def flush_output() -> None:
+    """Flush stdout/stderr, Python's and the C library's (where rcutils' console logging writes)."""
+    import ctypes
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
@@ -260,4 +320,21 @@ def end_process(code: int) -> None:
         ctypes.CDLL(None).fflush(None)      # every C stdio stream (rcutils may buffer stdout)
     except Exception:                       # noqa: BLE001 - no C library handle: nothing buffered there
         pass
+
+
+def end_process(code: int) -> None:
+    """End a node process whose :func:`tear_down` is done: flush stdout/stderr (Python's and
+    the C library's, where rcutils' console logging writes), then ``os._exit(code)`` without
+    the interpreter's finalization (see the module docstring: on a loaded machine it outlasted
+    launch's SIGINT-to-SIGTERM escalation)."""
+    cov = sys.modules.get("coverage")
+    if cov is not None:                     # subprocess coverage saves at exit, which is skipped
+        try:
+            current = cov.Coverage.current()
+            if current is not None:
+                current.stop()
+                current.save()
+        except Exception:                   # noqa: BLE001 - measuring must not change the exit
+            pass
+    flush_output()
     os._exit(code)
