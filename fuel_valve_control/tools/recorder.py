@@ -602,7 +602,7 @@ def main(args=None) -> int:
             print(f"recorder: could not finalise bag {node.path}: {exc}", file=sys.stderr, flush=True)
             code = 1
     finally:
-        node_runner.tear_down(node, executor)
+        node_runner.tear_down(node, executor, code)     # past its budget it ends with this code (h36r)
     node_runner.end_process(code)       # the bag is closed: no interpreter finalization (node_runner)
 
 
