@@ -14,7 +14,8 @@ import pytest
 
 from fuel_valve_control.core.fine_positioning import START_SIGMAS_MAX, START_SIGMAS_MIN, FineLearner
 from fuel_valve_control.core.params import CONTROLLER_SPEC
-from test_fine_positioning import _break_loose, _rest_twist, _stage
+# the staircase's learner: C1 (the default since stop 25, docs §91) off -- its apex policy climbs no staircase
+from test_fine_positioning import _break_loose, _main_stage as _stage, _rest_twist
 from test_fine_staircase import _stuck_staircase
 
 

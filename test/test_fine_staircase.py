@@ -24,6 +24,8 @@ def _stuck_staircase(fine, err, p, stairs):
         th1 = thl + (fine._pre if fine.phase == "park" else fine._final)
         fine.update(thl + err, th1, thl, True, 0.3, p)
         periods += 1
+        # (a stage that climbs no staircase -- the apex policy, C1's default -- would never end this loop)
+        assert periods < 2000 * (stairs + 1), (periods, depths)
         if fine._stair != depths[-1]:
             depths.append(fine._stair)
         assert fine.phase not in ("hold", "idle")

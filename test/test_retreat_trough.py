@@ -14,7 +14,8 @@ import pytest
 
 from fuel_valve_control.core.params import CONTROLLER_SPEC
 from fuel_valve_control.core.pulse_moves import PulseMoves
-from test_fine_positioning import _stage, _torques_until_observe
+# main's staircase with the deep retreat (C1, the default since stop 25, off: the stage-alone pulse these tests drive)
+from test_fine_positioning import _main_stage as _stage, _torques_until_observe
 
 DEEP = {"fine.retreat_full_periods": 2, "fine.retreat_cap": True}
 BOUND = {**DEEP, "fine.retreat_trough_bound": True}
