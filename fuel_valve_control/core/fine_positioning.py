@@ -1295,6 +1295,8 @@ class FinePositioner:
         level, and its move varies less with the level)."""
         k0, top, r = self.cfg.kick_current_a, self.cfg.apex_kick_max_a, max(self.cfg.apex_kick_ratio, 1.05)
         kicks = [k0]
+        if not k0 > 0.0:
+            return kicks               # (no kick to grow: 0 x r stays 0 -- the loop below would never end)
         while kicks[-1] * r <= top + 1e-9:
             kicks.append(kicks[-1] * r)
         return kicks
