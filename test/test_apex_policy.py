@@ -243,3 +243,14 @@ def test_the_apex_policy_hunter_is_held_not_handed_back():
     assert not pl["hunts"] and pl["hunting_reversals"] <= 1
     assert pl["final_error_rad"] < 3.5e-3
     assert not any(q["hunts"] for q in plats[:11])
+
+
+def test_the_kick_set_is_finite_without_a_kick():
+    """``fine.kick_current_a`` 0 (a boundary value the schema accepts): the policy's kick set is that one kick -- its
+    growth by ``fine.apex_kick_ratio`` (0 x r stays 0) once never ended and ate the memory (test_fuzz's boundary case,
+    OOM-killed when C1 made the policy the default, stop 25)."""
+    fine, _ = _stage(**{"fine.kick_current_a": 0.0})
+    assert fine._apex_kicks() == [0.0]
+    fine, _ = _stage()
+    kicks = fine._apex_kicks()
+    assert kicks[0] == fine.cfg.kick_current_a and kicks[-1] <= fine.cfg.apex_kick_max_a + 1e-9 and len(kicks) == 3
