@@ -135,7 +135,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -224,8 +224,9 @@ def level_law_scales(kind: str, sigma: float, sigma_hi: float, nu: float) -> tup
         u = (np.arange(APEX_MIX_SCALES) + 0.5) / APEX_MIX_SCALES
         return sigma * (sigma_hi / sigma) ** u, np.full(APEX_MIX_SCALES, 1.0 / APEX_MIX_SCALES)
     if kind == "student" and np.isfinite(nu) and nu > 0.0:
-        # equal-probability quantiles of the precision lambda ~ Gamma(nu/2, rate nu/2) (Wilson-Hilferty for the
-        # chi-square quantile: no scipy in the core); the scatter sigma / sqrt(lambda)
+        # equal-probability quantiles of the precision lambda ~ Gamma(nu/2, rate nu/2) (the Wilson-Hilferty
+        # approximation of the chi-square quantile, as built and tested -- scipy.special.chdtri would give it exactly);
+        # the scatter sigma / sqrt(lambda)
         from statistics import NormalDist     # noqa: PLC0415
         u = (np.arange(APEX_MIX_SCALES) + 0.5) / APEX_MIX_SCALES
         zq = np.array([NormalDist().inv_cdf(float(x)) for x in u])
@@ -863,7 +864,7 @@ class FinePositioner:
         model, offline and in the node alike).  ``build`` False: make the model and count, build no table.
         Returns (tables that were still to build, CPU seconds spent building them);
         (0, 0.0) without ``fine.apex_policy`` (nothing is made: no cost for the default)."""
-        if not (self._full_cfg if self._tables_gate else self.cfg).apex_policy:
+        if not self._configured.apex_policy:
             return 0, 0.0
         if self._moves is None:
             self._moves = _pulse_moves(self)
@@ -872,6 +873,11 @@ class FinePositioner:
         if not build or not pending:
             return pending, 0.0
         return pending, self._moves.prepare(kicks=kicks)
+
+    @property
+    def _configured(self) -> FineConfig:
+        """The stage's configuration as built -- not the staircase it runs while its move tables are deferred."""
+        return self._full_cfg if self._tables_gate else self.cfg
 
     def defer_tables(self, gate: bool = True) -> list:
         """(task h36b) For a real-time caller that builds the tables elsewhere (a background process,
@@ -882,14 +888,13 @@ class FinePositioner:
         here.  No table is ever built inside :meth:`update` meanwhile.  ``gate`` False: the keys and the model only,
         the stage unchanged (it builds what it asks for lazily, as offline: a lockstep caller, whose simulated time
         waits for it, so its run is the offline simulator's whatever the cache holds)."""
-        if not (self._full_cfg if self._tables_gate else self.cfg).apex_policy:
+        if not self._configured.apex_policy:
             return []
         self.prepare(build=False)
         keys = self._moves.pending(kicks=self._apex_kicks())
         if not gate:
             return keys
         if keys and self._tables_gate is None:
-            from dataclasses import replace    # noqa: PLC0415
             self._full_cfg, self.cfg = self.cfg, replace(self.cfg, **dict.fromkeys(APEX_BUILD_OFF, False))
             self._tables_gate = "closed"
         elif keys:
