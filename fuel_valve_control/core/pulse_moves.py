@@ -119,10 +119,11 @@ BLEND_THRESHOLDS = "min"
 BLEND_CACHE_SIZE = 16
 #: keyed mode: the process keeps the tables of this many model / settings signatures, shared by every PulseMoves of
 #: one signature (``share``), least recently made evicted.  **The bound on the tables held in memory** (task h37b): a
-#: signature's whole keyed set is ~0.13 MB per table -- C1 (kicks to 16 A): 342 tables, ~45 MB (~43 MB on disk); the
-#: default 4 A kick: 114 tables, ~15 MB -- so at most 4 x 45 MB = ~180 MB here, plus the stores of PulseMoves still
-#: alive outside it (an evicted signature's tables live as long as a law holding its model does: the ROS node holds at
-#: most two laws, the one in force and the one waiting for its swap)
+#: signature's whole keyed set is ~0.13 MB per table -- C1 (kicks to 16 A): 342 tables, 44 MB read from the cache (43
+#: MB on disk), 46 MB once each was read (its flat copy; measured, docs §93); the 4 A kick alone: 114 tables, ~15 MB --
+#: so at most 4 x 46 MB = ~185 MB here, plus the stores of PulseMoves still alive outside it (an evicted signature's
+#: tables live as long as a law holding its model does: the ROS node holds at most two laws, the one in force and the
+#: one waiting for its swap)
 SHARED_SIGNATURES = 4
 _SHARED: OrderedDict = OrderedDict()
 #: the keyed tables' disk cache (:meth:`PulseMoves.save_table` / :meth:`PulseMoves.read_cached`, task h36b): the version
