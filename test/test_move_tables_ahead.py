@@ -103,7 +103,7 @@ def test_prepare_makes_nothing_with_the_apex_policy_off():
 def _settle(node, timeout=120.0):
     """Run the node's table poll (its steady timer's callback) until no build is left."""
     t0 = time.monotonic()
-    while node._table_build is not None:
+    while node._table_build is not None or node._table_next is not None:
         assert time.monotonic() - t0 < timeout, node._tables_status
         node._poll_tables()
         time.sleep(0.05)
@@ -142,7 +142,7 @@ def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_bu
         res = node.set_parameters([Parameter("fine.apex_kick_max_a", value=16.0)])[0]
         assert res.successful, res.reason
         assert node._table_build is not None
-        new_fine = node._table_waiters[-1]
+        new_fine = node._table_waiters[-1]()                # (held weakly, task h37b)
         assert new_fine is not fine and new_fine.tables_deferred and new_fine.cfg.apex_kick_max_a == 16.0
         _settle(node)
         assert new_fine._tables_gate == "released" and node._tables_status.startswith("ready"), node._tables_status
@@ -214,6 +214,77 @@ def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_bu
         rclpy.try_shutdown(context=ctx)
 
 
+@pytest.mark.ros
+def test_node_run_time_changes_start_at_most_one_build_and_keep_no_replaced_stage(small_grid, tmp_path, monkeypatch):
+    """(task h37b) The node's run-time path is bounded: changes that leave the move model's signature alone start no
+    build and no read of their own (they wait for the one in progress, here never polled -- as in test_fuzz_nodes,
+    whose boundary values grew the process past 5 GB with C1 on); a replaced waiting law's stage is not kept (weakly
+    held, dropped); changes of the signature leave at most one build alive (thread or worker), the newest request
+    wins, and the process keeps at most ``SHARED_SIGNATURES`` stores; /diagnostics' line follows."""
+    import gc
+    import weakref
+    from collections import OrderedDict
+    rclpy = pytest.importorskip("rclpy")
+    from rclpy.parameter import Parameter
+    from fuel_valve_control.ros import controller_node as cn
+    from fuel_valve_control.core import pulse_moves as pmod
+
+    monkeypatch.setenv(pmod.CACHE_ENV, str(tmp_path / "cache"))
+    monkeypatch.setattr(pmod, "_SHARED", OrderedDict())
+    made = []
+
+    class Counted(pmod.TableBuild):
+        def __init__(self, *args, **kw):
+            super().__init__(*args, **kw)
+            made.append(self)
+
+    monkeypatch.setattr(cn, "TableBuild", Counted)
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = cn.ControllerNode(context=ctx, namespace="/tables_bounded", parameter_overrides=[
+            Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True),
+            Parameter("fine.apex_kick_max_a", value=0.0), Parameter("fine.apex_retreat_periods", value=1)])
+        node.trigger_configure()
+        assert len(made) == 1 and node.driver.controller.law.fine.tables_deferred
+        waiting = []
+        for k in range(4):                   # a law parameter, not the move model's: one signature
+            assert node.set_parameters([Parameter("fine.apex_land_rad", value=3.0e-4 + 1e-5 * k)])[0].successful
+            waiting.append(weakref.ref(node.driver.waiting_law.fine))
+            assert waiting[-1]().tables_deferred and waiting[-1]().moves.signature == made[0].moves.signature
+        assert len(made) == 1 and node._table_build is made[0] and node._table_next is None     # no build, no read
+        assert node._tables_status == made[0].status()
+        gc.collect()
+        assert [r() is None for r in waiting] == [True, True, True, False]     # the replaced ones: not retained
+        assert len(node._table_waiters) == 2                                    # in force + the newest
+        _settle(node)
+        assert waiting[-1]()._tables_gate == "released" and node._tables_status.startswith("ready")
+        assert node.driver.controller.law.fine._tables_gate == "released"       # the one in force too (same store)
+        # the move model's signature changed again and again, never polled in between: one build alive at most
+        for periods in (2, 3, 2, 1, 3):
+            assert node.set_parameters([Parameter("fine.apex_retreat_periods", value=periods)])[0].successful
+            assert sum(b.alive() for b in made) <= 1, [b.status() for b in made]
+            assert len(pmod._SHARED) <= pmod.SHARED_SIGNATURES
+            # (1: the configure's signature, its tables in memory -- no build; the others' builds were cut short)
+            assert node._tables_status.startswith(("ready: 8 of 8 in memory",) if periods == 1 else
+                                                  ("starting", "reading", "building")), node._tables_status
+        assert len(made) <= 1 + 1 + 4
+        _settle(node)
+        fine = node.driver.waiting_law.fine
+        assert fine.cfg.apex_retreat_periods == 3 and fine._tables_gate == "released"     # the newest one's
+        assert node._tables_status.startswith("ready"), node._tables_status
+        assert not any(b.alive() for b in made)
+        # a change back to a signature whose tables are in memory: nothing to build, the line says so
+        assert node.set_parameters([Parameter("fine.apex_land_rad", value=3.5e-4)])[0].successful
+        built = len(made)
+        assert node.set_parameters([Parameter("fine.apex_retreat_periods", value=1)])[0].successful
+        assert node._table_build is None and node._table_next is None and len(made) == built
+        assert node._tables_status == "ready: 8 of 8 in memory (no build)", node._tables_status
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
 # ---------------------------------------------------------------------- task h36b: the disk cache, the background build
 import dataclasses  # noqa: E402
 import time  # noqa: E402
@@ -263,6 +334,9 @@ def test_cache_round_trip_is_bit_equal(tmp_path):
                                   built.move(d, p, x, od, kick_current_a=kick, aim_rad=aim, valve_angle_rad=th))
     assert other.builds == 0 and other.runs == 0                 # read from the adopted table: nothing simulated
     assert built.build_and_save(tmp_path, keys) == 0              # in the cache: nothing built again
+    # (task h37b) a read asked to stop ends before its next file (a cancelled build lets go of it at once)
+    asked = []
+    assert _moves().read_cached(tmp_path, keys, stop=lambda: asked.append(1) or len(asked) > 1).keys() == {keys[0]}
 
 
 def test_signature_follows_the_model_the_settings_the_version_and_the_code(monkeypatch):

@@ -129,6 +129,22 @@ def test_requests_compose_and_the_last_one_wins():
         drv.request_params(stale)                # prepared before the waiting one: refused
 
 
+def test_a_replaced_waiting_change_and_its_law_are_not_kept():
+    """(task h37b) Requests the loop has not swapped in yet replace each other: the replaced one's law is let go
+    (it was held by the next change's base: a run of requests to a node whose loop did not run -- test_fuzz_nodes'
+    boundary values -- kept every law built, each with its move model)."""
+    import gc
+    import weakref
+    drv, plant = held()
+    drv.request_params(drv.prepare_params({"mode": "observer_fc"}))
+    first = weakref.ref(drv.waiting_law)
+    drv.request_params(drv.prepare_params({"mode": "kalman_fc"}))           # on top of it: the last one wins
+    gc.collect()
+    assert first() is None and drv.waiting_law is not None
+    loop(drv, plant, 0.4, 1, lambda t: 30.0)
+    assert drv.controller.mode == "kalman_fc" and drv.law_swaps == 1 and drv.waiting_law is None
+
+
 def sweep(t: float) -> float:
     """20 -> 40 % and back, 0.8 s ramps with 0.2 s holds (a move in progress most of the time;
     the default mode alone stays within 1.8 % of it, the pi baselines within 3.8 %)."""

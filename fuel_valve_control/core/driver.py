@@ -306,7 +306,10 @@ class ValveDriver:
                     change = replace(change, law=None, base=None)
             if self._pending is None:             # spam cannot postpone the swap: the first request's time
                 self._pending_since = self._periods
-            self._pending = change
+            # queued without its base (task h37b): the change it was prepared on is replaced (its values are in this
+            # one) -- kept, a run of requests while the loop does not swap (a stalled or not yet running loop) held
+            # every replaced change and its law alive, a chain as long as the requests
+            self._pending = replace(change, base=None) if change.base is not None else change
 
     def set_params(self, changes: dict) -> None:
         """Apply run-time parameter changes at once, atomically: everything is validated and
@@ -319,6 +322,12 @@ class ValveDriver:
         :meth:`prepare_params` + :meth:`request_params` instead.)"""
         self.request_params(self.prepare_params(changes))
         self._commit_params(force=True)
+
+    @property
+    def waiting_law(self):
+        """The law a waiting change will install at its swap (None: no change waits, or it keeps the law in force)."""
+        change = self._pending
+        return None if change is None or change.law is None else change.law[0]
 
     @property
     def params_pending(self) -> bool:

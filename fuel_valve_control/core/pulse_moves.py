@@ -118,7 +118,12 @@ BLEND_THRESHOLDS = "min"
 #: keyed mode: blended tables (one per asked (direction, Δp, kick, angle)) kept
 BLEND_CACHE_SIZE = 16
 #: keyed mode: the process keeps the tables of this many model / settings signatures, shared by every PulseMoves of
-#: one signature (``share``)
+#: one signature (``share``), least recently made evicted.  **The bound on the tables held in memory** (task h37b): a
+#: signature's whole keyed set is ~0.13 MB per table -- C1 (kicks to 16 A): 342 tables, 44 MB read from the cache (43
+#: MB on disk), 46 MB once each was read (its flat copy; measured, docs §93); the 4 A kick alone: 114 tables, ~15 MB --
+#: so at most 4 x 46 MB = ~185 MB here, plus the stores of PulseMoves still alive outside it (an evicted signature's
+#: tables live as long as a law holding its model does: the ROS node holds at most two laws, the one in force and the
+#: one waiting for its swap)
 SHARED_SIGNATURES = 4
 _SHARED: OrderedDict = OrderedDict()
 #: the keyed tables' disk cache (:meth:`PulseMoves.save_table` / :meth:`PulseMoves.read_cached`, task h36b): the version
@@ -222,7 +227,8 @@ class PulseMoves:
                self.n_excess, self.n_overdrive, self.aim_fraction, self.n_aim, self.park_friction, self.coarse_aims,
                self.retreat_cap, self.hold_integral, self.hold_moved, self.cap_full)
         self._sig, self._sig_hash = sig, None
-        if share and not self.exact:
+        self._share = bool(share) and not self.exact
+        if self._share:
             # every PulseMoves of one signature in the process shares them (a campaign's runs with one told model
             # build them once; read-only once built)
             store = _SHARED.get(sig)
@@ -415,12 +421,16 @@ class PulseMoves:
             raise
         return path
 
-    def read_cached(self, root, keys) -> dict:
+    def read_cached(self, root, keys, stop=None) -> dict:
         """{key: (table, rise)} of the ``keys`` whose files in the cache ``root`` are whole and this signature's;
         a missing, partial, corrupt or foreign file (another signature or key, wrong shapes) is skipped (the key
-        is to build), never raised.  Reads only: safe from any thread (:meth:`adopt` takes them in)."""
+        is to build), never raised.  Reads only: safe from any thread (:meth:`adopt` takes them in).  ``stop()``
+        (optional) is asked before each file: True ends the read there (what was read so far is returned; a
+        cancelled :class:`TableBuild` lets go of its ~43 MB at once instead of reading the whole set first)."""
         out = {}
         for key in keys:
+            if stop is not None and stop():
+                break
             key = tuple(key)
             path = self.table_file(root, key)
             if not path.is_file():
@@ -445,14 +455,31 @@ class PulseMoves:
 
     def adopt(self, tables: dict) -> int:
         """Take in tables read by :meth:`read_cached` (keys not built yet only; a built table is never replaced);
-        returns how many were new.  The keyed store is shared with every PulseMoves of this signature."""
+        returns how many were new.  The keyed store is shared with every PulseMoves of this signature: the
+        process-wide share's store of this signature too, when it is another one (this model's store was evicted
+        from :data:`_SHARED` and a later model of the signature made a new one) -- the same table objects, no copy."""
         new = 0
+        stores = [(self._tables, self._rises)]
+        shared = _SHARED.get(self._sig) if self._share else None
+        if shared is not None and shared[0] is not self._tables:
+            stores.append(shared)
         for key, (tab, rise) in tables.items():
-            if key not in self._tables:
-                self._tables[key] = tab
-                new += 1
-            self._rises.setdefault(key, rise)
+            for i, (tabs, rises) in enumerate(stores):
+                if key not in tabs:
+                    tabs[key] = tab
+                    new += i == 0
+                rises.setdefault(key, rise)
         return new
+
+    @property
+    def signature(self) -> tuple:
+        """What the keyed tables depend on besides their key (the process-wide share's key): two PulseMoves of one
+        signature read and build the same tables."""
+        return self._sig
+
+    def missing(self, keys) -> list:
+        """The ``keys`` whose table or rise is not in this model's store (yet)."""
+        return [tuple(k) for k in keys if tuple(k) not in self._tables or tuple(k) not in self._rises]
 
     def build_and_save(self, root, keys, stop=None) -> int:
         """Build each of ``keys`` not in the cache ``root`` yet and save it there, one file per table as it is
@@ -1006,6 +1033,24 @@ class TableBuild:
             return f"reading the cache{where}"
         return f"{self.state}: {self.reason}"
 
+    @property
+    def cancelled(self) -> bool:
+        """:meth:`cancel` was called (the thread and the worker may still be ending: :meth:`alive`)."""
+        return self._cancel.is_set()
+
+    def alive(self) -> bool:
+        """Its reading thread or its worker process still runs (a cancelled one ends at its next file / at once)."""
+        proc = self.process
+        return self._thread.is_alive() or (proc is not None and proc.poll() is None)
+
+    def serves(self, moves: "PulseMoves", keys, root=None) -> bool:
+        """This build, not cancelled nor failed, makes every one of ``keys`` for ``moves``' signature from the same
+        cache ``root``: a model of that signature needs no build (and no read) of its own -- it waits for this one."""
+        return (not self.cancelled and self.state not in ("failed", "cancelled")
+                and moves.signature == self.moves.signature
+                and (None if root is None else Path(root)) == self.root
+                and set(map(tuple, keys)) <= set(self.keys))
+
     def cancel(self, timeout: float = 5.0) -> None:
         """End the worker (terminated now) and the thread (waited for up to ``timeout`` s; it ends the worker
         itself if it starts one after this); the cache keeps every table finished so far."""
@@ -1040,7 +1085,7 @@ class TableBuild:
     def _run(self) -> None:
         tmp = None
         try:
-            found = {} if self.root is None else self.moves.read_cached(self.root, self.keys)
+            found = {} if self.root is None else self.moves.read_cached(self.root, self.keys, stop=self._cancel.is_set)
             self.from_cache = len(found)
             missing = [k for k in self.keys if k not in found]
             if missing and not self._cancel.is_set():
@@ -1083,7 +1128,7 @@ class TableBuild:
                 if self._cancel.is_set():
                     self.state, self.reason = "cancelled", "cancelled"
                     return
-                got = self.moves.read_cached(self._dir, missing)
+                got = self.moves.read_cached(self._dir, missing, stop=self._cancel.is_set)
                 self.built = len(got)
                 found.update(got)
                 if self.process.returncode != 0 or len(got) < len(missing):

@@ -50,6 +50,7 @@ import math
 import os
 import threading
 import time
+import weakref
 
 from rclpy.lifecycle import Node as LifecycleNode, State, TransitionCallbackReturn
 
@@ -181,9 +182,15 @@ class ControllerNode(LifecycleNode):
         self._bad_messages = 0
         self._prepared = None          # (changes, ParamChange) validated in on-set, queued in post-set
         #: fine.apex_policy's move tables (task h36b): the background build in progress (TableBuild or None), the
-        #: fine stages waiting for it, and the line /diagnostics shows (``move_tables``)
+        #: fine stages waiting for it, and the line /diagnostics shows (``move_tables``).  Task h37b: at most one
+        #: build at a time (one reading thread, one worker process); ``_table_next`` the newest request
+        #: ``(moves, keys, root)`` waiting for a cancelled build's thread to end (a newer one replaces it); the
+        #: waiters are weak references to the stages of the laws in force or waiting for their swap, nothing else
         self._table_build = None
+        self._table_next = None
+        self._table_ending = None       # a cancelled build whose thread may still be ending
         self._table_waiters = []
+        self._tables_driver = None
         self._table_timer = None
         self._tables_status = "off"
         self._tables_failed = False
@@ -328,6 +335,7 @@ class ControllerNode(LifecycleNode):
         in real time read and, what is missing, built in a background process (:meth:`_start_tables`) while the
         fine stage runs main's staircase.  ``fine.apex_policy`` off: nothing is made, nothing logged."""
         self._cancel_tables()
+        self._tables_driver = driver
         self._tables_failed = False
         # lockstep: simulated time stands still while the controller computes, so the stage is not gated -- what
         # the cache holds is read here, the rest built lazily in the period that first asks for it, as offline:
@@ -351,52 +359,143 @@ class ControllerNode(LifecycleNode):
         self._start_tables(fine, moves, keys, root)
 
     def _start_tables(self, fine, moves, keys, root) -> None:
-        """Build ``keys`` of ``moves`` for the fine stage ``fine`` off the control thread: a low-priority process
+        """Make ``keys`` of ``moves`` ready for the fine stage ``fine`` off the control thread: a low-priority process
         writes them to the cache ``root``, a thread reads them back, and :meth:`_poll_tables` (a steady-clock timer,
-        not the control callback) adopts them and releases the stage.  A build already running is ended first."""
-        # a build still running for a law this change replaces: its stages wait on (released if the new build
-        # covers their tables too; the law in force until the swap runs main's staircase meanwhile)
-        older = self._table_waiters if self._table_build is not None else []
-        self._cancel_tables()
+        not the control callback) adopts them and releases the stage.  Bounded (task h37b):
+
+        * a model of the signature a build already makes (its keys included) starts nothing -- no build, no read:
+          ``fine`` waits for that build (a run-time change that leaves the move model alone; the tables already in
+          memory never come here: :meth:`_defer_unprepared` finds nothing pending, the shared store serves them);
+        * at most one build at a time: another one is cancelled (its worker terminated now, its reading thread
+          stops at its next file) and this request started once that thread has ended -- by the poll if not at
+          once; a newer request replaces one still waiting;
+        * the waiting stages are only those of the laws in force and waiting for their swap (weakly held): a
+          replaced law's stage is dropped, never kept waiting."""
+        self._keep_waiters(fine)
+        build = self._table_build
+        if self._table_next is None and build is not None and build.done() and build.state == "ready":
+            self._take_build()                   # finished, not polled yet: its tables in, the stages released
+            build = None
+            keys = moves.missing(keys)
+            if not keys:
+                fine.release_tables()
+                self._tables_status = self._status_in_memory(fine)
+                return
+        if self._table_next is None and build is not None and build.serves(moves, keys, root):
+            self._tables_status = build.status()
+            self.get_logger().info(f"fine.apex_policy: move tables: the new law's model has the signature the build in "
+                                   f"progress makes ({build.status()}): no build of its own, it waits for that one")
+            return
+        if build is not None:
+            build.cancel(0.0)                    # the worker ended now, the reader at its next file
+            self._table_build, self._table_ending = None, build
+        self._table_next = (moves, list(keys), root)
+        self.get_logger().info(f"fine.apex_policy: move tables: {len(keys)} needed, not all in memory "
+                               f"({moves.cache_dir(root) if root is not None else 'no disk cache'}): reading the cache "
+                               "and building the missing ones in a background process (nice 19, ~0.12 s of CPU each); "
+                               "the fine stage runs main's staircase until they are ready")
+        self._launch_next()
+        if self._table_timer is None:
+            from rclpy.clock import Clock, ClockType
+            self._table_timer = self.create_timer(0.25, self._poll_tables,
+                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _launch_next(self) -> None:
+        """Start the waiting request once no other build's thread or worker runs (one at a time)."""
+        if self._table_next is None:
+            return
+        old = self._table_ending
+        if old is not None and old.alive():
+            self._tables_status = (f"starting: {len(self._table_next[1])} tables to make once the replaced build "
+                                   "has ended")
+            return
+        moves, keys, root = self._table_next
+        self._table_next, self._table_ending = None, None
+        keys = moves.missing(keys)               # (what arrived in its store meanwhile)
+        if not keys:
+            self._release_waiters()
+            self._tables_status = "ready: every table in memory (no build)"
+            return
         self._table_build = TableBuild(moves, keys, root)
-        self._table_waiters = [*older, fine]
         self._tables_failed = False
         self._tables_status = self._table_build.status()
-        self.get_logger().info(f"fine.apex_policy: move tables: {len(keys)} needed, not all in the cache "
-                               f"({moves.cache_dir(root) if root is not None else 'off'}): reading it and building the "
-                               f"missing ones in a background process (nice {self._table_build.nice}, ~0.12 s of CPU "
-                               "each); the fine stage runs main's staircase until they are ready")
-        from rclpy.clock import Clock, ClockType
-        self._table_timer = self.create_timer(0.25, self._poll_tables, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _laws_fines(self) -> list:
+        """The fine stages of the law in force and of the law waiting for its swap (those a build may serve; the
+        driver :meth:`_prepare_law` was given -- at configure it is not :attr:`driver` yet)."""
+        driver = self._tables_driver
+        if driver is None:
+            return []
+        laws = (driver.controller.law, driver.waiting_law)
+        return [law.fine for law in laws if law is not None and getattr(law, "fine", None) is not None]
+
+    def _keep_waiters(self, fine=None) -> list:
+        """The waiting stages still alive and in force (plus ``fine``); the others dropped.  Returns them."""
+        keep = self._laws_fines()
+        out = []
+        for ref in [*self._table_waiters, *(() if fine is None else (weakref.ref(fine),))]:
+            stage = ref()
+            if stage is not None and any(stage is k for k in keep) and not any(stage is o() for o in out):
+                out.append(ref)
+        self._table_waiters = out
+        return [ref() for ref in out]
+
+    def _release_waiters(self, tables: dict | None = None, signature=None) -> list:
+        """Each waiting stage in force: ``tables`` adopted into its model (same ``signature`` only; already in its
+        store they are not copied) and the stage released.  Returns (stage, released) pairs."""
+        out = []
+        for stage in self._keep_waiters():
+            if tables is not None and stage.moves is not None and stage.moves.signature == signature:
+                stage.moves.adopt(tables)
+            out.append((stage, stage.release_tables()))
+        self._table_waiters = [weakref.ref(s) for s, ok in out if not ok]
+        return out
+
+    def _status_in_memory(self, fine) -> str:
+        n = len(fine.moves._needed(None, (1, -1), fine._apex_kicks())) if fine.moves is not None else 0
+        return f"ready: {n} of {n} in memory (no build)"
+
+    def _take_build(self) -> list:
+        """A ready build's tables adopted by the waiting stages' models, the stages released; the build dropped."""
+        build, self._table_build = self._table_build, None
+        build.moves.adopt(build.tables)
+        return self._release_waiters(build.tables, build.moves.signature)
 
     @locked
     def _poll_tables(self) -> None:
         """The background build's progress; once done, its tables adopted and the waiting fine stages released
         (the policy takes over at each one's next plateau), or -- failed -- a WARN, the stage left on main's
-        staircase (not a fault)."""
+        staircase (not a fault).  A request waiting for a replaced build to end is started here."""
+        if self._table_next is not None:
+            self._launch_next()
         build = self._table_build
+        if build is not None and not build.done():
+            self._tables_status = build.status()
+            return
+        if self._table_next is not None:
+            return                               # the replaced build still ending: the next poll starts the new one
+        if self._table_timer is not None:
+            self.destroy_timer(self._table_timer)
+            self._table_timer = None
         if build is None:
             return
-        if not build.done():
-            self._tables_status = build.status()
-            return
-        self.destroy_timer(self._table_timer)
-        self._table_timer, self._table_build = None, None
-        waiters, self._table_waiters = self._table_waiters, []
         if build.state == "ready":
-            build.moves.adopt(build.tables)
-            released = [fine.release_tables() for fine in waiters]
             self._tables_status = build.status()
-            if released[-1]:                   # the newest law's (older ones: released where their tables are in)
+            released = dict((id(stage), ok) for stage, ok in self._take_build())
+            fines = self._laws_fines()
+            newest = fines[-1] if fines else None          # the waiting law's stage, else the one in force
+            if newest is None or released.get(id(newest), True):
                 self.get_logger().info(f"fine.apex_policy: move tables {self._tables_status}; the policy takes over "
                                        "at the next plateau")
                 return
             self._tables_failed = True
             self._tables_status = f"failed: tables still missing after the build ({build.status()})"
         elif build.state == "failed":
+            self._table_build = None
             self._tables_failed = True
             self._tables_status = f"failed: {build.reason}"
         else:
+            self._table_build = None
             self._tables_status = build.status()
             return
         self.get_logger().warn(f"fine.apex_policy: move tables {self._tables_status}: the fine stage stays on main's "
@@ -404,19 +503,34 @@ class ControllerNode(LifecycleNode):
 
     def _cancel_tables(self, wait_s: float = 0.0) -> None:
         """End a background build: its worker process terminated now, its reading thread left to end by itself
-        within ``wait_s`` (0: not waited for -- called under the loop's lock, it must not hold the loop up behind
-        a cache read); the cache keeps every table the worker finished."""
+        (at its next file) within ``wait_s`` (0: not waited for -- called under the loop's lock, it must not hold
+        the loop up behind a cache read); the cache keeps every table the worker finished.  A waiting request and
+        the waiting stages are dropped."""
         if self._table_timer is not None:
             self.destroy_timer(self._table_timer)
             self._table_timer = None
         if self._table_build is not None:
             self._table_build.cancel(wait_s)
-            self._table_build = None
+            # (still ending: the next build starts after it, one reader at a time)
+            self._table_build, self._table_ending = None, self._table_build
+        self._table_next = None
         self._table_waiters = []
 
     def destroy_node(self):
         self._cancel_tables(wait_s=5.0)
         return super().destroy_node()
+
+    def _law_needs_no_tables(self, law) -> None:
+        """(task h37b) A new law whose move tables are all in memory waits for its swap: a build for a law it
+        replaces is of no use any more (the newest request wins) -- ended, its stages dropped.  /diagnostics says
+        the new law's tables are in memory (no ``fine.apex_policy``: nothing changes, nothing is built)."""
+        fine = getattr(law, "fine", None)
+        if fine is None or fine.moves is None:
+            return
+        if self._table_build is not None or self._table_next is not None:
+            self._cancel_tables()
+        self._tables_failed = False
+        self._tables_status = self._status_in_memory(fine)
 
     def _defer_unprepared(self, change):
         """A run-time change whose law needs move tables its configure did not make (``fine.apex_policy`` on and,
@@ -483,6 +597,7 @@ class ControllerNode(LifecycleNode):
 
     def _drop_driver(self) -> None:
         self._cancel_tables()
+        self._tables_driver = None
         for timer in self._loop_timers:
             self.destroy_timer(timer)
         self._loop_timers = []
@@ -792,9 +907,11 @@ class ControllerNode(LifecycleNode):
                 change = self.driver.prepare_params(changes)
                 prepared = (changes, change, self._defer_unprepared(change))
             self.driver.request_params(prepared[1])
-            if prepared[2] is not None:
-                with self._lock:
+            with self._lock:
+                if prepared[2] is not None:
                     self._start_tables(*prepared[2], default_cache_dir())
+                elif prepared[1].law is not None:
+                    self._law_needs_no_tables(prepared[1].law[0])
         except Exception as exc:           # noqa: BLE001 - accepted but not applicable: fail safe
             with self._lock:
                 self.fail_safe("apply_parameters", exc)
