@@ -1,4 +1,4 @@
-"""``fine.apex_policy`` (task h33p, docs §81; off by default, C1 with it measured better than main, docs §88 / §91): the doublet's apex placed from the learned level's
+"""``fine.apex_policy`` (task h33p, docs §81; on by default since stop 25 with C1, docs §91): the doublet's apex placed from the learned level's
 law, truncated from below by this stop's unmoved apexes, instead of a staircase.
 
 The stage alone (no plant) for the law and the choice; one nominal-box run in closed loop."""
@@ -77,19 +77,18 @@ def test_the_choice_keeps_the_preload_safe_climbs_past_an_unmoved_apex_and_skips
     assert fine._choose_apex(d * 9e-4, d, phi_e, phi_b, sigma, p, 0.0, 0.5) is not None
 
 
-#: C1 (docs §88): the apex policy with kicks to 16 A, the deep retreat (two periods at -cap), the observe servo's
-#: integral held after a move, the move model's excess coordinate -- measured better than main on every nominal set, off
-#: by default (stop 25, docs §2: its node's run-time parameter path and the suite's cost not ready; docs §91)
+#: C1 (docs §88), the default since stop 25 (task h36f, docs §91): the apex policy with kicks to 16 A, the deep
+#: retreat (two periods at -cap), the observe servo's integral held after a move, the move model's excess coordinate
 C1 = {"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0, "fine.apex_retreat_periods": 2, "fine.retreat_cap": True,
       "fine.observe_hold_moved": True, "fine.apex_excess_nominal": True}
 
 
-def test_c1_is_off_by_default_and_on_makes_the_move_model():
-    """Off by default, the stage makes no move model; with C1's six options it does (no table built yet)."""
+def test_c1_is_the_default_and_off_is_main():
+    """C1's six options are the defaults (task h36f, docs §91); with the policy off the stage makes no move model."""
     ps = CONTROLLER_SPEC.defaults()
-    assert not any(ps[k] for k in C1)
-    fine, _ = _stage(**C1)
-    assert fine.cfg.apex_policy is True and fine._moves is not None and fine._moves.builds == 0
+    assert {k: ps[k] for k in C1} == C1
+    fine, _ = _stage()
+    assert fine.cfg.apex_policy is True and fine._moves is not None
     fine, _ = _stage(**{"fine.apex_policy": False})
     assert fine.cfg.apex_policy is False and fine._moves is None
 
@@ -252,6 +251,6 @@ def test_the_kick_set_is_finite_without_a_kick():
     OOM-killed when C1 made the policy the default, stop 25)."""
     fine, _ = _stage(**{"fine.kick_current_a": 0.0})
     assert fine._apex_kicks() == [0.0]
-    fine, _ = _stage(**C1)
+    fine, _ = _stage()
     kicks = fine._apex_kicks()
     assert kicks[0] == fine.cfg.kick_current_a and kicks[-1] <= fine.cfg.apex_kick_max_a + 1e-9 and len(kicks) == 3

@@ -176,9 +176,9 @@ def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_bu
         assert node._table_build is None and f"lockstep: {n} of {n} loaded from cache" in node._tables_status, \
             node._tables_status
         assert fine._tables_gate is None and not fine.tables_deferred and fine.moves.builds == 0
-        # ... and in lockstep on another signature (two retreat periods, not in the cache): still no gate, no worker
+        # ... and in lockstep on another signature (one retreat period, not in the cache): still no gate, no worker
         node.trigger_cleanup()
-        assert node.set_parameters([Parameter("fine.apex_retreat_periods", value=2)])[0].successful
+        assert node.set_parameters([Parameter("fine.apex_retreat_periods", value=1)])[0].successful
         node.trigger_configure()
         fine = node.driver.controller.law.fine
         assert node._table_build is None and node._tables_status.startswith("lockstep: 0 of "), node._tables_status
@@ -188,7 +188,7 @@ def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_bu
         monkeypatch.setattr(pmod, "_SHARED", OrderedDict())
         node = ControllerNode(context=ctx, namespace="/tables_cleanup", parameter_overrides=[
             Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True),
-            Parameter("fine.apex_retreat_periods", value=2)])
+            Parameter("fine.apex_retreat_periods", value=1)])
         node.trigger_configure()
         build = node._table_build
         assert build is not None and node.driver.controller.law.fine.tables_deferred
