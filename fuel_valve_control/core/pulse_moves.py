@@ -233,6 +233,7 @@ class PulseMoves:
             _SHARED.move_to_end(sig)
             self._tables, self._rises = store
         self._blends: OrderedDict = OrderedDict()
+        self._stacks: OrderedDict = OrderedDict()       # (:meth:`move_points`) tables stacked per kick set
         self.builds = 0                  # tables simulated so far (tests count the cache's work)
         self.runs = 0                    # time-loop runs (_simulate calls: tables, refinements and rises)
 
@@ -294,6 +295,96 @@ class PulseMoves:
         if self.exact:
             return self._raw_move(self._table(d, p, kick, th), x, od, aim)
         return self._raw_move(self._blend(d, p, kick, th), x, od, aim)
+
+    def move_points(self, direction: int, pressure_kpa: float, kicks, which, excess_rad, overdrive_rad,
+                    aim_rad: float = 0.0, valve_angle_rad: float | None = None) -> np.ndarray:
+        """:meth:`move` at points of several kicks in one pass (task h37a, docs §94): the move (rad) at each point i of
+        the 1-D arrays ``excess_rad``, ``overdrive_rad`` (> 0: points above the level) for the kick
+        ``kicks[which[i]]`` (A), one scalar ``aim_rad``; equal bit for bit to ``move(direction, pressure_kpa,
+        excess_rad[i], overdrive_rad[i], kicks[which[i]], aim_rad, valve_angle_rad)`` -- the same arithmetic, element
+        by element, on the same tables, gathered from them side by side (the kicks' grids are one grid at one Δp;
+        where they are not, one :meth:`_raw_move` per kick).  Builds what :meth:`move` would build."""
+        tabs = []
+        for kick in kicks:
+            d, p, kk, th = self._key_parts(direction, pressure_kpa, kick, valve_angle_rad)
+            tabs.append(self._table(d, p, kk, th) if self.exact else self._blend(d, p, kk, th))
+        x, od = np.asarray(excess_rad, dtype=float), np.asarray(overdrive_rad, dtype=float)
+        which = np.asarray(which, dtype=np.intp)
+        g0 = tabs[0]
+        if len(tabs) == 1 or all(all(np.array_equal(t[n], g0[n]) for n in ("excess", "overdrive", "aim"))
+                                 and t["moves"].shape == g0["moves"].shape for t in tabs[1:]):
+            return self._raw_move_stacked(tabs, self._stacked(tabs), which, x, od, float(aim_rad))
+        v = np.empty(x.shape)
+        for i, tab in enumerate(tabs):
+            sel = which == i
+            v[sel] = self._raw_move(tab, x[sel], od[sel], float(aim_rad))
+        return v
+
+    @staticmethod
+    def _flat(tab) -> tuple:
+        """Per-table constants of :meth:`_raw_move`, kept in the table: flat views of the moves and ``last_ok`` for
+        the gathers, the second-break aims capped one aim step beyond the grid."""
+        flat = tab.get("_flat")
+        if flat is None:
+            ag = tab["aim"]
+            beyond = ag[-1] + (ag[1] - ag[0])
+            flat = tab["_flat"] = (tab["moves"].ravel(), np.asarray(tab["last_ok"], dtype=float).ravel(),
+                                   np.minimum(np.asarray(tab["second_break_aim"], dtype=float), beyond).ravel())
+        return flat
+
+    def _stacked(self, tabs) -> tuple:
+        """The flat constants (:meth:`_flat`) of the tables ``tabs`` (one grid) end to end, kept per tuple of tables
+        (the last few: the stage asks the same kick set at one Δp and angle for a whole plateau)."""
+        key = tuple(id(t) for t in tabs)
+        hit = self._stacks.get(key)
+        if hit is not None and all(a is b for a, b in zip(hit[0], tabs)):
+            self._stacks.move_to_end(key)
+            return hit[1]
+        flats = [self._flat(t) for t in tabs]
+        out = tuple(np.concatenate([f[n] for f in flats]) for n in range(3))
+        self._stacks[key] = (tuple(tabs), out)
+        while len(self._stacks) > BLEND_CACHE_SIZE:
+            self._stacks.popitem(last=False)
+        return out
+
+    @staticmethod
+    def _raw_move_stacked(tabs, stacked, which, x, od, aim: float) -> np.ndarray:
+        """:meth:`_raw_move` on the tables ``tabs`` (one grid; ``stacked``: :meth:`_stacked`) at once: point i read on
+        ``tabs[which[i]]`` (1-D points, one scalar ``aim``).  The arithmetic is :meth:`_raw_move`'s, operation for
+        operation (each point's corners offset into the stacked tables): the same bits."""
+        g = tabs[0]
+        xg, og, ag = g["excess"], g["overdrive"], g["aim"]
+        nx, no, na = g["moves"].shape
+        mv, lok, thr = stacked
+        off = which * (nx * no)                      # each table's first cell in the stacked constants
+        fx = np.minimum(np.maximum(x * (1.0 / (xg[1] - xg[0])), 0.0), nx - 1)
+        fo = np.minimum(np.log(np.maximum(od, og[0]) * (1.0 / og[0])) * (1.0 / math.log(og[1] / og[0])), no - 1)
+        fa = np.minimum(np.maximum(aim * (1.0 / (ag[1] - ag[0])), 0.0), na - 1)
+        i0 = np.minimum(fx.astype(np.intp), nx - 2)
+        j0 = np.minimum(fo.astype(np.intp), no - 2)
+        ax, ao = fx - i0, fo - j0
+        v = np.zeros(x.shape)
+        t = np.zeros(x.shape)
+        for di, wx in ((0, 1.0 - ax), (1, ax)):
+            for dj, wo in ((0, 1.0 - ao), (1, ao)):
+                cell = (i0 + di) * no + (j0 + dj) + off
+                w2 = wx * wo
+                kk = np.minimum(fa, lok[cell])
+                k = np.minimum(kk.astype(np.intp), na - 2)
+                w = kk - k
+                base = cell * na + k
+                v += (mv[base] * (1.0 - w) + mv[base + 1] * w) * w2
+                t += thr[cell] * w2
+        eps = 1e-12
+        bad = (x < -eps) | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | ~np.isfinite(x) | (not math.isfinite(aim))
+        v[(aim >= t) | bad | (x > xg[-1] * (1 + 1e-6) + eps) | (od > og[-1] * (1 + 1e-6))] = np.nan
+        below = od <= 0.0
+        if below.any():
+            for i, tab in enumerate(tabs):
+                sel = below & (which == i)
+                if sel.any():
+                    v[sel] = PulseMoves._raw_move(tab, x[sel], od[sel], aim)
+        return v
 
     def table(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
               valve_angle_rad: float | None = None) -> dict:
@@ -573,12 +664,7 @@ class PulseMoves:
         xg, og, ag, moves = tab["excess"], tab["overdrive"], tab["aim"], tab["moves"]
         nx, no, na = moves.shape
         beyond = ag[-1] + (ag[1] - ag[0])
-        flat = tab.get("_flat")
-        if flat is None:
-            # per-table constants, kept in the table (flat views for the gathers; the second-break aims capped)
-            flat = tab["_flat"] = (moves.ravel(), np.asarray(tab["last_ok"], dtype=float).ravel(),
-                                   np.minimum(np.asarray(tab["second_break_aim"], dtype=float), beyond).ravel())
-        mv, lok, thr = flat
+        mv, lok, thr = PulseMoves._flat(tab)
         # (np.minimum / np.maximum: np.clip costs twice as much here)
         fx = np.minimum(np.maximum(x * (1.0 / (xg[1] - xg[0])), 0.0), nx - 1)
         fo = np.minimum(np.log(np.maximum(od, og[0]) * (1.0 / og[0])) * (1.0 / math.log(og[1] / og[0])), no - 1)
