@@ -1357,7 +1357,7 @@ class FinePositioner:
             # moves 1.3-1.4 x short
             phi_e = self._nominal(thl, pressure_kpa, d)[0]
         od = d * (cand[:, None] - lv[None, :])               # [a, k] overdrive, rad
-        excess = np.broadcast_to(np.maximum(d * (lv - phi_e), 0.0)[None, :], od.shape)   # the level above φe
+        excess = np.maximum(d * (lv - phi_e), 0.0)         # [k] the level above φe
         moved = od > 0.0
         e, s, tol = abs(err), max(cfg.apex_move_sd_rad, 1e-9), cfg.apex_land_rad
         lo = 0.0 if short > 0.0 else -tol
@@ -1369,10 +1369,11 @@ class FinePositioner:
         break_limit = _break_limit(cfg.doublet_sigmas)
         kicks = self._apex_kicks()
         if cfg.apex_kick_continuous and fl is not None and len(kicks) > 1:
-            best = self._score_tables(d, pressure_kpa, thl, kicks, cand, fl, od, excess, moved, w, trunc, p_none,
+            best = self._score_tables(d, pressure_kpa, thl, kicks, cand, fl, od,
+                                      np.broadcast_to(excess[None, :], od.shape), moved, w, trunc, p_none,
                                       e, s, tol, lo, worse_edge, break_limit)
         else:
-            best = self._score_points(d, pressure_kpa, thl, kicks, cand, od, excess[0], moved, w, trunc, p_none,
+            best = self._score_points(d, pressure_kpa, thl, kicks, cand, od, excess, moved, w, trunc, p_none,
                                       e, s, tol, lo, worse_edge, break_limit)
         self._apex_plan = (best[1], best[4], best[5], best[0], best[2], best[6])
         if not best[0] > cfg.apex_min_chance:
@@ -1440,50 +1441,42 @@ class FinePositioner:
         and the normal CDFs evaluated (one pass for all kicks) only where the apex lies between the level and the
         preload's reach at a level of weight.  ``excess``: per level (1-D).  Returns as :meth:`_score_tables`."""
         cfg = self.cfg
-        rises = [self._moves.rise(d, pressure_kpa, kick_current_a=kick, valve_angle_rad=thl) for kick in kicks]
-        live = moved & (w > 0.0)[None, :]
-        brks = [od > rise for rise in rises]
-        cells = [np.nonzero(live & ~b) for b in brks]            # (candidate, level) read on the move model per kick
-        sizes = [len(c[0]) for c in cells]
-        ai = np.concatenate([c[0] for c in cells])
-        ki = np.concatenate([c[1] for c in cells])
-        which = np.repeat(np.arange(len(kicks)), sizes)
-        mvp = self._moves.move_points(d, pressure_kpa, kicks, which, excess[ki], od[ai, ki], aim_rad=e,
+        rises = self._moves.rises(d, pressure_kpa, kicks, valve_angle_rad=thl)
+        brk = od[None, :, :] > np.array(rises)[:, None, None]     # [kick, a, k] a level below the preload
+        kk, ai, ki = np.nonzero((moved & (w > 0.0)[None, :])[None, :, :] & ~brk)   # read on the move model
+        mvp = self._moves.move_points(d, pressure_kpa, kicks, kk, excess[ki], od[ai, ki], aim_rad=e,
                                       valve_angle_rad=thl)
         # |e| left: at the read points, and per level for a break in the preload (2 x excess, finite)
         left = np.concatenate([e - np.where(np.isfinite(mvp), mvp, 2.0 * e + 1.0), e - 2.0 * excess])
         hit_all = _norm_cdf((tol - left) / s) - _norm_cdf((lo - left) / s)
         worse_all = _norm_cdf((worse_edge - left) / s)
-        n_pts = len(mvp)
-        hit_b, worse_b = hit_all[n_pts:], worse_all[n_pts:]
-        best, v1, start = None, None, 0
-        for i, kick in enumerate(kicks):
-            rise, brk, (ca, cl) = rises[i], brks[i], cells[i]
-            stop = start + sizes[i]
-            hit = np.where(brk, hit_b[None, :], 0.0)
-            hit[ca, cl] = hit_all[start:stop]
-            worse = np.where(brk, worse_b[None, :], 0.0)
-            worse[ca, cl] = worse_all[start:stop]
-            p_hit, p_worse, p_break = hit @ w, worse @ w, brk.astype(float) @ w
-            if v1 is None:
-                v1 = (hit @ trunc.T).max(axis=0)             # one more try after no move at a: the law beyond a
-            score = p_hit + p_none * v1
-            ok = p_worse < 0.5
-            if cfg.apex_worse_given_move:
-                ok = ok & (p_worse <= 0.5 * (1.0 - p_none))
-            score = np.where(ok & (p_break <= break_limit), score, -np.inf)
-            j = int(np.argmax(score))
-            if best is None or score[j] > best[0]:
-                pm = float(moved[j].astype(float) @ w)
-                # the mean move of the try (the row as _score_tables reads it: the whole jump below the preload, the
-                # model's move between the level and the preload's reach, 0 at levels of weight 0 -- each x 0)
-                mrow = np.where(brk[j], 2.0 * excess, 0.0)
-                sel = ca == j
-                mrow[cl[sel]] = mvp[start:stop][sel]
-                m_mean = float((np.where(moved[j] & np.isfinite(mrow), mrow, 0.0) @ w) / pm) if pm > 0 else 0.0
-                best = (float(score[j]), float(cand[j]), kick, rise, float(p_hit[j]), float(p_none[j]), m_mean)
-            start = stop
-        return best
+        n = len(mvp)
+        hit = np.where(brk, hit_all[n:], 0.0)
+        hit[kk, ai, ki] = hit_all[:n]
+        worse = np.where(brk, worse_all[n:], 0.0)
+        worse[kk, ai, ki] = worse_all[:n]
+        p_hit, p_worse, p_break = hit @ w, worse @ w, brk.astype(float) @ w       # [kick, a]
+        v1 = (hit[0] @ trunc.T).max(axis=0)      # one more try after no move at a (main's kick): the law beyond a
+        score = p_hit + p_none * v1
+        ok = p_worse < 0.5
+        if cfg.apex_worse_given_move:
+            ok = ok & (p_worse <= 0.5 * (1.0 - p_none))
+        score = np.where(ok & (p_break <= break_limit), score, -np.inf)
+        js = np.argmax(score, axis=1)
+        bi = None
+        for i, j in enumerate(js):               # the first kick whose best is above every earlier kick's
+            if bi is None or score[i, j] > score[bi, js[bi]]:
+                bi = i
+        j = int(js[bi])
+        pm = float(moved[j].astype(float) @ w)
+        # the try's mean move (its row as _score_tables reads it at the levels of weight: the whole jump below the
+        # preload, the model's move between the level and the preload's reach; 0 elsewhere -- each x 0 in the sum)
+        mrow = np.where(brk[bi, j], 2.0 * excess, 0.0)
+        sel = (kk == bi) & (ai == j)
+        mrow[ki[sel]] = mvp[sel]
+        m_mean = float((np.where(moved[j] & np.isfinite(mrow), mrow, 0.0) @ w) / pm) if pm > 0 else 0.0
+        return (float(score[bi, j]), float(cand[j]), kicks[bi], rises[bi], float(p_hit[bi, j]), float(p_none[j]),
+                m_mean)
 
     def _continuous_kick(self, d: int, floor: float, cand: np.ndarray, tabs: list) -> tuple:
         """(``fine.apex_kick_continuous``, task h34m, docs §85) The continuous kick from the floor: the preload stays
