@@ -280,6 +280,10 @@ def _pulse_moves(fine: "FinePositioner") -> object:
 
 
 _BREAK_LIMITS: dict = {}
+#: (``fine.apex_policy``) the normal level law's points (scatters) and unnormalised weights, formed once
+_APEX_Z = np.linspace(-APEX_LAW_SIGMAS, APEX_LAW_SIGMAS, APEX_LAW_POINTS)
+_APEX_W = np.exp(-0.5 * _APEX_Z * _APEX_Z)
+_APEX_Z.flags.writeable = _APEX_W.flags.writeable = False
 
 
 def _break_limit(sigmas: float) -> float:
@@ -1264,8 +1268,8 @@ class FinePositioner:
             scales, weights = self._level_scales(sigma, pressure_kpa)
             if len(scales) > 1:
                 return mixture_level_law(phi_b, d, scales, weights, None if fl is None else fl[1])
-        z = np.linspace(-APEX_LAW_SIGMAS, APEX_LAW_SIGMAS, APEX_LAW_POINTS)
-        lv, w = phi_b + d * sigma * z, np.exp(-0.5 * z * z)
+        z, w = _APEX_Z, _APEX_W
+        lv = phi_b + d * sigma * z
         if fl is not None:
             above = d * (lv - fl[1]) > 0.0
             if (w * above).sum() < 1e-3 * w.sum():

@@ -233,7 +233,8 @@ class PulseMoves:
             _SHARED.move_to_end(sig)
             self._tables, self._rises = store
         self._blends: OrderedDict = OrderedDict()
-        self._stacks: OrderedDict = OrderedDict()       # (:meth:`move_points`) tables stacked per kick set
+        self._stacks: dict = {}                 # (:meth:`move_points`) a grid key's kick set's tables side by side
+        self._rise_sets: OrderedDict = OrderedDict()    # (:meth:`rises`) the last few asked
         self.builds = 0                  # tables simulated so far (tests count the cache's work)
         self.runs = 0                    # time-loop runs (_simulate calls: tables, refinements and rises)
 
@@ -320,11 +321,20 @@ class PulseMoves:
 
     def rises(self, direction: int, pressure_kpa: float, kicks, valve_angle_rad: float | None = None) -> list:
         """[:meth:`rise` of each kick of ``kicks``] (the same floats; the grid's corners found once)."""
+        key = ("rises", direction, pressure_kpa, tuple(kicks), valve_angle_rad)
+        hit = self._rise_sets.get(key)       # (an unmoved try's next asks at the same Δp and valve angle)
+        if hit is not None:
+            return list(hit)
         keys = [self._key_parts(direction, pressure_kpa, kick, valve_angle_rad) for kick in kicks]
         if self.exact:
-            return [self._rise_at(d, p, kick, th) for d, p, kick, th in keys]
-        corners = self._corners(keys[0][1], keys[0][3])
-        return [float(sum(w * self._rise_at(d, pk, kick, tk) for pk, tk, w in corners)) for d, p, kick, th in keys]
+            out = [self._rise_at(d, p, kick, th) for d, p, kick, th in keys]
+        else:
+            corners = self._corners(keys[0][1], keys[0][3])
+            out = [float(sum(w * self._rise_at(d, pk, kick, tk) for pk, tk, w in corners)) for d, p, kick, th in keys]
+        self._rise_sets[key] = tuple(out)
+        while len(self._rise_sets) > BLEND_CACHE_SIZE:
+            self._rise_sets.popitem(last=False)
+        return out
 
     @staticmethod
     def _flat(tab) -> tuple:
