@@ -1452,8 +1452,9 @@ class FinePositioner:
                                       valve_angle_rad=thl)
         # |e| left: at the read points, and per level for a break in the preload (2 x excess, finite)
         left = np.concatenate([e - np.where(np.isfinite(mvp), mvp, 2.0 * e + 1.0), e - 2.0 * excess])
-        hit_all = _norm_cdf((tol - left) / s) - _norm_cdf((lo - left) / s)
-        worse_all = _norm_cdf((worse_edge - left) / s)
+        # the three normal CDFs of every |e| left in one pass (the edges of a landing, a worsening)
+        cdf = _norm_cdf((np.array([tol, lo, worse_edge])[:, None] - left[None, :]) / s)
+        hit_all, worse_all = cdf[0] - cdf[1], cdf[2]
         n = len(mvp)
         hit = np.where(brk, hit_all[n:], 0.0)
         hit[kk, ai, ki] = hit_all[:n]
