@@ -233,7 +233,7 @@ class PulseMoves:
             _SHARED.move_to_end(sig)
             self._tables, self._rises = store
         self._blends: OrderedDict = OrderedDict()
-        self._stacks: dict = {}                 # (:meth:`move_points`) a grid key's kick set's tables side by side
+        self._stacks: OrderedDict = OrderedDict()   # (:meth:`move_points`) a grid key's kick set's tables side by side
         self._rise_sets: OrderedDict = OrderedDict()    # (:meth:`rises`) the last few asked
         self.builds = 0                  # tables simulated so far (tests count the cache's work)
         self.runs = 0                    # time-loop runs (_simulate calls: tables, refinements and rises)
@@ -350,10 +350,12 @@ class PulseMoves:
 
     def _corner_stack(self, d, p, kicks, th):
         """The kicks' tables at one grid key side by side: (the first's table, their moves, ``last_ok`` and
-        second-break aims raveled end to end), or None where their grids differ; kept per key."""
-        key = ("corner", d, p, kicks, th)
+        second-break aims raveled end to end), or None where their grids differ; the last BLEND_CACHE_SIZE kept."""
+        key = (d, p, kicks, th)
         hit = self._stacks.get(key)
-        if hit is None:
+        if hit is not None:
+            self._stacks.move_to_end(key)
+        else:
             tabs = [self._table(d, p, kick, th) for kick in kicks]
             t0 = tabs[0]
             if all(all(np.array_equal(t[n], t0[n]) for n in ("excess", "overdrive", "aim"))
@@ -364,6 +366,8 @@ class PulseMoves:
             else:
                 hit = (None,)
             self._stacks[key] = hit
+            while len(self._stacks) > BLEND_CACHE_SIZE:     # (each ~0.35 MB: three kicks' moves)
+                self._stacks.popitem(last=False)
         return None if hit[0] is None else hit
 
     def _blend_stack(self, d, p, kicks, th):
