@@ -8,10 +8,11 @@ C1 build (the apex policy and its companions, docs §2) and the level law(s) ask
 call with the calling thread's CPU clock (``time.thread_time``).  A call during which the move model built a table
 (~0.12 s of simulation, once per key and process: the stage builds them ahead where a period's budget matters) is
 counted apart ("built"), not in the per-try distribution.  Prints per law: tries, median / p95 / max (ms) and, with
-``--profile``, the cProfile of the choice calls (top functions by total time).  Each call's outcome (apex, kick,
-rise) is kept in ``--json``: two builds choose alike when their lists are equal.  Last line: one JSON object.
+``--profile``, the cProfile of the choice calls (top functions by total time; its overhead then counts in the times:
+profile and time in separate runs).  Each call's outcome (apex, kick, rise) is kept in ``--json``: two builds choose
+alike when their lists are equal.  Last line: one JSON object.
 
-    python benchmarks/apex_choice.py [--runs 3] [--seed 1000] [--law normal|mixture|both] [--profile]
+    python benchmarks/apex_choice.py [--runs 3] [--seed 1000] [--law normal|mixture|both] [--profile] [--compare]
                                      [--set controller.KEY=VALUE ...] [--json PATH]
 """
 from __future__ import annotations
@@ -143,14 +144,15 @@ def timed_runs(seed: int, runs: int, sets: dict, profile: bool = False, record: 
         if record:
             out["tries"].append((_copy(self), args, kw))
         prof = cProfile.Profile() if profile else None
-        if prof is not None:
-            prof.enable()
         t0 = time.thread_time()
+        if prof is not None:                   # (its overhead then counts in the times: profile and time apart)
+            prof.enable()
         apex = original(self, *args, **kw)
+        if prof is not None:
+            prof.disable()
         dt = (time.thread_time() - t0) * 1e3
         built = self._moves.builds != builds
         if prof is not None:
-            prof.disable()
             if not built:
                 if out["stats"] is None:
                     out["stats"] = pstats.Stats(prof)
@@ -218,8 +220,9 @@ def _dist(ms: list[float]) -> dict:
     if not ms:
         return {"tries": 0}
     v = np.asarray(ms)
-    return {"tries": len(v), "median_ms": round(float(np.median(v)), 4), "p95_ms": round(float(np.percentile(v, 95)), 4),
-            "max_ms": round(float(v.max()), 4), "mean_ms": round(float(v.mean()), 4)}
+    return {"tries": len(v), "median_ms": round(float(np.median(v)), 4),
+            "p95_ms": round(float(np.percentile(v, 95)), 4), "max_ms": round(float(v.max()), 4),
+            "mean_ms": round(float(v.mean()), 4)}
 
 
 def main(argv=None) -> int:
