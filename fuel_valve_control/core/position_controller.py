@@ -352,6 +352,7 @@ class PositionController:
                           retreat_trough_misfit=ps["fine.retreat_trough_misfit"],
                           park_settle=ps["fine.park_settle"],
                           apex_unraised_plan=ps["fine.apex_unraised_plan"],
+                          apex_probe_hold=ps["fine.apex_probe_hold"],
                           trough_delay_s=ps["resolver_delay_s"] if ps["fine.retreat_trough_delay"] else 0.0,
                           retreat_return_hold=ps["fine.retreat_return_hold"],
                           retreat_return_rest=ps["fine.retreat_return_rest"],
