@@ -108,23 +108,27 @@ def test_an_unraised_floor_is_the_last_tries_plan():
         assert fine._floor(1) == (1, 30.1e-3)
 
 
-@pytest.mark.parametrize("p_none, retreat", [(1.0, (1, 0.0)), (0.99, (1, 0.0)), (0.5, (2, 1.0)), (0.0, (2, 1.0))])
+@pytest.mark.parametrize("p_none, retreat", [(1.0, (1, 0.0)), (0.99, (1, 0.0)), (0.5, (1, 0.6)), (0.0, (1, 0.6))])
 def test_a_try_expected_not_to_move_the_valve_retreats_at_the_hold(p_none, retreat):
-    """``fine.apex_probe_hold``: a policy try with P(no move) within Phi(-fine.doublet_sigmas) of 1 (a pure probe, run
-    1069 #7: 1.000) retreats one period at the hold torque; any other try keeps C1's two periods at -cap; off, every try
-    does."""
+    """``fine.apex_probe_hold``: where ``fine.retreat_trough_bound`` cut the retreat (low Δp: the deep trough passes the
+    other way's level), a policy try with P(no move) within Phi(-fine.doublet_sigmas) of 1 (a pure probe, run 1069 #7:
+    1.000) retreats one period at the hold torque; any other try keeps the bound's plan; at max Δp (the bound keeps C1's
+    two periods at -cap) every try keeps them; off, the bound's plan."""
     c1 = {"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0, "fine.apex_retreat_periods": 2,
           "fine.retreat_cap": True, "fine.observe_hold_moved": True, "fine.apex_excess_nominal": True}
     for on in (False, True):
-        fine, m = _stage(**c1, **{"fine.apex_probe_hold": on})
-        cap = fine.cfg.peak_current_a * m.torque_constant_nm_per_a
-        fine.phase, fine._doublet, fine._dir, fine._first_stair = "pulse", True, 1, False
-        fine._hold_torque, fine._apex_kick = 0.1, 4.0
-        fine._apex_try, fine._apex_plan = (1, 0.0), (30e-3, 0.0, p_none, 0.05, 4.0, 0.0)
-        fine._k = 1
-        kick = fine._doublet_torque(m.pressure_max_kpa)
-        assert kick == pytest.approx(0.1 + 4.0 * m.torque_constant_nm_per_a)
-        want = retreat if on else (2, 1.0)
-        assert fine._retreat == want
-        fine._k = 2
-        assert fine._doublet_torque(m.pressure_max_kpa) == pytest.approx(0.1 if want[1] == 0.0 else -cap)
+        for cut in (False, True):
+            fine, m = _stage(**c1, **{"fine.apex_probe_hold": on, "fine.retreat_trough_bound": True})
+            cap = fine.cfg.peak_current_a * m.torque_constant_nm_per_a
+            # the bound's plan stood in for (its own tests: test_retreat_trough.py): cut to one period at 0.6, or kept
+            fine._retreat_plan = lambda p, kick, periods, cut=cut: (1, 0.6) if cut else (periods, 1.0)
+            fine.phase, fine._doublet, fine._dir, fine._first_stair = "pulse", True, 1, False
+            fine._hold_torque, fine._apex_kick = 0.1, 4.0
+            fine._apex_try, fine._apex_plan = (1, 0.0), (30e-3, 0.0, p_none, 0.05, 4.0, 0.0)
+            fine._k = 1
+            kick = fine._doublet_torque(m.pressure_max_kpa)
+            assert kick == pytest.approx(0.1 + 4.0 * m.torque_constant_nm_per_a)
+            want = (retreat if on else (1, 0.6)) if cut else (2, 1.0)
+            assert fine._retreat == want
+            fine._k = 2
+            assert fine._doublet_torque(m.pressure_max_kpa) == pytest.approx(0.1 + want[1] * (-cap - 0.1))

@@ -608,8 +608,8 @@ class FineConfig:
                                   # on the preload: speed within sqrt(K/J1) x tolerance (task h37t, docs §96)
     apex_unraised_plan: bool = False  # (fine.apex_policy) after an unmoved try whose reading raised the floor by less
                                       # than a count, the floor is that try's planned apex (task h37t, docs §96)
-    apex_probe_hold: bool = False  # (fine.apex_policy) a try with P(no move) >= 1 - Phi(-doublet_sigmas) retreats one
-                                   # period at the hold (task h37t, docs §96)
+    apex_probe_hold: bool = False  # (fine.apex_policy, where fine.retreat_trough_bound cut the retreat) a try with
+                                   # P(no move) >= 1 - Phi(-doublet_sigmas) retreats one period at the hold (h37t, §96)
     trough_delay_s: float = 0.0   # (fine.retreat_trough_delay) the trough model's servo reads this late: the resolver delay
     hold_reversed: bool = False   # the stage holds instead of handing back a plateau on which the main law's move
                                   # could be the hunting metric's second reversal (task h34h, docs §86; in force also
@@ -1879,12 +1879,15 @@ class FinePositioner:
                 else cfg.retreat_full_periods, 1)
             # (fine.retreat_trough_bound) fewer / scaled periods where the trough would break the valve loose backwards
             self._retreat = self._retreat_plan(pressure_kpa, kick, periods)
-            if (cfg.apex_probe_hold and cfg.apex_policy and self._apex_try is not None and self._apex_plan is not None
+            if (cfg.apex_probe_hold and cfg.apex_policy and self._retreat != (periods, 1.0)
+                    and self._apex_try is not None and self._apex_plan is not None
                     and self._apex_plan[2] >= 1.0 - float(_norm_cdf(-cfg.doublet_sigmas))):
-                # (task h37t, docs §96) a try the policy expects not to move the valve (P(no move) within main's
-                # park-break chance of 1) has no move for the retreat to stop: one period at the hold, then the
-                # observe servo -- the deep retreat's trough is only risk there (full box 1069 #7: P(no move)
-                # 1.000, the trough 12e-3 rad below the closing breakaway)
+                # (task h37t, docs §96) where fine.retreat_trough_bound has cut the planned retreat, a try the policy
+                # expects not to move the valve (P(no move) within main's park-break chance of 1) has no move for the
+                # retreat to stop: one period at the hold, then the observe servo -- the model's one-period troughs
+                # read 3.3-4.2e-3 rad shallow on run 1069 (#7: P(no move) 1.000); for every try (the bound not
+                # consulted) nominal seed 1000 went worse (p95 0.989 -> 1.244e-3: the rise tables assume the deep
+                # retreat, the apex overshoots its plan)
                 self._retreat = (1, 0.0)
         elif self._k <= 1 + self._retreat[0]:
             # (task h34s, ``fine.retreat_cap``) the cap itself backwards, not the hold less the cap (an opening

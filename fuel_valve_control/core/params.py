@@ -643,11 +643,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "that try's planned apex instead: truncated at the reading it gave the same try again and again (full box run "
           "1027, coupling x0.81 untold: the apex read 0.45e-3 rad below its plan, 15, 15 and 141 identical unmoved "
           "tries on three plateaus; task h37t, docs section 96).  A narrower fine.apex_floor_plan", runtime=True),
-    Param("fine.apex_probe_hold", False, "", "fine.apex_policy: a try the policy expects not to move the valve -- "
-          "P(no move) within main's park-break chance Phi(-fine.doublet_sigmas) of 1 -- retreats one period at the "
-          "hold instead of its planned retreat: there is no move to stop, and the deep retreat's trough is only risk "
-          "(full box run 1069 #7: P(no move) 1.000, its trough 12e-3 rad past the closing breakaway; task h37t, docs "
-          "section 96)", runtime=True),
+    Param("fine.apex_probe_hold", False, "", "fine.apex_policy with fine.retreat_trough_bound: where the bound has cut "
+          "the planned retreat, a try the policy expects not to move the valve -- P(no move) within main's park-break "
+          "chance Phi(-fine.doublet_sigmas) of 1 -- retreats one period at the hold instead of the bound's shallower "
+          "retreat: there is no move to stop, and the move model's one-period troughs read 3.3-4.2e-3 rad shallow on "
+          "full box run 1069 (#7: P(no move) 1.000); task h37t, docs section 96", runtime=True),
     Param("fine.retreat_return_rest", False, "", "with fine.retreat_return_guard: when the return is seen the observe "
           "servo's reference is frozen at the gear output's present angle and the doublet is judged once the valve rests "
           "(back at its start: counted and the plateau held; else as any move) instead of leaving the plateau (task "
