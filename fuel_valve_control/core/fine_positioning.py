@@ -141,9 +141,9 @@ from pathlib import Path
 import numpy as np
 from scipy.special import erf as _erf
 
+from ..common.contract import RESOLVER_COUNT_RAD
 from ..common.hunting import HUNT_REVERSALS, ReversalCounter
 from .model import NominalModel
-from ..common.contract import RESOLVER_COUNT_RAD
 
 IDLE, PARK, PULSE, OBSERVE, HOLD = "idle", "park", "pulse", "observe", "hold"
 #: fraction of each doublet's move taken into the learned smallest move (the first is taken whole)
