@@ -2,6 +2,7 @@
 law, truncated from below by this stop's unmoved apexes, instead of a staircase.
 
 The stage alone (no plant) for the law and the choice; one nominal-box run in closed loop."""
+import math
 import sys
 from pathlib import Path
 
@@ -254,6 +255,21 @@ def test_the_kick_set_is_finite_without_a_kick():
     fine, _ = _stage()
     kicks = fine._apex_kicks()
     assert kicks[0] == fine.cfg.kick_current_a and kicks[-1] <= fine.cfg.apex_kick_max_a + 1e-9 and len(kicks) == 3
+
+
+def test_the_kick_set_is_bounded_at_the_finest_ratio():
+    """(stop 26) ``fine.apex_kick_ratio`` at its schema minimum with the widest kick range would be ~40 kicks, each a set
+    of move tables and a column of every try: the set holds at most APEX_MAX_KICKS, over the same span, geometric;
+    the default ratio's set is untouched."""
+    from fuel_valve_control.core.fine_positioning import APEX_MAX_KICKS
+    fine, _ = _stage(**{"fine.apex_kick_ratio": 1.05, "fine.apex_kick_max_a": 30.0})
+    kicks = fine._apex_kicks()
+    assert len(kicks) == APEX_MAX_KICKS and kicks[0] == fine.cfg.kick_current_a
+    unbounded = fine.cfg.kick_current_a * 1.05 ** int(math.log(30.0 / fine.cfg.kick_current_a) / math.log(1.05) + 1e-9)
+    assert kicks[-1] == pytest.approx(unbounded, rel=1e-9) and kicks[-1] <= 30.0 + 1e-9
+    assert np.allclose(np.diff(np.log(kicks)), math.log(kicks[1] / kicks[0]))
+    fine, _ = _stage(**{"fine.apex_kick_ratio": 1.5})          # 4, 6, 9, 13.5 A: within the bound, as the ratio says
+    assert fine._apex_kicks() == pytest.approx([4.0, 6.0, 9.0, 13.5])
 
 
 def _same_choice(fine, args):

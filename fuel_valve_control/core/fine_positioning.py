@@ -198,6 +198,12 @@ APEX_BUILD_OFF = ("apex_policy", "retreat_cap", "observe_hold_moved")
 #: fine.apex_kick_continuous (task h34m): the preload lies this fraction of the smallest kick's rise below the last
 #: unmoved apex (the move model's rise reads the closed loop's +2-3 % high, docs §80.3)
 APEX_PRE_MARGIN = 0.05
+#: fine.apex_policy: the most kicks its set holds (stop 26).  Every kick is a set of move tables (342 with C1's
+#: three: 43 MB, ~41 s of CPU to build) and a column of every try's scoring, so the set is bounded whatever the
+#: schema's bounds allow (fine.apex_kick_ratio 1.05 from 4 to 30 A would be 42 kicks: ~4800 tables, ~600 MB,
+#: ~10 min of background CPU per signature on the node); past it the set spans the same range in this many
+#: geometric steps.  C1's default set (4 / 8 / 16 A) is three.
+APEX_MAX_KICKS = 6
 #: fine.retreat_trough_bound (task h36g): one retreat period's scale is read between this many points from the full
 #: retreat (1) to the hold (0) of the move model's trough (a resolution: interpolated linearly between them)
 TROUGH_SCALES = 11
@@ -1327,7 +1333,8 @@ class FinePositioner:
 
     def _apex_kicks(self) -> list[float]:
         """(``fine.apex_policy``) The kick currents (A) the policy chooses among: ``fine.kick_current_a`` times
-        ``fine.apex_kick_ratio`` (2) while within ``fine.apex_kick_max_a`` (docs §75.4: the kick's size sets how much the level's draw matters
+        ``fine.apex_kick_ratio`` (2) while within ``fine.apex_kick_max_a``, at most :data:`APEX_MAX_KICKS` of them (a finer
+        ratio: the same span in that many geometric steps) (docs §75.4: the kick's size sets how much the level's draw matters
         -- a larger kick rises further above its preload, breaks the valve loose earlier in its rise for a low
         level, and its move varies less with the level)."""
         k0, top, r = self.cfg.kick_current_a, self.cfg.apex_kick_max_a, max(self.cfg.apex_kick_ratio, 1.05)
@@ -1336,6 +1343,10 @@ class FinePositioner:
             return kicks               # (no kick to grow: 0 x r stays 0 -- the loop below would never end)
         while kicks[-1] * r <= top + 1e-9:
             kicks.append(kicks[-1] * r)
+        if len(kicks) > APEX_MAX_KICKS:
+            # a finer set than the tables and the try's CPU can carry: the same span in APEX_MAX_KICKS steps
+            step = (kicks[-1] / k0) ** (1.0 / (APEX_MAX_KICKS - 1))
+            kicks = [k0 * step ** i for i in range(APEX_MAX_KICKS)]
         return kicks
 
     def _choose_apex(self, err: float, d: int, phi_e: float, phi_b: float, sigma: float, pressure_kpa: float,
