@@ -141,7 +141,18 @@ def _plan_key(plan, baselines) -> str:
     return hashlib.sha1(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
 
 
+#: the directory this session's lazily built move tables are shared through (:func:`pytest_configure`)
+_LAZY_TABLES: dict[str, str] = {}
+
+
 def pytest_configure(config):
+    # C1's move tables (core/pulse_moves.py, ~0.12 s of CPU each) built lazily by the offline runs: shared through a
+    # directory of this session's (FUEL_VALVE_MOVE_TABLES_LAZY), so the look-ahead workers, the node processes and
+    # the modules build each table once, not once per process; read back a table is the built one bit for bit.  A
+    # directory set by the caller is used as it is (and kept).
+    from fuel_valve_control.core.pulse_moves import LAZY_CACHE_ENV
+    if os.environ.get(LAZY_CACHE_ENV) is None:
+        _LAZY_TABLES["dir"] = os.environ[LAZY_CACHE_ENV] = tempfile.mkdtemp(prefix="fuel_valve_test_tables_")
     if not config.getoption("--sim-repeats"):
         return
     # every run in this process, where the wrapper below sees it: no look-ahead workers (prefetch.py)
@@ -157,6 +168,19 @@ def pytest_configure(config):
         _SIM_CALLS.append((key, time.process_time() - t0, _SIM_TEST["id"], plan.name, plan.duration_s))
         return result
     sim.simulate_plan = timed
+
+
+def pytest_unconfigure(config):
+    if "dir" in _LAZY_TABLES:
+        import shutil
+        shutil.rmtree(_LAZY_TABLES.pop("dir"), ignore_errors=True)
+
+
+@pytest.fixture
+def own_table_builds(monkeypatch):
+    """A test that counts the move tables a PulseMoves builds: no table comes from the session's shared directory."""
+    from fuel_valve_control.core.pulse_moves import LAZY_CACHE_ENV
+    monkeypatch.delenv(LAZY_CACHE_ENV, raising=False)
 
 
 _CPU_START: dict[str, os.times_result] = {}     # nodeid -> os.times() at its set-up

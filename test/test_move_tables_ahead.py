@@ -38,6 +38,12 @@ SEED = 1000
 PERIODS = 800
 
 
+@pytest.fixture(autouse=True)
+def _counted(own_table_builds):
+    """This module counts the tables its PulseMoves build (``builds`` / ``runs``): none read from the session's
+    shared directory (conftest)."""
+
+
 @pytest.fixture
 def small_grid(monkeypatch):
     """Every move model the fine stage makes uses :data:`SMALL_GRID`."""

@@ -32,6 +32,12 @@ FL = MODEL.friction(P_MAX)
 X_NOM = (FL.valve_static_nm - FL.valve_coulomb_nm) / K      # the nominal level's excess, rad (2.29e-3)
 
 
+@pytest.fixture(autouse=True)
+def _counted(own_table_builds):
+    """This module counts the tables its PulseMoves build (``builds`` / ``runs``): none read from the session's
+    shared directory (conftest)."""
+
+
 @pytest.fixture(scope="module")
 def fine() -> FinePositioner:
     pc = PositionController(CS)
