@@ -1,4 +1,4 @@
-"""``fine.apex_policy`` (task h33p, docs §81; off by default, C1 with it measured better than main, docs §88 / §91): the doublet's apex placed from the learned level's
+"""``fine.apex_policy`` (task h33p, docs §81; on by default since stop 25 with C1, docs §91): the doublet's apex placed from the learned level's
 law, truncated from below by this stop's unmoved apexes, instead of a staircase.
 
 The stage alone (no plant) for the law and the choice; one nominal-box run in closed loop."""
@@ -77,19 +77,18 @@ def test_the_choice_keeps_the_preload_safe_climbs_past_an_unmoved_apex_and_skips
     assert fine._choose_apex(d * 9e-4, d, phi_e, phi_b, sigma, p, 0.0, 0.5) is not None
 
 
-#: C1 (docs §88): the apex policy with kicks to 16 A, the deep retreat (two periods at -cap), the observe servo's
-#: integral held after a move, the move model's excess coordinate -- measured better than main on every nominal set, off
-#: by default (stop 25, docs §2: its node's run-time parameter path and the suite's cost not ready; docs §91)
+#: C1 (docs §88), the default since stop 25 (task h36f, docs §91): the apex policy with kicks to 16 A, the deep
+#: retreat (two periods at -cap), the observe servo's integral held after a move, the move model's excess coordinate
 C1 = {"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0, "fine.apex_retreat_periods": 2, "fine.retreat_cap": True,
       "fine.observe_hold_moved": True, "fine.apex_excess_nominal": True}
 
 
-def test_c1_is_off_by_default_and_on_makes_the_move_model():
-    """Off by default, the stage makes no move model; with C1's six options it does (no table built yet)."""
+def test_c1_is_the_default_and_off_is_main():
+    """C1's six options are the defaults (task h36f, docs §91); with the policy off the stage makes no move model."""
     ps = CONTROLLER_SPEC.defaults()
-    assert not any(ps[k] for k in C1)
-    fine, _ = _stage(**C1)
-    assert fine.cfg.apex_policy is True and fine._moves is not None and fine._moves.builds == 0
+    assert {k: ps[k] for k in C1} == C1
+    fine, _ = _stage()
+    assert fine.cfg.apex_policy is True and fine._moves is not None
     fine, _ = _stage(**{"fine.apex_policy": False})
     assert fine.cfg.apex_policy is False and fine._moves is None
 
@@ -252,6 +251,77 @@ def test_the_kick_set_is_finite_without_a_kick():
     OOM-killed when C1 made the policy the default, stop 25)."""
     fine, _ = _stage(**{"fine.kick_current_a": 0.0})
     assert fine._apex_kicks() == [0.0]
-    fine, _ = _stage(**C1)
+    fine, _ = _stage()
     kicks = fine._apex_kicks()
     assert kicks[0] == fine.cfg.kick_current_a and kicks[-1] <= fine.cfg.apex_kick_max_a + 1e-9 and len(kicks) == 3
+
+
+def _same_choice(fine, args):
+    """(outcome of main's choice, outcome of the stage's) on copies of ``fine`` (the move model shared): the return
+    value and everything the choice sets on the stage (benchmarks/apex_choice.py's reference, main's code)."""
+    from apex_choice import _copy, _outcome, reference_choose_apex
+    a, b = _copy(fine), _copy(fine)
+    return _outcome(a, reference_choose_apex(a, *args)), _outcome(b, b._choose_apex(*args))
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_the_choice_equals_main_choice_bit_for_bit(direction):
+    """(task h37a, docs §94) The choice scored on the elements that change a sum (levels of weight, apexes between
+    the level and the preload's reach, all kicks in one pass) chooses what main's full tables choose, to the last
+    bit of every number it sets (apex, kick, rise, plan, mean move): random errors (either sign of the crossing
+    guard), scatters, floors (none, inside the law, beyond it: the far tail), valve angles (between the angle grid's
+    points and on one), the three level laws, fine.apex_worse_given_move, and the continuous kick's path."""
+    rng = np.random.default_rng(37 + direction)
+    d = direction
+    base = {"fine.apex_kick_max_a": 16.0, "fine.apex_excess_nominal": True}
+    stages = [_policy_stage(**base), _policy_stage(**base, **{"fine.apex_level_law": "mixture"}),
+              _policy_stage(**base, **{"fine.apex_level_law": "student", "fine.apex_worse_given_move": True}),
+              _policy_stage(**base, **{"fine.apex_kick_continuous": True})]
+    moves = None
+    checked = 0
+    for n in range(24):
+        fine, model = stages[n % len(stages)]
+        if moves is not None:
+            fine._moves = moves                    # one move model (its tables built once)
+        p = model.pressure_max_kpa
+        thl = 0.5 * model.stroke_rad if n % 5 == 0 else float(rng.uniform(0.4, 0.6))
+        phi_e, phi_b = _twists(fine, d, p, thl)
+        sigma = float(rng.uniform(1.5e-4, 9e-4))
+        err = d * float(rng.uniform(2e-4, 2.5e-3))
+        short = 0.0 if n % 3 else 1e-4
+        kind = n % 4
+        fine._apex_floor = (None if kind == 0 else
+                            (d, phi_b + d * float(rng.uniform(-2.0, 2.0)) * sigma) if kind < 3 else
+                            (d, phi_b + d * 3.5 * sigma))
+        ref, new = _same_choice(fine, (err, d, phi_e, phi_b, sigma, p, short, thl))
+        assert repr(new) == repr(ref), (n, ref, new)
+        moves = fine._moves
+        checked += ref[0] is not None
+    assert checked >= 12                           # most draws chose a try (not only "hold")
+
+
+def test_the_move_points_equal_the_move_model_at_every_point():
+    """(task h37a) :meth:`PulseMoves.move_points` -- several kicks' moves in one pass -- equals :meth:`PulseMoves.move`
+    point by point, NaN where it is NaN: apexes above and below the level (the servo-break rule), beyond the tables,
+    at a Δp between the grid's points (a four-table blend) and on a grid point of the angle (one table)."""
+    fine, model = _policy_stage(**{"fine.apex_kick_max_a": 16.0})
+    from fuel_valve_control.core.fine_positioning import _pulse_moves
+    pm = _pulse_moves(fine)
+    kicks = fine._apex_kicks()
+    rng = np.random.default_rng(5)
+    d = 1
+    for p, thl in ((model.pressure_max_kpa, 0.45), (0.95 * model.pressure_max_kpa, 0.5 * model.stroke_rad),
+                   (0.95 * model.pressure_max_kpa, 0.47)):
+        n = 150
+        which = rng.integers(0, len(kicks), n)
+        x = rng.uniform(-1e-4, 2e-3, n)
+        od = rng.uniform(-5e-4, 4e-3, n)
+        aim = float(rng.uniform(0.0, 2e-3))
+        got = pm.move_points(d, p, kicks, which, x, od, aim_rad=aim, valve_angle_rad=thl)
+        up = od > 0.0
+        got_up = pm.move_points(d, p, kicks, which[up], x[up], od[up], aim_rad=aim, valve_angle_rad=thl)
+        want = np.array([pm.move(d, p, x[i], od[i], kick_current_a=kicks[which[i]], aim_rad=aim,
+                                 valve_angle_rad=thl) for i in range(n)], dtype=float)
+        assert np.array_equal(got, want, equal_nan=True)
+        assert np.array_equal(got_up, want[up], equal_nan=True)
+        assert np.isfinite(want[up]).sum() > 30 and (want == 0.0).sum() > 2 and np.isnan(want).sum() > 2

@@ -27,7 +27,7 @@ def test_the_cap_retreat_is_the_cap_for_its_whole_periods_and_has_no_half_period
     """Kick on the hold for one period, then two periods of -cap (direction-signed: not hold - cap), then the observe
     servo -- no period of half the cap."""
     ps = CONTROLLER_SPEC.defaults()
-    assert ps["fine.retreat_cap"] is False and ps["fine.observe_hold_integral"] is False
+    assert ps["fine.retreat_cap"] is True and ps["fine.observe_hold_integral"] is False   # C1's default (docs §91)
     fine, m = _stage(**{"fine.retreat_full_periods": 2, "fine.retreat_cap": True})
     kt = m.torque_constant_nm_per_a
     cap = ps["fine.peak_current_a"] * kt
@@ -67,7 +67,7 @@ def test_the_held_integral_is_not_wound_by_the_pull_back(option):
     always, with fine.observe_hold_moved once the valve has moved half a tolerance from the doublet's start (an
     unmoved stair's observe winds it as main's does); off, it winds."""
     ps = CONTROLLER_SPEC.defaults()
-    assert ps[option] is False
+    assert ps[option] is (option == "fine.observe_hold_moved")       # C1's default (docs §91)
     err = 0.5 * ps["fine.doublet_max_error_rad"]
     for on in (True, False):
         for moved in (False, True):

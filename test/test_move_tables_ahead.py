@@ -176,9 +176,9 @@ def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_bu
         assert node._table_build is None and f"lockstep: {n} of {n} loaded from cache" in node._tables_status, \
             node._tables_status
         assert fine._tables_gate is None and not fine.tables_deferred and fine.moves.builds == 0
-        # ... and in lockstep on another signature (two retreat periods, not in the cache): still no gate, no worker
+        # ... and in lockstep on another signature (one retreat period, not in the cache): still no gate, no worker
         node.trigger_cleanup()
-        assert node.set_parameters([Parameter("fine.apex_retreat_periods", value=2)])[0].successful
+        assert node.set_parameters([Parameter("fine.apex_retreat_periods", value=1)])[0].successful
         node.trigger_configure()
         fine = node.driver.controller.law.fine
         assert node._table_build is None and node._tables_status.startswith("lockstep: 0 of "), node._tables_status
@@ -188,7 +188,7 @@ def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_bu
         monkeypatch.setattr(pmod, "_SHARED", OrderedDict())
         node = ControllerNode(context=ctx, namespace="/tables_cleanup", parameter_overrides=[
             Parameter("autostart", value=False), Parameter("fine.apex_policy", value=True),
-            Parameter("fine.apex_retreat_periods", value=2)])
+            Parameter("fine.apex_retreat_periods", value=1)])
         node.trigger_configure()
         build = node._table_build
         assert build is not None and node.driver.controller.law.fine.tables_deferred
@@ -254,7 +254,8 @@ def test_node_run_time_changes_start_at_most_one_build_and_keep_no_replaced_stag
             waiting.append(weakref.ref(node.driver.waiting_law.fine))
             assert waiting[-1]().tables_deferred and waiting[-1]().moves.signature == made[0].moves.signature
         assert len(made) == 1 and node._table_build is made[0] and node._table_next is None     # no build, no read
-        assert node._tables_status == made[0].status()
+        # the line is the build's own (a snapshot taken at the change: the build's thread may have moved on since)
+        assert node._tables_status.startswith(("reading", "building", "ready")), node._tables_status
         gc.collect()
         assert [r() is None for r in waiting] == [True, True, True, False]     # the replaced ones: not retained
         assert len(node._table_waiters) == 2                                    # in force + the newest

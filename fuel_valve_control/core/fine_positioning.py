@@ -279,6 +279,22 @@ def _pulse_moves(fine: "FinePositioner") -> object:
     return PulseMoves.for_positioner(fine, **kw)
 
 
+_BREAK_LIMITS: dict = {}
+#: (``fine.apex_policy``) the normal level law's points (scatters) and unnormalised weights, formed once
+_APEX_Z = np.linspace(-APEX_LAW_SIGMAS, APEX_LAW_SIGMAS, APEX_LAW_POINTS)
+_APEX_W = np.exp(-0.5 * _APEX_Z * _APEX_Z)
+_APEX_Z.flags.writeable = _APEX_W.flags.writeable = False
+
+
+def _break_limit(sigmas: float) -> float:
+    """(``fine.apex_policy``) The largest chance of breaking the valve loose in its preload a try may take: main's
+    staircase start's, Φ(-``fine.doublet_sigmas``) (+1e-9); kept per value (a scalar erf per try otherwise)."""
+    v = _BREAK_LIMITS.get(sigmas)
+    if v is None:
+        v = _BREAK_LIMITS[sigmas] = float(_norm_cdf(-sigmas)) + 1e-9
+    return v
+
+
 def _norm_cdf(x):
     """The standard normal's CDF, elementwise (scipy's ufunc ``erf``: ``math.erf`` through ``np.vectorize`` was
     half of the apex policy's ~1.6-4 ms per try, measured in a nominal run)."""
@@ -1252,8 +1268,8 @@ class FinePositioner:
             scales, weights = self._level_scales(sigma, pressure_kpa)
             if len(scales) > 1:
                 return mixture_level_law(phi_b, d, scales, weights, None if fl is None else fl[1])
-        z = np.linspace(-APEX_LAW_SIGMAS, APEX_LAW_SIGMAS, APEX_LAW_POINTS)
-        lv, w = phi_b + d * sigma * z, np.exp(-0.5 * z * z)
+        z, w = _APEX_Z, _APEX_W
+        lv = phi_b + d * sigma * z
         if fl is not None:
             above = d * (lv - fl[1]) > 0.0
             if (w * above).sum() < 1e-3 * w.sum():
@@ -1345,7 +1361,7 @@ class FinePositioner:
             # moves 1.3-1.4 x short
             phi_e = self._nominal(thl, pressure_kpa, d)[0]
         od = d * (cand[:, None] - lv[None, :])               # [a, k] overdrive, rad
-        excess = np.broadcast_to(np.maximum(d * (lv - phi_e), 0.0)[None, :], od.shape)   # the level above φe
+        excess = np.maximum(d * (lv - phi_e), 0.0)         # [k] the level above φe
         moved = od > 0.0
         e, s, tol = abs(err), max(cfg.apex_move_sd_rad, 1e-9), cfg.apex_land_rad
         lo = 0.0 if short > 0.0 else -tol
@@ -1354,9 +1370,30 @@ class FinePositioner:
         trunc = np.where(d * (lv[None, :] - cand[:, None]) > 0.0, w[None, :], 0.0)
         tot = trunc.sum(axis=1, keepdims=True)
         trunc = np.divide(trunc, tot, out=np.zeros_like(trunc), where=tot > 0.0)
-        break_limit = float(_norm_cdf(-cfg.doublet_sigmas)) + 1e-9
-        best, v1 = None, None
+        break_limit = _break_limit(cfg.doublet_sigmas)
         kicks = self._apex_kicks()
+        if cfg.apex_kick_continuous and fl is not None and len(kicks) > 1:
+            best = self._score_tables(d, pressure_kpa, thl, kicks, cand, fl, od,
+                                      np.broadcast_to(excess[None, :], od.shape), moved, w, trunc, p_none,
+                                      e, s, tol, lo, worse_edge, break_limit)
+        else:
+            best = self._score_points(d, pressure_kpa, thl, kicks, cand, od, excess, moved, w, trunc, p_none,
+                                      e, s, tol, lo, worse_edge, break_limit)
+        self._apex_plan = (best[1], best[4], best[5], best[0], best[2], best[6])
+        if not best[0] > cfg.apex_min_chance:
+            return None
+        self._apex_kick, self._apex_rise = best[2], best[3]
+        self._apex_last = (d, best[1])
+        self._apex_try = (d, best[6])          # the model's mean move, if this try moves (traced in §81)
+        return best[1]
+
+    def _score_tables(self, d, pressure_kpa, thl, kicks, cand, fl, od, excess, moved, w, trunc, p_none, e, s, tol, lo,
+                      worse_edge, break_limit) -> tuple:
+        """(:meth:`_choose_apex`) The best try over every candidate x kick (with ``fine.apex_kick_continuous``, the
+        continuous kick's too) scored on whole [candidate, level] tables of moves: (score, apex, kick, rise,
+        P(land), P(no move), mean move).  The arrays as :meth:`_choose_apex` builds them."""
+        cfg = self.cfg
+        best, v1 = None, None
         tabs = [(kick, self._moves.rise(d, pressure_kpa, kick_current_a=kick, valve_angle_rad=thl),
                  np.asarray(self._moves.move(d, pressure_kpa, excess, od, kick_current_a=kick, aim_rad=e,
                                              valve_angle_rad=thl), dtype=float)) for kick in kicks]
@@ -1395,13 +1432,56 @@ class FinePositioner:
                 m_mean = float((np.where(moved[j] & np.isfinite(mv[j]), mv[j], 0.0) @ w) / pm) if pm > 0 else 0.0
                 kj, rj = (float(kick[j]), float(rise[j, 0])) if np.ndim(kick) else (kick, rise)
                 best = (float(score[j]), float(cand[j]), kj, rj, float(p_hit[j]), float(p_none[j]), m_mean)
-        self._apex_plan = (best[1], best[4], best[5], best[0], best[2], best[6])
-        if not best[0] > cfg.apex_min_chance:
-            return None
-        self._apex_kick, self._apex_rise = best[2], best[3]
-        self._apex_last = (d, best[1])
-        self._apex_try = (d, best[6])          # the model's mean move, if this try moves (traced in §81)
-        return best[1]
+        return best
+
+    def _score_points(self, d, pressure_kpa, thl, kicks, cand, od, excess, moved, w, trunc, p_none, e, s, tol, lo,
+                      worse_edge, break_limit) -> tuple:
+        """(:meth:`_choose_apex`, task h37a, docs §94) :meth:`_score_tables` for the kick set alone, bit for bit, on
+        the elements that change a sum: a try's chances are sums over the levels weighted by the law (and v1's by
+        the law truncated at the candidate), so a level of weight 0 (below the stop's floor) adds an exact 0 whatever
+        its move; a level below the preload (overdrive > the kick's rise) moves the whole jump 2 x excess, a function
+        of the level alone (its chances read once per level, not per candidate and kick); an apex below the level
+        does not move (chances 0).  The move model is read (:meth:`PulseMoves.move_points`, all kicks in one pass)
+        and the normal CDFs evaluated (one pass for all kicks) only where the apex lies between the level and the
+        preload's reach at a level of weight.  ``excess``: per level (1-D).  Returns as :meth:`_score_tables`."""
+        cfg = self.cfg
+        rises = self._moves.rises(d, pressure_kpa, kicks, valve_angle_rad=thl)
+        brk = od[None, :, :] > np.array(rises)[:, None, None]     # [kick, a, k] a level below the preload
+        kk, ai, ki = np.nonzero((moved & (w > 0.0)[None, :])[None, :, :] & ~brk)   # read on the move model
+        mvp = self._moves.move_points(d, pressure_kpa, kicks, kk, excess[ki], od[ai, ki], aim_rad=e,
+                                      valve_angle_rad=thl)
+        # |e| left: at the read points, and per level for a break in the preload (2 x excess, finite)
+        left = np.concatenate([e - np.where(np.isfinite(mvp), mvp, 2.0 * e + 1.0), e - 2.0 * excess])
+        # the three normal CDFs of every |e| left in one pass (the edges of a landing, a worsening)
+        cdf = _norm_cdf((np.array([tol, lo, worse_edge])[:, None] - left[None, :]) / s)
+        hit_all, worse_all = cdf[0] - cdf[1], cdf[2]
+        n = len(mvp)
+        hit = np.where(brk, hit_all[n:], 0.0)
+        hit[kk, ai, ki] = hit_all[:n]
+        worse = np.where(brk, worse_all[n:], 0.0)
+        worse[kk, ai, ki] = worse_all[:n]
+        p_hit, p_worse, p_break = hit @ w, worse @ w, brk.astype(float) @ w       # [kick, a]
+        v1 = (hit[0] @ trunc.T).max(axis=0)      # one more try after no move at a (main's kick): the law beyond a
+        score = p_hit + p_none * v1
+        ok = p_worse < 0.5
+        if cfg.apex_worse_given_move:
+            ok = ok & (p_worse <= 0.5 * (1.0 - p_none))
+        score = np.where(ok & (p_break <= break_limit), score, -np.inf)
+        js = np.argmax(score, axis=1)
+        bi = None
+        for i, j in enumerate(js):               # the first kick whose best is above every earlier kick's
+            if bi is None or score[i, j] > score[bi, js[bi]]:
+                bi = i
+        j = int(js[bi])
+        pm = float(moved[j].astype(float) @ w)
+        # the try's mean move (its row as _score_tables reads it at the levels of weight: the whole jump below the
+        # preload, the model's move between the level and the preload's reach; 0 elsewhere -- each x 0 in the sum)
+        mrow = np.where(brk[bi, j], 2.0 * excess, 0.0)
+        sel = (kk == bi) & (ai == j)
+        mrow[ki[sel]] = mvp[sel]
+        m_mean = float((np.where(moved[j] & np.isfinite(mrow), mrow, 0.0) @ w) / pm) if pm > 0 else 0.0
+        return (float(score[bi, j]), float(cand[j]), kicks[bi], rises[bi], float(p_hit[bi, j]), float(p_none[j]),
+                m_mean)
 
     def _continuous_kick(self, d: int, floor: float, cand: np.ndarray, tabs: list) -> tuple:
         """(``fine.apex_kick_continuous``, task h34m, docs §85) The continuous kick from the floor: the preload stays

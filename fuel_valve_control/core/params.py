@@ -570,7 +570,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.stair_growth_slope", 4.0, "rad/rad", "fine.stair_growth_after: the valve's move per twist overdrive "
           "at breakaway the grown stair is bounded with where fine.move_per_overdrive is 0 (benchmarks/fine_doublet.py: "
           "~4)", 0.1, 100.0, runtime=True),
-    Param("fine.apex_policy", False, "", "doublet: each apex placed where the learned breakaway level's law (normal, "
+    Param("fine.apex_policy", True, "", "doublet: each apex placed where the learned breakaway level's law (normal, "
           "the learned level and scatter, truncated from below by the highest apex an unmoved doublet reached at this "
           "stop) and the doublet's move model give the largest P(land within fine.apex_land_rad) + P(no move) x the "
           "next try's best such chance, instead of a staircase from fine.doublet_sigmas scatters below the level; no "
@@ -590,13 +590,13 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.apex_kick_ratio", 2.0, "", "fine.apex_policy: successive kicks of its set are this many times the "
           "last (2: 4 / 8 / 16 A; smaller: a finer choice of the apex a kick's rise reaches from the last unmoved apex)",
           1.05, 4.0, runtime=True),
-    Param("fine.apex_retreat_periods", 0, "", "fine.apex_policy: its doublets retreat this many loop periods at the "
+    Param("fine.apex_retreat_periods", 2, "", "fine.apex_policy: its doublets retreat this many loop periods at the "
           "whole current (fine.peak_current_a) before the half one (0 = fine.retreat_full_periods; h33a: the deeper "
           "retreat carries plateau_floor's gain)", 0, 3, runtime=True),
-    Param("fine.apex_kick_max_a", 0.0, "A", "fine.apex_policy: the kick is chosen per try among "
+    Param("fine.apex_kick_max_a", 16.0, "A", "fine.apex_policy: the kick is chosen per try among "
           "fine.kick_current_a x 1, 2, 4 ... up to this (docs section 75.4: the kick's size sets how much the "
           "level's draw matters; 0 = fine.kick_current_a only)", 0.0, 30.0, runtime=True),
-    Param("fine.retreat_cap", False, "", "doublet: the retreat is the whole current command itself, -fine.peak_current_a "
+    Param("fine.retreat_cap", True, "", "doublet: the retreat is the whole current command itself, -fine.peak_current_a "
           "toward the move's start, for its whole periods (fine.apex_retreat_periods, else fine.retreat_full_periods), "
           "and no half period -- benchmarks/plateau_floor.py's deep shape (docs section 82) -- instead of the hold "
           "less the whole current (-19.4 A for an opening pulse at 0.5 rad, max dp) and a period of half; false: "
@@ -639,11 +639,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "fine.observe_time_s (after a 16 A kick the retreat's rebound still ran ~0.65 rad/s toward the level and "
           "the next park carried it 0.36e-3 rad past its preload, breaking the valve loose in 12 of 120 parks; "
           "task h35v, docs section 89)", runtime=True),
-    Param("fine.observe_hold_moved", False, "", "doublet: as fine.observe_hold_integral, but only in the observe of a "
+    Param("fine.observe_hold_moved", True, "", "doublet: as fine.observe_hold_integral, but only in the observe of a "
           "doublet that has moved the valve (half a tolerance from its start): an unmoved stair's observe integrates as "
           "main's, whose next park is tuned with it (held there too, the parks ended 0.57e-3 rad short of their planned "
           "preload, median: 12 vs 29 moves in 10 nominal runs, 549 vs 479 doublets; task h34s, docs section 84)", runtime=True),
-    Param("fine.apex_excess_nominal", False, "", "fine.apex_policy: the move model's excess (the level above the "
+    Param("fine.apex_excess_nominal", True, "", "fine.apex_policy: the move model's excess (the level above the "
           "Coulomb-equilibrium twist) taken from the stage model's own Coulomb equilibrium (load + T_c)/K -- the "
           "coordinate the model is built in -- not from the learned swing centre (fine.learn's equilibrium offset: "
           "0.14-0.21e-3 rad toward the try on the nominal box, which read the moves 1.3-1.4 x short; task h34m, "

@@ -239,6 +239,8 @@ class PulseMoves:
             _SHARED.move_to_end(sig)
             self._tables, self._rises = store
         self._blends: OrderedDict = OrderedDict()
+        self._stacks: OrderedDict = OrderedDict()   # (:meth:`move_points`) a grid key's kick set's tables side by side
+        self._rise_sets: OrderedDict = OrderedDict()    # (:meth:`rises`) the last few asked
         self.builds = 0                  # tables simulated so far (tests count the cache's work)
         self.runs = 0                    # time-loop runs (_simulate calls: tables, refinements and rises)
 
@@ -300,6 +302,165 @@ class PulseMoves:
         if self.exact:
             return self._raw_move(self._table(d, p, kick, th), x, od, aim)
         return self._raw_move(self._blend(d, p, kick, th), x, od, aim)
+
+    def move_points(self, direction: int, pressure_kpa: float, kicks, which, excess_rad, overdrive_rad,
+                    aim_rad: float = 0.0, valve_angle_rad: float | None = None) -> np.ndarray:
+        """:meth:`move` at points of several kicks in one pass (task h37a, docs §94): the move (rad) at each point i of
+        the 1-D arrays ``excess_rad``, ``overdrive_rad`` for the kick ``kicks[which[i]]`` (A), one scalar
+        ``aim_rad``; equal bit for bit to ``move(direction, pressure_kpa, excess_rad[i], overdrive_rad[i],
+        kicks[which[i]], aim_rad, valve_angle_rad)``: the same arithmetic, element by element, on the kicks' tables
+        side by side (:meth:`_blend_stack`; where the kicks' grids differ, or a point lies below its level, one
+        :meth:`_raw_move` per kick).  Builds what :meth:`move` would build."""
+        x, od = np.asarray(excess_rad, dtype=float), np.asarray(overdrive_rad, dtype=float)
+        which = np.asarray(which, dtype=np.intp)
+        keys = [self._key_parts(direction, pressure_kpa, kick, valve_angle_rad) for kick in kicks]
+        if not self.exact and not (od <= 0.0).any():
+            stack = self._blend_stack(keys[0][0], keys[0][1], tuple(k[2] for k in keys), keys[0][3])
+            if stack is not None:
+                return self._raw_move_stacked(stack, which, x, od, float(aim_rad))
+        v = np.empty(x.shape)
+        for i, (d, p, kk, th) in enumerate(keys):
+            sel = which == i
+            tab = self._table(d, p, kk, th) if self.exact else self._blend(d, p, kk, th)
+            v[sel] = self._raw_move(tab, x[sel], od[sel], float(aim_rad))
+        return v
+
+    def rises(self, direction: int, pressure_kpa: float, kicks, valve_angle_rad: float | None = None) -> list:
+        """[:meth:`rise` of each kick of ``kicks``] (the same floats; the grid's corners found once)."""
+        key = ("rises", direction, pressure_kpa, tuple(kicks), valve_angle_rad)
+        hit = self._rise_sets.get(key)       # (an unmoved try's next asks at the same Δp and valve angle)
+        if hit is not None:
+            return list(hit)
+        keys = [self._key_parts(direction, pressure_kpa, kick, valve_angle_rad) for kick in kicks]
+        if self.exact:
+            out = [self._rise_at(d, p, kick, th) for d, p, kick, th in keys]
+        else:
+            corners = self._corners(keys[0][1], keys[0][3])
+            out = [float(sum(w * self._rise_at(d, pk, kick, tk) for pk, tk, w in corners)) for d, p, kick, th in keys]
+        self._rise_sets[key] = tuple(out)
+        while len(self._rise_sets) > BLEND_CACHE_SIZE:
+            self._rise_sets.popitem(last=False)
+        return out
+
+    @staticmethod
+    def _flat(tab) -> tuple:
+        """Per-table constants of :meth:`_raw_move`, kept in the table: flat views of the moves and ``last_ok`` for
+        the gathers, the second-break aims capped one aim step beyond the grid."""
+        flat = tab.get("_flat")
+        if flat is None:
+            ag = tab["aim"]
+            beyond = ag[-1] + (ag[1] - ag[0])
+            flat = tab["_flat"] = (tab["moves"].ravel(), np.asarray(tab["last_ok"], dtype=float).ravel(),
+                                   np.minimum(np.asarray(tab["second_break_aim"], dtype=float), beyond).ravel())
+        return flat
+
+    def _corner_stack(self, d, p, kicks, th):
+        """The kicks' tables at one grid key side by side: (the first's table, their moves, ``last_ok`` and
+        second-break aims raveled end to end), or None where their grids differ; the last BLEND_CACHE_SIZE kept."""
+        key = (d, p, kicks, th)
+        hit = self._stacks.get(key)
+        if hit is not None:
+            self._stacks.move_to_end(key)
+        else:
+            tabs = [self._table(d, p, kick, th) for kick in kicks]
+            t0 = tabs[0]
+            if all(all(np.array_equal(t[n], t0[n]) for n in ("excess", "overdrive", "aim"))
+                   and t["moves"].shape == t0["moves"].shape for t in tabs[1:]):
+                hit = (t0, np.concatenate([t["moves"].ravel() for t in tabs]),
+                       np.concatenate([np.asarray(t["last_ok"], dtype=float).ravel() for t in tabs]),
+                       np.concatenate([np.asarray(t["second_break_aim"], dtype=float).ravel() for t in tabs]))
+            else:
+                hit = (None,)
+            self._stacks[key] = hit
+            while len(self._stacks) > BLEND_CACHE_SIZE:     # (each ~0.35 MB: three kicks' moves)
+                self._stacks.popitem(last=False)
+        return None if hit[0] is None else hit
+
+    def _blend_stack(self, d, p, kicks, th):
+        """:meth:`_blend` of every kick of ``kicks`` at once, as :meth:`_raw_move_stacked` reads it: (grids (excess,
+        overdrive, aim), table shape, [(weight x jump ratio, the corner's moves)] -- None: a single corner's own
+        moves --, ``last_ok``, capped second-break aims), the kicks' tables end to end; the same arithmetic as
+        :meth:`_blend` then :meth:`_flat` per kick (elementwise: the same bits), the moves' blend left to the cells
+        read.  None where the kicks' grids differ (or ``BLEND_THRESHOLDS`` is not "min").  The last few kept."""
+        key = ("blend", d, p, kicks, th)
+        hit = self._blends.get(key)
+        if hit is not None:
+            self._blends.move_to_end(key)
+            return hit
+        corners = self._corners(p, th)
+        if len(corners) == 1:
+            st = self._corner_stack(d, corners[0][0], kicks, corners[0][1])
+            if st is None:
+                return None
+            t0 = st[0]
+            grids, mv, lok, sba = (t0["excess"], t0["overdrive"], t0["aim"]), [(None, st[1])], st[2], st[3]
+        else:
+            if BLEND_THRESHOLDS != "min":
+                return None
+            xs, js = self._scales(p)
+            mv, lok, sba = [], np.inf, np.inf
+            for pk, tk, w in corners:
+                st = self._corner_stack(d, pk, kicks, tk)
+                if st is None:
+                    return None
+                t0 = st[0]
+                xk, jk = self._scales(pk)
+                r = js / jk
+                grids = (t0["excess"] * (xs / xk), t0["overdrive"] * r, t0["aim"] * r)
+                mv.append((w * r, st[1]))
+                sba = np.minimum(sba, st[3] * r)
+                lok = np.minimum(lok, st[2])
+        ag = grids[2]
+        beyond = ag[-1] + (ag[1] - ag[0])
+        hit = (grids, st[0]["moves"].shape, mv, lok, np.minimum(sba, beyond))
+        self._blends[key] = hit
+        while len(self._blends) > BLEND_CACHE_SIZE:
+            self._blends.popitem(last=False)
+        return hit
+
+    @staticmethod
+    def _raw_move_stacked(stack, which, x, od, aim: float) -> np.ndarray:
+        """:meth:`_raw_move` on the kicks' tables side by side (``stack``: :meth:`_blend_stack`): point i (1-D
+        points above their levels, ``od`` > 0) read on the table ``which[i]``, one scalar ``aim``.  The arithmetic
+        is :meth:`_raw_move`'s (and :meth:`_blend`'s), operation for operation: each cell's move at the aim (a
+        function of the cell alone for one aim) is formed once per cell instead of once per point and corner, from
+        the cell's two aims' moves blended as :meth:`_blend` blends the whole table; the same bits."""
+        (xg, og, ag), (nx, no, na), mvs, lok, thr = stack
+        off = which * (nx * no)                      # each table's first cell in the stacked constants
+        fx = np.minimum(np.maximum(x * (1.0 / (xg[1] - xg[0])), 0.0), nx - 1)
+        fo = np.minimum(np.log(np.maximum(od, og[0]) * (1.0 / og[0])) * (1.0 / math.log(og[1] / og[0])), no - 1)
+        fa = np.minimum(np.maximum(aim * (1.0 / (ag[1] - ag[0])), 0.0), na - 1)
+        i0 = np.minimum(fx.astype(np.intp), nx - 2)
+        j0 = np.minimum(fo.astype(np.intp), no - 2)
+        ax, ao = fx - i0, fo - j0
+        # the four corner cells of every point, and each one's move at the aim as _raw_move forms it (a function of
+        # the cell alone for one aim; on _blend's moves: the cell's two aims blended as _blend blends the table)
+        row = i0 * no + j0 + off
+        n = len(row)
+        cells = np.concatenate([row, row + 1, row + no, row + (no + 1)])
+        kk = np.minimum(fa, lok[cells])
+        k = np.minimum(kk.astype(np.intp), na - 2)
+        w = kk - k
+        base = cells * na + k
+        if mvs[0][0] is None:
+            m0, m1 = mvs[0][1][base], mvs[0][1][base + 1]
+        else:
+            m0 = m1 = 0.0
+            for c, m in mvs:
+                m0 = m0 + c * m[base]
+                m1 = m1 + c * m[base + 1]
+        at_aim = (m0 * (1.0 - w) + m1 * w).reshape(4, n)
+        th_at = thr[cells].reshape(4, n)
+        v = np.zeros(x.shape)
+        t = np.zeros(x.shape)
+        for c, wx, wo in ((0, 1.0 - ax, 1.0 - ao), (1, 1.0 - ax, ao), (2, ax, 1.0 - ao), (3, ax, ao)):
+            w2 = wx * wo
+            v += at_aim[c] * w2
+            t += th_at[c] * w2
+        eps = 1e-12
+        bad = (x < -eps) | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | ~np.isfinite(x) | (not math.isfinite(aim))
+        v[(aim >= t) | bad | (x > xg[-1] * (1 + 1e-6) + eps) | (od > og[-1] * (1 + 1e-6))] = np.nan
+        return v
 
     def table(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
               valve_angle_rad: float | None = None) -> dict:
@@ -600,12 +761,7 @@ class PulseMoves:
         xg, og, ag, moves = tab["excess"], tab["overdrive"], tab["aim"], tab["moves"]
         nx, no, na = moves.shape
         beyond = ag[-1] + (ag[1] - ag[0])
-        flat = tab.get("_flat")
-        if flat is None:
-            # per-table constants, kept in the table (flat views for the gathers; the second-break aims capped)
-            flat = tab["_flat"] = (moves.ravel(), np.asarray(tab["last_ok"], dtype=float).ravel(),
-                                   np.minimum(np.asarray(tab["second_break_aim"], dtype=float), beyond).ravel())
-        mv, lok, thr = flat
+        mv, lok, thr = PulseMoves._flat(tab)
         # (np.minimum / np.maximum: np.clip costs twice as much here)
         fx = np.minimum(np.maximum(x * (1.0 / (xg[1] - xg[0])), 0.0), nx - 1)
         fo = np.minimum(np.log(np.maximum(od, og[0]) * (1.0 / og[0])) * (1.0 / math.log(og[1] / og[0])), no - 1)
