@@ -25,17 +25,22 @@ from fuel_valve_control.tools import sim
 from fuel_valve_plant.physics.params import load_plant_params
 from fuel_valve_plant.physics.plant import Plant
 
+from test_fine_positioning import MAIN_DOUBLET
 from test_param_swap import loop
 
 START, DEMAND = 45.8, 47.5          # % of stroke: the trace's stuck valve and its demand
 GAP = 13                            # periods the loop is silent per stall (the trace's 13 ms)
+#: the fine stage these cases were traced with (§49, §54): main's doublet staircase.  With C1 the default (stop 26) the
+#: hold before the step ends elsewhere and neither starved case overshoots any more (13 ms held: within demand + 2 %;
+#: stale samples: 47.6 %) -- the cases, not the mechanism, went away, so they keep the build that shows it
+TRACED = MAIN_DOUBLET
 
 
 def _double_stall(offset: int, held: int | None = None) -> tuple[float, float]:
     """Peak valve (% of stroke) and the re-armed law's first command (A).  ``held``: periods
     the drive applies the last command at each stall (None: its designed command watchdog)."""
     plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": 0.0}))
-    drv = D.ValveDriver(load_controller_params(overrides={"faults.drive_command_timeout_s": 0.0}))
+    drv = D.ValveDriver(load_controller_params(overrides={**TRACED, "faults.drive_command_timeout_s": 0.0}))
     drv.drive_status(0.0, contract.DRIVE_STATE_ENABLED)
     loop(drv, plant, 0.0, 1500, lambda t: START)
     t, period, peak = 1.5, drv.period, 0.0
@@ -110,7 +115,7 @@ def _starved(stale_periods: float, periods: int = 700) -> tuple[float, float, in
     next (within its 5 ms watchdog: no trip).  Returns (peak, final valve, % of stroke; stale
     samples counted)."""
     plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": 0.0}))
-    drv = D.ValveDriver(load_controller_params(overrides={"faults.stale_sample_periods": stale_periods}))
+    drv = D.ValveDriver(load_controller_params(overrides={**TRACED, "faults.stale_sample_periods": stale_periods}))
     drv.drive_status(0.0, contract.DRIVE_STATE_ENABLED)
     loop(drv, plant, 0.0, 1500, lambda t: START)
     period = drv.period

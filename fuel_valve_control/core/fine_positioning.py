@@ -141,6 +141,7 @@ from pathlib import Path
 import numpy as np
 from scipy.special import erf as _erf
 
+from ..common.contract import RESOLVER_COUNT_RAD
 from ..common.hunting import HUNT_REVERSALS, ReversalCounter
 from .model import NominalModel
 
@@ -619,6 +620,13 @@ class FineConfig:
                                         # scaled toward the hold (:meth:`FinePositioner._retreat_plan`; task h36g, §90)
     retreat_trough_misfit: bool = False  # ... the margin also fine.breakaway_fit x T_s/K (the level misfit the stage
                                          # engages with)
+    park_settle: bool = False     # doublet: the kick waits (up to the park's length again) for the gear output to settle
+                                  # on the preload: speed within sqrt(K/J1) x tolerance (task h37t, docs §96)
+    apex_unraised_plan: bool = False  # (fine.apex_policy) after an unmoved try whose reading raised the floor by less
+                                      # than a count, the floor is that try's planned apex (task h37t, docs §96)
+    apex_probe_hold: bool = False  # (fine.apex_policy, where fine.retreat_trough_bound cut the retreat) a try with
+                                   # P(no move) >= 1 - Phi(-doublet_sigmas) retreats one period at the hold (h37t, §96)
+    trough_delay_s: float = 0.0   # (fine.retreat_trough_delay) the trough model's servo reads this late: the resolver delay
     hold_reversed: bool = False   # the stage holds instead of handing back a plateau on which the main law's move
                                   # could be the hunting metric's second reversal (task h34h, docs §86; in force also
                                   # with apex_policy)
@@ -716,6 +724,7 @@ class FinePositioner:
         self._steady = 0
         self._new_plateau()
         self._stair = None
+        self._floor_unraised = None   # (fine.apex_unraised_plan) the floor an unmoved try's reading did not raise
         self._apex_floor = None       # fine.apex_policy: (direction, twist rad) the highest apex an unmoved doublet
                                       # reached at this stop (None: none yet)
         self._apex_plan = None        # fine.apex_policy: (apex, P(land), P(no move), score, kick) of the last choice
@@ -1305,6 +1314,13 @@ class FinePositioner:
         if fl is None or fl[0] != d:
             return None
         last = self._apex_last
+        if (self.cfg.apex_unraised_plan and self._floor_unraised == fl and last is not None and last[0] == d
+                and d * (last[1] - fl[1]) > 0.0):
+            # (task h37t, docs §96) the last unmoved try's reading raised the floor by less than a resolver count:
+            # the law truncated at the reading gives the same try again (full box 1027, K x0.81 untold: the kick's
+            # apex read 0.45e-3 rad below its plan, 15 / 15 / 141 identical unmoved tries on plateaus #9-#11) --
+            # the try's planned apex is the floor instead, so the next try climbs
+            return (d, last[1])
         if self.cfg.apex_floor_plan and last is not None and last[0] == d and d * (last[1] - fl[1]) > 0.0:
             return (d, last[1])
         return fl
@@ -1589,6 +1605,16 @@ class FinePositioner:
         self._park_n2 = max(self._park_n2, self.cfg.park_periods - n1)
         self._park_n = self._park_n1 + self._park_n2
 
+    def _park_settled(self, w1: float) -> bool:
+        """(``fine.park_settle``, task h37t, docs §96) Whether the parked gear output has settled on the preload: its
+        speed ``w1`` (rad/s, the stage's backward difference) is within the stuck-valve drivetrain mode's
+        sqrt(K / J1) x the tolerance -- a ringing of at most ``fine.tolerance_counts`` in amplitude.  A kick on a
+        park still ringing adds the swing to its apex and to its retreat's trough (full box 1069: +1 rad/s, the
+        trough 3-4e-3 rad deeper than the move model's from that state)."""
+        m = self.m
+        omega = math.sqrt(m.coupling_stiffness_nm_per_rad / max(m.j1, 1e-12))
+        return abs(w1) <= omega * self.cfg.tolerance_rad
+
     def _park_ref(self, k: int) -> tuple[float, float, float]:
         """The preload twist reference in period ``k`` of the park: (rad, rad/s, rad/s²)."""
         per = self.period
@@ -1695,7 +1721,8 @@ class FinePositioner:
         base = self._thl0
         if self.phase == PARK:
             x, v, a = self._park_ref(self._k)
-            if self._k >= self._park_n + 2:
+            if self._k >= self._park_n + 2 and (not (cfg.park_settle and self._doublet) or self._park_settled(w1)
+                                                 or self._k >= 2 * self._park_n + 2):
                 self.phase, self._k = PULSE, 0
                 self._kick_apex = th1 - thl       # the kick's apex is tracked from the preload reached
                 self._excursion = 0.0
@@ -1894,7 +1921,7 @@ class FinePositioner:
         kn = self.m.coupling_stiffness_nm_per_rad / self.m.gear_ratio
         state = dict(kick_current_a=kick, valve_angle_rad=thl, speed0=self._w1_now, hold0=self._hold_torque,
                      servo_offset=self._ff0 - kn * self._phi0 + self.ki * self._integral / self.m.gear_ratio,
-                     ref_twist=self._final)
+                     ref_twist=self._final, servo_delay_s=min(max(cfg.trough_delay_s, 0.0), self.period))
         for n in range(periods, 1, -1):
             if d * (pre - float(mv.trough(d, p, pre, retreat_periods=n, **state)[0])) <= room:
                 return n, 1.0
@@ -1932,6 +1959,16 @@ class FinePositioner:
                 else cfg.retreat_full_periods, 1)
             # (fine.retreat_trough_bound) fewer / scaled periods where the trough would break the valve loose backwards
             self._retreat = self._retreat_plan(pressure_kpa, kick, periods)
+            if (cfg.apex_probe_hold and cfg.apex_policy and self._retreat != (periods, 1.0)
+                    and self._apex_try is not None and self._apex_plan is not None
+                    and self._apex_plan[2] >= 1.0 - float(_norm_cdf(-cfg.doublet_sigmas))):
+                # (task h37t, docs §96) where fine.retreat_trough_bound has cut the planned retreat, a try the policy
+                # expects not to move the valve (P(no move) within main's park-break chance of 1) has no move for the
+                # retreat to stop: one period at the hold, then the observe servo -- the model's one-period troughs
+                # read 3.3-4.2e-3 rad shallow on run 1069 (#7: P(no move) 1.000); for every try (the bound not
+                # consulted) nominal seed 1000 went worse (p95 0.989 -> 1.244e-3: the rise tables assume the deep
+                # retreat, the apex overshoots its plan)
+                self._retreat = (1, 0.0)
         elif self._k <= 1 + self._retreat[0]:
             # (task h34s, ``fine.retreat_cap``) the cap itself backwards, not the hold less the cap (an opening
             # pulse at 0.5 rad, max Δp, holds ~+10.6 A: hold - cap is -19.4 A; plateau_floor's deep shape, §82)
@@ -2222,8 +2259,12 @@ class FinePositioner:
             if self._doublet and self._stair is not None and cfg.apex_policy:
                 # (task h33p) the level lies beyond the apex the kick really reached (measured): the policy's law
                 # is truncated there until the valve moves
+                prev = self._apex_floor
                 if self._apex_floor is None or self._apex_floor[0] != d or d * (self._kick_apex - self._apex_floor[1]) > 0:
                     self._apex_floor = (d, self._kick_apex)
+                # (fine.apex_unraised_plan) a reading that raised this way's floor by less than a resolver count
+                self._floor_unraised = self._apex_floor if (
+                    prev is not None and prev[0] == d and d * (self._kick_apex - prev[1]) <= RESOLVER_COUNT_RAD) else None
                 self._stairs_unmoved += 1
                 if d * (self._apex_floor[1] - b0) > self._plausible_offset_rad(pressure_kpa):
                     # beyond any plausible learned level (:meth:`_plausible`): it is not this valve

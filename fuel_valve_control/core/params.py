@@ -627,6 +627,27 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "way's learned breakaway also fine.breakaway_fit x T_s(dp)/K -- the level misfit the stage engages with (full "
           "box run 1069, coupling x0.91 untold: the true closing level lay 1.5e-3 rad above the learned one; task h36g, "
           "docs section 90)", runtime=True),
+    Param("fine.park_settle", False, "", "doublet: the park ends (the kick starts) only once the gear output has "
+          "settled on the preload -- its speed within the drivetrain's stuck-valve mode sqrt(K/J1) x "
+          "fine.tolerance_counts (a ringing of at most the tolerance) -- or after as many periods again as the park "
+          "planned.  A park still ringing adds its swing to the kick and to the retreat's trough, which the move "
+          "model's trough (fine.retreat_trough_bound) then misreads by 3-4e-3 rad (full box run 1069: the gear output "
+          "ran +1 rad/s into the kick and the trough passed the closing breakaway; task h37t, docs section 96)",
+          runtime=True),
+    Param("fine.retreat_trough_delay", False, "", "with fine.retreat_trough_bound: the move model's trough has the "
+          "observe servo read the gear output and valve resolver_delay_s late (at most one period), as the stage's own "
+          "servo does -- the model's tables assume 50 us; at 0.62 ms (full box run 1069) its trough of a one-period "
+          "retreat lay 1.2-1.5e-3 rad shallower than with the delay (task h37t, docs section 96)", runtime=True),
+    Param("fine.apex_unraised_plan", False, "", "fine.apex_policy: after an unmoved try whose measured apex raised the "
+          "floor (the highest unmoved apex of the stop) by less than a resolver count, the level's law is truncated at "
+          "that try's planned apex instead: truncated at the reading it gave the same try again and again (full box run "
+          "1027, coupling x0.81 untold: the apex read 0.45e-3 rad below its plan, 15, 15 and 141 identical unmoved "
+          "tries on three plateaus; task h37t, docs section 96).  A narrower fine.apex_floor_plan", runtime=True),
+    Param("fine.apex_probe_hold", False, "", "fine.apex_policy with fine.retreat_trough_bound: where the bound has cut "
+          "the planned retreat, a try the policy expects not to move the valve -- P(no move) within main's park-break "
+          "chance Phi(-fine.doublet_sigmas) of 1 -- retreats one period at the hold instead of the bound's shallower "
+          "retreat: there is no move to stop, and the move model's one-period troughs read 3.3-4.2e-3 rad shallow on "
+          "full box run 1069 (#7: P(no move) 1.000); task h37t, docs section 96", runtime=True),
     Param("fine.retreat_return_rest", False, "", "with fine.retreat_return_guard: when the return is seen the observe "
           "servo's reference is frozen at the gear output's present angle and the doublet is judged once the valve rests "
           "(back at its start: counted and the plateau held; else as any move) instead of leaving the plateau (task "

@@ -350,6 +350,10 @@ class PositionController:
                           retreat_return_guard=ps["fine.retreat_return_guard"],
                           retreat_trough_bound=ps["fine.retreat_trough_bound"],
                           retreat_trough_misfit=ps["fine.retreat_trough_misfit"],
+                          park_settle=ps["fine.park_settle"],
+                          apex_unraised_plan=ps["fine.apex_unraised_plan"],
+                          apex_probe_hold=ps["fine.apex_probe_hold"],
+                          trough_delay_s=ps["resolver_delay_s"] if ps["fine.retreat_trough_delay"] else 0.0,
                           retreat_return_hold=ps["fine.retreat_return_hold"],
                           retreat_return_rest=ps["fine.retreat_return_rest"],
                           unmoved_settled=ps["fine.unmoved_settled"])

@@ -476,7 +476,7 @@ class PulseMoves:
     def trough(self, direction: int, pressure_kpa: float, preload_rad, kick_current_a: float | None = None,
                valve_angle_rad: float | None = None, aim_rad: float = 0.0, retreat_periods: int | None = None,
                retreat_scale=1.0, speed0: float | None = None, hold0: float | None = None, servo_offset: float = 0.0,
-               ref_twist: float | None = None) -> np.ndarray:
+               ref_twist: float | None = None, servo_delay_s: float = 0.0) -> np.ndarray:
         """(task h36g, docs §90) The retreat's trough on a valve that stays stuck: the smallest coupling torque over K
         toward ``direction`` (absolute twist, rad, the static levels' coordinate) the doublet from a quasi-static
         preload ``preload_rad`` (absolute twist, rad; an array: one lane each) reaches after its kick -- through the
@@ -489,7 +489,9 @@ class PulseMoves:
         motor: the torque the kick is added to) start it from the stage's actual state (None: at rest on the
         quasi-static hold); ``servo_offset`` (N*m at the motor: the stage's servo's static torque less the model's
         ``K φ / N`` at the same twist -- its feed-forward's engage offset and its integral) and ``ref_twist`` (absolute
-        twist, rad: the stage's final twist; None: ``φe + d aim / 2``) make the observe servo the stage's.  Simulated until the servo has turned the swing (one run of a few lanes, ~5 ms of CPU);
+        twist, rad: the stage's final twist; None: ``φe + d aim / 2``) make the observe servo the stage's;
+        ``servo_delay_s`` (s, task h37t, docs §96; 0: none) the observe servo reads the gear output and the valve this much
+        late (the resolver delay; at most one period).  Simulated until the servo has turned the swing (one run of a few lanes, ~5 ms of CPU);
         not tabulated."""
         d, p, kick, th = self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad)
         pre, scale = np.broadcast_arrays(np.atleast_1d(np.asarray(preload_rad, dtype=float)),
@@ -498,7 +500,7 @@ class PulseMoves:
         return self._simulate(d, p, kick, th, preload=pre.copy(), excess=np.full(n, np.inf),
                               aim=np.full(n, float(aim_rad)), track_trough=True, retreat_periods=retreat_periods,
                               retreat_scale=scale.copy(), speed0=speed0, hold0=hold0, servo_offset=servo_offset,
-                              ref_twist=ref_twist)
+                              ref_twist=ref_twist, servo_delay_s=servo_delay_s)
 
     def pending(self, pressures_kpa=None, directions=(1, -1), kicks=None) -> list:
         """The (direction, Δp, kick, angle) keys :meth:`prepare` with these arguments would still build (tables or
@@ -901,7 +903,7 @@ class PulseMoves:
 
     def _simulate(self, d, p, kick, th0, *, preload, excess, aim, track_apex=False, apex_torque=True, base=None,
                   track_trough=False, retreat_periods=None, retreat_scale=None, speed0=None, hold0=None,
-                  servo_offset=0.0, ref_twist=None):
+                  servo_offset=0.0, ref_twist=None, servo_delay_s=0.0):
         """Run the doublet on every lane at once from rest at valve angle ``th0`` with the twist at ``preload``
         (absolute, rad), the valve's static level ``T_c + K excess``; returns the valve angle at the end
         (or, with ``track_apex``, the largest twist toward ``d`` reached, absolute rad).  ``base`` (int array,
@@ -915,7 +917,9 @@ class PulseMoves:
         toward +) and ``hold0`` (N*m at the motor) the gear output's speed and the hold torque the kick starts on (None:
         at rest on the quasi-static hold); ``servo_offset`` (N*m at the motor) added to the observe servo's torque and
         ``ref_twist`` (absolute twist, rad; None: ``φe + d aim / 2``) its reference: the stage's own servo; the run
-        stops once every lane's twist rises again after the retreat."""
+        stops once every lane's twist rises again after the retreat.  ``servo_delay_s`` (s, 0 .. one period; task
+        h37t): the observe servo reads the gear output and valve angles this much before the period's start (the
+        resolver delay) -- 0 (default): at the start, as before."""
         self.runs += 1
         m = self.m
         n_gear, k, c = m.gear_ratio, m.coupling_stiffness_nm_per_rad, m.coupling_damping_nms
@@ -970,6 +974,10 @@ class PulseMoves:
         retreat_full = self.retreat_full if retreat_periods is None else max(int(retreat_periods), 0)
         n_pulse = 2 + retreat_full - (1 if self.retreat_cap else 0)
         trough = d * preload.copy()
+        # (servo_delay_s) the substep after which the servo's samples are taken: the period's end less the delay
+        lag = min(max(int(round(float(servo_delay_s) / dt)), 0), self.substeps)
+        th1_s, thl_s = th1.copy(), thl.copy()                # the samples the next period's servo reads
+        th1_s_prev = th1_s.copy()
         for period in range(n_pulse + self.observe_periods):
             if track_trough and period > n_pulse and np.all(d * (w1 - wl) > 0.0):
                 break                                    # the servo has turned every lane's swing: the trough is past
@@ -992,17 +1000,25 @@ class PulseMoves:
                 torque = hold - d * frac * cap
             else:
                 # the observe servo (FinePositioner._servo, a_ref = v_ref = 0), sampled at the period's start
-                w1s = (th1 - th1_prev) / per             # the stage's backward difference, every period
-                e = ref1 - th1
+                if lag:
+                    # (servo_delay_s) read ``lag`` substeps before the period's start
+                    r1, rl, w1s = th1_s, thl_s, (th1_s - th1_s_prev) / per
+                else:
+                    r1, rl, w1s = th1, thl, (th1 - th1_prev) / per   # the stage's backward difference, every period
+                e = ref1 - r1
                 if self.hold_moved and not self.hold_integral:
-                    integral = integral + np.where(np.abs(thl - th0) >= 0.5 * self.tolerance, 0.0, e * per)
+                    integral = integral + np.where(np.abs(rl - th0) >= 0.5 * self.tolerance, 0.0, e * per)
                 elif not self.hold_integral:
                     integral = integral + e * per
-                ff = k * (ref1 - thl) / n_gear + servo_offset
+                ff = k * (ref1 - rl) / n_gear + servo_offset
                 torque = ff + (self.kp * e - self.kd * w1s + self.ki * integral) / n_gear
             th1_prev = th1.copy()
             iq_ref = np.clip(torque, -cap, cap) / kt * np.ones(n)
-            for _ in range(self.substeps):
+            if lag:
+                th1_s_prev = th1_s
+                if lag == self.substeps:
+                    th1_s, thl_s = th1.copy(), thl.copy()
+            for sub in range(self.substeps):
                 # ---- the drive's q current (decoupled PI, voltage circle with the back-EMF, exact R-L step)
                 if self.wc is None:
                     iq_new = iq_mid = iq_ref
@@ -1036,6 +1052,8 @@ class PulseMoves:
                                       else d * (th1 - thl))
                 if track_trough and period >= 1:
                     trough = np.minimum(trough, d * (k * (th1 - thl) + c * (w1 - wl)) / k)
+                if lag and lag < self.substeps and sub == self.substeps - 1 - lag:
+                    th1_s, thl_s = th1.copy(), thl.copy()
         if track_trough:
             return d * trough
         return d * apex if track_apex else thl
