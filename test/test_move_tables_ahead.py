@@ -203,9 +203,10 @@ def test_node_configure_returns_at_once_and_the_tables_come_from_a_background_bu
             assert time.monotonic() - t0 < 60.0
             time.sleep(0.02)
         node.trigger_cleanup()
-        assert node._table_build is None
-        assert build.process is None or build.process.poll() is not None        # ended at once: no orphan
+        assert node._table_build is None and build.cancelled
+        # (task h37d) the cleanup, under the loop's lock, only signals the worker; the reader reaps it: no orphan
         build._thread.join(30.0)                                                  # (the reader ends by itself)
+        assert build.process is None or build.process.poll() is not None
         assert build.state in ("cancelled", "ready"), build.status()
         node.destroy_node()
 
@@ -417,6 +418,61 @@ def test_cancel_ends_the_worker_process(tmp_path):
     proc = build.process
     build.cancel()
     assert build.state == "cancelled" and proc.poll() is not None     # ended, not orphaned
+
+
+#: a worker that ignores SIGTERM: marks that it has (the file named in $H37D_WORKER_MARK), then sleeps
+_STUBBORN_WORKER = ("import os, signal, time, pathlib; signal.signal(signal.SIGTERM, signal.SIG_IGN); "
+                    "pathlib.Path(os.environ['H37D_WORKER_MARK']).touch(); time.sleep(120)")
+
+
+def test_a_cancel_under_the_loop_lock_never_waits_for_the_worker(tmp_path, monkeypatch):
+    """(task h37d) ``cancel(0)`` -- the controller node's call under its 1 kHz loop's lock -- only signals the
+    worker: with a worker that ignores SIGTERM it returns while the worker still runs (it used to wait up to
+    2 s + 2 s there); the reading thread then kills the worker after the grace time and reaps it (no zombie, no
+    orphan), and the build ends cancelled."""
+    import os
+    import signal
+    mark = tmp_path / "ignoring_sigterm"
+    monkeypatch.setenv("H37D_WORKER_MARK", str(mark))
+    monkeypatch.setattr(pmod, "WORKER_CODE", _STUBBORN_WORKER)
+    monkeypatch.setattr(pmod, "STOP_GRACE_S", 0.2)
+    moves = _moves()
+    build = pmod.TableBuild(moves, _keys(moves), tmp_path / "cache")
+    _wait(build, ("building", "failed"))
+    t0 = time.monotonic()
+    while not mark.exists():
+        assert time.monotonic() - t0 < 60.0 and build.state == "building", build.status()
+        time.sleep(0.02)
+    proc = build.process
+    build.cancel(0.0)
+    assert proc.poll() is None, "cancel(0) waited for the worker to end"       # SIGTERM ignored: still running
+    assert build.cancelled and build.alive()
+    t0 = time.monotonic()
+    while build.alive():
+        assert time.monotonic() - t0 < 60.0, build.status()
+        time.sleep(0.02)
+    assert proc.returncode == -signal.SIGKILL                  # killed after the grace time ...
+    with pytest.raises(ChildProcessError):                     # ... and reaped: no zombie left
+        os.waitpid(proc.pid, os.WNOHANG)
+    assert build.state == "cancelled"
+
+
+def test_the_destroy_cancel_ends_a_stubborn_worker_itself(tmp_path, monkeypatch):
+    """``cancel(timeout > 0)`` (the node's destroy) ends and reaps the worker before it returns, SIGTERM ignored."""
+    import signal
+    mark = tmp_path / "ignoring_sigterm"
+    monkeypatch.setenv("H37D_WORKER_MARK", str(mark))
+    monkeypatch.setattr(pmod, "WORKER_CODE", _STUBBORN_WORKER)
+    monkeypatch.setattr(pmod, "STOP_GRACE_S", 0.2)
+    moves = _moves()
+    build = pmod.TableBuild(moves, _keys(moves), tmp_path / "cache")
+    t0 = time.monotonic()
+    while not mark.exists():
+        assert time.monotonic() - t0 < 60.0 and build.state in ("reading", "building"), build.status()
+        time.sleep(0.02)
+    proc = build.process
+    build.cancel(5.0)
+    assert proc.returncode == -signal.SIGKILL and not build.alive()
 
 
 def test_the_stage_runs_main_staircase_until_the_tables_are_released(small_grid, monkeypatch):

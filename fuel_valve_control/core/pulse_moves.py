@@ -1182,6 +1182,9 @@ def _worker_main() -> None:
     _worker(*pickle.load(sys.stdin.buffer))
 
 
+#: s a cancelled worker has to end after SIGTERM before it is killed (:meth:`TableBuild._stop_process`; never waited
+#: for on the controller node's loop thread: a cancel under its lock only signals, the reading thread reaps)
+STOP_GRACE_S = 2.0
 #: the worker process's program (``python -c``; tests replace it)
 WORKER_CODE = "from fuel_valve_control.core.pulse_moves import _worker_main; _worker_main()"
 
@@ -1258,24 +1261,45 @@ class TableBuild:
                 and set(map(tuple, keys)) <= set(self.keys))
 
     def cancel(self, timeout: float = 5.0) -> None:
-        """End the worker (terminated now) and the thread (waited for up to ``timeout`` s; it ends the worker
-        itself if it starts one after this); the cache keeps every table finished so far."""
+        """End the worker and the thread; the cache keeps every table finished so far.
+
+        ``timeout`` 0 (the controller node's calls under its loop's lock, task h37d): **never blocks** -- the worker
+        is sent SIGTERM and the reading thread, which owns the process, reaps it off the caller's thread (it waits,
+        kills a worker that ignores SIGTERM after :data:`STOP_GRACE_S` and waits again: no zombie, no orphan;
+        :meth:`alive` stays True until then).  ``timeout`` > 0 (destroy): the worker ended here (terminate, wait,
+        kill, wait) and the thread waited for up to ``timeout`` s (it ends the worker itself if it starts one after
+        this)."""
         self._cancel.set()
+        if timeout <= 0.0:
+            self._signal_process()
+            if not self._thread.is_alive():
+                self._stop_process()             # (not started, or ended: nothing owns the process; done at once)
+            return
         self._stop_process()
-        if timeout > 0.0 and self._thread.is_alive() and self._thread is not threading.current_thread():
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout)
         self._stop_process()
 
+    def _signal_process(self) -> None:
+        """SIGTERM to a running worker; returns at once (no wait)."""
+        proc = self.process
+        if proc is not None and proc.poll() is None:
+            try:
+                proc.terminate()
+            except OSError:
+                pass                             # ended meanwhile
+
     def _stop_process(self) -> None:
+        """The worker ended and reaped: SIGTERM, up to :data:`STOP_GRACE_S` s for it, then SIGKILL and a wait."""
         import subprocess
         proc = self.process
         if proc is not None and proc.poll() is None:
-            proc.terminate()
+            self._signal_process()
             try:
-                proc.wait(2.0)
+                proc.wait(STOP_GRACE_S)
             except subprocess.TimeoutExpired:
                 proc.kill()
-                proc.wait(2.0)
+                proc.wait()                      # SIGKILL cannot be ignored: the wait ends
 
     def _stderr_tail(self) -> str:
         try:
@@ -1350,6 +1374,12 @@ class TableBuild:
         except Exception as exc:               # noqa: BLE001 - a failed build is a state, reported by the caller
             self.state, self.reason = "failed", f"{type(exc).__name__}: {exc}"
         finally:
+            # the thread owns the worker: it never leaves one running (a cancel under the node's lock only signals
+            # it, an exception here must not orphan it) -- ended and reaped before the thread ends
+            try:
+                self._stop_process()
+            except Exception:                  # noqa: BLE001 - (already reaped by another thread's wait)
+                pass
             if getattr(self, "_err", None) is not None:
                 self._err.close()
             if tmp is not None:

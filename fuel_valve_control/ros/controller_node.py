@@ -502,10 +502,12 @@ class ControllerNode(LifecycleNode):
                                "staircase (a reconfigure retries)")
 
     def _cancel_tables(self, wait_s: float = 0.0) -> None:
-        """End a background build: its worker process terminated now, its reading thread left to end by itself
-        (at its next file) within ``wait_s`` (0: not waited for -- called under the loop's lock, it must not hold
-        the loop up behind a cache read); the cache keeps every table the worker finished.  A waiting request and
-        the waiting stages are dropped."""
+        """End a background build; the cache keeps every table the worker finished.  ``wait_s`` 0 (called under
+        the loop's lock: it must not hold the loop up): nothing waited for -- the worker is sent SIGTERM and its
+        reading thread reaps it (killed if it has not ended within ``pulse_moves.STOP_GRACE_S``) and ends at its
+        next file (task h37d: the worker's end was waited for here, up to 2 s + 2 s of a 1 kHz loop).  ``wait_s``
+        > 0 (destroy): the worker ended and reaped here, the thread waited for up to ``wait_s``.  A waiting request
+        and the waiting stages are dropped."""
         if self._table_timer is not None:
             self.destroy_timer(self._table_timer)
             self._table_timer = None
@@ -517,7 +519,11 @@ class ControllerNode(LifecycleNode):
         self._table_waiters = []
 
     def destroy_node(self):
+        ending = self._table_ending
         self._cancel_tables(wait_s=5.0)
+        if ending is not None:
+            ending.cancel(5.0)                   # a replaced build still ending (its worker reaped here, not orphaned)
+        self._table_ending = None
         return super().destroy_node()
 
     def _law_needs_no_tables(self, law) -> None:
