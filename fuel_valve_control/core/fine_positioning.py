@@ -584,6 +584,8 @@ class FineConfig:
     apex_level_law: str = "normal"  # ... the level's law: "normal" (the learned scatter), "mixture" (normals over scatters
                                     # log-uniform from the learned one to breakaway_fit / 3 x T_s/K), "student" (a t with
                                     # the learned scatter and (2 - scatter_gain) / scatter_gain - 1 degrees of freedom)
+    engage_gear_rest: bool = False  # no engagement while the gear output still winds the twist away from the target
+                                    # by more than half a tolerance a period (a stick mid-swing; task h37m, docs §95)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
@@ -826,7 +828,8 @@ class FinePositioner:
                     or self._steady < cfg.engage_periods or abs(err) <= cfg.tolerance_rad \
                     or abs(err) > cfg.max_move_rad or self._spent() or self._below_min_move(err, pressure_kpa) \
                     or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1) \
-                    or self._near_rating(thl, pressure_kpa, 1 if err > 0 else -1):
+                    or self._near_rating(thl, pressure_kpa, 1 if err > 0 else -1) \
+                    or self._gear_unwinding(err, w1):
                 return None
             cold = self._cold_ready(err, pressure_kpa)
             early = not cold and not math.isinf(cfg.breakaway_fit) and (self._breakaway_seen is None or (
@@ -852,6 +855,21 @@ class FinePositioner:
             self._cold = cold
             self._engage(target, th1, thl, torque_now, pressure_kpa)
         return self._run(th1, w1, thl, pressure_kpa)
+
+    def _gear_unwinding(self, err: float, w1: float) -> bool:
+        """(``fine.engage_gear_rest``, task h37m, docs §95) Whether the gear output is still winding the twist away from
+        the target (``err`` = target - valve, rad; ``w1`` the gear output's speed, rad/s, the valve at rest: the twist's
+        rate) by more than half a tolerance a period: the main law's last move is still unwinding, the valve sits in a
+        stick mid-swing with the twist running toward the other way's breakaway, and it slides on.  Traced (nominal
+        box seed 4022 #11, C1 + ``fine.apex_level_law`` mixture): the main law's 3.9e-3 closing step broke the valve
+        loose and it restuck 3.6e-3 past the target; the stage engaged 9 periods later (the valve still) with the twist
+        still falling 1e-4 rad a period onto the closing edge, its first pulse's park saw the valve slide on (a "move
+        away from the target": handed back) and the main law's move back overshot 1.2e-2 -- the plateau ended 5.5e-3
+        off.  Off: no such gate (the valve's rest alone)."""
+        if not self.cfg.engage_gear_rest:
+            return False
+        d = 1 if err > 0 else -1
+        return d * w1 * self.period < -0.5 * self.cfg.tolerance_rad
 
     def prepare(self, build: bool = True) -> tuple[int, float]:
         """Build ahead what the stage would otherwise build inside :meth:`update` (task h34t): with
