@@ -584,6 +584,8 @@ class FineConfig:
     apex_level_law: str = "normal"  # ... the level's law: "normal" (the learned scatter), "mixture" (normals over scatters
                                     # log-uniform from the learned one to breakaway_fit / 3 x T_s/K), "student" (a t with
                                     # the learned scatter and (2 - scatter_gain) / scatter_gain - 1 degrees of freedom)
+    apex_floor_repeat: bool = False  # ... the planned apex is the floor once the policy re-planned an apex it had tried
+                                     # unmoved at this stop (the reading shown short; task h37m, docs §95)
     engage_gear_rest: bool = False  # no engagement while the gear output still winds the twist away from the target
                                     # by more than half a tolerance a period (a stick mid-swing; task h37m, docs §95)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
@@ -709,6 +711,8 @@ class FinePositioner:
         self._apex_try = None         # ... (direction, the model's mean move if it moves, rad) of that doublet
         self._apex_rise = 0.0         # ... and its rise above the preload, rad
         self._apex_last = None        # ... (direction, planned apex rad) of the last try the policy chose
+        self._apex_tried = None       # (fine.apex_floor_repeat) the furthest apex an unmoved try planned at this stop
+        self._apex_repeat = False     # ... and whether the policy has planned an apex it had already tried there
         self._safe = None             # fine.preload_cap: the furthest twist toward the move an unmoved pulse reached
                                       # at this stop, rad (None: none yet)
         self._stairs_unmoved = 0      # fine.stair_growth_after: unmoved stairs of the staircase in progress
@@ -1307,9 +1311,31 @@ class FinePositioner:
         if fl is None or fl[0] != d:
             return None
         last = self._apex_last
-        if self.cfg.apex_floor_plan and last is not None and last[0] == d and d * (last[1] - fl[1]) > 0.0:
+        plan = self.cfg.apex_floor_plan or (self.cfg.apex_floor_repeat and self._apex_repeat)
+        if plan and last is not None and last[0] == d and d * (last[1] - fl[1]) > 0.0:
             return (d, last[1])
         return fl
+
+    def _note_unmoved_plan(self, d: int) -> None:
+        """(``fine.apex_floor_repeat``, task h37m, docs §95) Book an unmoved policy try toward ``d`` (called before the
+        floor takes its reading): the furthest apex planned by an unmoved try at this stop (:attr:`_apex_tried`; the
+        stop's first unmoved try -- no floor yet -- starts it afresh) and whether this try's plan lay no further than
+        that (within half of ``fine.tolerance_rad``): the law truncated at the measured apex led the policy back to an
+        apex it had tried -- the reading is short of the plan (§85: 0.4-1.6e-4 rad for 4-8 A kicks) -- and from then
+        on :meth:`_floor` is the plan for the rest of the stop.  Traced (``startup`` seed 0, C1 + the mixture law):
+        after a crossing the policy made 80 tries at a handful of apexes over 2.2 s, each 1.4e-4 rad past its reading
+        and 3-4e-4 short of the level, none moved; the plateau ended 4.6e-4 off, parked mid-doublet on the far side
+        of the band, and the ramp after it lagged 10.6e-3 rad."""
+        if self._apex_floor is None or self._apex_floor[0] != d:
+            self._apex_tried, self._apex_repeat = None, False
+        last = self._apex_last
+        if not self.cfg.apex_floor_repeat or last is None or last[0] != d:
+            return
+        tried = self._apex_tried
+        if tried is not None and d * (last[1] - tried) <= 0.5 * self.cfg.tolerance_rad:
+            self._apex_repeat = True
+        if tried is None or d * (last[1] - tried) > 0.0:
+            self._apex_tried = last[1]
 
     def _apex_kicks(self) -> list[float]:
         """(``fine.apex_policy``) The kick currents (A) the policy chooses among: ``fine.kick_current_a`` times
@@ -2160,6 +2186,7 @@ class FinePositioner:
             if self._doublet and self._stair is not None and cfg.apex_policy:
                 # (task h33p) the level lies beyond the apex the kick really reached (measured): the policy's law
                 # is truncated there until the valve moves
+                self._note_unmoved_plan(d)
                 if self._apex_floor is None or self._apex_floor[0] != d or d * (self._kick_apex - self._apex_floor[1]) > 0:
                     self._apex_floor = (d, self._kick_apex)
                 self._stairs_unmoved += 1
