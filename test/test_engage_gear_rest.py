@@ -40,18 +40,18 @@ def test_no_engagement_while_the_gear_unwinds_away_from_the_target(direction):
     k_off = _engage_period(off, err, p, -0.75, unwind)
     assert k_off is not None and k_off <= n + 2
     # on: not before the unwinding stops, then at once (the valve has been at rest all along)
-    on, _ = _stage(**{**base, "fine.engage_gear_rest": True})
+    on, _ = _stage(**{**base, "fine.engage_gear_rest": 0.5})
     k_on = _engage_period(on, err, p, -0.75, unwind)
     assert k_on is not None and unwind < k_on <= unwind + 2
     # a gear output winding *toward* the target (the main law climbing to the breakaway), or unwinding by less
-    # than half a tolerance a period: no gate
+    # than the gate (0.5 tolerance a period): no gate
     for rate in (0.75, -0.4):
-        fine, _ = _stage(**{**base, "fine.engage_gear_rest": True})
+        fine, _ = _stage(**{**base, "fine.engage_gear_rest": 0.5})
         assert _engage_period(fine, err, p, rate, unwind) == k_off
 
 
 def test_off_by_default():
     from fuel_valve_control.core.params import CONTROLLER_SPEC
-    assert CONTROLLER_SPEC.defaults()["fine.engage_gear_rest"] is False
+    assert CONTROLLER_SPEC.defaults()["fine.engage_gear_rest"] == 0.0
     fine, _ = _stage()
-    assert fine.cfg.engage_gear_rest is False
+    assert fine.cfg.engage_gear_rest == 0.0

@@ -586,8 +586,9 @@ class FineConfig:
                                     # the learned scatter and (2 - scatter_gain) / scatter_gain - 1 degrees of freedom)
     apex_floor_repeat: bool = False  # ... the planned apex is the floor once the policy re-planned an apex it had tried
                                      # unmoved at this stop (the reading shown short; task h37m, docs §95)
-    engage_gear_rest: bool = False  # no engagement while the gear output still winds the twist away from the target
-                                    # by more than half a tolerance a period (a stick mid-swing; task h37m, docs §95)
+    engage_gear_rest: float = 0.0  # no engagement while the gear output still winds the twist away from the target
+                                   # by more than this fraction of the tolerance a period (0: off; a stick mid-swing;
+                                   # task h37m, docs §95)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
@@ -863,17 +864,18 @@ class FinePositioner:
     def _gear_unwinding(self, err: float, w1: float) -> bool:
         """(``fine.engage_gear_rest``, task h37m, docs §95) Whether the gear output is still winding the twist away from
         the target (``err`` = target - valve, rad; ``w1`` the gear output's speed, rad/s, the valve at rest: the twist's
-        rate) by more than half a tolerance a period: the main law's last move is still unwinding, the valve sits in a
+        rate) by more than ``fine.engage_gear_rest`` x ``fine.tolerance_rad`` a period: the main law's last move is still unwinding, the valve sits in a
         stick mid-swing with the twist running toward the other way's breakaway, and it slides on.  Traced (nominal
         box seed 4022 #11, C1 + ``fine.apex_level_law`` mixture): the main law's 3.9e-3 closing step broke the valve
         loose and it restuck 3.6e-3 past the target; the stage engaged 9 periods later (the valve still) with the twist
         still falling 1e-4 rad a period onto the closing edge, its first pulse's park saw the valve slide on (a "move
         away from the target": handed back) and the main law's move back overshot 1.2e-2 -- the plateau ended 5.5e-3
-        off.  Off: no such gate (the valve's rest alone)."""
-        if not self.cfg.engage_gear_rest:
+        off; nominal seed 2035 #7 with the gate at 0.5: the same chain, engaged with the twist still falling 0.49
+        tolerance a period).  0 (default): no such gate (the valve's rest alone)."""
+        if not self.cfg.engage_gear_rest > 0.0:
             return False
         d = 1 if err > 0 else -1
-        return d * w1 * self.period < -0.5 * self.cfg.tolerance_rad
+        return d * w1 * self.period < -self.cfg.engage_gear_rest * self.cfg.tolerance_rad
 
     def prepare(self, build: bool = True) -> tuple[int, float]:
         """Build ahead what the stage would otherwise build inside :meth:`update` (task h34t): with
