@@ -864,8 +864,9 @@ class FinePositioner:
     def _gear_unwinding(self, err: float, w1: float) -> bool:
         """(``fine.engage_gear_rest``, task h37m, docs §95) Whether the gear output is still winding the twist away from
         the target (``err`` = target - valve, rad; ``w1`` the gear output's speed, rad/s, the valve at rest: the twist's
-        rate) by more than ``fine.engage_gear_rest`` x ``fine.tolerance_rad`` a period: the main law's last move is still unwinding, the valve sits in a
-        stick mid-swing with the twist running toward the other way's breakaway, and it slides on.  Traced (nominal
+        rate) by more than ``fine.engage_gear_rest`` x ``fine.tolerance_rad`` a period: the main law's last move is
+        still unwinding, the valve sits in a stick mid-swing with the twist running toward the other way's breakaway,
+        and it slides on.  Traced (nominal
         box seed 4022 #11, C1 + ``fine.apex_level_law`` mixture): the main law's 3.9e-3 closing step broke the valve
         loose and it restuck 3.6e-3 past the target; the stage engaged 9 periods later (the valve still) with the twist
         still falling 1e-4 rad a period onto the closing edge, its first pulse's park saw the valve slide on (a "move
@@ -1325,8 +1326,8 @@ class FinePositioner:
         that (within half of ``fine.tolerance_rad``): the law truncated at the measured apex led the policy back to an
         apex it had tried -- the reading is short of the plan (§85: 0.4-1.6e-4 rad for 4-8 A kicks) -- and from then
         on :meth:`_floor` is the plan for the rest of the stop.  Traced (``startup`` seed 0, C1 + the mixture law):
-        after a crossing the policy made 80 tries at a handful of apexes over 2.2 s, each 1.4e-4 rad past its reading
-        and 3-4e-4 short of the level, none moved; the plateau ended 4.6e-4 off, parked mid-doublet on the far side
+        after a crossing the policy made 81 tries at 15 apexes over 2.2 s, a median 1.65e-4 rad past their readings
+        and 0.9-11e-4 short of the level, none moved; the plateau ended 4.6e-4 off, parked mid-doublet on the far side
         of the band, and the ramp after it lagged 10.6e-3 rad."""
         if self._apex_floor is None or self._apex_floor[0] != d:
             self._apex_tried, self._apex_repeat = None, False
