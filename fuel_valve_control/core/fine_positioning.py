@@ -607,6 +607,11 @@ class FineConfig:
     apex_level_law: str = "normal"  # ... the level's law: "normal" (the learned scatter), "mixture" (normals over scatters
                                     # log-uniform from the learned one to breakaway_fit / 3 x T_s/K), "student" (a t with
                                     # the learned scatter and (2 - scatter_gain) / scatter_gain - 1 degrees of freedom)
+    apex_floor_repeat: bool = False  # ... the planned apex is the floor once the policy re-planned an apex it had tried
+                                     # unmoved at this stop (the reading shown short; task h37m, docs §95)
+    engage_gear_rest: float = 0.0  # no engagement while the gear output still winds the twist away from the target
+                                   # by more than this fraction of the tolerance a period (0: off; a stick mid-swing;
+                                   # task h37m, docs §95)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
@@ -738,6 +743,8 @@ class FinePositioner:
         self._apex_try = None         # ... (direction, the model's mean move if it moves, rad) of that doublet
         self._apex_rise = 0.0         # ... and its rise above the preload, rad
         self._apex_last = None        # ... (direction, planned apex rad) of the last try the policy chose
+        self._apex_tried = None       # (fine.apex_floor_repeat) the furthest apex an unmoved try planned at this stop
+        self._apex_repeat = False     # ... and whether the policy has planned an apex it had already tried there
         self._safe = None             # fine.preload_cap: the furthest twist toward the move an unmoved pulse reached
                                       # at this stop, rad (None: none yet)
         self._stairs_unmoved = 0      # fine.stair_growth_after: unmoved stairs of the staircase in progress
@@ -857,7 +864,8 @@ class FinePositioner:
                     or self._steady < cfg.engage_periods or abs(err) <= cfg.tolerance_rad \
                     or abs(err) > cfg.max_move_rad or self._spent() or self._below_min_move(err, pressure_kpa) \
                     or not self._plausible(thl, pressure_kpa, 1 if err > 0 else -1) \
-                    or self._near_rating(thl, pressure_kpa, 1 if err > 0 else -1):
+                    or self._near_rating(thl, pressure_kpa, 1 if err > 0 else -1) \
+                    or self._gear_unwinding(err, w1):
                 return None
             cold = self._cold_ready(err, pressure_kpa)
             early = not cold and not math.isinf(cfg.breakaway_fit) and (self._breakaway_seen is None or (
@@ -883,6 +891,23 @@ class FinePositioner:
             self._cold = cold
             self._engage(target, th1, thl, torque_now, pressure_kpa)
         return self._run(th1, w1, thl, pressure_kpa)
+
+    def _gear_unwinding(self, err: float, w1: float) -> bool:
+        """(``fine.engage_gear_rest``, task h37m, docs §95) Whether the gear output is still winding the twist away from
+        the target (``err`` = target - valve, rad; ``w1`` the gear output's speed, rad/s, the valve at rest: the twist's
+        rate) by more than ``fine.engage_gear_rest`` x ``fine.tolerance_rad`` a period: the main law's last move is
+        still unwinding, the valve sits in a stick mid-swing with the twist running toward the other way's breakaway,
+        and it slides on.  Traced (nominal
+        box seed 4022 #11, C1 + ``fine.apex_level_law`` mixture): the main law's 3.9e-3 closing step broke the valve
+        loose and it restuck 3.6e-3 past the target; the stage engaged 9 periods later (the valve still) with the twist
+        still falling 1e-4 rad a period onto the closing edge, its first pulse's park saw the valve slide on (a "move
+        away from the target": handed back) and the main law's move back overshot 1.2e-2 -- the plateau ended 5.5e-3
+        off; nominal seed 2035 #7 with the gate at 0.5: the same chain, engaged with the twist still falling 0.49
+        tolerance a period).  0 (default): no such gate (the valve's rest alone)."""
+        if not self.cfg.engage_gear_rest > 0.0:
+            return False
+        d = 1 if err > 0 else -1
+        return d * w1 * self.period < -self.cfg.engage_gear_rest * self.cfg.tolerance_rad
 
     def prepare(self, build: bool = True) -> tuple[int, float]:
         """Build ahead what the stage would otherwise build inside :meth:`update` (task h34t): with
@@ -1327,9 +1352,31 @@ class FinePositioner:
             # apex read 0.45e-3 rad below its plan, 15 / 15 / 141 identical unmoved tries on plateaus #9-#11) --
             # the try's planned apex is the floor instead, so the next try climbs
             return (d, last[1])
-        if self.cfg.apex_floor_plan and last is not None and last[0] == d and d * (last[1] - fl[1]) > 0.0:
+        plan = self.cfg.apex_floor_plan or (self.cfg.apex_floor_repeat and self._apex_repeat)
+        if plan and last is not None and last[0] == d and d * (last[1] - fl[1]) > 0.0:
             return (d, last[1])
         return fl
+
+    def _note_unmoved_plan(self, d: int) -> None:
+        """(``fine.apex_floor_repeat``, task h37m, docs §95) Book an unmoved policy try toward ``d`` (called before the
+        floor takes its reading): the furthest apex planned by an unmoved try at this stop (:attr:`_apex_tried`; the
+        stop's first unmoved try -- no floor yet -- starts it afresh) and whether this try's plan lay no further than
+        that (within half of ``fine.tolerance_rad``): the law truncated at the measured apex led the policy back to an
+        apex it had tried -- the reading is short of the plan (§85: 0.4-1.6e-4 rad for 4-8 A kicks) -- and from then
+        on :meth:`_floor` is the plan for the rest of the stop.  Traced (``startup`` seed 0, C1 + the mixture law):
+        after a crossing the policy made 81 tries at 15 apexes over 2.2 s, a median 1.65e-4 rad past their readings
+        and 0.9-11e-4 short of the level, none moved; the plateau ended 4.6e-4 off, parked mid-doublet on the far side
+        of the band, and the ramp after it lagged 10.6e-3 rad."""
+        if self._apex_floor is None or self._apex_floor[0] != d:
+            self._apex_tried, self._apex_repeat = None, False
+        last = self._apex_last
+        if not self.cfg.apex_floor_repeat or last is None or last[0] != d:
+            return
+        tried = self._apex_tried
+        if tried is not None and d * (last[1] - tried) <= 0.5 * self.cfg.tolerance_rad:
+            self._apex_repeat = True
+        if tried is None or d * (last[1] - tried) > 0.0:
+            self._apex_tried = last[1]
 
     def _apex_kicks(self) -> list[float]:
         """(``fine.apex_policy``) The kick currents (A) the policy chooses among: ``fine.kick_current_a`` times
@@ -2270,6 +2317,7 @@ class FinePositioner:
             if self._doublet and self._stair is not None and cfg.apex_policy:
                 # (task h33p) the level lies beyond the apex the kick really reached (measured): the policy's law
                 # is truncated there until the valve moves
+                self._note_unmoved_plan(d)
                 prev = self._apex_floor
                 if self._apex_floor is None or self._apex_floor[0] != d or d * (self._kick_apex - self._apex_floor[1]) > 0:
                     self._apex_floor = (d, self._kick_apex)

@@ -689,6 +689,14 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "is heavier tailed than one normal; student = a Student-t with the learned scatter and (2 - "
           "fine.scatter_gain) / fine.scatter_gain - 1 degrees of freedom (the learned scatter's sample count; task "
           "h36l, docs section 92)", choices=("normal", "mixture", "student"), runtime=True),
+    Param("fine.apex_floor_repeat", False, "", "fine.apex_policy: once the policy plans an apex no further (within half "
+          "of fine.tolerance_rad) than one it already tried at this stop without moving the valve, the law is "
+          "truncated at the planned apex, not the measured one, for the rest of the stop (the reading is shown short "
+          "of the plan; fine.apex_floor_plan does it from the first try; task h37m, docs section 95)", runtime=True),
+    Param("fine.engage_gear_rest", 0.0, "", "the fine stage engages only once the gear output no longer winds the "
+          "twist away from the target by more than this fraction of fine.tolerance_rad a period (the valve at rest "
+          "with the main law's last move still unwinding sits in a stick mid-swing and slides on; 0 = off; task "
+          "h37m, docs section 95)", 0.0, 10.0, runtime=True),
     Param("fine.unbiased_preload_pull", False, "", "with fine.unbiased_samples: a servo-blended pulse whose preload "
           "broke the valve loose pulls the learned breakaway to below that preload with fine.learn_gain (main's "
           "treatment), instead of the censored sample's fine.scatter_gain step toward the conditional mean (that "
