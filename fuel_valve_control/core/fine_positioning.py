@@ -612,6 +612,10 @@ class FineConfig:
     engage_gear_rest: float = 0.0  # no engagement while the gear output still winds the twist away from the target
                                    # by more than this fraction of the tolerance a period (0: off; a stick mid-swing;
                                    # task h37m, docs §95)
+    handover_settle_speed: float = 0.0  # a new demand mid-park / -pulse / -observe: the stage holds the gear output
+                                        # where it is until it turns slower than this (rad/s) with the valve at rest
+                                        # (or 2 x observe_periods), then hands over (0: at once, today's; task h38s,
+                                        # docs §98)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
@@ -722,6 +726,7 @@ class FinePositioner:
         shown: how long the valve has sat still and the twist of the last breakaway seen."""
         self.phase = IDLE
         self._target = None
+        self._handover = None             # (fine.handover_settle_speed_rad_s) a hand-over waiting for the gear output
         if measurements:
             self._rest = 0
             self._last_valve = None
@@ -846,6 +851,8 @@ class FinePositioner:
         self._last_target = target
         new_plateau = self._plateau is None or abs(target - self._plateau) > cfg.tolerance_rad
         if self.phase != IDLE and (self._target is None or new_plateau):
+            if self._handover_settling(th1, w1):
+                return self._servo(self._handover[0], 0.0, th1, w1, thl)
             self.reset(measurements=False)             # a new demand: the main law moves
             return None
         if new_plateau:
@@ -891,6 +898,26 @@ class FinePositioner:
             self._cold = cold
             self._engage(target, th1, thl, torque_now, pressure_kpa)
         return self._run(th1, w1, thl, pressure_kpa)
+
+    def _handover_settling(self, th1: float, w1: float) -> bool:
+        """(``fine.handover_settle_speed_rad_s``, task h38s, docs §98) Whether a new demand that arrived while the
+        stage was mid-park, -pulse or -observe still waits for the gear output to settle before the main law takes
+        over.  The main law restarts (:meth:`.laws.state_feedback.StateFeedbackLaw.reset`) from the torque that
+        holds the present twist with its observer's gear-output and valve speeds at 0: handed over mid-doublet it is
+        told a still twist while the gear output still runs at the kick's / retreat's speed (nominal seed 4034
+        plateau #11: 2-3 rad/s toward the breakaway the step then goes to; the valve broke loose within 2 periods and
+        slid 5.2e-3 rad past a 1.16e-2 step, 44.7 %).  Meanwhile the stage holds the gear output where it was when
+        the demand changed (its servo brakes the swing) and hands over once it turns slower than the speed with the
+        valve at rest for 3 periods, or after 2 x ``fine.observe_time_s``.  Off (0): at once, as before."""
+        speed = self.cfg.handover_settle_speed
+        if not speed > 0.0 or self.phase not in (PARK, PULSE, OBSERVE):
+            return False
+        if self._handover is None:
+            self._handover = [th1, 0]     # (the gear output's angle held, periods waited)
+        self._handover[1] += 1
+        if (abs(w1) <= speed and self._rest >= 3) or self._handover[1] > 2 * self.cfg.observe_periods:
+            return False
+        return True
 
     def _gear_unwinding(self, err: float, w1: float) -> bool:
         """(``fine.engage_gear_rest``, task h37m, docs §95) Whether the gear output is still winding the twist away from
