@@ -612,6 +612,8 @@ class FineConfig:
     engage_gear_rest: float = 0.0  # no engagement while the gear output still winds the twist away from the target
                                    # by more than this fraction of the tolerance a period (0: off; a stick mid-swing;
                                    # task h37m, docs §95)
+    handover_unwind: bool = False  # a new demand from HOLD with the twist on the new move's side of the band's middle:
+                                   # the gear output moved to the middle before the hand-over (task h38s, docs §98)
     handover_settle_speed: float = 0.0  # a new demand mid-park / -pulse / -observe: the stage holds the gear output
                                         # where it is until it turns slower than this (rad/s) with the valve at rest
                                         # (or 2 x observe_periods), then hands over (0: at once, today's; task h38s,
@@ -727,6 +729,7 @@ class FinePositioner:
         self.phase = IDLE
         self._target = None
         self._handover = None             # (fine.handover_settle_speed_rad_s) a hand-over waiting for the gear output
+        self._unwind = None               # (fine.handover_unwind) the hold's unwinding before a hand-over
         if measurements:
             self._rest = 0
             self._last_valve = None
@@ -853,6 +856,9 @@ class FinePositioner:
         if self.phase != IDLE and (self._target is None or new_plateau):
             if self._handover_settling(th1, w1):
                 return self._servo(self._handover[0], 0.0, th1, w1, thl)
+            torque = self._handover_unwinding(target, th1, w1, thl, pressure_kpa)
+            if torque is not None:
+                return torque
             self.reset(measurements=False)             # a new demand: the main law moves
             return None
         if new_plateau:
@@ -918,6 +924,33 @@ class FinePositioner:
         if (abs(w1) <= speed and self._rest >= 3) or self._handover[1] > 2 * self.cfg.observe_periods:
             return False
         return True
+
+    def _handover_unwinding(self, target: float, th1: float, w1: float, thl: float,
+                            pressure_kpa: float) -> float | None:
+        """(``fine.handover_unwind``, task h38s, docs §98) A new demand arriving while the stage holds the valve (HOLD)
+        with the twist on the new move's side of the static band's middle (between the learned breakaways): the stage
+        first moves the gear output to the band's middle (a sin² blend over ``fine.observe_time_s``) and hands over once
+        there, so that the main law's move does not start next to that way's breakaway (`startup` seed 0, C2: held
+        2.8e-3 short of the opening breakaway, the +5.2e-3 step broke loose at once and the 5.7e-3 stick-slip jump
+        ran 14.6 % past).  The torque, or None: hand over now (off, not HOLD, the twist on the other side, the blend
+        done, or the valve moved)."""
+        cfg = self.cfg
+        if not cfg.handover_unwind or self.phase != HOLD:
+            return None
+        if self._unwind is None:
+            d = 1 if target > thl else -1
+            mid = 0.5 * (self._twists(thl, pressure_kpa, 1)[1] + self._twists(thl, pressure_kpa, -1)[1])
+            if d * ((th1 - thl) - mid) <= 0.0:
+                return None
+            self._unwind = [th1, thl + mid, 0, thl]     # (gear output from, to, periods, the valve at the start)
+        th1_0, th1_1, k, thl0 = self._unwind
+        k += 1
+        self._unwind[2] = k
+        n = max(cfg.observe_periods, 1)
+        if abs(thl - thl0) > 2.0 * cfg.tolerance_rad or k > n + 3:
+            return None
+        x, v, a = self._blend(th1_0, th1_1, k * self.period, n * self.period)
+        return self._servo(x, a, th1, w1, thl, v)
 
     def _gear_unwinding(self, err: float, w1: float) -> bool:
         """(``fine.engage_gear_rest``, task h37m, docs §95) Whether the gear output is still winding the twist away from
