@@ -63,3 +63,41 @@ def test_on_still_gear_output_hands_over_at_once():
 def test_off_by_default():
     from fuel_valve_control.core.params import CONTROLLER_SPEC
     assert CONTROLLER_SPEC.defaults()["fine.handover_settle_speed_rad_s"] == 0.0
+
+
+def _held(side, **changes):
+    """The stage holding a valve at rest (HOLD) with the twist ``side`` (±1) x 0.4 of the band's half width from the
+    band's middle (between the learned breakaways)."""
+    fine, p = _engaged(**changes)
+    thl = fine._last_valve
+    mid = 0.5 * (fine._twists(thl, p, 1)[1] + fine._twists(thl, p, -1)[1])
+    half = 0.5 * (fine._twists(thl, p, 1)[1] - fine._twists(thl, p, -1)[1])
+    th1 = thl + mid + side * 0.4 * half
+    fine.phase, fine._hold_ref = "hold", th1
+    return fine, p, thl, th1, mid
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_unwind_moves_a_hold_on_the_new_moves_side_to_the_middle_first(direction):
+    fine, p, thl, th1, mid = _held(direction, **{"fine.handover_unwind": True})
+    n = fine.cfg.observe_periods
+    for k in range(1, n + 10):
+        torque = fine.update(thl + direction * 2.0e-2, th1, thl, False, 0.3, p)
+        if torque is None:
+            break
+        assert fine._unwind is not None and abs(fine._unwind[1] - (thl + mid)) < 1e-12
+    assert k == n + 4 and fine.phase == "idle"        # the blend's periods, then handed over
+
+
+@pytest.mark.parametrize("changes", [{"fine.handover_unwind": True}, {}])
+def test_unwind_not_from_the_other_side_nor_off(changes):
+    for direction in (1, -1):
+        side = -direction if changes else direction
+        fine, p, thl, th1, _ = _held(side, **changes)
+        assert fine.update(thl + direction * 2.0e-2, th1, thl, False, 0.3, p) is None
+        assert fine.phase == "idle"
+
+
+def test_unwind_off_by_default():
+    from fuel_valve_control.core.params import CONTROLLER_SPEC
+    assert CONTROLLER_SPEC.defaults()["fine.handover_unwind"] is False
