@@ -612,6 +612,12 @@ class FineConfig:
     engage_gear_rest: float = 0.0  # no engagement while the gear output still winds the twist away from the target
                                    # by more than this fraction of the tolerance a period (0: off; a stick mid-swing;
                                    # task h37m, docs §95)
+    handover_unwind: bool = False  # a new demand from HOLD with the twist on the new move's side of the band's middle:
+                                   # the gear output moved to the middle before the hand-over (task h38s, docs §98)
+    handover_settle_speed: float = 0.0  # a new demand mid-park / -pulse / -observe: the stage holds the gear output
+                                        # where it is until it turns slower than this (rad/s) with the valve at rest
+                                        # (or 2 x observe_periods), then hands over (0: at once, today's; task h38s,
+                                        # docs §98)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
     unbiased_preload_pull: bool = False  # ... but a servo-blended pulse's preload that broke the valve loose pulls the
                                          # level below it with learn_gain, as main does, unless an unmoved pulse at
@@ -722,6 +728,8 @@ class FinePositioner:
         shown: how long the valve has sat still and the twist of the last breakaway seen."""
         self.phase = IDLE
         self._target = None
+        self._handover = None             # (fine.handover_settle_speed_rad_s) a hand-over waiting for the gear output
+        self._unwind = None               # (fine.handover_unwind) the hold's unwinding before a hand-over
         if measurements:
             self._rest = 0
             self._last_valve = None
@@ -846,6 +854,11 @@ class FinePositioner:
         self._last_target = target
         new_plateau = self._plateau is None or abs(target - self._plateau) > cfg.tolerance_rad
         if self.phase != IDLE and (self._target is None or new_plateau):
+            if self._handover_settling(th1, w1):
+                return self._servo(self._handover[0], 0.0, th1, w1, thl)
+            torque = self._handover_unwinding(target, th1, w1, thl, pressure_kpa)
+            if torque is not None:
+                return torque
             self.reset(measurements=False)             # a new demand: the main law moves
             return None
         if new_plateau:
@@ -891,6 +904,53 @@ class FinePositioner:
             self._cold = cold
             self._engage(target, th1, thl, torque_now, pressure_kpa)
         return self._run(th1, w1, thl, pressure_kpa)
+
+    def _handover_settling(self, th1: float, w1: float) -> bool:
+        """(``fine.handover_settle_speed_rad_s``, task h38s, docs §98) Whether a new demand that arrived while the
+        stage was mid-park, -pulse or -observe still waits for the gear output to settle before the main law takes
+        over.  The main law restarts (:meth:`.laws.state_feedback.StateFeedbackLaw.reset`) from the torque that
+        holds the present twist with its observer's gear-output and valve speeds at 0: handed over mid-doublet it is
+        told a still twist while the gear output still runs at the kick's / retreat's speed (nominal seed 4034
+        plateau #11: 2-3 rad/s toward the breakaway the step then goes to; the valve broke loose within 2 periods and
+        slid 5.2e-3 rad past a 1.16e-2 step, 44.7 %).  Meanwhile the stage holds the gear output where it was when
+        the demand changed (its servo brakes the swing) and hands over once it turns slower than the speed with the
+        valve at rest for 3 periods, or after 2 x ``fine.observe_time_s``.  Off (0): at once, as before."""
+        speed = self.cfg.handover_settle_speed
+        if not speed > 0.0 or self.phase not in (PARK, PULSE, OBSERVE):
+            return False
+        if self._handover is None:
+            self._handover = [th1, 0]     # (the gear output's angle held, periods waited)
+        self._handover[1] += 1
+        if (abs(w1) <= speed and self._rest >= 3) or self._handover[1] > 2 * self.cfg.observe_periods:
+            return False
+        return True
+
+    def _handover_unwinding(self, target: float, th1: float, w1: float, thl: float,
+                            pressure_kpa: float) -> float | None:
+        """(``fine.handover_unwind``, task h38s, docs §98) A new demand arriving while the stage holds the valve (HOLD)
+        with the twist on the new move's side of the static band's middle (between the learned breakaways): the stage
+        first moves the gear output to the band's middle (a sin² blend over ``fine.observe_time_s``) and hands over once
+        there, so that the main law's move does not start next to that way's breakaway (`startup` seed 0, C2: held
+        2.8e-3 short of the opening breakaway, the +5.2e-3 step broke loose at once and the 5.7e-3 stick-slip jump
+        ran 14.6 % past).  The torque, or None: hand over now (off, not HOLD, the twist on the other side, the blend
+        done, or the valve moved)."""
+        cfg = self.cfg
+        if not cfg.handover_unwind or self.phase != HOLD:
+            return None
+        if self._unwind is None:
+            d = 1 if target > thl else -1
+            mid = 0.5 * (self._twists(thl, pressure_kpa, 1)[1] + self._twists(thl, pressure_kpa, -1)[1])
+            if d * ((th1 - thl) - mid) <= 0.0:
+                return None
+            self._unwind = [th1, thl + mid, 0, thl]     # (gear output from, to, periods, the valve at the start)
+        th1_0, th1_1, k, thl0 = self._unwind
+        k += 1
+        self._unwind[2] = k
+        n = max(cfg.observe_periods, 1)
+        if abs(thl - thl0) > 2.0 * cfg.tolerance_rad or k > n + 3:
+            return None
+        x, v, a = self._blend(th1_0, th1_1, k * self.period, n * self.period)
+        return self._servo(x, a, th1, w1, thl, v)
 
     def _gear_unwinding(self, err: float, w1: float) -> bool:
         """(``fine.engage_gear_rest``, task h37m, docs §95) Whether the gear output is still winding the twist away from

@@ -697,6 +697,16 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "twist away from the target by more than this fraction of fine.tolerance_rad a period (the valve at rest "
           "with the main law's last move still unwinding sits in a stick mid-swing and slides on; 0 = off; task "
           "h37m, docs section 95)", 0.0, 10.0, runtime=True),
+    Param("fine.handover_unwind", False, "", "a new demand arriving while the fine stage holds the valve with the twist "
+          "on the new move's side of the static band's middle (between the learned breakaways): the stage moves the "
+          "gear output to the band's middle over fine.observe_time_s before handing over (held next to that way's "
+          "breakaway, the main law's small step broke the valve loose at once and its stick-slip jump ran past: "
+          "startup seed 0 with C2, 14.6 %; task h38s, docs section 98)", runtime=True),
+    Param("fine.handover_settle_speed_rad_s", 0.0, "rad/s", "a new demand arriving while the fine stage is mid-park, "
+          "-pulse or -observe: the stage holds the gear output where it is until it turns slower than this with the "
+          "valve at rest (at most 2 x fine.observe_time_s), then hands over; the main law restarts with its observer's "
+          "speeds at 0 and, handed a doublet's swing, broke the valve loose toward the new target at once (nominal "
+          "seed 4034 #11, 44.7 % overshoot); 0 = at once (off; task h38s, docs section 98)", 0.0, 10.0, runtime=True),
     Param("fine.unbiased_preload_pull", False, "", "with fine.unbiased_samples: a servo-blended pulse whose preload "
           "broke the valve loose pulls the learned breakaway to below that preload with fine.learn_gain (main's "
           "treatment), instead of the censored sample's fine.scatter_gain step toward the conditional mean (that "
