@@ -80,17 +80,26 @@ def variant_env(variant: str) -> dict:
     return {"OPENBLAS_CORETYPE": variant}
 
 
-def run_in(variant: str, laws: list[str], draws: int) -> dict:
+def start_in(variant: str, laws: list[str], draws: int) -> subprocess.Popen:
     env = {**os.environ, **variant_env(variant)}
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", "--laws", ",".join(laws), "--draws", str(draws)]
-    r = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True, cwd=str(ROOT))
-    return json.loads(r.stdout.strip().splitlines()[-1])
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=str(ROOT))
 
 
-def compare(laws: list[str], draws: int, threads: list[str]) -> dict:
+def result_of(proc: subprocess.Popen) -> dict:
+    out, err = proc.communicate()
+    if proc.returncode != 0:
+        raise RuntimeError(f"child failed ({proc.returncode}): {err[-2000:]}")
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def compare(laws: list[str], draws: int, threads: list[str], parallel: int = 2) -> dict:
     """Each variant's (thread count's or core type's) choices (a subprocess each) against the first's: {law: [draws
-    that differ]}, the raw product's hashes, the outcomes."""
-    got = {t: run_in(t, laws, draws) for t in threads}
+    that differ]}, the raw product's hashes, the outcomes.  ``parallel`` subprocesses at a time."""
+    got = {}
+    for i in range(0, len(threads), max(parallel, 1)):
+        procs = {t: start_in(t, laws, draws) for t in threads[i:i + max(parallel, 1)]}
+        got.update({t: result_of(p) for t, p in procs.items()})
     ref = got[threads[0]]
     differ = {law: sorted({n for t in threads[1:] for n in range(draws)
                            if got[t]["choices"][law][n] != ref["choices"][law][n]}) for law in laws}
