@@ -48,8 +48,7 @@ def reference_choose_apex(self, err: float, d: int, phi_e: float, phi_b: float, 
     """The apex policy's choice as main built it (``FinePositioner._choose_apex`` at commit f293bde, verbatim but for
     the module prefix ``F.``, and since task h38x (docs §99) the weighted sums through ``F._wsum`` / ``F._beyond_best``:
     main's BLAS products for the "normal" law, the fixed-order sums for the others): the reference the fast choice must
-    equal bit for bit (``--compare``, and
-    test/test_apex_policy.py).  ``self``: the :class:`FinePositioner`; arguments and effects as the method's."""
+    equal bit for bit (``--compare``, and test/test_apex_policy.py).  ``self``: the :class:`FinePositioner`; arguments and effects as the method's."""
     cfg = self.cfg
     if self._moves is None:
         self._moves = F._pulse_moves(self)

@@ -74,9 +74,13 @@ def raw_product(seed: int = 7, shape=(89, 81, 89)) -> str:
 
 def variant_env(variant: str) -> dict:
     """A variant's environment: "2" = 2 BLAS threads; "Haswell" = OpenBLAS's kernels for that core type
-    (``OPENBLAS_CORETYPE``, as a machine of that kind would pick them) at the default threads."""
+    (``OPENBLAS_CORETYPE``, as a machine of that kind would pick them) at the default threads; "noavx512" = numpy's
+    own SIMD loops (exp, log, ...) without their AVX-512 versions (``NPY_DISABLE_CPU_FEATURES``, as a machine without
+    AVX-512 runs them; only where numpy dispatched them)."""
     if variant.isdigit():
         return {v: variant for v in THREAD_VARS}
+    if variant == "noavx512":
+        return {"NPY_DISABLE_CPU_FEATURES": "AVX512_ICL X86_V4"}
     return {"OPENBLAS_CORETYPE": variant}
 
 
@@ -114,7 +118,7 @@ def main(argv=None) -> int:
     ap.add_argument("--draws", type=int, default=12)
     ap.add_argument("--laws", default="normal,mixture")
     ap.add_argument("--threads", default="1,2,4",
-                    help="variants: BLAS thread counts and/or OpenBLAS core types (e.g. 1,2,4,Haswell)")
+                    help="variants: BLAS thread counts, OpenBLAS core types, noavx512 (e.g. 1,2,4,Haswell,noavx512)")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--json")
     a = ap.parse_args(argv)
