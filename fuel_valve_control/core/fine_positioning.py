@@ -304,8 +304,8 @@ def _break_limit(sigmas: float) -> float:
 
 def _wsum(x: np.ndarray, w: np.ndarray, fixed: bool) -> np.ndarray:
     """``x @ w`` (the sum over the last axis weighted by ``w``).  ``fixed`` (task h38x, docs §99): without BLAS, in an
-    order numpy's code fixes (the products elementwise, then numpy's pairwise sum over each row): the same bits on
-    every machine and BLAS thread count.  Else through BLAS as ever (its kernel, chosen for the CPU at load, and for
+    order numpy's code fixes (the products elementwise, then numpy's pairwise sum over each row): the same bits
+    whatever BLAS's threads or kernel, with or without numpy's AVX-512 loops (checked, docs §99; one numpy build).  Else through BLAS as ever (its kernel, chosen for the CPU at load, and for
     large enough products its thread count set the last bits: the normal law's, kept so its choices stay main's)."""
     if not fixed:
         return x @ w
@@ -330,9 +330,7 @@ def _beyond_best(hit: np.ndarray, w: np.ndarray, beyond: np.ndarray, fixed: bool
         return (hit @ trunc.T).max(axis=0)
     nk = beyond.shape[1]
     start = nk - np.count_nonzero(beyond, axis=1)                 # [a] the first level beyond the candidate
-    suffix = np.zeros(beyond.shape, dtype=bool)
-    suffix[:, :] = np.arange(nk)[None, :] >= start[:, None]
-    if np.array_equal(suffix, beyond):
+    if np.array_equal(np.arange(nk)[None, :] >= start[:, None], beyond):     # the levels beyond: a suffix
         hw = np.zeros((hit.shape[0], nk + 1))
         hw[:, :nk] = np.cumsum((hit * w)[:, ::-1], axis=1)[:, ::-1]
         tw = np.zeros(nk + 1)
