@@ -46,8 +46,9 @@ LAWS = ("normal", "mixture")
 def reference_choose_apex(self, err: float, d: int, phi_e: float, phi_b: float, sigma: float, pressure_kpa: float,
                  short: float, thl: float) -> float | None:
     """The apex policy's choice as main built it (``FinePositioner._choose_apex`` at commit f293bde, verbatim but for
-    the module prefix ``F.``): the reference the fast choice must equal bit for bit (``--compare``, and
-    test/test_apex_policy.py).  ``self``: the :class:`FinePositioner`; arguments and effects as the method's."""
+    the module prefix ``F.``, and since task h38x (docs §99) the weighted sums through ``F._wsum`` / ``F._beyond_best``:
+    main's BLAS products for the "normal" law, the fixed-order sums for the others): the reference the fast choice must
+    equal bit for bit (``--compare``, and test/test_apex_policy.py).  ``self``: the :class:`FinePositioner`; arguments and effects as the method's."""
     cfg = self.cfg
     if self._moves is None:
         self._moves = F._pulse_moves(self)
@@ -75,10 +76,11 @@ def reference_choose_apex(self, err: float, d: int, phi_e: float, phi_b: float, 
     e, s, tol = abs(err), max(cfg.apex_move_sd_rad, 1e-9), cfg.apex_land_rad
     lo = 0.0 if short > 0.0 else -tol
     worse_edge = 0.0 if short > 0.0 else -e
-    p_none = (~moved).astype(float) @ w
-    trunc = np.where(d * (lv[None, :] - cand[:, None]) > 0.0, w[None, :], 0.0)
-    tot = trunc.sum(axis=1, keepdims=True)
-    trunc = np.divide(trunc, tot, out=np.zeros_like(trunc), where=tot > 0.0)
+    # (task h38x, docs §99) the weighted sums of every law but "normal" without BLAS, in a fixed order
+    # (F._wsum / F._beyond_best; "normal": main's BLAS products, as f293bde had them)
+    fixed = cfg.apex_level_law != "normal"
+    p_none = F._wsum((~moved).astype(float), w, fixed)
+    beyond = d * (lv[None, :] - cand[:, None]) > 0.0
     break_limit = float(F._norm_cdf(-cfg.doublet_sigmas)) + 1e-9
     best, v1 = None, None
     kicks = self._apex_kicks()
@@ -100,9 +102,10 @@ def reference_choose_apex(self, err: float, d: int, phi_e: float, phi_b: float, 
         left = e - np.where(np.isfinite(mv), mv, 2.0 * e + 1.0)   # |e| left toward the target (< 0: crossed)
         hit = np.where(moved, F._norm_cdf((tol - left) / s) - F._norm_cdf((lo - left) / s), 0.0)
         worse = np.where(moved, F._norm_cdf((worse_edge - left) / s), 0.0)
-        p_hit, p_worse, p_break = hit @ w, worse @ w, (od > rise).astype(float) @ w
+        p_hit, p_worse, p_break = (F._wsum(hit, w, fixed), F._wsum(worse, w, fixed),
+                                   F._wsum((od > rise).astype(float), w, fixed))
         if v1 is None:
-            v1 = (hit @ trunc.T).max(axis=0)             # one more try after no move at a: the law beyond a
+            v1 = F._beyond_best(hit, w, beyond, fixed)   # one more try after no move at a: the law beyond a
         score = p_hit + p_none * v1
         ok = p_worse < 0.5
         if cfg.apex_worse_given_move:
@@ -116,8 +119,9 @@ def reference_choose_apex(self, err: float, d: int, phi_e: float, phi_b: float, 
             score = np.where(np.isfinite(kick), score, -np.inf)   # a continuous kick the set cannot size
         j = int(np.argmax(score))
         if best is None or score[j] > best[0]:
-            pm = float(moved[j].astype(float) @ w)
-            m_mean = float((np.where(moved[j] & np.isfinite(mv[j]), mv[j], 0.0) @ w) / pm) if pm > 0 else 0.0
+            pm = float(F._wsum(moved[j].astype(float), w, fixed))
+            m_mean = (float(F._wsum(np.where(moved[j] & np.isfinite(mv[j]), mv[j], 0.0), w, fixed) / pm)
+                      if pm > 0 else 0.0)
             kj, rj = (float(kick[j]), float(rise[j, 0])) if np.ndim(kick) else (kick, rise)
             best = (float(score[j]), float(cand[j]), kj, rj, float(p_hit[j]), float(p_none[j]), m_mean)
     self._apex_plan = (best[1], best[4], best[5], best[0], best[2], best[6])

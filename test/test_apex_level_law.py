@@ -131,3 +131,56 @@ def test_normal_by_default():
     assert CONTROLLER_SPEC.defaults()["fine.apex_level_law"] == "normal"
     fine, _ = _stage()
     assert fine.cfg.apex_level_law == "normal"
+
+
+def test_the_fixed_order_sums_equal_the_law_and_read_each_row_alone():
+    """(task h38x, docs §99) The non-normal laws' weighted sums without BLAS: V1 (:func:`FP._beyond_best`, suffix sums
+    over the levels ordered toward the try) equals the law truncated beyond each candidate averaged explicitly (to
+    1e-15; 0 where no weight lies beyond), on the suffix path and on the unordered levels' fallback; and each
+    row's sums are the same bits whether computed with the other rows or alone (no blocking across rows, as BLAS's
+    kernels and threads do)."""
+    rng = np.random.default_rng(99)
+    for n in range(12):
+        d = 1 if n % 2 else -1
+        floor = None if n % 3 == 0 else 0.01 + d * float(rng.uniform(-1e-3, 2e-3))
+        lv, w = FP.mixture_level_law(0.01, d, np.array([2e-4, 5e-4, 1.1e-3]), np.array([0.5, 0.3, 0.2]), floor)
+        cand = np.concatenate([lv, lv[-1] + d * np.linspace(1e-5, 1e-3, 8)])[rng.uniform(size=len(lv) + 8) < 0.8]
+        hit = np.where(rng.uniform(size=(len(cand), len(lv))) < 0.4, rng.uniform(size=(len(cand), len(lv))), 0.0)
+        beyond = d * (lv[None, :] - cand[:, None]) > 0.0
+        want = np.zeros(len(cand))
+        for a in range(len(cand)):
+            tot = w[beyond[a]].sum()
+            if tot > 0.0:
+                want[a] = max(float((hit[r][beyond[a]] * w[beyond[a]]).sum()) / tot for r in range(len(cand)))
+        got = FP._beyond_best(hit, w, beyond, True)
+        assert np.allclose(got, want, rtol=0.0, atol=1e-15) and np.array_equal(got == 0.0, want == 0.0)
+        perm = rng.permutation(len(lv))                      # levels not ordered: the elementwise fallback
+        assert np.allclose(FP._beyond_best(hit[:, perm], w[perm], beyond[:, perm], True), want, rtol=0.0, atol=1e-15)
+        x = rng.uniform(size=(3, len(cand), len(lv)))
+        whole = FP._wsum(x, w, True)
+        assert all(np.array_equal(whole[k, a], FP._wsum(x[k, a], w, True))
+                   for k in range(3) for a in range(0, len(cand), 7))
+        assert np.allclose(whole, x @ w, rtol=1e-13, atol=0.0)
+
+
+def test_the_mixture_choice_is_the_same_whatever_blas_threads_or_kernel():
+    """(task h38x, docs §99) The mixture law's choices (C2's law) on a few random stage states, each in a subprocess
+    with OPENBLAS_NUM_THREADS 1 and 2 (and, on an x86-64 with AVX2, OpenBLAS's Haswell kernels as such a machine
+    picks them): the same outcome to the last bit (return value, plan, kick, rise, mean move).  On main the Haswell
+    kernels changed the mean move's last bits in 2 of these 6 draws (the choice's gemv), and the 89 x 81 x 89 product
+    of random inputs differs between 1 and 2 threads (benchmarks/apex_threads.py)."""
+    import platform
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import apex_threads
+    variants = ["1", "2"]
+    try:
+        avx2 = platform.machine() == "x86_64" and "avx2" in Path("/proc/cpuinfo").read_text()
+    except OSError:
+        avx2 = False
+    if avx2:
+        variants.append("Haswell")
+    res = apex_threads.compare(["mixture"], 6, variants, parallel=len(variants))
+    assert res["differ"] == {"mixture": []}, res["differ"]
+    assert res["chose"]["mixture"] >= 3                  # the draws chose tries (not only "hold")

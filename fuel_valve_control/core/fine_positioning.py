@@ -302,6 +302,47 @@ def _break_limit(sigmas: float) -> float:
     return v
 
 
+def _wsum(x: np.ndarray, w: np.ndarray, fixed: bool) -> np.ndarray:
+    """``x @ w`` (the sum over the last axis weighted by ``w``).  ``fixed`` (task h38x, docs §99): without BLAS, in an
+    order numpy's code fixes (the products elementwise, then numpy's pairwise sum over each row): the same bits
+    whatever BLAS's threads or kernel, with or without numpy's AVX-512 loops (checked, docs §99; one numpy build).  Else through BLAS as ever (its kernel, chosen for the CPU at load, and for
+    large enough products its thread count set the last bits: the normal law's, kept so its choices stay main's)."""
+    if not fixed:
+        return x @ w
+    return np.add.reduce(x * w, axis=-1)
+
+
+def _beyond_best(hit: np.ndarray, w: np.ndarray, beyond: np.ndarray, fixed: bool) -> np.ndarray:
+    """V1 of the apex policy's choice: per candidate a, the best over the rows r of ``hit`` [r, k] (a try's landing
+    chance at level k) averaged over the law ``w`` [k] truncated to the levels ``beyond`` [a, k] the candidate
+    (0 where no weight lies beyond it).  Not ``fixed``: main's ``(hit @ trunc.T).max(axis=0)`` with the truncated
+    law normalised first (a BLAS matrix product: at the mixture law's 89 x 81 x 89 OpenBLAS runs it on all its
+    threads, 8 ms of the calling thread's CPU, and its bits depend on the thread count and the CPU's kernel).
+    ``fixed`` (task h38x, docs §99): the same quantity without BLAS, in a fixed order -- the levels are ordered toward
+    the try, so the levels beyond a candidate are a suffix of them: the suffix sums of hit x w (a cumulative sum from
+    the last level down, numpy's sequential accumulate) read at each candidate's first level beyond, the best row's
+    divided by the suffix sum of w: O(rows x levels), not O(rows x candidates x levels).  Levels not ordered (no law
+    builds them so): the sums over the truncated law elementwise, numpy's pairwise sum."""
+    if not fixed:
+        trunc = np.where(beyond, w[None, :], 0.0)
+        tot = trunc.sum(axis=1, keepdims=True)
+        trunc = np.divide(trunc, tot, out=np.zeros_like(trunc), where=tot > 0.0)
+        return (hit @ trunc.T).max(axis=0)
+    nk = beyond.shape[1]
+    start = nk - np.count_nonzero(beyond, axis=1)                 # [a] the first level beyond the candidate
+    if np.array_equal(np.arange(nk)[None, :] >= start[:, None], beyond):     # the levels beyond: a suffix
+        hw = np.zeros((hit.shape[0], nk + 1))
+        hw[:, :nk] = np.cumsum((hit * w)[:, ::-1], axis=1)[:, ::-1]
+        tw = np.zeros(nk + 1)
+        tw[:nk] = np.cumsum(w[::-1])[::-1]
+        num, tot = hw[:, start].max(axis=0), tw[start]
+    else:
+        trunc = np.where(beyond, w[None, :], 0.0)
+        num = np.add.reduce(hit[:, None, :] * trunc[None, :, :], axis=-1).max(axis=0)
+        tot = np.add.reduce(trunc, axis=-1)
+    return np.divide(num, tot, out=np.zeros_like(num), where=tot > 0.0)
+
+
 def _norm_cdf(x):
     """The standard normal's CDF, elementwise (scipy's ufunc ``erf``: ``math.erf`` through ``np.vectorize`` was
     half of the apex policy's ~1.6-4 ms per try, measured in a nominal run)."""
@@ -1500,18 +1541,17 @@ class FinePositioner:
         e, s, tol = abs(err), max(cfg.apex_move_sd_rad, 1e-9), cfg.apex_land_rad
         lo = 0.0 if short > 0.0 else -tol
         worse_edge = 0.0 if short > 0.0 else -e
-        p_none = (~moved).astype(float) @ w
-        trunc = np.where(d * (lv[None, :] - cand[:, None]) > 0.0, w[None, :], 0.0)
-        tot = trunc.sum(axis=1, keepdims=True)
-        trunc = np.divide(trunc, tot, out=np.zeros_like(trunc), where=tot > 0.0)
+        fixed = self._fixed_sums()
+        p_none = _wsum((~moved).astype(float), w, fixed)
+        beyond = d * (lv[None, :] - cand[:, None]) > 0.0      # [a, k] the levels the law keeps after no move at a
         break_limit = _break_limit(cfg.doublet_sigmas)
         kicks = self._apex_kicks()
         if cfg.apex_kick_continuous and fl is not None and len(kicks) > 1:
             best = self._score_tables(d, pressure_kpa, thl, kicks, cand, fl, od,
-                                      np.broadcast_to(excess[None, :], od.shape), moved, w, trunc, p_none,
+                                      np.broadcast_to(excess[None, :], od.shape), moved, w, beyond, p_none,
                                       e, s, tol, lo, worse_edge, break_limit)
         else:
-            best = self._score_points(d, pressure_kpa, thl, kicks, cand, od, excess, moved, w, trunc, p_none,
+            best = self._score_points(d, pressure_kpa, thl, kicks, cand, od, excess, moved, w, beyond, p_none,
                                       e, s, tol, lo, worse_edge, break_limit)
         self._apex_plan = (best[1], best[4], best[5], best[0], best[2], best[6])
         if not best[0] > cfg.apex_min_chance:
@@ -1521,12 +1561,19 @@ class FinePositioner:
         self._apex_try = (d, best[6])          # the model's mean move, if this try moves (traced in §81)
         return best[1]
 
-    def _score_tables(self, d, pressure_kpa, thl, kicks, cand, fl, od, excess, moved, w, trunc, p_none, e, s, tol, lo,
-                      worse_edge, break_limit) -> tuple:
+    def _fixed_sums(self) -> bool:
+        """(task h38x, docs §99) Whether the choice's weighted sums avoid BLAS (:func:`_wsum`, :func:`_beyond_best`):
+        for every level law but "normal" (the mixture's 89 x 81 x 89 product ran on BLAS's threads, its bits the
+        machine's; the normal law's products keep main's bits)."""
+        return self.cfg.apex_level_law != "normal"
+
+    def _score_tables(self, d, pressure_kpa, thl, kicks, cand, fl, od, excess, moved, w, beyond, p_none, e, s, tol,
+                      lo, worse_edge, break_limit) -> tuple:
         """(:meth:`_choose_apex`) The best try over every candidate x kick (with ``fine.apex_kick_continuous``, the
         continuous kick's too) scored on whole [candidate, level] tables of moves: (score, apex, kick, rise,
         P(land), P(no move), mean move).  The arrays as :meth:`_choose_apex` builds them."""
         cfg = self.cfg
+        fixed = self._fixed_sums()
         best, v1 = None, None
         tabs = [(kick, self._moves.rise(d, pressure_kpa, kick_current_a=kick, valve_angle_rad=thl),
                  np.asarray(self._moves.move(d, pressure_kpa, excess, od, kick_current_a=kick, aim_rad=e,
@@ -1546,9 +1593,10 @@ class FinePositioner:
             left = e - np.where(np.isfinite(mv), mv, 2.0 * e + 1.0)   # |e| left toward the target (< 0: crossed)
             hit = np.where(moved, _norm_cdf((tol - left) / s) - _norm_cdf((lo - left) / s), 0.0)
             worse = np.where(moved, _norm_cdf((worse_edge - left) / s), 0.0)
-            p_hit, p_worse, p_break = hit @ w, worse @ w, (od > rise).astype(float) @ w
+            p_hit, p_worse, p_break = (_wsum(hit, w, fixed), _wsum(worse, w, fixed),
+                                       _wsum((od > rise).astype(float), w, fixed))
             if v1 is None:
-                v1 = (hit @ trunc.T).max(axis=0)             # one more try after no move at a: the law beyond a
+                v1 = _beyond_best(hit, w, beyond, fixed)     # one more try after no move at a: the law beyond a
             score = p_hit + p_none * v1
             ok = p_worse < 0.5
             if cfg.apex_worse_given_move:
@@ -1562,13 +1610,14 @@ class FinePositioner:
                 score = np.where(np.isfinite(kick), score, -np.inf)   # a continuous kick the set cannot size
             j = int(np.argmax(score))
             if best is None or score[j] > best[0]:
-                pm = float(moved[j].astype(float) @ w)
-                m_mean = float((np.where(moved[j] & np.isfinite(mv[j]), mv[j], 0.0) @ w) / pm) if pm > 0 else 0.0
+                pm = float(_wsum(moved[j].astype(float), w, fixed))
+                m_mean = (float(_wsum(np.where(moved[j] & np.isfinite(mv[j]), mv[j], 0.0), w, fixed) / pm)
+                          if pm > 0 else 0.0)
                 kj, rj = (float(kick[j]), float(rise[j, 0])) if np.ndim(kick) else (kick, rise)
                 best = (float(score[j]), float(cand[j]), kj, rj, float(p_hit[j]), float(p_none[j]), m_mean)
         return best
 
-    def _score_points(self, d, pressure_kpa, thl, kicks, cand, od, excess, moved, w, trunc, p_none, e, s, tol, lo,
+    def _score_points(self, d, pressure_kpa, thl, kicks, cand, od, excess, moved, w, beyond, p_none, e, s, tol, lo,
                       worse_edge, break_limit) -> tuple:
         """(:meth:`_choose_apex`, task h37a, docs §94) :meth:`_score_tables` for the kick set alone, bit for bit, on
         the elements that change a sum: a try's chances are sums over the levels weighted by the law (and v1's by
@@ -1579,6 +1628,7 @@ class FinePositioner:
         and the normal CDFs evaluated (one pass for all kicks) only where the apex lies between the level and the
         preload's reach at a level of weight.  ``excess``: per level (1-D).  Returns as :meth:`_score_tables`."""
         cfg = self.cfg
+        fixed = self._fixed_sums()
         rises = self._moves.rises(d, pressure_kpa, kicks, valve_angle_rad=thl)
         brk = od[None, :, :] > np.array(rises)[:, None, None]     # [kick, a, k] a level below the preload
         kk, ai, ki = np.nonzero((moved & (w > 0.0)[None, :])[None, :, :] & ~brk)   # read on the move model
@@ -1594,8 +1644,8 @@ class FinePositioner:
         hit[kk, ai, ki] = hit_all[:n]
         worse = np.where(brk, worse_all[n:], 0.0)
         worse[kk, ai, ki] = worse_all[:n]
-        p_hit, p_worse, p_break = hit @ w, worse @ w, brk.astype(float) @ w       # [kick, a]
-        v1 = (hit[0] @ trunc.T).max(axis=0)      # one more try after no move at a (main's kick): the law beyond a
+        p_hit, p_worse, p_break = _wsum(hit, w, fixed), _wsum(worse, w, fixed), _wsum(brk.astype(float), w, fixed)
+        v1 = _beyond_best(hit[0], w, beyond, fixed)   # one more try after no move at a (main's kick): the law beyond a
         score = p_hit + p_none * v1
         ok = p_worse < 0.5
         if cfg.apex_worse_given_move:
@@ -1607,13 +1657,13 @@ class FinePositioner:
             if bi is None or score[i, j] > score[bi, js[bi]]:
                 bi = i
         j = int(js[bi])
-        pm = float(moved[j].astype(float) @ w)
+        pm = float(_wsum(moved[j].astype(float), w, fixed))
         # the try's mean move (its row as _score_tables reads it at the levels of weight: the whole jump below the
         # preload, the model's move between the level and the preload's reach; 0 elsewhere -- each x 0 in the sum)
         mrow = np.where(brk[bi, j], 2.0 * excess, 0.0)
         sel = (kk == bi) & (ai == j)
         mrow[ki[sel]] = mvp[sel]
-        m_mean = float((np.where(moved[j] & np.isfinite(mrow), mrow, 0.0) @ w) / pm) if pm > 0 else 0.0
+        m_mean = float(_wsum(np.where(moved[j] & np.isfinite(mrow), mrow, 0.0), w, fixed) / pm) if pm > 0 else 0.0
         return (float(score[bi, j]), float(cand[j]), kicks[bi], rises[bi], float(p_hit[bi, j]), float(p_none[j]),
                 m_mean)
 
