@@ -45,8 +45,9 @@ LAWS = ("normal", "mixture")
 
 def reference_choose_apex(self, err: float, d: int, phi_e: float, phi_b: float, sigma: float, pressure_kpa: float,
                  short: float, thl: float) -> float | None:
-    """The apex policy's choice as main built it (``FinePositioner._choose_apex`` at commit f293bde, verbatim but for
-    the module prefix ``F.``, and since task h38x (docs §99) the weighted sums through ``F._wsum`` / ``F._beyond_best``:
+    """The apex policy's choice as main built it (``FinePositioner._choose_apex`` at commit f293bde: its set-up
+    verbatim but for the module prefix ``F.``, its scoring loop the one the stage keeps as ``_score_tables``; since task
+    h38x (docs §99) the weighted sums through ``F._wsum`` / ``F._beyond_best``:
     main's BLAS products for the "normal" law, the fixed-order sums for the others): the reference the fast choice must
     equal bit for bit (``--compare``, and test/test_apex_policy.py).  ``self``: the :class:`FinePositioner`; arguments and effects as the method's."""
     cfg = self.cfg
@@ -77,53 +78,14 @@ def reference_choose_apex(self, err: float, d: int, phi_e: float, phi_b: float, 
     lo = 0.0 if short > 0.0 else -tol
     worse_edge = 0.0 if short > 0.0 else -e
     # (task h38x, docs §99) the weighted sums of every law but "normal" without BLAS, in a fixed order
-    # (F._wsum / F._beyond_best; "normal": main's BLAS products, as f293bde had them)
-    fixed = cfg.apex_level_law != "normal"
-    p_none = F._wsum((~moved).astype(float), w, fixed)
+    # (F._wsum / F._beyond_best, FinePositioner._fixed_sums; "normal": main's BLAS products, as f293bde had them)
+    p_none = F._wsum((~moved).astype(float), w, self._fixed_sums())
     beyond = d * (lv[None, :] - cand[:, None]) > 0.0
     break_limit = float(F._norm_cdf(-cfg.doublet_sigmas)) + 1e-9
-    best, v1 = None, None
-    kicks = self._apex_kicks()
-    tabs = [(kick, self._moves.rise(d, pressure_kpa, kick_current_a=kick, valve_angle_rad=thl),
-             np.asarray(self._moves.move(d, pressure_kpa, excess, od, kick_current_a=kick, aim_rad=e,
-                                         valve_angle_rad=thl), dtype=float)) for kick in kicks]
-    options = list(tabs)
-    if cfg.apex_kick_continuous and fl is not None and len(tabs) > 1:
-        options.append(self._continuous_kick(d, fl[1], cand, tabs))
-    for kick, rise, mv in options:
-        if kick is None:
-            continue
-        rise = np.asarray(rise, dtype=float)[:, None] if np.ndim(rise) else rise
-        # a level below the preload breaks the valve loose while parked: a quasi-static release, the whole
-        # stick-slip jump 2 x excess (main's staircase starts fine.doublet_sigmas scatters below the level for
-        # this; traced, task h33p: nominal box seed 1021, a preload 0.39e-3 below the learned level broke it
-        # loose for 3.4e-3 rad)
-        mv = np.where(od > rise, 2.0 * excess, mv)
-        left = e - np.where(np.isfinite(mv), mv, 2.0 * e + 1.0)   # |e| left toward the target (< 0: crossed)
-        hit = np.where(moved, F._norm_cdf((tol - left) / s) - F._norm_cdf((lo - left) / s), 0.0)
-        worse = np.where(moved, F._norm_cdf((worse_edge - left) / s), 0.0)
-        p_hit, p_worse, p_break = (F._wsum(hit, w, fixed), F._wsum(worse, w, fixed),
-                                   F._wsum((od > rise).astype(float), w, fixed))
-        if v1 is None:
-            v1 = F._beyond_best(hit, w, beyond, fixed)   # one more try after no move at a: the law beyond a
-        score = p_hit + p_none * v1
-        ok = p_worse < 0.5
-        if cfg.apex_worse_given_move:
-            # (task h34m, docs §85) more likely to worsen |e| than not *if it moves*: at a stop whose level lies
-            # high (excess 2.5-4.5e-3 rad, smallest move 1.2e-3 and more) every move overshoots the error, and
-            # the unconditional rule let the law's climb (P(no move) 0.8-0.9, P(land) 0) go on until the valve
-            # let go for 1.3-2.2e-3 rad against errors of 0.35-0.75e-3 (nominal box seed 1020)
-            ok = ok & (p_worse <= 0.5 * (1.0 - p_none))
-        score = np.where(ok & (p_break <= break_limit), score, -np.inf)
-        if np.ndim(kick):
-            score = np.where(np.isfinite(kick), score, -np.inf)   # a continuous kick the set cannot size
-        j = int(np.argmax(score))
-        if best is None or score[j] > best[0]:
-            pm = float(F._wsum(moved[j].astype(float), w, fixed))
-            m_mean = (float(F._wsum(np.where(moved[j] & np.isfinite(mv[j]), mv[j], 0.0), w, fixed) / pm)
-                      if pm > 0 else 0.0)
-            kj, rj = (float(kick[j]), float(rise[j, 0])) if np.ndim(kick) else (kick, rise)
-            best = (float(score[j]), float(cand[j]), kj, rj, float(p_hit[j]), float(p_none[j]), m_mean)
+    # main's scoring loop over whole [candidate, level] tables, kept in the stage as _score_tables (the continuous
+    # kick's path): the reference the fast _score_points must equal bit for bit
+    best = self._score_tables(d, pressure_kpa, thl, self._apex_kicks(), cand, fl, od, excess, moved, w, beyond, p_none,
+                              e, s, tol, lo, worse_edge, break_limit)
     self._apex_plan = (best[1], best[4], best[5], best[0], best[2], best[6])
     if not best[0] > cfg.apex_min_chance:
         return None
