@@ -95,6 +95,21 @@ def reference_choose_apex(self, err: float, d: int, phi_e: float, phi_b: float, 
     return best[1]
 
 
+def draw_try(fine, rng, n: int, d: int, pressure_kpa: float, thl: float, phi_e: float, phi_b: float) -> tuple:
+    """A random try of the policy for the identity checks (test/test_apex_policy.py, benchmarks/apex_threads.py): the
+    learned scatter, the error (either sign of the crossing guard by ``n``) and the stage's floor (none, inside the
+    law, beyond it: the far tail, by ``n``) drawn from ``rng``; the floor is set on ``fine``.  Returns the arguments
+    of ``fine._choose_apex``."""
+    sigma = float(rng.uniform(1.5e-4, 9e-4))
+    err = d * float(rng.uniform(2e-4, 2.5e-3))
+    short = 0.0 if n % 3 else 1e-4
+    kind = n % 4
+    fine._apex_floor = (None if kind == 0 else
+                        (d, phi_b + d * float(rng.uniform(-2.0, 2.0)) * sigma) if kind < 3 else
+                        (d, phi_b + d * 3.5 * sigma))
+    return (err, d, phi_e, phi_b, sigma, pressure_kpa, short, thl)
+
+
 def timed_runs(seed: int, runs: int, sets: dict, profile: bool = False, record: bool = False) -> dict:
     """Run ``runs`` nominal cases from ``seed`` with controller ``sets``; every ``_choose_apex`` call timed.
     Returns {"ms": [per try, no table built], "built_ms": [...], "choices": [[run, apex, kick, rise] ...],

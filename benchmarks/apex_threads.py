@@ -36,6 +36,7 @@ def _stage(law: str):
 def choices(laws: list[str], draws: int, seed: int = 38) -> dict:
     """{law: [repr of each draw's outcome]} in this process (its BLAS threads as the environment set them)."""
     import numpy as np
+    from apex_choice import draw_try
     out, moves = {}, None
     for li, law in enumerate(laws):
         fine, model = _stage(law)
@@ -49,14 +50,7 @@ def choices(laws: list[str], draws: int, seed: int = 38) -> dict:
             p = model.pressure_max_kpa
             thl = float(rng.uniform(0.4, 0.6))
             phi_e, phi_b, _ = fine._twists(thl, p, d)
-            sigma = float(rng.uniform(1.5e-4, 9e-4))
-            err = d * float(rng.uniform(2e-4, 2.5e-3))
-            short = 0.0 if n % 3 else 1e-4
-            kind = n % 4
-            fine._apex_floor = (None if kind == 0 else
-                                (d, phi_b + d * float(rng.uniform(-2.0, 2.0)) * sigma) if kind < 3 else
-                                (d, phi_b + d * 3.5 * sigma))
-            apex = fine._choose_apex(err, d, phi_e, phi_b, sigma, p, short, thl)
+            apex = fine._choose_apex(*draw_try(fine, rng, n, d, p, thl, phi_e, phi_b))
             res.append(repr((apex, fine._apex_plan, fine._apex_kick, fine._apex_rise, fine._apex_last,
                              fine._apex_try)))
         out[law] = res

@@ -287,6 +287,7 @@ def test_the_choice_equals_main_choice_bit_for_bit(direction):
     bit of every number it sets (apex, kick, rise, plan, mean move): random errors (either sign of the crossing
     guard), scatters, floors (none, inside the law, beyond it: the far tail), valve angles (between the angle grid's
     points and on one), the three level laws, fine.apex_worse_given_move, and the continuous kick's path."""
+    from apex_choice import draw_try
     rng = np.random.default_rng(37 + direction)
     d = direction
     base = {"fine.apex_kick_max_a": 16.0, "fine.apex_excess_nominal": True}
@@ -302,14 +303,7 @@ def test_the_choice_equals_main_choice_bit_for_bit(direction):
         p = model.pressure_max_kpa
         thl = 0.5 * model.stroke_rad if n % 5 == 0 else float(rng.uniform(0.4, 0.6))
         phi_e, phi_b = _twists(fine, d, p, thl)
-        sigma = float(rng.uniform(1.5e-4, 9e-4))
-        err = d * float(rng.uniform(2e-4, 2.5e-3))
-        short = 0.0 if n % 3 else 1e-4
-        kind = n % 4
-        fine._apex_floor = (None if kind == 0 else
-                            (d, phi_b + d * float(rng.uniform(-2.0, 2.0)) * sigma) if kind < 3 else
-                            (d, phi_b + d * 3.5 * sigma))
-        ref, new = _same_choice(fine, (err, d, phi_e, phi_b, sigma, p, short, thl))
+        ref, new = _same_choice(fine, draw_try(fine, rng, n, d, p, thl, phi_e, phi_b))
         assert repr(new) == repr(ref), (n, ref, new)
         moves = fine._moves
         checked += ref[0] is not None
