@@ -425,6 +425,21 @@ _STUBBORN_WORKER = ("import os, signal, time, pathlib; signal.signal(signal.SIGT
                     "pathlib.Path(os.environ['H37D_WORKER_MARK']).touch(); time.sleep(120)")
 
 
+def _stubborn_build(tmp_path, monkeypatch):
+    """A background build whose worker ignores SIGTERM (grace time 0.2 s), returned once that worker is running."""
+    mark = tmp_path / "ignoring_sigterm"
+    monkeypatch.setenv("H37D_WORKER_MARK", str(mark))
+    monkeypatch.setattr(pmod, "WORKER_CODE", _STUBBORN_WORKER)
+    monkeypatch.setattr(pmod, "STOP_GRACE_S", 0.2)
+    moves = _moves()
+    build = pmod.TableBuild(moves, _keys(moves), tmp_path / "cache")
+    t0 = time.monotonic()
+    while not mark.exists():
+        assert time.monotonic() - t0 < 60.0 and build.state in ("reading", "building"), build.status()
+        time.sleep(0.02)
+    return build
+
+
 def test_a_cancel_under_the_loop_lock_never_waits_for_the_worker(tmp_path, monkeypatch):
     """(task h37d) ``cancel(0)`` -- the controller node's call under its 1 kHz loop's lock -- only signals the
     worker: with a worker that ignores SIGTERM it returns while the worker still runs (it used to wait up to
@@ -432,17 +447,7 @@ def test_a_cancel_under_the_loop_lock_never_waits_for_the_worker(tmp_path, monke
     orphan), and the build ends cancelled."""
     import os
     import signal
-    mark = tmp_path / "ignoring_sigterm"
-    monkeypatch.setenv("H37D_WORKER_MARK", str(mark))
-    monkeypatch.setattr(pmod, "WORKER_CODE", _STUBBORN_WORKER)
-    monkeypatch.setattr(pmod, "STOP_GRACE_S", 0.2)
-    moves = _moves()
-    build = pmod.TableBuild(moves, _keys(moves), tmp_path / "cache")
-    _wait(build, ("building", "failed"))
-    t0 = time.monotonic()
-    while not mark.exists():
-        assert time.monotonic() - t0 < 60.0 and build.state == "building", build.status()
-        time.sleep(0.02)
+    build = _stubborn_build(tmp_path, monkeypatch)
     proc = build.process
     build.cancel(0.0)
     assert proc.poll() is None, "cancel(0) waited for the worker to end"       # SIGTERM ignored: still running
@@ -460,16 +465,7 @@ def test_a_cancel_under_the_loop_lock_never_waits_for_the_worker(tmp_path, monke
 def test_the_destroy_cancel_ends_a_stubborn_worker_itself(tmp_path, monkeypatch):
     """``cancel(timeout > 0)`` (the node's destroy) ends and reaps the worker before it returns, SIGTERM ignored."""
     import signal
-    mark = tmp_path / "ignoring_sigterm"
-    monkeypatch.setenv("H37D_WORKER_MARK", str(mark))
-    monkeypatch.setattr(pmod, "WORKER_CODE", _STUBBORN_WORKER)
-    monkeypatch.setattr(pmod, "STOP_GRACE_S", 0.2)
-    moves = _moves()
-    build = pmod.TableBuild(moves, _keys(moves), tmp_path / "cache")
-    t0 = time.monotonic()
-    while not mark.exists():
-        assert time.monotonic() - t0 < 60.0 and build.state in ("reading", "building"), build.status()
-        time.sleep(0.02)
+    build = _stubborn_build(tmp_path, monkeypatch)
     proc = build.process
     build.cancel(5.0)
     assert proc.returncode == -signal.SIGKILL and not build.alive()
