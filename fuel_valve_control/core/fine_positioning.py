@@ -655,6 +655,10 @@ class FineConfig:
                                    # task h37m, docs §95)
     handover_unwind: bool = False  # a new demand from HOLD with the twist on the new move's side of the band's middle:
                                    # the gear output moved to the middle before the hand-over (task h38s, docs §98)
+    hold_relax: float = 0.0  # in HOLD: the twist moved this fraction of the way to the static band's middle (between the
+                             # two learned breakaways), slowly, so that the next demand's move starts from a symmetric
+                             # twist (0: off, today's; task h39h, docs §101)
+    hold_relax_periods: int = 60  # ... the move's length, periods (a sin² blend)
     handover_settle_speed: float = 0.0  # a new demand mid-park / -pulse / -observe: the stage holds the gear output
                                         # where it is until it turns slower than this (rad/s) with the valve at rest
                                         # (or 2 x observe_periods), then hands over (0: at once, today's; task h38s,
@@ -771,6 +775,7 @@ class FinePositioner:
         self._target = None
         self._handover = None             # (fine.handover_settle_speed_rad_s) a hand-over waiting for the gear output
         self._unwind = None               # (fine.handover_unwind) the hold's unwinding before a hand-over
+        self._relax = None                # (fine.hold_relax) the hold's relaxation toward the band's middle
         if measurements:
             self._rest = 0
             self._last_valve = None
@@ -2026,7 +2031,38 @@ class FinePositioner:
                 return self._servo(base + ref, 0.0, th1, w1, thl, integrate=False)
             return self._servo(base + ref, 0.0, th1, w1, thl)
         # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
+        if cfg.hold_relax > 0.0:
+            return self._hold_relaxing(th1, w1, thl, pressure_kpa)
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
+
+    def _hold_relaxing(self, th1: float, w1: float, thl: float, pressure_kpa: float) -> float:
+        """(``fine.hold_relax``, task h39h, docs §101) The hold's torque while the stage moves the held twist
+        ``fine.hold_relax`` of the way to the static band's middle (the mean of the two learned breakaway twists at this
+        angle and Δp, the load included) over ``fine.hold_relax_time_s`` (a sin² blend), then holds there.  Why: a hold
+        is entered where the last try stopped -- after a doublet, on the side of the band it pushed, next to that way's
+        breakaway (`startup` seed 0, C2: 2.8e-3 rad of twist short of the opening breakaway, the band ~2.2e-2 wide).
+        The next demand's move that way then breaks the valve loose at once and its stick-slip jump (5.7e-3) ran past a
+        5.2e-3 step (14.6 %); from the middle every later move winds half a band first, either way alike.  The
+        middle lies inside both breakaways, and the move goes away from the near one, so the valve stays; should it
+        move anyway (more than half a tolerance: a band learned wrong), the blend stops and the gear output is held
+        where its reference was.  A new hold (a new ``_hold_ref``) plans a new relaxation."""
+        cfg = self.cfg
+        rel = self._relax
+        if rel is None or rel[0] != self._hold_ref:
+            mid = 0.5 * (self._twists(thl, pressure_kpa, 1)[1] + self._twists(thl, pressure_kpa, -1)[1])
+            twist = self._hold_ref - thl
+            rel = self._relax = [self._hold_ref, self._hold_ref + cfg.hold_relax * (mid - twist), 0, thl, None]
+        th1_0, th1_1, k, thl0, stop = rel
+        if stop is not None:
+            return self._servo(stop, 0.0, th1, w1, thl)
+        k += 1
+        rel[2] = k
+        n = max(cfg.hold_relax_periods, 1)
+        x, v, a = self._blend(th1_0, th1_1, k * self.period, n * self.period)
+        if abs(thl - thl0) > 0.5 * cfg.tolerance_rad or k >= n:
+            rel[4] = x if k < n else th1_1         # the valve moved: held where the reference is; or the blend is done
+            return self._servo(rel[4], 0.0, th1, w1, thl)
+        return self._servo(x, a, th1, w1, thl, v)
 
     def _doublet_jump_range(self, pressure_kpa: float) -> float:
         """Errors up to this (rad) may get a doublet besides ``fine.doublet_max_error_rad``:
