@@ -655,6 +655,8 @@ class FineConfig:
                                    # task h37m, docs §95)
     handover_unwind: bool = False  # a new demand from HOLD with the twist on the new move's side of the band's middle:
                                    # the gear output moved to the middle before the hand-over (task h38s, docs §98)
+    handover_unwind_max_jumps: float = 0.0  # ... only for a new demand within this many nominal stick-slip jumps of
+                                            # the valve (0: any; task h39h, docs §101)
     hold_relax: float = 0.0  # in HOLD: the twist moved this fraction of the way to the static band's middle (between the
                              # two learned breakaways), slowly, so that the next demand's move starts from a symmetric
                              # twist (0: off, today's; task h39h, docs §101)
@@ -984,16 +986,29 @@ class FinePositioner:
         if not cfg.handover_unwind or self.phase != HOLD:
             return None
         if self._unwind is None:
+            jumps = cfg.handover_unwind_max_jumps
+            if jumps > 0.0 and abs(target - thl) > jumps * self.m.friction(pressure_kpa).stick_slip_jump_rad(
+                    self.m.coupling_stiffness_nm_per_rad):
+                # (task h39h, docs §101) a step larger than the jump: started next to that way's breakaway the valve
+                # lets go at once and slides toward the target, no further than it is; unwound to the middle first,
+                # the main law's move stopped short more often (nominal 2028 #7, 2031 #6: 4.2-4.5e-3 short, its hold
+                # then crept a whole jump past: 57.6 / 44.9 %)
+                return None
             d = 1 if target > thl else -1
             mid = 0.5 * (self._twists(thl, pressure_kpa, 1)[1] + self._twists(thl, pressure_kpa, -1)[1])
             if d * ((th1 - thl) - mid) <= 0.0:
                 return None
-            self._unwind = [th1, thl + mid, 0, thl]     # (gear output from, to, periods, the valve at the start)
-        th1_0, th1_1, k, thl0 = self._unwind
+            self._unwind = [th1, thl + mid, 0, thl, target]   # (gear output from, to, periods, the valve and the
+                                                                # demand at the start)
+        th1_0, th1_1, k, thl0, target0 = self._unwind
         k += 1
         self._unwind[2] = k
         n = max(cfg.observe_periods, 1)
         if abs(thl - thl0) > 2.0 * cfg.tolerance_rad or k > n + 3:
+            return None
+        if cfg.handover_unwind_max_jumps > 0.0 and abs(target - target0) > 1e-12:
+            # (task h39h) the demand moves on (a ramp's start, a sweep): followed by the main law, at once -- unwound,
+            # a ramp from a hold started 18 periods late (startup seed 1: its ramp's path and later plateaus changed)
             return None
         x, v, a = self._blend(th1_0, th1_1, k * self.period, n * self.period)
         return self._servo(x, a, th1, w1, thl, v)

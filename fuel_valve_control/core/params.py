@@ -702,6 +702,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "gear output to the band's middle over fine.observe_time_s before handing over (held next to that way's "
           "breakaway, the main law's small step broke the valve loose at once and its stick-slip jump ran past: "
           "startup seed 0 with C2, 14.6 %; task h38s, docs section 98)", runtime=True),
+    Param("fine.handover_unwind_max_jumps", 0.0, "", "with fine.handover_unwind: only a new demand within this many "
+          "nominal stick-slip jumps (at the present delta-p) of the valve is unwound for; a larger step hands over at "
+          "once (unwound to the middle, the main law's larger moves stopped short more often and its hold then crept a "
+          "whole jump past); 0 = any step (task h39h, docs section 101)", 0.0, 100.0, runtime=True),
     Param("fine.hold_relax", 0.0, "", "while the fine stage holds the valve (plateau done), the gear output moves the "
           "held twist this fraction of the way to the static band's middle (between the two learned breakaway twists, "
           "the load included), slowly (fine.hold_relax_time_s), stopping if the valve moves: held next to the breakaway "
