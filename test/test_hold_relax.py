@@ -73,3 +73,49 @@ def test_relax_off_by_default():
     from fuel_valve_control.core.params import CONTROLLER_SPEC
     defaults = CONTROLLER_SPEC.defaults()
     assert defaults["fine.hold_relax"] == 0.0 and defaults["fine.hold_relax_time_s"] == 0.06
+
+
+# ---- fine.handover_unwind_max_jumps (task h39h): h38s's unwind only for a step within that many stick-slip jumps, and
+# given up once the demand moves on (a ramp's start)
+
+def _jump(fine, p):
+    return fine.m.friction(p).stick_slip_jump_rad(fine.m.coupling_stiffness_nm_per_rad)
+
+
+def _handover_period(fine, p, demand):
+    """Periods until the stage hands over (returns None) to a demand ``demand(k)`` (rad) in period k, the gear output
+    and the valve still."""
+    thl, th1 = fine._last_valve, fine._hold_ref
+    for k in range(1, 200):
+        if fine.update(demand(k), th1, thl, False, 0.3, p) is None:
+            assert fine.phase == "idle"
+            return k
+    return None
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_unwind_gated_by_the_step_size(direction):
+    on = {"fine.handover_unwind": True, "fine.handover_unwind_max_jumps": 2.0}
+    fine, p, thl, _, _ = _held(direction, **on)
+    n = fine.cfg.observe_periods
+    small = direction * 1.0 * _jump(fine, p)
+    assert _handover_period(fine, p, lambda k: thl + small) == n + 4      # unwound first, as h38s's prototype
+    fine, p, thl, _, _ = _held(direction, **on)
+    large = direction * 3.0 * _jump(fine, p)
+    assert _handover_period(fine, p, lambda k: thl + large) == 1          # a step beyond 2 jumps: at once
+    fine, p, thl, _, _ = _held(direction, **{"fine.handover_unwind": True})
+    assert _handover_period(fine, p, lambda k: thl + large) == n + 4      # ungated (0): unwound whatever the step
+
+
+def test_unwind_given_up_when_the_demand_moves_on():
+    on = {"fine.handover_unwind": True, "fine.handover_unwind_max_jumps": 2.0}
+    fine, p, thl, _, _ = _held(1, **on)
+    step = 0.5 * _jump(fine, p)
+    assert _handover_period(fine, p, lambda k: thl + step + (k >= 4) * 1e-5) == 4   # a ramp: handed over as it moves
+    fine, p, thl, _, _ = _held(1, **{"fine.handover_unwind": True})
+    assert _handover_period(fine, p, lambda k: thl + step + (k >= 4) * 1e-5) == fine.cfg.observe_periods + 4
+
+
+def test_unwind_max_jumps_off_by_default():
+    from fuel_valve_control.core.params import CONTROLLER_SPEC
+    assert CONTROLLER_SPEC.defaults()["fine.handover_unwind_max_jumps"] == 0.0
