@@ -119,3 +119,22 @@ def test_unwind_given_up_when_the_demand_moves_on():
 def test_unwind_max_jumps_off_by_default():
     from fuel_valve_control.core.params import CONTROLLER_SPEC
     assert CONTROLLER_SPEC.defaults()["fine.handover_unwind_max_jumps"] == 0.0
+
+
+def test_unwind_only_near_the_breakaway():
+    """``fine.handover_unwind_near``: unwound only with the twist within that many (T_s - T_c)/K of the new move's
+    breakaway; farther, handed over at once."""
+    base = {"fine.handover_unwind": True, "fine.handover_unwind_max_jumps": 2.0}
+    fine, p, thl, th1, _ = _held(1, **base)
+    fl = fine.m.friction(p)
+    unit = (fl.valve_static_nm - fl.valve_coulomb_nm) / fine.m.coupling_stiffness_nm_per_rad
+    gap = (fine._twists(thl, p, 1)[1] - (th1 - thl)) / unit
+    assert gap > 0.0
+    step = 0.5 * _jump(fine, p)
+    n = fine.cfg.observe_periods
+    fine, p, thl, _, _ = _held(1, **base, **{"fine.handover_unwind_near": 1.01 * gap})
+    assert _handover_period(fine, p, lambda k: thl + step) == n + 4
+    fine, p, thl, _, _ = _held(1, **base, **{"fine.handover_unwind_near": 0.99 * gap})
+    assert _handover_period(fine, p, lambda k: thl + step) == 1
+    from fuel_valve_control.core.params import CONTROLLER_SPEC
+    assert CONTROLLER_SPEC.defaults()["fine.handover_unwind_near"] == 0.0

@@ -657,6 +657,8 @@ class FineConfig:
                                    # the gear output moved to the middle before the hand-over (task h38s, docs §98)
     handover_unwind_max_jumps: float = 0.0  # ... only for a new demand within this many nominal stick-slip jumps of
                                             # the valve (0: any; task h39h, docs §101)
+    handover_unwind_near: float = 0.0  # ... only with the twist within this many (T_s - T_c)/K of the new move's learned
+                                       # breakaway (0: anywhere on that side; task h39h, docs §101)
     hold_relax: float = 0.0  # in HOLD: the twist moved this fraction of the way to the static band's middle (between the
                              # two learned breakaways), slowly, so that the next demand's move starts from a symmetric
                              # twist (0: off, today's; task h39h, docs §101)
@@ -998,6 +1000,14 @@ class FinePositioner:
             mid = 0.5 * (self._twists(thl, pressure_kpa, 1)[1] + self._twists(thl, pressure_kpa, -1)[1])
             if d * ((th1 - thl) - mid) <= 0.0:
                 return None
+            near = cfg.handover_unwind_near
+            if near > 0.0:
+                fl = self.m.friction(pressure_kpa)
+                gap = d * (self._twists(thl, pressure_kpa, d)[1] - (th1 - thl))   # twist left to that breakaway
+                if gap > near * (fl.valve_static_nm - fl.valve_coulomb_nm) / self.m.coupling_stiffness_nm_per_rad:
+                    # (task h39h) far enough from it that the main law's move creeps rather than lets go at once
+                    # (nominal 2013 #2: 4.6e-3 rad of twist left; unwound, the plateau ended 1.3e-3 off, the next 5e-3)
+                    return None
             self._unwind = [th1, thl + mid, 0, thl, target]   # (gear output from, to, periods, the valve and the
                                                                 # demand at the start)
         th1_0, th1_1, k, thl0, target0 = self._unwind

@@ -706,6 +706,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "nominal stick-slip jumps (at the present delta-p) of the valve is unwound for; a larger step hands over at "
           "once (unwound to the middle, the main law's larger moves stopped short more often and its hold then crept a "
           "whole jump past); 0 = any step (task h39h, docs section 101)", 0.0, 100.0, runtime=True),
+    Param("fine.handover_unwind_near", 0.0, "", "with fine.handover_unwind: only a hold whose twist lies within this "
+          "many (T_s - T_c)/K of the new move's learned breakaway is unwound for (farther, the main law's move creeps "
+          "rather than lets go at once); 0 = anywhere on that side (task h39h, docs section 101)", 0.0, 100.0,
+          runtime=True),
     Param("fine.hold_relax", 0.0, "", "while the fine stage holds the valve (plateau done), the gear output moves the "
           "held twist this fraction of the way to the static band's middle (between the two learned breakaway twists, "
           "the load included), slowly (fine.hold_relax_time_s), stopping if the valve moves: held next to the breakaway "

@@ -345,6 +345,7 @@ class PositionController:
                           apex_kick_continuous=ps["fine.apex_kick_continuous"], apex_worse_given_move=ps["fine.apex_worse_given_move"], apex_level_law=ps["fine.apex_level_law"],
                           engage_gear_rest=ps["fine.engage_gear_rest"], handover_settle_speed=ps["fine.handover_settle_speed_rad_s"], handover_unwind=ps["fine.handover_unwind"],
                           handover_unwind_max_jumps=ps["fine.handover_unwind_max_jumps"],
+                          handover_unwind_near=ps["fine.handover_unwind_near"],
                           hold_relax=ps["fine.hold_relax"],
                           hold_relax_periods=max(int(round(ps["fine.hold_relax_time_s"] / per)), 1),
                           apex_floor_repeat=ps["fine.apex_floor_repeat"],
