@@ -45,6 +45,7 @@ for p in (ROOT, ROOT / "benchmarks"):
 
 import robustness as R  # noqa: E402
 from fuel_valve_control.core.params import CONTROLLER_SPEC  # noqa: E402
+from fuel_valve_control.common.paramspec import ConfigError, parse_overrides  # noqa: E402
 from fuel_valve_control.tools import metrics as M  # noqa: E402
 from fuel_valve_control.tools import sim  # noqa: E402
 from fuel_valve_control.tools.scenarios import load_scenario  # noqa: E402
@@ -161,8 +162,9 @@ def _trace(res):
 
 def run_scenario(job: tuple) -> dict:
     """One scenario on one valve (seed 0): metrics, hunting plateaus, fault, peak current."""
-    vname, mode, scen = job
+    vname, mode, scen, *sets = job
     plant, ctrl = overrides(VALVES[vname])
+    ctrl = {**ctrl, **(sets[0] if sets else {})}
     out = {"valve": vname, "mode": mode, "kind": "scenario", "name": scen}
     try:
         res = sim.run(scen, mode=mode, plant_overrides=plant, controller_overrides=ctrl, seed=0)
@@ -180,8 +182,9 @@ def run_scenario(job: tuple) -> dict:
 
 def run_campaign(job: tuple) -> dict:
     """One nominal-box plateau run (robustness.py's case) on one valve."""
-    vname, mode, seed = job
+    vname, mode, seed, *sets = job
     plant, ctrl = overrides(VALVES[vname])
+    ctrl = {**ctrl, **(sets[0] if sets else {})}
     case = R.sample_case(seed, "nominal")
     out = {"valve": vname, "mode": mode, "kind": "campaign", "name": f"seed{seed}"}
     try:
@@ -273,7 +276,15 @@ def main(argv=None) -> int:
     ap.add_argument("--modes", default=",".join(MODES))
     ap.add_argument("--scenarios", default=",".join(SCENARIOS))
     ap.add_argument("--json", metavar="PATH", help="also write every run here")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="controller.KEY=VALUE",
+                    help="controller parameter override on every valve (repeatable; after the valve's own model)")
     args = ap.parse_args(argv)
+    try:
+        sets = parse_overrides(args.overrides, ("controller",))["controller"]
+        CONTROLLER_SPEC.load(None, sets)
+    except ConfigError as exc:
+        print(f"other_valves: {exc}", file=sys.stderr)
+        return 2
     valves = [v for v in args.valves.split(",") if v]
     unknown = [v for v in valves if v not in VALVES]
     if unknown:
@@ -283,8 +294,8 @@ def main(argv=None) -> int:
     scens = [s for s in args.scenarios.split(",") if s]
     for s in scens:
         load_scenario(s)
-    jobs = [(run_scenario, (v, m, s)) for v in valves for m in modes for s in scens]
-    jobs += [(run_campaign, (v, m, args.seed + i)) for v in valves for m in modes for i in range(args.runs)]
+    jobs = [(run_scenario, (v, m, s, sets)) for v in valves for m in modes for s in scens]
+    jobs += [(run_campaign, (v, m, args.seed + i, sets)) for v in valves for m in modes for i in range(args.runs)]
     start = time.perf_counter()
     if args.jobs > 1:
         with Pool(args.jobs) as pool:

@@ -655,6 +655,14 @@ class FineConfig:
                                    # task h37m, docs §95)
     handover_unwind: bool = False  # a new demand from HOLD with the twist on the new move's side of the band's middle:
                                    # the gear output moved to the middle before the hand-over (task h38s, docs §98)
+    handover_unwind_max_jumps: float = 0.0  # ... only for a new demand within this many nominal stick-slip jumps of
+                                            # the valve (0: any; task h39h, docs §101)
+    handover_unwind_near: float = 0.0  # ... only with the twist within this many (T_s - T_c)/K of the new move's learned
+                                       # breakaway (0: anywhere on that side; task h39h, docs §101)
+    hold_relax: float = 0.0  # in HOLD: the twist moved this fraction of the way to the static band's middle (between the
+                             # two learned breakaways), slowly, so that the next demand's move starts from a symmetric
+                             # twist (0: off, today's; task h39h, docs §101)
+    hold_relax_periods: int = 60  # ... the move's length, periods (a sin² blend)
     handover_settle_speed: float = 0.0  # a new demand mid-park / -pulse / -observe: the stage holds the gear output
                                         # where it is until it turns slower than this (rad/s) with the valve at rest
                                         # (or 2 x observe_periods), then hands over (0: at once, today's; task h38s,
@@ -771,6 +779,7 @@ class FinePositioner:
         self._target = None
         self._handover = None             # (fine.handover_settle_speed_rad_s) a hand-over waiting for the gear output
         self._unwind = None               # (fine.handover_unwind) the hold's unwinding before a hand-over
+        self._relax = None                # (fine.hold_relax) the hold's relaxation toward the band's middle
         if measurements:
             self._rest = 0
             self._last_valve = None
@@ -979,16 +988,37 @@ class FinePositioner:
         if not cfg.handover_unwind or self.phase != HOLD:
             return None
         if self._unwind is None:
+            jumps = cfg.handover_unwind_max_jumps
+            if jumps > 0.0 and abs(target - thl) > jumps * self.m.friction(pressure_kpa).stick_slip_jump_rad(
+                    self.m.coupling_stiffness_nm_per_rad):
+                # (task h39h, docs §101) a step larger than the jump: started next to that way's breakaway the valve
+                # lets go at once and slides toward the target, no further than it is; unwound to the middle first,
+                # the main law's move stopped short more often (nominal 2028 #7, 2031 #6: 4.2-4.5e-3 short, its hold
+                # then crept a whole jump past: 57.6 / 44.9 %)
+                return None
             d = 1 if target > thl else -1
             mid = 0.5 * (self._twists(thl, pressure_kpa, 1)[1] + self._twists(thl, pressure_kpa, -1)[1])
             if d * ((th1 - thl) - mid) <= 0.0:
                 return None
-            self._unwind = [th1, thl + mid, 0, thl]     # (gear output from, to, periods, the valve at the start)
-        th1_0, th1_1, k, thl0 = self._unwind
+            near = cfg.handover_unwind_near
+            if near > 0.0:
+                fl = self.m.friction(pressure_kpa)
+                gap = d * (self._twists(thl, pressure_kpa, d)[1] - (th1 - thl))   # twist left to that breakaway
+                if gap > near * (fl.valve_static_nm - fl.valve_coulomb_nm) / self.m.coupling_stiffness_nm_per_rad:
+                    # (task h39h) far enough from it that the main law's move creeps rather than lets go at once
+                    # (nominal 2013 #2: 4.6e-3 rad of twist left; unwound, the plateau ended 1.3e-3 off, the next 5e-3)
+                    return None
+            self._unwind = [th1, thl + mid, 0, thl, target]   # (gear output from, to, periods, the valve and the
+                                                                # demand at the start)
+        th1_0, th1_1, k, thl0, target0 = self._unwind
         k += 1
         self._unwind[2] = k
         n = max(cfg.observe_periods, 1)
         if abs(thl - thl0) > 2.0 * cfg.tolerance_rad or k > n + 3:
+            return None
+        if cfg.handover_unwind_max_jumps > 0.0 and abs(target - target0) > 1e-12:
+            # (task h39h) the demand moves on (a ramp's start, a sweep): followed by the main law, at once -- unwound,
+            # a ramp from a hold started 18 periods late (startup seed 1: its ramp's path and later plateaus changed)
             return None
         x, v, a = self._blend(th1_0, th1_1, k * self.period, n * self.period)
         return self._servo(x, a, th1, w1, thl, v)
@@ -2026,7 +2056,38 @@ class FinePositioner:
                 return self._servo(base + ref, 0.0, th1, w1, thl, integrate=False)
             return self._servo(base + ref, 0.0, th1, w1, thl)
         # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
+        if cfg.hold_relax > 0.0:
+            return self._hold_relaxing(th1, w1, thl, pressure_kpa)
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
+
+    def _hold_relaxing(self, th1: float, w1: float, thl: float, pressure_kpa: float) -> float:
+        """(``fine.hold_relax``, task h39h, docs §101) The hold's torque while the stage moves the held twist
+        ``fine.hold_relax`` of the way to the static band's middle (the mean of the two learned breakaway twists at this
+        angle and Δp, the load included) over ``fine.hold_relax_time_s`` (a sin² blend), then holds there.  Why: a hold
+        is entered where the last try stopped -- after a doublet, on the side of the band it pushed, next to that way's
+        breakaway (`startup` seed 0, C2: 2.8e-3 rad of twist short of the opening breakaway, the band ~2.2e-2 wide).
+        The next demand's move that way then breaks the valve loose at once and its stick-slip jump (5.7e-3) ran past a
+        5.2e-3 step (14.6 %); from the middle every later move winds half a band first, either way alike.  The
+        middle lies inside both breakaways, and the move goes away from the near one, so the valve stays; should it
+        move anyway (more than half a tolerance: a band learned wrong), the blend stops and the gear output is held
+        where its reference was.  A new hold (a new ``_hold_ref``) plans a new relaxation."""
+        cfg = self.cfg
+        rel = self._relax
+        if rel is None or rel[0] != self._hold_ref:
+            mid = 0.5 * (self._twists(thl, pressure_kpa, 1)[1] + self._twists(thl, pressure_kpa, -1)[1])
+            twist = self._hold_ref - thl
+            rel = self._relax = [self._hold_ref, self._hold_ref + cfg.hold_relax * (mid - twist), 0, thl, None]
+        th1_0, th1_1, k, thl0, stop = rel
+        if stop is not None:
+            return self._servo(stop, 0.0, th1, w1, thl)
+        k += 1
+        rel[2] = k
+        n = max(cfg.hold_relax_periods, 1)
+        x, v, a = self._blend(th1_0, th1_1, k * self.period, n * self.period)
+        if abs(thl - thl0) > 0.5 * cfg.tolerance_rad or k >= n:
+            rel[4] = x if k < n else th1_1         # the valve moved: held where the reference is; or the blend is done
+            return self._servo(rel[4], 0.0, th1, w1, thl)
+        return self._servo(x, a, th1, w1, thl, v)
 
     def _doublet_jump_range(self, pressure_kpa: float) -> float:
         """Errors up to this (rad) may get a doublet besides ``fine.doublet_max_error_rad``:

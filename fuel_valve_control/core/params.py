@@ -702,6 +702,22 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "gear output to the band's middle over fine.observe_time_s before handing over (held next to that way's "
           "breakaway, the main law's small step broke the valve loose at once and its stick-slip jump ran past: "
           "startup seed 0 with C2, 14.6 %; task h38s, docs section 98)", runtime=True),
+    Param("fine.handover_unwind_max_jumps", 0.0, "", "with fine.handover_unwind: only a new demand within this many "
+          "nominal stick-slip jumps (at the present delta-p) of the valve is unwound for; a larger step hands over at "
+          "once (unwound to the middle, the main law's larger moves stopped short more often and its hold then crept a "
+          "whole jump past); 0 = any step (task h39h, docs section 101)", 0.0, 100.0, runtime=True),
+    Param("fine.handover_unwind_near", 0.0, "", "with fine.handover_unwind: only a hold whose twist lies within this "
+          "many (T_s - T_c)/K of the new move's learned breakaway is unwound for (farther, the main law's move creeps "
+          "rather than lets go at once); 0 = anywhere on that side (task h39h, docs section 101)", 0.0, 100.0,
+          runtime=True),
+    Param("fine.hold_relax", 0.0, "", "while the fine stage holds the valve (plateau done), the gear output moves the "
+          "held twist this fraction of the way to the static band's middle (between the two learned breakaway twists, "
+          "the load included), slowly (fine.hold_relax_time_s), stopping if the valve moves: held next to the breakaway "
+          "its last doublet pushed toward, the next small step that way broke the valve loose at once and its "
+          "stick-slip jump ran past (startup seed 0 with C2, 14.6 %); 0 = off (task h39h, docs section 101)",
+          0.0, 1.0, runtime=True),
+    Param("fine.hold_relax_time_s", 0.06, "s", "the length of fine.hold_relax's move (a sin^2 blend; task h39h, docs "
+          "section 101)", 0.001, 1.0, runtime=True),
     Param("fine.handover_settle_speed_rad_s", 0.0, "rad/s", "a new demand arriving while the fine stage is mid-park, "
           "-pulse or -observe: the stage holds the gear output where it is until it turns slower than this with the "
           "valve at rest (at most 2 x fine.observe_time_s), then hands over; the main law restarts with its observer's "
