@@ -343,7 +343,7 @@ class PositionController:
                           apex_kick_max_a=ps["fine.apex_kick_max_a"], apex_kick_ratio=ps["fine.apex_kick_ratio"], apex_retreat_periods=ps["fine.apex_retreat_periods"],
                           apex_excess_nominal=ps["fine.apex_excess_nominal"], apex_floor_plan=ps["fine.apex_floor_plan"],
                           apex_kick_continuous=ps["fine.apex_kick_continuous"], apex_worse_given_move=ps["fine.apex_worse_given_move"], apex_level_law=ps["fine.apex_level_law"],
-                          engage_gear_rest=ps["fine.engage_gear_rest"], handover_settle_speed=ps["fine.handover_settle_speed_rad_s"], handover_unwind=ps["fine.handover_unwind"],
+                          engage_gear_rest=ps["fine.engage_gear_rest"], handover_settle_speed=ps["fine.handover_settle_speed_rad_s"], apex_stop_rad=ps["fine.apex_stop_rad"], handover_unwind=ps["fine.handover_unwind"],
                           apex_floor_repeat=ps["fine.apex_floor_repeat"],
                           retreat_cap=ps["fine.retreat_cap"], retreat_cap_half=ps["fine.retreat_cap_half"], observe_hold_integral=ps["fine.observe_hold_integral"],
                           observe_hold_moved=ps["fine.observe_hold_moved"],
