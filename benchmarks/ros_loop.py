@@ -4,7 +4,16 @@
 Starts ``plant``, ``controller`` and ``demand`` (a slow sine, so the loop works) as real
 processes through their installed executables (the run-plan and launcher of
 ``fuel_valve_demo``), lets them run, then stops them and reads the plant's loop statistics
-from ``/diagnostics``:
+from ``/diagnostics``.  The fine stage never engages on the sine: ``--demand plateaus`` plays
+the nominal box's campaign case ``--plateau-seed`` instead (benchmarks/robustness.py: its plant,
+its controller knowledge and its random 0.1-5 % plateaus, as many as the run needs, through the
+demand node as corner points), so the apex policy chooses its tries as in the campaign (task
+h39n, docs §103).  ``--build "LABEL KEY=VALUE ..."`` (repeatable): controller builds, each run
+once per repeat, interleaved.  Per run also the controller's own figures from its
+``/diagnostics`` over the window: periods whose sample -> command time passed 0.5 / 1 / 2 ms,
+the work left for after a command (``fine.apex_choice_after_command``: count, over 0.5 / 1 /
+2 ms, max), the apex policy's tries chosen, its late-loop events (each stands the fine stage
+aside for ``fine.late_loop_holdoff_s``) and its last status line (a latched fault shows there):
 
 * round trip plant -> controller -> plant: time from publishing a resolver sample to
   receiving the current command computed from it (median / p99 / max, over the run),
@@ -50,6 +59,7 @@ printed is one JSON object: ``{"runs": [...], "summary": {variant: {...}}}``.
                                   [--nice recorder=5,monitor=5|off] [--affinity plant=0,controller=1]
                                   [--fifo plant,controller] [--timer-slack 1000]
     python benchmarks/ros_loop.py --lockstep 10 [--repeat 3] [--profile]
+    python benchmarks/ros_loop.py --demand plateaus --seconds 30 --repeat 3 --build "inline fine.apex_choice_after_command=false" --build after
 """
 from __future__ import annotations
 
@@ -238,6 +248,7 @@ def run_real_time(args, record: bool, domain: int, tmp: Path, build: tuple[str, 
         over = {}                        # controller: periods over each compute threshold, summed over reports
         driver = {}                      # controller: its last counts (apex choices, late loops) and at the window's start
         after_max = []                   # controller: the work after a command, the worst per report (ms)
+        status = {}                      # controller: its last status message and move-table status
 
         def on_diag(msg):
             for st in msg.status:
@@ -252,6 +263,7 @@ def run_real_time(args, record: bool, domain: int, tmp: Path, build: tuple[str, 
                     for key in ("apex_choices", "apex_choices_after_command", "late_loop_events"):
                         if values.get(key, "n/a") != "n/a":
                             driver[key] = int(values[key])
+                    status.update(move_tables=values.get("move_tables"), message=st.message)
                     if measuring:
                         driver.setdefault("at_start", {k: v for k, v in driver.items() if k != "at_start"})
                         for key, value in values.items():
@@ -307,6 +319,7 @@ def run_real_time(args, record: bool, domain: int, tmp: Path, build: tuple[str, 
         "controller_compute_over": dict(sorted(over.items())),
         "controller_periods": sum(c[2] for c in compute),
         "controller_after_command_max_ms": round(max(after_max, default=0.0), 3),
+        "controller_status": dict(status),
         # the window's apex choices (all / run after their command) and late-loop events (each stands the fine stage
         # aside for fine.late_loop_holdoff_s)
         **{f"controller_{k}": driver[k] - driver.get("at_start", {}).get(k, 0)
