@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT / "benchmarks") not in sys.path:
     sys.path.insert(0, str(ROOT / "benchmarks"))
 
-#: nominal box seed 1000's first 2.5 s: four plateaus, the apex policy chooses 9 tries (C1)
+#: nominal box seed 1000's first 2.5 s: four plateaus, the apex policy chooses 6 tries (C1)
 SEED, SECONDS = 1000, 2.5
 
 
@@ -58,6 +58,18 @@ def test_the_choice_after_the_command_gives_the_same_commands_to_the_last_bit():
     assert f_offline.apex_choices_after_command == f_offline.apex_choices
     assert node == inline
     assert offline == inline
+
+
+def test_the_choice_stays_inline_where_the_starting_period_reads_it():
+    """With ``fine.retreat_stop_unmoved`` the starting period's observe servo holds short of the new preload (set from
+    the choice): there the choice stays inline, and the commands are the option-off ones.  (Left after the command, the
+    commands differed from period 357 on: checked by removing the guard.)"""
+    sets = {"fine.retreat_stop_unmoved": True}
+    inline, f_inline, _ = _closed_loop({**sets, "fine.apex_choice_after_command": False}, True)
+    on, f_on, ran = _closed_loop(sets, True)
+    assert f_on.apex_choices == f_inline.apex_choices >= 5
+    assert f_on.apex_choices_after_command == 0 and ran == 0
+    assert on == inline
 
 
 def test_a_pending_start_runs_before_a_reset_and_before_the_next_update():
