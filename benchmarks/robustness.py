@@ -183,9 +183,11 @@ def controller_knowledge(case: dict) -> dict:
     return told
 
 
-def case_scenario(case: dict):
-    """The plateau-sequence scenario of a case (the plant starts held at the first plateau)."""
-    demand = {"type": "plateaus", "seed": case["plateau_seed"], "count": 12, "initial": case["initial_pct"],
+def case_scenario(case: dict, count: int = 12):
+    """The plateau-sequence scenario of a case (the plant starts held at the first plateau): ``count`` plateaus
+    (the campaign's 12; ``benchmarks/ros_loop.py --demand plateaus`` draws as many as its real-time run needs: the
+    same first 12 steps, the 12th plateau held 0.3-0.8 s instead of ``final_hold_s``)."""
+    demand = {"type": "plateaus", "seed": case["plateau_seed"], "count": int(count), "initial": case["initial_pct"],
               "start_s": 0.3, "min_step_pct": 0.1, "max_step_pct": 5.0, "hold_s": [0.3, 0.8],
               "final_hold_s": 4.0, "low": PLATEAU_LOW_PCT, "high": PLATEAU_HIGH_PCT,
               "noise_rms_pct": case["demand_noise_pct"], "noise_seed": case["seed"], "glitches": case["glitches"]}

@@ -4,7 +4,16 @@
 Starts ``plant``, ``controller`` and ``demand`` (a slow sine, so the loop works) as real
 processes through their installed executables (the run-plan and launcher of
 ``fuel_valve_demo``), lets them run, then stops them and reads the plant's loop statistics
-from ``/diagnostics``:
+from ``/diagnostics``.  The fine stage never engages on the sine: ``--demand plateaus`` plays
+the nominal box's campaign case ``--plateau-seed`` instead (benchmarks/robustness.py: its plant,
+its controller knowledge and its random 0.1-5 % plateaus, as many as the run needs, through the
+demand node as corner points), so the apex policy chooses its tries as in the campaign (task
+h39n, docs §103).  ``--build "LABEL KEY=VALUE ..."`` (repeatable): controller builds, each run
+once per repeat, interleaved.  Per run also the controller's own figures from its
+``/diagnostics`` over the window: periods whose sample -> command time passed 0.5 / 1 / 2 ms,
+the work left for after a command (``fine.apex_choice_after_command``: count, over 0.5 / 1 /
+2 ms, max), the apex policy's tries chosen, its late-loop events (each stands the fine stage
+aside for ``fine.late_loop_holdoff_s``) and its last status line (a latched fault shows there):
 
 * round trip plant -> controller -> plant: time from publishing a resolver sample to
   receiving the current command computed from it (median / p99 / max, over the run),
@@ -50,11 +59,13 @@ printed is one JSON object: ``{"runs": [...], "summary": {variant: {...}}}``.
                                   [--nice recorder=5,monitor=5|off] [--affinity plant=0,controller=1]
                                   [--fifo plant,controller] [--timer-slack 1000]
     python benchmarks/ros_loop.py --lockstep 10 [--repeat 3] [--profile]
+    python benchmarks/ros_loop.py --demand plateaus --seconds 30 --repeat 3 --build "inline fine.apex_choice_after_command=false" --build after
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import random
 import re
@@ -65,15 +76,51 @@ import tempfile
 import time
 from pathlib import Path
 
-from fuel_valve_control.common.paramspec import ConfigError
-from fuel_valve_control.ros.node_runner import GC_FREEZE_ENV, PROFILE_ENV, TIMER_SLACK_ENV
-from fuel_valve_control.tools.launcher import Launcher, add_scheduling_arguments, scheduling_from_args
-from fuel_valve_control.tools.run_plan import LOCKSTEP, REAL_TIME, plan_run
-from fuel_valve_control.tools.scenarios import load_scenario, parse_scenario
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from fuel_valve_control.common.paramspec import ConfigError, parse_overrides  # noqa: E402
+from fuel_valve_control.ros.node_runner import GC_FREEZE_ENV, PROFILE_ENV, TIMER_SLACK_ENV  # noqa: E402
+from fuel_valve_control.tools.launcher import Launcher, add_scheduling_arguments, scheduling_from_args  # noqa: E402
+from fuel_valve_control.tools.run_plan import LOCKSTEP, REAL_TIME, plan_run  # noqa: E402
+from fuel_valve_control.tools.scenarios import load_scenario, parse_scenario  # noqa: E402
 
 #: the demand: a slow sine around 40 %, so the valve keeps moving
 DEMAND = {"type": "sine", "offset": 40.0, "amplitude": 5.0, "frequency_hz": 0.5}
 NS = "/fuel_valve_bench"
+#: ``--demand plateaus``: the shortest plateau of the nominal box's sequence (s), so a run of
+#: ``--seconds`` plus its warm-up never runs out of plateaus
+PLATEAU_MIN_HOLD_S = 0.3
+#: ... and what the warm-up and the stop may take on top of ``--seconds`` (s)
+PLATEAU_MARGIN_S = 90.0
+
+
+def parse_build(text: str) -> tuple[str, dict]:
+    """``--build "LABEL [section.]key=value ..."``: a label and the controller parameters of that build
+    (``controller.`` may be left out; values as ``--set``'s)."""
+    label, *items = text.split()
+    items = [i if i.startswith("controller.") else "controller." + i for i in items]
+    return label, parse_overrides(items, ("controller",))["controller"]
+
+
+def demand_plan(args, build: dict, timing: str = REAL_TIME):
+    """The real-time run's plan: the slow sine (``--demand sine``, the default) on the configured plant, or
+    (``--demand plateaus``) the nominal box's campaign case ``--plateau-seed`` (benchmarks/robustness.py: its
+    plant -- friction scatter, ripple, seed -- its controller knowledge and its plateau sequence, as many
+    plateaus as the run needs, the plant started held at the first) -- so the fine stage engages and makes its
+    tries as in the campaign.  ``build``: the run's controller parameters on top."""
+    if args.demand == "sine":
+        scenario = parse_scenario({"name": "ros_loop_benchmark", "duration_s": 3600.0, "demand": DEMAND})
+        return plan_run(scenario, timing, mode=args.mode, controller_overrides=dict(build),
+                        demand_overrides={"publish_rate_hz": args.demand_rate})
+    import robustness as R      # noqa: PLC0415 (benchmarks/; the campaign's cases)
+    case = R.sample_case(args.plateau_seed, "nominal")
+    count = int(math.ceil((args.seconds + PLATEAU_MARGIN_S) / PLATEAU_MIN_HOLD_S))
+    scenario = R.case_scenario(case, count=count)
+    return plan_run(scenario, timing, mode=args.mode, plant_overrides=R.plant_overrides(case),
+                    controller_overrides={**R.controller_knowledge(case), **build},
+                    demand_overrides={"publish_rate_hz": args.demand_rate})
 
 
 def cpu_seconds(pid: int) -> float:
@@ -176,10 +223,10 @@ def run_main(args, domain: int, tmp: Path) -> dict:
             "load_average": os.getloadavg()[0]}
 
 
-def run_real_time(args, record: bool, domain: int, tmp: Path) -> dict:
-    """One real-time run (with or without the recorder); the result dict."""
-    scenario = parse_scenario({"name": "ros_loop_benchmark", "duration_s": 3600.0, "demand": DEMAND})
-    plan = plan_run(scenario, REAL_TIME, mode=args.mode, demand_overrides={"publish_rate_hz": args.demand_rate})
+def run_real_time(args, record: bool, domain: int, tmp: Path, build: tuple[str, dict] = ("", {})) -> dict:
+    """One real-time run (with or without the recorder) of ``build`` (label, controller parameters); the
+    result dict."""
+    plan = demand_plan(args, build[1])
     profile_dir = tmp / "profile" if args.profile else None
     launcher = Launcher(plan, NS, run_dir=tmp, bag=tmp / "bag" if record else None,
                         env=_env(args, domain, profile_dir), scheduling=scheduling_from_args(args))
@@ -198,6 +245,10 @@ def run_real_time(args, record: bool, domain: int, tmp: Path) -> dict:
         executor = rclpy.executors.SingleThreadedExecutor(context=context)
         executor.add_node(node)
         compute = []                     # controller: mean / max ms per period, per report
+        over = {}                        # controller: periods over each compute threshold, summed over reports
+        driver = {}                      # controller: its last counts (apex choices, late loops) and at the window's start
+        after_max = []                   # controller: the work after a command, the worst per report (ms)
+        status = {}                      # controller: its last status message and move-table status
 
         def on_diag(msg):
             for st in msg.status:
@@ -209,6 +260,18 @@ def run_real_time(args, record: bool, domain: int, tmp: Path) -> dict:
                 elif st.name.endswith("valve driver") and values.get("compute_mean_ms", "n/a") != "n/a":
                     compute.append((float(values["compute_mean_ms"]), float(values["compute_max_ms"]),
                                     int(values["samples_since_last_report"])))
+                    for key in ("apex_choices", "apex_choices_after_command", "late_loop_events"):
+                        if values.get(key, "n/a") != "n/a":
+                            driver[key] = int(values[key])
+                    status.update(move_tables=values.get("move_tables"), message=st.message)
+                    if measuring:
+                        driver.setdefault("at_start", {k: v for k, v in driver.items() if k != "at_start"})
+                        for key, value in values.items():
+                            if key.startswith(("compute_over_", "after_command_over_")) or key == "after_command_count":
+                                over[key] = over.get(key, 0) + int(value)
+                        if values.get("after_command_max_ms", "n/a") != "n/a":
+                            after_max.append(float(values["after_command_max_ms"]))
+        measuring = False
         node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
         # warm-up: wait until the loop runs, then measure over a fresh window
         deadline = time.monotonic() + 60.0
@@ -217,6 +280,8 @@ def run_real_time(args, record: bool, domain: int, tmp: Path) -> dict:
         if not stats:
             raise SystemExit("the loop never started: " + "; ".join(launcher.log_tail(n) for n in launcher.failed()))
         start_stats = dict(stats)
+        compute.clear()                  # the window's reports only
+        measuring = True
         cpu0 = {n: cpu_seconds(p.pid) for n, p in procs.items()}
         t0 = time.monotonic()
         while time.monotonic() - t0 < args.seconds:
@@ -237,6 +302,7 @@ def run_real_time(args, record: bool, domain: int, tmp: Path) -> dict:
     missed = int(stats["missed"]) - int(start_stats["missed"])
     result = {
         "variant": "record" if record else "plain",
+        "build": build[0], "controller_sets": build[1], "demand": args.demand,
         "seconds": round(wall, 1),
         "ticks": ticks,
         # over the plant's own time between the two statistics messages (the window's ends)
@@ -249,6 +315,15 @@ def run_real_time(args, record: bool, domain: int, tmp: Path) -> dict:
         "cpu_fraction": {k: round(v, 3) for k, v in cpu.items()},
         "controller_compute_mean_ms": round(sum(c[0] * c[2] for c in compute) / max(sum(c[2] for c in compute), 1), 4),
         "controller_compute_max_ms": round(max((c[1] for c in compute), default=0.0), 3),
+        # periods whose compute time (sample in -> command out) passed 0.5 / 1 / 2 ms, in the window
+        "controller_compute_over": dict(sorted(over.items())),
+        "controller_periods": sum(c[2] for c in compute),
+        "controller_after_command_max_ms": round(max(after_max, default=0.0), 3),
+        "controller_status": dict(status),
+        # the window's apex choices (all / run after their command) and late-loop events (each stands the fine stage
+        # aside for fine.late_loop_holdoff_s)
+        **{f"controller_{k}": driver[k] - driver.get("at_start", {}).get(k, 0)
+           for k in ("apex_choices", "apex_choices_after_command", "late_loop_events") if k in driver},
         "exit_codes": {n: p.returncode for n, p in procs.items()},
         "tick_lateness": tick_lateness(stats),
         "levers": levers(args, launcher, stats),
@@ -315,9 +390,13 @@ def describe(r: dict) -> str:
                 f"{r['missed_per_second']}; worst driver status {r['worst_status']}"
                 + (f" ({' | '.join(r['faults'])})" if r.get("faults") else "")
                 + f"; recorder lost {r['recorder_lost']}; levers {r['levers']}; load {r['load_average']:.1f}")
-    line = (f"{r['variant']:<6} {r['seconds']} s: {r['ticks']} ticks ({r['rate_hz']} Hz), missed {r['missed_pct']:.3f} %, "
+    line = (f"{r['variant']:<6}{' ' + r['build'] if r.get('build') else ''} {r['seconds']} s: {r['ticks']} ticks ({r['rate_hz']} Hz), missed {r['missed_pct']:.3f} %, "
             f"round trip median {r['rtt_median_ms']} ms, p99 {r['rtt_p99_ms']} ms, max {r['rtt_max_ms']} ms; CPU "
-            f"{r['cpu_fraction']}; controller compute mean {r['controller_compute_mean_ms']} ms; tick lateness "
+            f"{r['cpu_fraction']}; controller compute mean {r['controller_compute_mean_ms']} ms, max "
+            f"{r['controller_compute_max_ms']} ms, periods over {r.get('controller_compute_over')} of "
+            f"{r.get('controller_periods')}; apex choices {r.get('controller_apex_choices')} (after the command "
+            f"{r.get('controller_apex_choices_after_command')}, max {r.get('controller_after_command_max_ms')} ms); "
+            f"late loops {r.get('controller_late_loop_events')}; tick lateness "
             f"{r['tick_lateness']}; levers {r['levers']}; load {r['load_average']:.1f}")
     if "recorder_lost" in r:
         line += (f"\n       recorder: {r['bag_messages']} messages in the bag, lost {r['recorder_lost']}, start-up "
@@ -344,21 +423,32 @@ def summarise(runs: list[dict]) -> dict:
             "main": ("missed_pct", "rtt_median_ms", "rtt_p99_ms", "rtt_max_ms", "recorder_lost"),
             "lockstep": ("speed", "wall_s", "period_wall_us")}
     out = {}
+    builds = sorted({r.get("build") or "" for r in runs}, key=[r.get("build") or "" for r in runs].index)
     for variant in keys:
-        rs = [r for r in runs if r["variant"] == variant]
-        if not rs:
-            continue
-        out[variant] = {"runs": len(rs)}
-        for k in keys[variant]:
-            vals = [r[k] for r in rs if r.get(k) is not None]
-            if vals:
-                out[variant][k] = {"median": statistics.median(vals), "min": min(vals), "max": max(vals),
-                                   "each": vals}
-        cpu = {}
-        for r in rs:
-            for proc, v in r.get("cpu_fraction", r.get("cpu_us_per_period", {})).items():
-                cpu.setdefault(proc, []).append(v)
-        out[variant]["cpu_median"] = {p: statistics.median(v) for p, v in cpu.items()}
+        for build in builds:
+            rs = [r for r in runs if r["variant"] == variant and (r.get("build") or "") == build]
+            if not rs:
+                continue
+            name = variant if len(builds) == 1 or not build else f"{variant}/{build}"
+            out[name] = {"runs": len(rs)}
+            for k in keys[variant] + (("controller_compute_mean_ms", "controller_compute_max_ms")
+                                      if variant in ("plain", "record") else ()):
+                vals = [r[k] for r in rs if r.get(k) is not None]
+                if vals:
+                    out[name][k] = {"median": statistics.median(vals), "min": min(vals), "max": max(vals),
+                                    "each": vals}
+            cpu = {}
+            for r in rs:
+                for proc, v in r.get("cpu_fraction", r.get("cpu_us_per_period", {})).items():
+                    cpu.setdefault(proc, []).append(v)
+            out[name]["cpu_median"] = {p: statistics.median(v) for p, v in cpu.items()}
+            over = {}
+            for r in rs:
+                for key, v in r.get("controller_compute_over", {}).items():
+                    over[key] = over.get(key, 0) + v
+            if over:
+                out[name]["controller_compute_over_total"] = dict(sorted(over.items()))
+                out[name]["controller_periods_total"] = sum(r.get("controller_periods", 0) for r in rs)
     return out
 
 
@@ -377,6 +467,14 @@ def main() -> int:
     parser.add_argument("--lockstep-scenario", default=None, help="scenario of the lockstep runs (default: the "
                         "start-up profile)")
     parser.add_argument("--repeat", type=int, default=1, help="runs of each variant (interleaved)")
+    parser.add_argument("--demand", choices=("sine", "plateaus"), default="sine",
+                        help="plain / record runs: the slow sine (default; the fine stage never engages on it) or "
+                             "the nominal box's random plateaus (benchmarks/robustness.py, case --plateau-seed)")
+    parser.add_argument("--plateau-seed", type=int, default=1000, help="--demand plateaus: the campaign case")
+    parser.add_argument("--build", action="append", default=[], metavar='"LABEL [controller.]KEY=VALUE ..."',
+                        help="plain / record runs: a controller build (its parameters on top of the config); "
+                             "several: every variant runs once per build, interleaved (default: one build, the "
+                             "config's)")
     parser.add_argument("--profile", action="store_true", help="cProfile every node's executor thread")
     parser.add_argument("--domain", type=int, default=None,
                         help="ROS_DOMAIN_ID for the runs (default: $ROS_DOMAIN_ID, else a random one in 100-200)")
@@ -392,12 +490,20 @@ def main() -> int:
         scheduling_from_args(args)
     except ValueError as exc:
         parser.error(str(exc))
+    try:
+        builds = [parse_build(b) for b in args.build] or [("default", {})]
+        for _, sets in builds:
+            demand_plan(args, sets)             # a bad parameter is an error before any run
+    except (ConfigError, ValueError) as exc:
+        parser.error(str(exc))
+    if len({label for label, _ in builds}) != len(builds):
+        parser.error("--build labels must differ")
     domain = args.domain if args.domain is not None else int(os.environ.get("ROS_DOMAIN_ID") or random.randint(100, 200))
     variants = ["lockstep"] if args.lockstep else ["record"] if args.record else ["main"] if args.main else \
         ["plain", "record"] if args.both else ["plain", "record", "main"] if args.all else ["plain"]
     runs = []
     for k in range(args.repeat):
-        for variant in variants:
+        for variant, build in [(v, b) for v in variants for b in (builds if v in ("plain", "record") else builds[:1])]:
             tmp = Path(tempfile.mkdtemp(prefix="ros_loop_"))
             try:
                 if variant == "lockstep":
@@ -405,7 +511,7 @@ def main() -> int:
                 elif variant == "main":
                     r = run_main(args, domain, tmp)
                 else:
-                    r = run_real_time(args, variant == "record", domain, tmp)
+                    r = run_real_time(args, variant == "record", domain, tmp, build)
             except ConfigError as exc:
                 print(f"ros_loop: {exc}", file=sys.stderr)
                 return 2

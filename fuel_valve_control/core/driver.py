@@ -708,6 +708,17 @@ class ValveDriver:
         return self.last
 
     # ------------------------------------------------------------------ loop
+    def after_period(self) -> bool:
+        """Work the law left for after this period's command (the fine stage's apex choice of a try an observe's
+        verdict started, ``fine.apex_choice_after_command``): the ROS node calls it once the command is published,
+        off the sample -> command path; not calling it is the same (the next :meth:`step` does it first).  Never
+        raises (an exception latches :data:`INTERNAL`, as in :meth:`step`).  Returns whether there was any."""
+        try:
+            return self.controller.after_period()
+        except Exception as exc:           # noqa: BLE001 - see the module docstring
+            self.internal_fault("after_period", exc)
+            return False
+
     def step(self, t: float) -> DriverOutput:
         """One loop period at time ``t`` (s): the command and drive enable.  Never raises: an
         exception inside latches :data:`INTERNAL` and returns the fail-safe output."""

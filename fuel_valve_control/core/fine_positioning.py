@@ -643,6 +643,8 @@ class FineConfig:
     apex_excess_nominal: bool = False  # ... the model's excess against the stage model's Coulomb equilibrium, not the
                                        # learned swing centre (task h34m, docs §85)
     apex_floor_plan: bool = False  # ... an unmoved try truncates the law at max(measured apex, planned apex)
+    apex_choice_after_command: bool = False  # ... the choice of a try started by an observe's verdict runs after the
+                                             # period's command (run_pending; task h39n, docs §103): same bits
     apex_kick_continuous: bool = False  # ... after an unmoved try: preload at that apex, the kick sized to the apex
     apex_worse_given_move: bool = False  # ... no try more likely to worsen |e| than not, given that it moves
     apex_level_law: str = "normal"  # ... the level's law: "normal" (the learned scatter), "mixture" (normals over scatters
@@ -711,6 +713,7 @@ class FinePositioner:
     _full_cfg: FineConfig | None = None
 
     def __init__(self, model: NominalModel, period_s: float, cfg: FineConfig, learner: FineLearner):
+        self._pending = None               # (fine.apex_choice_after_command) a try's start left for after the command
         self.m, self.period, self.cfg, self.learn = model, period_s, cfg, learner
         self.m0 = model                    # the told model (self.m: the one the stage plans from)
         self.forget_scale()
@@ -722,6 +725,8 @@ class FinePositioner:
         self.ki = self.kp * w / 8.0        # slow integral: removes the feed-forward's error
         self.timeable = self.servo_margin_rad(j1, self.kp, self.kd, period_s) > 0.0
         self._moves = None                 # fine.apex_policy: the doublet's move model (built when first needed)
+        self.apex_choices = 0              # fine.apex_policy: the tries chosen (:meth:`_choose_apex` calls), a count
+        self.apex_choices_after_command = 0  # ... of them run after their period's command (:meth:`run_pending`)
         self._pushes = {}                  # fine.probe_reached: {(direction, Δp band): rad of twist (>= 0, toward the
                                            # move) a servo-blended pulse's planned peak lies beyond the learned level's}
         # fine.repark_from_state / fine.retreat_unmoved_fraction: kept across resets (the last gear-output
@@ -777,6 +782,9 @@ class FinePositioner:
     def reset(self, measurements: bool = True) -> None:
         """Back to idle; ``measurements=False`` (a new demand) keeps what the resolvers have
         shown: how long the valve has sat still and the twist of the last breakaway seen."""
+        if self._pending is not None:
+            self.run_pending()            # a try's start left for after the command: its verdicts first, as inline
+        self._pending = None              # (fine.apex_choice_after_command) a try's start left for after the command
         self.phase = IDLE
         self._target = None
         self._handover = None             # (fine.handover_settle_speed_rad_s) a hand-over waiting for the gear output
@@ -871,6 +879,8 @@ class FinePositioner:
         """``target`` valve angle, measured ``th1`` (motor resolver / N) and ``thl`` (valve
         resolver), ``holding``: the main law's reference has arrived at ``target``;
         ``torque_now``: the torque applied last period (N*m, motor)."""
+        if self._pending is not None:
+            self.run_pending()            # not run after the last command (offline: nobody calls it): now, the same
         if self._tables_gate == "released" and self.phase == IDLE and (
                 self._plateau is None or abs(target - self._plateau) > self.cfg.tolerance_rad):
             # (task h36b) the deferred move tables are in: the policy from this plateau on (never mid-engagement)
@@ -1125,6 +1135,7 @@ class FinePositioner:
 
     def forget_scale(self) -> None:
         """Back to the told model: no friction scale read (``fine.learned_scale_*``)."""
+        self.run_pending()                  # a try's start left for after the command is planned on the model it had
         self.m = self.m0
         self.applied_scale = None           # (friction scale, load offset in T_s units) the stage plans from, or None
         self._time_scale = 1.0              # the servo-blended pulse's rise and fall times x this
@@ -1350,7 +1361,10 @@ class FinePositioner:
         self._integral = 0.0
         self._start_pulse(th1, thl, pressure_kpa)
 
-    def _start_pulse(self, th1, thl, pressure_kpa):
+    def _start_pulse(self, th1, thl, pressure_kpa, after_command: bool = False):
+        """The next pulse's plan from the valve at ``thl`` (and the gear output at ``th1``).  ``after_command``
+        (an observe's verdict with ``fine.apex_choice_after_command``, :meth:`_after_move`): an apex policy's
+        choice is left for :meth:`run_pending`."""
         cfg = self.cfg
         err = self._target - thl
         d = 1 if err > 0 else -1
@@ -1418,24 +1432,66 @@ class FinePositioner:
                     self._stair = d * (phi_b - self._restair[1]) + cfg.restair_sigmas * self._scatter(d, band, gap)
             self._pre = phi_b - d * (self._kick_rise() + self._stair)
             if cfg.apex_policy:
-                # (task h33p) the apex from the level's law, not the staircase's stair; the preload the model's
-                # kick rise below it
-                apex = self._choose_apex(err, d, phi_e, phi_b, self._scatter(d, band, gap), pressure_kpa, short, thl)
-                if apex is None:
-                    # no try more likely to land than the policy's floor, or more likely to worsen |e|: hold here
-                    self._judge(failed=abs(err) > self._err0 + cfg.tolerance_rad)
-                    # ... at the doublet's final twist (about φe, inside the static band), not at th1: after an
-                    # unmoved doublet th1 lies in its retreat's trough, ~5e-3 rad of twist back (§55.1), and held
-                    # there the valve broke loose backwards (traced, nominal box seed 1017 #5: 5.8e-3 rad)
-                    self.phase = HOLD
-                    self._hold_ref = thl + final
+                choice = (err, d, phi_e, phi_b, self._scatter(d, band, gap), pressure_kpa, short, thl)
+                if after_command:
+                    # (fine.apex_choice_after_command) the choice and what follows from it run after this period's
+                    # command has gone out (:meth:`run_pending`): nothing this period's command reads depends on it
+                    self._pending = (choice, th1, thl, final, None)
                     return
-                self._pre = apex - d * self._apex_rise
+                self._start_try(choice, th1, thl, final)
+                return
         else:
             self._apex_last = None             # (fine.apex_floor_plan) a servo-blended pulse: no planned apex to climb from
         self._plan_park()
         self.phase = PARK
         self._peak_seen = th1 - thl
+
+    def _start_try(self, choice: tuple, th1: float, thl: float, final: float) -> None:
+        """(``fine.apex_policy``; :meth:`_start_pulse`'s end) The policy's choice for the doublet being started --
+        ``choice``: :meth:`_choose_apex`'s arguments, ``th1`` / ``thl`` / ``final`` the start's -- and what follows
+        from it: the park toward the apex's preload, or the hold when no try is worth making."""
+        cfg = self.cfg
+        err, d = choice[0], choice[1]
+        # (task h33p) the apex from the level's law, not the staircase's stair; the preload the model's
+        # kick rise below it
+        apex = self._choose_apex(*choice)
+        if apex is None:
+            # no try more likely to land than the policy's floor, or more likely to worsen |e|: hold here
+            self._judge(failed=abs(err) > self._err0 + cfg.tolerance_rad)
+            # ... at the doublet's final twist (about φe, inside the static band), not at th1: after an
+            # unmoved doublet th1 lies in its retreat's trough, ~5e-3 rad of twist back (§55.1), and held
+            # there the valve broke loose backwards (traced, nominal box seed 1017 #5: 5.8e-3 rad)
+            self.phase = HOLD
+            self._hold_ref = thl + final
+            return
+        self._pre = apex - d * self._apex_rise
+        self._plan_park()
+        self.phase = PARK
+        self._peak_seen = th1 - thl
+
+    def run_pending(self) -> bool:
+        """(``fine.apex_choice_after_command``, task h39n, docs §103) Finish the try whose start an observe's verdict
+        left for after the period's command (:meth:`_start_pulse`): the apex policy's choice (~0.5-1 ms of CPU) and
+        the park or hold it leads to.  The ROS node calls it once the period's command has gone out
+        (``ValveDriver.after_period``); otherwise the next :meth:`update` (or :meth:`reset`) runs it first.  The
+        period that started the try commands what the inline choice's period commanded (its observe servo reads
+        nothing the choice sets) but for the limit-cycle watch's count, which a hold's verdict adds here.  Returns
+        whether there was one."""
+        pending, self._pending = self._pending, None
+        if pending is None:
+            return False
+        choice, th1, thl, final, fb = pending
+        self.apex_choices_after_command += 1
+        self._start_try(choice, th1, thl, final)
+        if self.phase == HOLD and fb is not None:
+            # the servo's limit-cycle watch in the starting period counted a hold as settled (:meth:`_servo`): what
+            # the inline choice's HOLD phase counted there, after the same leak
+            if abs(fb) > OSC_TORQUE_FRACTION * self.cfg.peak_current_a * self.m.torque_constant_nm_per_a:
+                sign = 1 if fb > 0 else -1
+                if sign == -self._osc_sign:
+                    self._osc += 1.0
+                self._osc_sign = sign
+        return True
 
     def _apex_law(self, d: int, phi_b: float, sigma: float,
                   pressure_kpa: float | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -1559,6 +1615,7 @@ class FinePositioner:
         ``fine.apex_min_chance``.  ``short`` > 0 (:meth:`_cross_guard`: the move must not cross): a landing
         counts only on this side of the target, any crossing as a worse |e|."""
         cfg = self.cfg
+        self.apex_choices += 1
         if self._moves is None:
             self._moves = _pulse_moves(self)
         lv, w = self._apex_law(d, phi_b, sigma, pressure_kpa)
@@ -1903,6 +1960,11 @@ class FinePositioner:
         fb = self._servo_torque - ff
         self._osc *= OSC_LEAK
         settled = self.phase == HOLD or (self.phase == OBSERVE and 2 * self._k >= self.cfg.observe_periods)
+        if self._pending is not None and self._pending[4] is None:
+            # (fine.apex_choice_after_command) the starting period's servo: a hold's verdict counts it (run_pending);
+            # the try's PARK, as the pending start's OBSERVE at k = 0, does not
+            self._pending = self._pending[:4] + (fb,)
+            settled = False
         if settled and abs(fb) > OSC_TORQUE_FRACTION * cap:
             sign = 1 if fb > 0 else -1
             if sign == -self._osc_sign:
@@ -2043,7 +2105,12 @@ class FinePositioner:
                 # approach (fine.park_approach_speed_rad_s), or at the observe window's end
                 unmoved = False
             if unmoved or (self._k >= cfg.observe_periods and self._rest >= 3):
-                self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed)
+                # (fine.apex_choice_after_command) the next try's choice after this period's command, where that
+                # command reads nothing of it: not with fine.retreat_stop_unmoved (the preload it sets) or
+                # fine.repark_from_state (the re-park takes over in this period)
+                self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed,
+                                 after_command=cfg.apex_choice_after_command and not cfg.retreat_stop_unmoved
+                                 and not cfg.repark_from_state)
                 if self.phase == IDLE:
                     return None
                 if self.phase == PARK and self._repark is not None:
@@ -2366,7 +2433,7 @@ class FinePositioner:
         expected = m + cfg.move_per_level * max(d * (self._peak_seen - learned_b), 0.0)
         return abs(err) < cfg.min_move_fraction * expected
 
-    def _after_move(self, th1, thl, pressure_kpa, pulsed: bool):
+    def _after_move(self, th1, thl, pressure_kpa, pulsed: bool, after_command: bool = False):
         cfg, d, b = self.cfg, self._dir, self._band
         move = thl - self._thl0
         if cfg.retreat_return_rest and self._returned and pulsed and self._doublet:
@@ -2624,7 +2691,7 @@ class FinePositioner:
             self.phase = HOLD
             self._hold_ref = th1
             return
-        self._start_pulse(th1, thl, pressure_kpa)
+        self._start_pulse(th1, thl, pressure_kpa, after_command)
 
     def _count_reversals(self, thl: float) -> None:
         """Count the valve's direction reversals on this plateau as the hunting metric counts them
@@ -2748,6 +2815,7 @@ class FinePositioner:
         self._apex_floor = None
 
     def health(self) -> dict:
+        self.run_pending()                  # (fine.apex_choice_after_command) what the stage learned, verdicts included
         return {"fine_phase": self.phase, "fine_pulses_total": self.learn.pulses,
                 "learned_equilibrium_rad": {"open": list(self.learn.equilibrium[1]),
                                             "close": list(self.learn.equilibrium[-1])},

@@ -669,6 +669,13 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "coordinate the model is built in -- not from the learned swing centre (fine.learn's equilibrium offset: "
           "0.14-0.21e-3 rad toward the try on the nominal box, which read the moves 1.3-1.4 x short; task h34m, "
           "docs section 85)", runtime=True),
+    Param("fine.apex_choice_after_command", True, "", "fine.apex_policy: the choice of a try an observe's verdict "
+          "starts (~0.5-1 ms of CPU, docs section 94) runs after that period's command has gone out -- the ROS node "
+          "calls it once the command is published, offline the next period runs it first -- instead of between the "
+          "resolver sample and the command: the same choices and commands to the last bit (that period's command "
+          "reads nothing the choice sets; not with fine.retreat_stop_unmoved or fine.repark_from_state, where the "
+          "choice stays inline).  A plateau's first try (the engagement's) stays inline (task h39n, docs section 103)",
+          runtime=True),
     Param("fine.apex_floor_plan", False, "", "fine.apex_policy: after an unmoved try the level's law is truncated "
           "at the higher of the apex the resolvers read and the apex the try planned (the once-a-period sample "
           "misses the kick's peak; plateau_floor's --floor plan, docs section 82.3; task h34m)", runtime=True),

@@ -342,6 +342,7 @@ class PositionController:
                           apex_move_sd_rad=ps["fine.apex_move_sd_rad"], apex_min_chance=ps["fine.apex_min_chance"],
                           apex_kick_max_a=ps["fine.apex_kick_max_a"], apex_kick_ratio=ps["fine.apex_kick_ratio"], apex_retreat_periods=ps["fine.apex_retreat_periods"],
                           apex_excess_nominal=ps["fine.apex_excess_nominal"], apex_floor_plan=ps["fine.apex_floor_plan"],
+                          apex_choice_after_command=ps["fine.apex_choice_after_command"],
                           apex_kick_continuous=ps["fine.apex_kick_continuous"], apex_worse_given_move=ps["fine.apex_worse_given_move"], apex_level_law=ps["fine.apex_level_law"],
                           engage_gear_rest=ps["fine.engage_gear_rest"], handover_settle_speed=ps["fine.handover_settle_speed_rad_s"], apex_stop_rad=ps["fine.apex_stop_rad"],
                           handover_unwind=ps["fine.handover_unwind"],
@@ -470,6 +471,7 @@ class PositionController:
     def reset_learning(self) -> None:
         """Forget what the law learned (fine-positioning twists, the jump ratio sizing the
         integrator deadband): back to the nominal model."""
+        self.law.after_period()             # a try's start left for after the command judges on what was learned
         self.learner.reset()
         self.law.forget()
 
@@ -485,6 +487,10 @@ class PositionController:
         self.last_torque = torque_nm
         self.last_current = torque_nm / self.model.torque_constant_nm_per_a
         self._started = True
+
+    def after_period(self) -> bool:
+        """The law's work left for after the period's command (:meth:`ControlLaw.after_period`)."""
+        return self.law.after_period()
 
     def update(self, t: float, demand_rad: float, meas: Measurement, pressure_kpa: float) -> float:
         """One loop period: returns the limited q-current command, A."""

@@ -242,6 +242,7 @@ class ControllerNode(LifecycleNode):
         #: messages published per topic (printed at exit) and the recorder hold (recorded_topics)
         self.recorder_gate = ri.RecorderGate(self, recorded)
         self._compute = ComputeTime()
+        self._after = ComputeTime("after_command")   # the work left for after a period's command, when there was any
         self.create_service(Trigger, "~/trip", self.on_trip)
         self.create_service(Trigger, "~/reset", self.on_reset)
         #: signature / partial-stroke tests: ~/signature_test, ~/partial_stroke_test, latched valve_test
@@ -777,7 +778,12 @@ class ControllerNode(LifecycleNode):
             self.driver.resolver(stamp, motor, valve, now=clock)
             self.driver.loop_timing(stamp, clock)
             self.publish_step(self.now_s())
-        self._compute.add(time.perf_counter() - t0)
+        t1 = time.perf_counter()
+        self._compute.add(t1 - t0)
+        # the law's work left for after the command (the fine stage's apex choice of a try an observe's verdict
+        # started, fine.apex_choice_after_command): the command is out, the next sample is a period away
+        if self.driver.after_period():
+            self._after.add(time.perf_counter() - t1)
 
     @locked
     def watchdog(self) -> None:
@@ -941,7 +947,7 @@ class ControllerNode(LifecycleNode):
             self.fail_safe("health", exc)
             h = Health(2, f"FAULT: internal error while reporting health: {exc}", {"faults": "internal_error"})
         values = dict(h.values, malformed_messages=self._bad_messages, periods=self._periods,
-                      **self._compute.take(), **self.valve_tests.summary())
+                      **self._compute.take(), **self._after.take(), **self.valve_tests.summary())
         level, message = h.level, h.message
         try:
             conflicts, counts = self._input_publishers()
@@ -949,6 +955,9 @@ class ControllerNode(LifecycleNode):
             conflicts, counts = [], {}
             self.get_logger().warn(f"input publishers not checked: {type(exc).__name__}: {exc}",
                                    throttle_duration_sec=10.0)
+        fine = getattr(self.driver.controller.law, "fine", None) if self.driver is not None else None
+        if fine is not None:          # the apex policy's tries chosen by the stage in force, and how many after the command
+            values.update(apex_choices=fine.apex_choices, apex_choices_after_command=fine.apex_choices_after_command)
         values.update(counts, learned_state=self._state_status, move_tables=self._tables_status,
                       ignored_parameters=",".join(self._unknown_params) or "none")
         if self._tables_failed and self.driver is not None:
@@ -1008,20 +1017,35 @@ class ControllerNode(LifecycleNode):
 
 class ComputeTime:
     """Time spent per control period (sample in -> command out, plus telemetry), since the
-    last report: shows whether the node keeps up with the loop rate."""
+    last report: shows whether the node keeps up with the loop rate.  Besides the mean and the
+    worst, how many periods took longer than each of :attr:`OVER_MS` (a period of the 1 kHz loop
+    is 1 ms: the count over 1 ms is the periods whose command was late by the node's own work)."""
 
-    def __init__(self):
+    #: thresholds (ms) of the ``compute_over_<ms>_ms`` counts
+    OVER_MS = (0.5, 1.0, 2.0)
+
+    def __init__(self, name: str = "compute"):
+        """``name``: the keys' prefix (``compute``: the periods; ``after_command``: the work after a command)."""
+        self.name = name
         self.n, self.total, self.worst = 0, 0.0, 0.0
+        self.over = [0] * len(self.OVER_MS)
 
     def add(self, seconds: float) -> None:
         self.n += 1
         self.total += seconds
         self.worst = max(self.worst, seconds)
+        for i, ms in enumerate(self.OVER_MS):
+            if seconds > 1e-3 * ms:
+                self.over[i] += 1
 
     def take(self) -> dict:
-        out = {"compute_mean_ms": 1e3 * self.total / self.n if self.n else None,
-               "compute_max_ms": 1e3 * self.worst if self.n else None, "samples_since_last_report": self.n}
+        name = self.name
+        out = {f"{name}_mean_ms": 1e3 * self.total / self.n if self.n else None,
+               f"{name}_max_ms": 1e3 * self.worst if self.n else None,
+               "samples_since_last_report" if name == "compute" else f"{name}_count": self.n}
+        out.update({f"{name}_over_{ms:g}_ms".replace(".", "p"): c for ms, c in zip(self.OVER_MS, self.over)})
         self.n, self.total, self.worst = 0, 0.0, 0.0
+        self.over = [0] * len(self.OVER_MS)
         return out
 
 

@@ -39,7 +39,7 @@ from fuel_valve_plant.physics.plant import Plant
 from ..common.paramspec import ConfigError, ParamSet
 from ..core.driver import ValveDriver
 from ..core.params import CONTROLLER_SPEC, MODES, load_controller_params
-from .profiles import Profile
+from .profiles import Profile, ProfileError, make_profile
 from .scenarios import Event, Scenario, parse_scenario
 
 OFFLINE, REAL_TIME, LOCKSTEP = "offline", "real_time", "lockstep"
@@ -206,7 +206,18 @@ def _in_schema(overrides: dict, spec, strict: bool) -> dict:
 
 
 def demand_node_parameters(spec: dict) -> dict:
-    """Demand-node parameters for a profile description (profiles.py keys)."""
+    """Demand-node parameters for a profile description (profiles.py keys).  A ``plateaus``
+    sequence goes to the node as its corner points (``points``, ``interpolation: previous``:
+    the very profile object :func:`~.profiles.make_profile` builds from it, so node and
+    simulator play the same demand); the node plays no analog noise or glitches on it."""
+    if spec.get("type") == "plateaus":
+        if spec.get("noise_rms_pct") or spec.get("glitches"):
+            raise ConfigError("a plateaus demand with noise_rms_pct or glitches cannot be played by the demand node")
+        try:
+            corners = make_profile(spec).points
+        except ProfileError as exc:
+            raise ConfigError(f"demand: {exc}") from None
+        spec = {"type": "points", "interpolation": "previous", "points": corners}
     out = {}
     for key, value in spec.items():
         if key == "type":

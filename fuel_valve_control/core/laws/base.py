@@ -51,6 +51,12 @@ class ControlLaw(ABC):
     def applied(self, torque_nm: float, saturated: bool) -> None:
         """The torque actually applied after limits (for observers and anti-windup)."""
 
+    def after_period(self) -> bool:
+        """Work the law left for after the period's command has gone out (the ROS node calls it once the command
+        is published; nobody else need: the law then does it at its next period's start, with the same result).
+        Returns whether there was any.  The default: none."""
+        return False
+
     @abstractmethod
     def estimate(self) -> Estimate:
         """What the law believes about both shafts and the friction this period."""

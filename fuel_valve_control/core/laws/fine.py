@@ -160,6 +160,10 @@ class FinePositioningLaw(ControlLaw):
         self.main.friction_rescheduled(pressure_kpa)
         self._stop_stage()
 
+    def after_period(self) -> bool:
+        """The fine stage's try start left for after the command (``fine.apex_choice_after_command``)."""
+        return self.fine.run_pending()
+
     def applied(self, torque_nm, saturated):
         self._applied = torque_nm
         if self._main_updated:
