@@ -18,7 +18,8 @@ def _after_doublet(err_after, **changes):
     p = m.pressure_max_kpa
     assert _engage_period(fine, 2.0e-3, p, 0.0, 0) is not None
     tries = []
-    fine._start_pulse = lambda th1, thl, pk: (tries.append(fine._target - thl), setattr(fine, "phase", "park"))
+    fine._start_pulse = lambda th1, thl, pk, after_command=False: (tries.append(fine._target - thl),
+                                                                    setattr(fine, "phase", "park"))
     fine._doublet, fine._pulsed = True, True
     fine._peak_seen = fine._twists(fine._thl0, p, fine._dir)[1]      # it let go at the learned level
     thl = fine._target - err_after
@@ -56,7 +57,7 @@ def test_no_engagement_within_the_stop_radius():
     err = 4.5e-4
     for changes, engages in (({}, True), ({"fine.apex_stop_rad": 5e-4}, False)):
         fine, m = _stage(**{"fine.engage_inside_deadband": True, **changes})
-        fine._start_pulse = lambda th1, thl, pk, f=fine: setattr(f, "phase", "park")
+        fine._start_pulse = lambda th1, thl, pk, after_command=False, f=fine: setattr(f, "phase", "park")
         fine._run = lambda *a: 0.0
         k = _engage_period(fine, err, m.pressure_max_kpa, 0.0, 0)
         assert (k is not None) == engages
