@@ -1,8 +1,9 @@
-"""``fine.apex_stop_rad`` (task h39t, docs §102, off by default): with the apex policy the stage is done once the valve
-rests within this of the demand (when larger than ``fine.tolerance_rad``).  The policy aims its tries into
-``fine.apex_land_rad`` (4e-4 rad) and scores no value for the rest it already has; with the tolerance (3 counts,
-2.9e-4 rad) as its done-test it tried on from rests already inside the 5e-4 rad target (traced, C2 + F, nominal box
-seeds 1000 / 2000 / 4000: of 85 moves from rests at 2.9-4e-4 rad, 75 % left |e| larger, 59 % > 5e-4).
+"""``fine.apex_stop_rad`` (task h39t, docs §102; 4.8e-4 rad, the default since stop 27, docs §104): with the apex
+policy the stage is done once the valve rests within this of the demand (when larger than ``fine.tolerance_rad``). The
+policy aims its tries into ``fine.apex_land_rad`` (4e-4 rad) and scores no value for the rest it already has; with the
+tolerance (3 counts, 2.9e-4 rad) as its done-test it tried on from rests already inside the 5e-4 rad target (traced,
+C2 + F, nominal box seeds 1000 / 2000 / 4000: of 85 moves from rests at 2.9-4e-4 rad, 75 % left |e| larger, 59 % >
+5e-4).
 
 Stage only (no plant, no move tables: the next try is a stub)."""
 import pytest
@@ -32,7 +33,7 @@ def _after_doublet(err_after, **changes):
 @pytest.mark.parametrize("sign", [1, -1])
 def test_holds_a_rest_within_the_stop_radius(sign):
     err = sign * 3.5e-4                                  # outside the tolerance (2.9e-4), inside 4e-4
-    off, tries = _after_doublet(err)
+    off, tries = _after_doublet(err, **{"fine.apex_stop_rad": 0.0})
     assert off.phase == "park" and tries == [pytest.approx(err)]      # off: the policy tries again
     on, tries = _after_doublet(err, **{"fine.apex_stop_rad": 4e-4})
     assert on.phase == "hold" and tries == []
@@ -55,7 +56,7 @@ def test_radius_only_with_the_policy_and_above_the_tolerance():
 def test_no_engagement_within_the_stop_radius():
     # 4.5e-4 rad: above the prior's smallest-move gate (4.35e-4 at max dp), so the tolerance alone lets it engage
     err = 4.5e-4
-    for changes, engages in (({}, True), ({"fine.apex_stop_rad": 5e-4}, False)):
+    for changes, engages in (({"fine.apex_stop_rad": 0.0}, True), ({"fine.apex_stop_rad": 5e-4}, False)):
         fine, m = _stage(**{"fine.engage_inside_deadband": True, **changes})
         fine._start_pulse = lambda th1, thl, pk, after_command=False, f=fine: setattr(f, "phase", "park")
         fine._run = lambda *a: 0.0
@@ -63,8 +64,11 @@ def test_no_engagement_within_the_stop_radius():
         assert (k is not None) == engages
 
 
-def test_off_by_default():
+def test_default_and_off():
+    """4.8e-4 rad by default (stop 27, docs §104); 0 is the tolerance."""
     from fuel_valve_control.core.params import CONTROLLER_SPEC
-    assert CONTROLLER_SPEC.defaults()["fine.apex_stop_rad"] == 0.0
+    assert CONTROLLER_SPEC.defaults()["fine.apex_stop_rad"] == 4.8e-4
     fine, _ = _stage()
-    assert fine._done_rad() == fine.cfg.tolerance_rad
+    assert fine._done_rad() == 4.8e-4
+    off, _ = _stage(**{"fine.apex_stop_rad": 0.0})
+    assert off._done_rad() == off.cfg.tolerance_rad

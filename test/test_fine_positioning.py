@@ -244,8 +244,9 @@ def test_before_any_move_is_learned_the_smallest_move_is_a_prior_from_the_jump(d
     """With no doublet move learned yet, the stopping rule uses ``fine.min_move_prior`` x the
     nominal stick-slip jump 2 (T_s - T_c(Δp)) / K (0.86e-3 of 4.6e-3 rad at max Δp): an error just
     outside the tolerance is not pulsed (a nominal-box doublet for 3.4e-4 rad broke the valve loose
-    for a whole jump), one above half the prior move is."""
-    fine, m = _stage()
+    for a whole jump), one above half the prior move is.  (The policy's stop radius, fine.apex_stop_rad, off: 1.1 x
+    half the prior lies inside its default 4.8e-4 rad.)"""
+    fine, m = _stage(**{"fine.apex_stop_rad": 0.0})
     p = m.pressure_max_kpa
     fl = m.friction(p)
     prior = fine.cfg.min_move_prior * 2.0 * (fl.valve_static_nm - fl.valve_coulomb_nm) / m.coupling_stiffness_nm_per_rad

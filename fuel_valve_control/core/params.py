@@ -730,7 +730,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "valve at rest (at most 2 x fine.observe_time_s), then hands over; the main law restarts with its observer's "
           "speeds at 0 and, handed a doublet's swing, broke the valve loose toward the new target at once (nominal "
           "seed 4034 #11, 44.7 % overshoot); 0 = at once (off; task h38s, docs section 98)", 0.0, 10.0, runtime=True),
-    Param("fine.apex_stop_rad", 0.0, "rad", "fine.apex_policy: the stage is done (it neither engages nor tries again) "
+    Param("fine.apex_stop_rad", 4.8e-4, "rad", "fine.apex_policy: the stage is done (it neither engages nor tries again) "
           "once the valve rests within this of the demand, when larger than fine.tolerance_rad -- the policy aims its "
           "tries into fine.apex_land_rad, but its done-test was the tolerance (3 counts, 2.9e-4 rad): from rests at "
           "2.9-4e-4 rad 59 % of its moves ended > 5e-4 (C2 + F, nominal box); 4.8e-4 measured on the nominal box "
