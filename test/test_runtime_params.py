@@ -273,3 +273,30 @@ def test_config_files_are_generated_from_the_schemas(node):
         f"{path} differs from its schema: run python -m fuel_valve_control write-config"
     spec = config_tool.node_schemas()[node][0]
     assert set(read_ros_param_file(path)) == set(spec.params)
+
+
+def test_a_law_replaced_while_the_fine_stage_holds_continues_from_its_hold_command():
+    """A run-time change that replaces the law while the fine stage holds a finished plateau: the successor continues
+    from the stage's hold command, not from the static hold of the twist -- they differ by the hold servo's integral.
+    C3's options (docs §104) reach the held loop's 0.6 s in the stage's hold with that difference 0.41 A: the replaced
+    law's second period stepped by it (the bumpless bound below is the unchanged run's largest step + 0.3 A)."""
+    c3 = {"mode": "observer_fp", "fine.apex_level_law": "mixture", "fine.engage_gear_rest": 0.1,
+          "fine.apex_floor_plan": True, "fine.handover_settle_speed_rad_s": 0.1, "fine.apex_stop_rad": 4.8e-4}
+    runs = []
+    for change in (False, True):
+        plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": 0.0}))
+        drv = ValveDriver(load_controller_params(overrides=c3))
+        closed_loop(drv, plant, 0.0, 600, 30.0)
+        law = drv.controller.law
+        assert law.fine.phase == "hold"
+        fine = law.fine
+        th1 = plant.truth().motor_angle / drv.controller.model.gear_ratio
+        static = fine.hold_torque(th1, plant.truth().valve_angle) / drv.controller.model.torque_constant_nm_per_a
+        assert abs(drv.controller.last_current - static) > 0.3      # the case: the hold's command is not the static hold
+        if change:
+            drv.set_params({"fine.tolerance_counts": 3.5})
+        runs.append(np.array(closed_loop(drv, plant, 0.6, 50, 30.0)))
+        if change:
+            assert drv.controller.law is not law
+    unchanged, replaced = runs
+    assert np.abs(np.diff(replaced)).max() < np.abs(np.diff(unchanged)).max() + 0.3

@@ -9,7 +9,7 @@ restarts bumplessly from the torque last applied.
 """
 from __future__ import annotations
 
-from ..fine_positioning import FinePositioner
+from ..fine_positioning import HOLD, FinePositioner
 from ..signals import Estimate, Measurement
 from .base import ControlLaw
 from .state_feedback import StateFeedbackLaw
@@ -113,8 +113,12 @@ class FinePositioningLaw(ControlLaw):
         """While the fine stage is in charge its torque may be a doublet's kick or retreat (up to
         the whole current): a successor continues from the torque that holds the present twist
         (task h17f: a run-time parameter change mid-staircase carried a retreat into the new
-        law's transfer and the held valve went 2.1 % of stroke past the demand)."""
-        if not self._fine_active:
+        law's transfer and the held valve went 2.1 % of stroke past the demand).  In the stage's hold
+        (a plateau done) its command is the hold servo's steady torque, which may differ from the
+        static hold of the twist by its integral: the successor continues from that command
+        (``None``), not from the static hold (stop 27, docs §104: C3's hold stepped the replaced
+        law's second period by 0.41 A)."""
+        if not self._fine_active or self.fine.phase == HOLD:
             return None
         return self.fine.hold_torque(meas.motor_rad / self.main.model.gear_ratio, meas.valve_rad)
 
