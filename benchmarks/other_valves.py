@@ -45,7 +45,7 @@ for p in (ROOT, ROOT / "benchmarks"):
 
 import robustness as R  # noqa: E402
 from fuel_valve_control.core.params import CONTROLLER_SPEC  # noqa: E402
-from fuel_valve_control.common.paramspec import ConfigError, parse_overrides  # noqa: E402
+from fuel_valve_control.common.paramspec import ConfigError  # noqa: E402
 from fuel_valve_control.tools import metrics as M  # noqa: E402
 from fuel_valve_control.tools import sim  # noqa: E402
 from fuel_valve_control.tools.scenarios import load_scenario  # noqa: E402
@@ -280,8 +280,7 @@ def main(argv=None) -> int:
                     help="controller parameter override on every valve (repeatable; after the valve's own model)")
     args = ap.parse_args(argv)
     try:
-        sets = parse_overrides(args.overrides, ("controller",))["controller"]
-        CONTROLLER_SPEC.load(None, sets)
+        sets = R.controller_sets(args.overrides)
     except ConfigError as exc:
         print(f"other_valves: {exc}", file=sys.stderr)
         return 2

@@ -350,6 +350,14 @@ def report(summary: dict, results: list[dict], label: str) -> str:
     return "\n".join(rows)
 
 
+def controller_sets(overrides: list[str]) -> dict:
+    """``--set controller.KEY=VALUE`` arguments as the controller's parameter changes, checked against its schema
+    (:class:`ConfigError` on an unknown key or a bad value) -- this campaign's and other_valves.py's."""
+    sets = parse_overrides(overrides, ("controller",))["controller"]
+    CONTROLLER_SPEC.load(None, sets)
+    return sets
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=None, help=f"number of runs (default {DEFAULT_RUNS})")
@@ -368,8 +376,7 @@ def main(argv=None) -> int:
         print(f"robustness: unknown mode {args.mode!r}; allowed: {', '.join(MODES)}", file=sys.stderr)
         return 2
     try:
-        sets = parse_overrides(args.overrides, ("controller",))["controller"]
-        CONTROLLER_SPEC.load(None, sets)
+        sets = controller_sets(args.overrides)
     except ConfigError as exc:
         print(f"robustness: {exc}", file=sys.stderr)
         return 2
