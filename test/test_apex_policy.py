@@ -217,6 +217,20 @@ def test_a_plateau_the_valve_reversed_on_is_held_not_handed_back(sets, holds):
     assert fine._hold_not_hand_back(0.52, -3e-3, p) is False
 
 
+def test_an_error_beyond_the_stages_reach_is_handed_back_not_held():
+    """An error beyond ``fine.max_move_rad`` (0.02 rad) is the main law's: the stage hands it back even after a
+    reversal (a real-time run whose late period stretched a kick threw the valve 2.1 % of stroke past the demand, and
+    the stage held it there for the rest of the plateau; docs §104).  The same error within a larger
+    ``fine.max_move_rad`` is held as before."""
+    from fuel_valve_control.common.hunting import ReversalCounter
+    for max_move, holds in ((None, False), (0.05, True)):
+        fine, model = _stage(**({} if max_move is None else {"fine.max_move_rad": max_move}))
+        fine._reversals = ReversalCounter(0.5)
+        fine._reversals.count, fine._reversals.direction = 1, -1    # reversed once, now moving down (closing)
+        assert fine._hold_not_hand_back(0.52, -0.0213, model.pressure_max_kpa) is holds
+        assert (fine.phase == "hold") is holds
+
+
 def test_the_apex_policy_hunter_is_held_not_handed_back():
     """Nominal box seed 2035 plateau 10 (a 1.56e-2 rad step, max Δp, static scatter 7.2 %) with ``fine.apex_policy``
     (kicks to 16 A), replayed up to the next plateau's step: a doublet's park broke the valve loose 5.6e-3 rad across

@@ -2782,9 +2782,14 @@ class FinePositioner:
         the valve 1.9e-2 rad the other way and its ramp brought it back 1.1e-2 rad -- the metric's second reversal
         (hunting, 1.0e-2 rad; the plateau ended 4.8e-3 off).  The stage's own moves never make that reversal
         (:meth:`_cross_guard`); a hand-back must not give it to the main law either.  Held, the plateau ends where
-        the valve stopped (a known shortfall the next demand's move takes up), without hunting."""
+        the valve stopped (a known shortfall the next demand's move takes up), without hunting.
+
+        Not beyond ``fine.max_move_rad``: an error that large is the main law's by definition (a step it plans and
+        makes, not a hold's slide of a jump), and held it would stay for the rest of the plateau -- a real-time run
+        whose late period stretched a kick threw the valve 2.1 % of stroke past the demand and the stage held it
+        there (``test_nodes.py::test_demand_step_moves_the_valve_in_real_time``, stop 27, docs §104)."""
         cfg = self.cfg
-        if not (cfg.hold_reversed or cfg.apex_policy) or self._cold:
+        if not (cfg.hold_reversed or cfg.apex_policy) or self._cold or abs(err) > cfg.max_move_rad:
             return False
         if self._cross_guard(err, pressure_kpa) == 0.0:
             return False                       # a main-law move across the target is still no hunt
