@@ -782,9 +782,7 @@ class FinePositioner:
     def reset(self, measurements: bool = True) -> None:
         """Back to idle; ``measurements=False`` (a new demand) keeps what the resolvers have
         shown: how long the valve has sat still and the twist of the last breakaway seen."""
-        if self._pending is not None:
-            self.run_pending()            # a try's start left for after the command: its verdicts first, as inline
-        self._pending = None              # (fine.apex_choice_after_command) a try's start left for after the command
+        self.run_pending()                # a try's start left for after the command: its verdicts first, as inline
         self.phase = IDLE
         self._target = None
         self._handover = None             # (fine.handover_settle_speed_rad_s) a hand-over waiting for the gear output
@@ -1486,11 +1484,7 @@ class FinePositioner:
         if self.phase == HOLD and fb is not None:
             # the servo's limit-cycle watch in the starting period counted a hold as settled (:meth:`_servo`): what
             # the inline choice's HOLD phase counted there, after the same leak
-            if abs(fb) > OSC_TORQUE_FRACTION * self.cfg.peak_current_a * self.m.torque_constant_nm_per_a:
-                sign = 1 if fb > 0 else -1
-                if sign == -self._osc_sign:
-                    self._osc += 1.0
-                self._osc_sign = sign
+            self._count_reversal(fb, self.cfg.peak_current_a * self.m.torque_constant_nm_per_a)
         return True
 
     def _apex_law(self, d: int, phi_b: float, sigma: float,
@@ -1965,12 +1959,18 @@ class FinePositioner:
             # the try's PARK, as the pending start's OBSERVE at k = 0, does not
             self._pending = self._pending[:4] + (fb,)
             settled = False
-        if settled and abs(fb) > OSC_TORQUE_FRACTION * cap:
+        if settled:
+            self._count_reversal(fb, cap)
+        return self._servo_torque
+
+    def _count_reversal(self, fb: float, cap: float) -> None:
+        """The servo's limit-cycle watch: a feedback torque ``fb`` (N*m) beyond :data:`OSC_TORQUE_FRACTION` of the
+        torque cap ``cap`` counts one reversal when its sign flipped since the last such torque."""
+        if abs(fb) > OSC_TORQUE_FRACTION * cap:
             sign = 1 if fb > 0 else -1
             if sign == -self._osc_sign:
                 self._osc += 1.0
             self._osc_sign = sign
-        return self._servo_torque
 
     @staticmethod
     def _blend(x0: float, x1: float, tau: float, length: float) -> tuple[float, float, float]:
