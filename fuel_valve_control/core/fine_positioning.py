@@ -763,7 +763,8 @@ class FinePositioner:
         faster and -- with the same ``kd`` and one loop period of delay -- less damped: K 1500 N*m/rad (other valves'
         ``stiff_coupling``) ζ 0.73 → 0.62, phase margin 31.9 → 29.4 deg (delay-free poles; the resolver's delay takes
         more).  The pull back from a doublet's retreat trough then overshot the final twist by 1.2e-3 rad, past this
-        valve's opening breakaway (its static band 2 T_s/K is a third of the reference's).  Capped, the total
+        valve's opening breakaway (its static band 2 T_s/K is a third of the reference's; C3 + ``fine.retreat_trough_bound``,
+        `step_small`: 14.4 %; the bound is what keeps the two-period trough from passing the closing breakaway).  Capped, the total
         stiffness ``kp + K`` is at most ``J1 (w² + ref_mode²)`` -- the reference valve's closed loop, poles and all --
         and never below the stiffness of a servo of half the bandwidth (``J1 w² / 4``).  Couplings no stiffer
         relative to their J1 than the reference's (``K/J1 <= ref_mode²``) keep ``kp``: nothing changes there."""

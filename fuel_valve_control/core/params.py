@@ -659,8 +659,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "(relative to J1) than the default valve's: with the valve stuck the coupling's K adds to the servo's kp, and "
           "kp + K is held at most the default valve's J1 (w^2 + K_ref/J1_ref) (w = 2 pi fine.servo_hz; never below "
           "J1 w^2 / 4), so the closed loop keeps the designed poles and damping; K 1500 N*m/rad: zeta 0.62 -> 0.73, "
-          "the pull back from a retreat's trough no longer overshoots past the valve's narrow static band (stiff "
-          "coupling step_small with C3 55.6 %; task h40s, docs section 105).  Valves no stiffer: unchanged",
+          "the pull back from a retreat's trough no longer overshoots past that valve's narrow static band (stiff "
+          "coupling step_small with C3 + fine.retreat_trough_bound 14.4 -> 0 %; task h40s, docs section 105).  Valves "
+          "no stiffer: unchanged",
           runtime=False),
     Param("fine.unmoved_settled", False, "", "doublet: an unmoved doublet is judged (and the next park planned "
           "from rest) only once the gear output's speed is below fine.park_approach_speed_rad_s, or at the end of "
