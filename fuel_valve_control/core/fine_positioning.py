@@ -682,6 +682,9 @@ class FineConfig:
                                        # judged at rest (back at its start: counted, held; task h35v, docs §89)
     retreat_return_hold: bool = False  # ... and the stage then holds the gear output where it is instead of handing
                                        # the plateau back (task h35v, docs §89)
+    servo_mode_ref_rad_s: float = 0.0  # the reference valve's stuck-valve drivetrain mode sqrt(K/J1), rad/s: the servo's
+                                       # stiffness is capped so that with the coupling's it is at most the reference
+                                       # valve's closed loop (fine.servo_coupling_cap; 0: off; task h40s, docs §105)
     unmoved_settled: bool = False  # a doublet is judged unmoved only once the gear output's speed is below
                                    # fine.park_approach_speed_rad_s (or at fine.observe_time_s; task h35v, docs §89)
     retreat_trough_bound: bool = False  # doublet: a retreat whose trough, predicted by the move model on a stuck valve,
@@ -722,6 +725,9 @@ class FinePositioner:
         j1 = model.j1
         self.kp = j1 * w * w               # N*m/rad at the gear output
         self.kd = 2.0 * 0.8 * w * j1       # N*m*s/rad
+        if cfg.servo_mode_ref_rad_s > 0.0:
+            self.kp = self.coupling_capped_kp(self.kp, j1, model.coupling_stiffness_nm_per_rad, w,
+                                              cfg.servo_mode_ref_rad_s)
         self.ki = self.kp * w / 8.0        # slow integral: removes the feed-forward's error
         self.timeable = self.servo_margin_rad(j1, self.kp, self.kd, period_s) > 0.0
         self._moves = None                 # fine.apex_policy: the doublet's move model (built when first needed)
@@ -746,6 +752,26 @@ class FinePositioner:
         self.main_deadband_rad = None  # the main law's integrator deadband in force (rad; set by the law each period;
                                        # None: its hold may move the valve inside it -- a probe), fine.engage_inside_deadband
         self.reset()
+
+    @staticmethod
+    def coupling_capped_kp(kp: float, j1: float, stiffness: float, w: float, ref_mode: float) -> float:
+        """(``fine.servo_coupling_cap``, task h40s, docs §105) The servo's proportional gain (N*m/rad at the gear
+        output) on a coupling stiffer than the reference valve's.  With the valve stuck the coupling is a spring the
+        servo's own adds to: the gear output's closed loop is ``J1 s² + kd s + (kp + K)`` (the feed-forward cancels
+        the coupling torque of the *reference* twist only), its natural frequency ``sqrt(w² + K/J1)`` for the design's
+        ``kp = J1 w²``.  On the reference (default) valve that is the designed loop; on a stiffer coupling it is
+        faster and -- with the same ``kd`` and one loop period of delay -- less damped: K 1500 N*m/rad (other valves'
+        ``stiff_coupling``) ζ 0.73 → 0.62, phase margin 31.9 → 29.4 deg (delay-free poles; the resolver's delay takes
+        more).  The pull back from a doublet's retreat trough then overshot the final twist by 1.2e-3 rad, past this
+        valve's opening breakaway (its static band 2 T_s/K is a third of the reference's; C3 + ``fine.retreat_trough_bound``,
+        `step_small`: 14.4 %; the bound is what keeps the two-period trough from passing the closing breakaway).  Capped, the total
+        stiffness ``kp + K`` is at most ``J1 (w² + ref_mode²)`` -- the reference valve's closed loop, poles and all --
+        and never below the stiffness of a servo of half the bandwidth (``J1 w² / 4``).  Couplings no stiffer
+        relative to their J1 than the reference's (``K/J1 <= ref_mode²``) keep ``kp``: nothing changes there."""
+        excess = stiffness - j1 * ref_mode * ref_mode      # the coupling's stiffness beyond the reference's mode
+        if excess <= 1e-9 * stiffness:
+            return kp                                       # (the reference valve itself: its kp, to the bit)
+        return max(kp - excess, 0.25 * kp)
 
     @staticmethod
     def servo_margin_rad(j1: float, kp: float, kd: float, period_s: float) -> float:
@@ -2232,11 +2258,18 @@ class FinePositioner:
         state = dict(kick_current_a=kick, valve_angle_rad=thl, speed0=self._w1_now, hold0=self._hold_torque,
                      servo_offset=self._ff0 - kn * self._phi0 + self.ki * self._integral / self.m.gear_ratio,
                      ref_twist=self._final, servo_delay_s=min(max(cfg.trough_delay_s, 0.0), self.period))
+        # (task h40s, docs §105) the move model's trough in floats (PulseMoves.trough_fast: the same equations and bits
+        # as PulseMoves.trough, ~13x less CPU on one lane); one whole period alone first (the scales' batch only when
+        # it does not fit: a batch runs until every lane's swing has turned -- the full period's lane alone stops at
+        # its own turn, the same trough unless it dipped again after it)
         for n in range(periods, 1, -1):
-            if d * (pre - float(mv.trough(d, p, pre, retreat_periods=n, **state)[0])) <= room:
+            if d * (pre - float(mv.trough_fast(d, p, pre, retreat_periods=n, **state)[0])) <= room:
                 return n, 1.0
+        if d * (pre - float(mv.trough_fast(d, p, pre, retreat_periods=1, **state)[0])) <= room:
+            return 1, 1.0
         scales = np.linspace(1.0, 0.0, TROUGH_SCALES)
-        one = d * (pre - mv.trough(d, p, np.full(TROUGH_SCALES, pre), retreat_periods=1, retreat_scale=scales, **state))
+        one = d * (pre - mv.trough_fast(d, p, np.full(TROUGH_SCALES, pre), retreat_periods=1, retreat_scale=scales,
+                                        **state))
         if one[0] <= room:
             return 1, 1.0
         for j in range(1, TROUGH_SCALES):

@@ -655,6 +655,14 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.retreat_return_hold", False, "", "with fine.retreat_return_guard: when the return is seen the stage holds "
           "the gear output where it is (no more pulses on the plateau) instead of handing the plateau back (task h35v, "
           "docs section 89)", runtime=True),
+    Param("fine.servo_coupling_cap", False, "", "the stage's gear-output servo stiffness capped on a coupling stiffer "
+          "(relative to J1) than the default valve's: with the valve stuck the coupling's K adds to the servo's kp, and "
+          "kp + K is held at most the default valve's J1 (w^2 + K_ref/J1_ref) (w = 2 pi fine.servo_hz; never below "
+          "J1 w^2 / 4), so the closed loop keeps the designed poles and damping; K 1500 N*m/rad: zeta 0.62 -> 0.73, "
+          "the pull back from a retreat's trough no longer overshoots past that valve's narrow static band (stiff "
+          "coupling step_small with C3 + fine.retreat_trough_bound 14.4 -> 0 %; task h40s, docs section 105).  Valves "
+          "no stiffer: unchanged",
+          runtime=False),
     Param("fine.unmoved_settled", False, "", "doublet: an unmoved doublet is judged (and the next park planned "
           "from rest) only once the gear output's speed is below fine.park_approach_speed_rad_s, or at the end of "
           "fine.observe_time_s (after a 16 A kick the retreat's rebound still ran ~0.65 rad/s toward the level and "

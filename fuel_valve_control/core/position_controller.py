@@ -284,6 +284,15 @@ class PositionController:
         fine.prepare(build=False)
         return FinePositioningLaw(mode, main, fine, min_jump_rad=ps["fine.min_jump_rad"])
 
+    @staticmethod
+    def _servo_mode_ref(ps: Mapping[str, Any]) -> float:
+        """(``fine.servo_coupling_cap``) The default valve's stuck-valve drivetrain mode sqrt(K / J1), rad/s, the
+        reference the stage's servo stiffness is capped by on a stiffer coupling; 0: the option off."""
+        if not ps["fine.servo_coupling_cap"]:
+            return 0.0
+        ref = NominalModel.from_params(CONTROLLER_SPEC.defaults())
+        return math.sqrt(ref.coupling_stiffness_nm_per_rad / ref.j1)
+
     def _fine_config(self, ps: Mapping[str, Any]) -> FineConfig:
         per = self.period
         # the pulse's times were set on the default model's coupling: lengthened on a softer one, its
@@ -364,7 +373,8 @@ class PositionController:
                           trough_delay_s=ps["resolver_delay_s"] if ps["fine.retreat_trough_delay"] else 0.0,
                           retreat_return_hold=ps["fine.retreat_return_hold"],
                           retreat_return_rest=ps["fine.retreat_return_rest"],
-                          unmoved_settled=ps["fine.unmoved_settled"])
+                          unmoved_settled=ps["fine.unmoved_settled"],
+                          servo_mode_ref_rad_s=self._servo_mode_ref(ps))
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
         m, period = self.model, self.period
