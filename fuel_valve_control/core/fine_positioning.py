@@ -669,6 +669,10 @@ class FineConfig:
                                         # where it is until it turns slower than this (rad/s) with the valve at rest
                                         # (or 2 x observe_periods), then hands over (0: at once, today's; task h38s,
                                         # docs §98)
+    handback_settle: bool = False  # the stage's own hand-back mid-park / -pulse / -observe waits likewise: the gear
+                                   # output held where it is until it turns slower than handover_settle_speed with the
+                                   # valve at rest (or 2 x observe_periods), then the main law takes over (stop 28,
+                                   # docs §108)
     apex_stop_rad: float = 0.0    # fine.apex_policy: done once the valve rests within this of the target (when above
                                   # tolerance_rad; 0: tolerance_rad only; task h39t, docs §102)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
@@ -812,6 +816,7 @@ class FinePositioner:
         self.phase = IDLE
         self._target = None
         self._handover = None             # (fine.handover_settle_speed_rad_s) a hand-over waiting for the gear output
+        self._handback_wait = None        # (fine.handback_settle) periods a hand-back has held the gear output so far
         self._unwind = None               # (fine.handover_unwind) the hold's unwinding before a hand-over
         self._relax = None                # (fine.hold_relax) the hold's relaxation toward the band's middle
         if measurements:
@@ -989,7 +994,11 @@ class FinePositioner:
                 return None               # a move now could make the plateau hunt: the main law holds
             self._cold = cold
             self._engage(target, th1, thl, torque_now, pressure_kpa)
-        return self._run(th1, w1, thl, pressure_kpa)
+        torque = self._run(th1, w1, thl, pressure_kpa)
+        if torque is None and self._handback_wait == 0:
+            # (fine.handback_settle) a hand-back decided in this period that waits for the swing: held from now
+            torque = self._servo(self._hold_ref, 0.0, th1, w1, thl)
+        return torque
 
     def _done_rad(self) -> float:
         """The plateau's done-test radius, rad: ``fine.tolerance_rad``, or with ``fine.apex_policy`` and
@@ -1014,7 +1023,7 @@ class FinePositioner:
         the demand changed (its servo brakes the swing) and hands over once it turns slower than the speed with the
         valve at rest for 3 periods, or after 2 x ``fine.observe_time_s``.  Off (0): at once, as before."""
         speed = self.cfg.handover_settle_speed
-        if not speed > 0.0 or self.phase not in (PARK, PULSE, OBSERVE):
+        if not speed > 0.0 or (self.phase not in (PARK, PULSE, OBSERVE) and self._handback_wait is None):
             return False
         if self._handover is None:
             self._handover = [th1, 0]     # (the gear output's angle held, periods waited)
@@ -2014,7 +2023,8 @@ class FinePositioner:
         if self._osc >= OSC_LIMIT:
             # its stiff hold limit-cycles on this plant (a resolver delay, a slow current
             # slew at low supply): shaking the valve is worse than the main law's hold
-            self._hand_back()
+            self._handback_wait = None
+            self._hand_back(settle=False)
             return None
         self._k += 1
         self._w1_prev, self._w1_now = (w1 if self._w1_now is None else self._w1_now), w1   # (fine.repark_from_state)
@@ -2139,6 +2149,9 @@ class FinePositioner:
                                  and not cfg.repark_from_state)
                 if self.phase == IDLE:
                     return None
+                if self._handback_wait == 0:
+                    # (fine.handback_settle) handed back on this verdict, the swing first held where it is
+                    return self._servo(self._hold_ref, 0.0, th1, w1, thl)
                 if self.phase == PARK and self._repark is not None:
                     # (fine.repark_from_state) the planned re-park takes over in this period already: the
                     # observe servo pulling on toward the final twist is what throws the rebound past the plan
@@ -2163,6 +2176,15 @@ class FinePositioner:
                 return self._servo(base + ref, 0.0, th1, w1, thl, integrate=False)
             return self._servo(base + ref, 0.0, th1, w1, thl)
         # HOLD: keep the gear output where it is (twist inside the static band: the valve stays)
+        if self._handback_wait is not None:
+            # (fine.handback_settle) a hand-back waiting for the swing it was decided in to die out
+            self._handback_wait += 1
+            if (abs(w1) <= cfg.handover_settle_speed and self._rest >= 3) \
+                    or self._handback_wait > 2 * cfg.observe_periods:
+                self._handback_wait = None
+                self._release()
+                return None
+            return self._servo(self._hold_ref, 0.0, th1, w1, thl)
         if cfg.hold_relax > 0.0:
             return self._hold_relaxing(th1, w1, thl, pressure_kpa)
         return self._servo(self._hold_ref, 0.0, th1, w1, thl)
@@ -2840,12 +2862,38 @@ class FinePositioner:
         self.phase = HOLD
         self._hold_ref = th1
 
-    def _hand_back(self) -> None:
+    def _hand_back(self, settle: bool = True) -> None:
         """Leave the plateau to the main law (which restarts from :meth:`hold_torque`): the
         valve has shown that the model's twists do not fit it; no more pulses until the demand
-        changes."""
+        changes.
+
+        ``fine.handback_settle`` (with ``fine.handover_settle_speed_rad_s`` > 0; stop 28, docs §108): decided
+        mid-park, -pulse or -observe with the gear output still turning faster than that speed, the hand-back first
+        holds the gear output where it is (phase HOLD, :meth:`_run`) and releases the plateau to the main law once it
+        turns slower with the valve at rest for 3 periods, or after 2 x ``fine.observe_time_s`` -- as a new demand's
+        hand-over does (:meth:`_handover_settling`).  Why: the main law restarts with its observer's speeds at 0 and
+        the swing's momentum unaccounted.  Traced (nominal box seed 4013 plateau 9, C3): 26 servo-blended pulses
+        did not move a valve whose static level was drawn high; the 27th's verdict handed back in the observe's pull
+        back from the retreat's trough, the twist rising 2.8e-3 rad a period; it ran on through the breakaway and
+        the valve slid 1.06e-2 rad past a 9.4e-3 step (112 %).  ``settle=False``: at once (the limit-cycle watch:
+        holding on is what shakes the valve)."""
         self._judge(failed=True)
         self._unfit = True
+        self._stair = None
+        self._apex_floor = None
+        cfg = self.cfg
+        if settle and cfg.handback_settle and cfg.handover_settle_speed > 0.0 and self.phase in (PARK, PULSE, OBSERVE) \
+                and self._last_th1 is not None and self._w1_now is not None \
+                and abs(self._w1_now) > cfg.handover_settle_speed:
+            self._osc, self._osc_sign = 0.0, 0
+            self.phase = HOLD
+            self._hold_ref = self._last_th1
+            self._handback_wait = 0
+            return
+        self._release()
+
+    def _release(self) -> None:
+        """The plateau to the main law now (the end of :meth:`_hand_back`)."""
         self._osc, self._osc_sign = 0.0, 0
         self.phase = IDLE
         self._target = None

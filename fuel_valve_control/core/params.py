@@ -738,6 +738,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "valve at rest (at most 2 x fine.observe_time_s), then hands over; the main law restarts with its observer's "
           "speeds at 0 and, handed a doublet's swing, broke the valve loose toward the new target at once (nominal "
           "seed 4034 #11, 44.7 % overshoot); 0 = at once (off; task h38s, docs section 98)", 0.0, 10.0, runtime=True),
+    Param("fine.handback_settle", False, "", "with fine.handover_settle_speed_rad_s > 0: the fine stage's own "
+          "hand-back decided mid-park, -pulse or -observe holds the gear output where it is until it turns slower "
+          "than that speed with the valve at rest (at most 2 x fine.observe_time_s) before the main law takes over -- "
+          "as a new demand's hand-over does; the main law restarts with its observer's speeds at 0, and handed the "
+          "observe's pull-back from a retreat's trough it ran through the breakaway (nominal box seed 4013 #9, C3: "
+          "1.06e-2 rad past a 9.4e-3 step, 112 %); off: at once (stop 28, docs section 108)", runtime=True),
     Param("fine.apex_stop_rad", 4.8e-4, "rad", "fine.apex_policy: the stage is done (it neither engages nor tries again) "
           "once the valve rests within this of the demand, when larger than fine.tolerance_rad -- the policy aims its "
           "tries into fine.apex_land_rad, but its done-test was the tolerance (3 counts, 2.9e-4 rad): from rests at "
