@@ -142,3 +142,36 @@ def test_a_hung_tear_down_ends_the_process_with_its_exit_code(code):
     assert proc.returncode == code, out
     assert "destroying" in out and "tear-down returned" not in out, out
     assert "in destroy_node" in out and "in tear_down" in out, out        # where it hung
+
+
+#: the node entry points as their console scripts import them (setup.py)
+ENTRY_MODULES = ("fuel_valve_plant.ros.plant_node", "fuel_valve_control.ros.controller_node",
+                 "fuel_valve_control.ros.demand_node")
+BLAS_CHECK = """
+import os, sys, importlib
+importlib.import_module(sys.argv[1])
+import fuel_valve_control.ros as r
+import numpy
+print(r.BLAS_SPIN_LIMITED, os.environ.get(r.BLAS_TIMEOUT_ENV))
+"""
+
+
+def test_every_node_process_limits_openblas_spin_before_numpy_loads():
+    """docs/control_results.md section 107: OpenBLAS's idle workers spun ~0.1 s (its default
+    2**28 cycles) after the controller's gain design, at SCHED_FIFO, and starved the plant's tick
+    thread: the armed controller latched a resolver timeout in ~half the real-time start-ups.
+    Each node's entry module, imported in a fresh interpreter (as its console script does), sets
+    OPENBLAS_THREAD_TIMEOUT before numpy is loaded (OpenBLAS reads it then); a value the user set
+    is kept.  The three interpreters run side by side (one import's time)."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_THREAD_TIMEOUT"}
+    procs = [subprocess.Popen([sys.executable, "-c", BLAS_CHECK, m], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for m in ENTRY_MODULES]
+    user = subprocess.Popen([sys.executable, "-c", BLAS_CHECK, ENTRY_MODULES[0]],
+                            env=dict(env, OPENBLAS_THREAD_TIMEOUT="28"), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    for module, proc in zip(ENTRY_MODULES, procs):
+        out, err = proc.communicate(timeout=120)
+        assert proc.returncode == 0, err
+        assert out.split() == ["True", "4"], f"{module}: {out} {err}"
+    out, err = user.communicate(timeout=120)
+    assert out.split() == ["True", "28"], err
