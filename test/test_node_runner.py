@@ -175,3 +175,50 @@ def test_every_node_process_limits_openblas_spin_before_numpy_loads():
         assert out.split() == ["True", "4"], f"{module}: {out} {err}"
     out, err = user.communicate(timeout=120)
     assert out.split() == ["True", "28"], err
+
+
+FIFO_CHECK = """
+import os, threading, time
+import fuel_valve_control.ros as r
+from fuel_valve_control.ros import node_runner as nr
+out = [r.STARTUP_FIFO, os.sched_getscheduler(0) == os.SCHED_FIFO]
+stop = threading.Event()
+loop = threading.Thread(target=stop.wait)
+setattr(loop, nr.LOOP_THREAD_ATTR, True)
+other = threading.Thread(target=stop.wait)
+loop.start(); other.start()
+refused = nr.restore_fifo()
+out += [os.sched_getscheduler(t.native_id) == os.SCHED_FIFO for t in (threading.main_thread(), loop, other)]
+stop.set()
+print(out, refused)
+"""
+
+
+def _fifo_child(env: dict) -> str:
+    def fifo():
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))      # as the launcher does after exec
+    proc = subprocess.run([sys.executable, "-c", FIFO_CHECK], env=env, preexec_fn=fifo, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout.strip()
+
+
+def test_a_fifo_node_starts_at_normal_priority_and_gets_fifo_back_for_its_loop():
+    """docs/control_results.md section 107: a node started SCHED_FIFO (the launcher's default for
+    plant and controller) runs its start-up at normal priority (it was a second of CPU nothing
+    could interrupt: the plant's tick thread starved, real-time throttling), and ``restore_fifo``
+    gives the priority back to the main thread and the loop threads, not to Python background
+    threads.  ``FUEL_VALVE_FIFO_STARTUP=1`` keeps the old way (FIFO throughout)."""
+    try:
+        os.sched_param(1)
+        probe = subprocess.run([sys.executable, "-c", "pass"], preexec_fn=lambda: os.sched_setscheduler(
+            0, os.SCHED_FIFO, os.sched_param(1)), capture_output=True, timeout=60)
+    except (AttributeError, subprocess.SubprocessError, OSError):
+        probe = None
+    if probe is None or probe.returncode != 0:
+        pytest.skip("SCHED_FIFO not permitted here")
+    env = {k: v for k, v in os.environ.items() if k != "FUEL_VALVE_FIFO_STARTUP"}
+    # started FIFO 1: normal priority at import; main and loop thread FIFO again, the other not
+    assert _fifo_child(env) == "[1, False, True, True, False] []"
+    # the old way: FIFO through the start-up, nothing to give back (the threads inherit FIFO)
+    assert _fifo_child(dict(env, FUEL_VALVE_FIFO_STARTUP="1")) == "[None, True, True, True, True] []"

@@ -1,7 +1,9 @@
 """Thin ROS 2 adapters over the core: controller and demand nodes, QoS and message helpers, loop I/O.
 
 Importing this package (every node process does, the plant's too, before numpy is loaded) limits
-OpenBLAS's idle spin, :func:`limit_blas_spin`."""
+OpenBLAS's idle spin, :func:`limit_blas_spin`, and takes a process that was started SCHED_FIFO
+back to normal priority for its start-up, :func:`start_at_normal_priority` (the node runner
+gives the priority back once the node is built)."""
 import os
 import sys
 
@@ -32,3 +34,39 @@ def limit_blas_spin() -> bool:
 #: whether :func:`limit_blas_spin` ran before numpy was loaded in this process (the node
 #: processes: yes, test/test_nodes.py checks the three node entry points)
 BLAS_SPIN_LIMITED = limit_blas_spin()
+
+
+#: environment variable: "1" keeps a SCHED_FIFO node at its real-time priority through its
+#: start-up (the behaviour before section 107; benchmarks compare with it)
+FIFO_STARTUP_ENV = "FUEL_VALVE_FIFO_STARTUP"
+
+
+def start_at_normal_priority() -> int | None:
+    """A node process the launcher started SCHED_FIFO (``tools.launcher.Scheduling``: right
+    after exec) runs its start-up -- imports, the controller's gain design, the plant's kernel
+    load, ~1 s of CPU -- at normal priority: this thread (the main thread) goes back to
+    SCHED_OTHER and the priority is returned (None: not SCHED_FIFO, or :data:`FIFO_STARTUP_ENV`
+    is "1", or not Linux), for :func:`~fuel_valve_control.ros.node_runner.run_node` to give back
+    to the process's threads once the node is built.
+
+    Why (docs/control_results.md section 107): a start-up at SCHED_FIFO is a CPU burst no normal
+    thread can interrupt.  Two of them (plant and controller, both priority 10) held both cores
+    while the plant's tick thread, at the same priority, waited (SCHED_FIFO does not time-slice
+    equals); and a second of it used the CPU's real-time budget (``sched_rt_runtime_us``, 95 %
+    of each second), so the kernel throttled every real-time thread on it for up to 50 ms --
+    the plant's tick thread too, while the controller was armed."""
+    if os.environ.get(FIFO_STARTUP_ENV, "").strip() == "1":
+        return None
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_FIFO:
+            return None
+        priority = os.sched_getparam(0).sched_priority
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        return priority
+    except (OSError, AttributeError):       # not Linux / not permitted to read: leave it
+        return None
+
+
+#: the SCHED_FIFO priority this process was started with and runs its start-up without (None:
+#: none; :func:`start_at_normal_priority`)
+STARTUP_FIFO = start_at_normal_priority()

@@ -141,6 +141,45 @@ def freeze_heap(on: bool | None = None) -> bool:
     return on
 
 
+#: attribute a :class:`threading.Thread` sets True to run at the process's real-time priority
+#: (:func:`restore_fifo`; the plant's tick thread); other Python threads keep normal priority
+LOOP_THREAD_ATTR = "loop_thread"
+
+
+def restore_fifo(priority: int | None = None) -> list[str]:
+    """Give a node process started SCHED_FIFO its priority back once the node is built
+    (:func:`fuel_valve_control.ros.start_at_normal_priority` took it away for the start-up):
+    SCHED_FIFO ``priority`` (None: ``fuel_valve_control.ros.STARTUP_FIFO``; None there too:
+    nothing to do) for every thread of the process but Python's own background threads -- the
+    main thread, the C library threads (DDS, the executor) and the Python threads marked
+    :data:`LOOP_THREAD_ATTR` (the plant's tick thread).  A Python background thread (the
+    controller's move-table reader: ~0.75 s of CPU) stays at normal priority: at SCHED_FIFO it
+    would hold a core the loop's threads need.  Threads started later inherit their creator's
+    policy.  Returns what the OS refused (one sentence each)."""
+    import threading
+    if priority is None:
+        from fuel_valve_control import ros
+        priority = ros.STARTUP_FIFO
+    if not priority:
+        return []
+    background = {t.native_id for t in threading.enumerate()
+                  if t is not threading.main_thread() and not getattr(t, LOOP_THREAD_ATTR, False)}
+    refused = []
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [threading.main_thread().native_id]
+    for tid in tids:
+        if tid in background:
+            continue
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, AttributeError) as exc:   # a thread that ended meanwhile / not permitted
+            if tid == os.getpid():
+                refused.append(f"SCHED_FIFO {priority} refused ({exc}): normal priority")
+    return refused
+
+
 def quiet_signals(handler=None) -> None:
     """Python-level SIGINT/SIGTERM handlers that never raise; ``handler(signum)`` if given.
 
@@ -204,6 +243,8 @@ def run_node(factory, args=None, on_exit=None) -> int:
         executor = make_executor()
         executor.add_node(node)
         freeze_heap()
+        for why in restore_fifo():
+            node.get_logger().warn(why)
         spin(executor, until=lambda: bool(stop))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
