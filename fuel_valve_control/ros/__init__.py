@@ -2,8 +2,8 @@
 
 Importing this package (every node process does, the plant's too, before numpy is loaded) limits
 OpenBLAS's idle spin, :func:`limit_blas_spin`, and takes a process that was started SCHED_FIFO
-back to normal priority for its start-up, :func:`start_at_normal_priority` (the node runner
-gives the priority back once the node is built)."""
+back to normal priority for its imports, :func:`start_at_normal_priority` (the node runner
+gives the priority back before ``rclpy.init``)."""
 import os
 import sys
 
@@ -43,18 +43,20 @@ FIFO_STARTUP_ENV = "FUEL_VALVE_FIFO_STARTUP"
 
 def start_at_normal_priority() -> int | None:
     """A node process the launcher started SCHED_FIFO (``tools.launcher.Scheduling``: right
-    after exec) runs its start-up -- imports, the controller's gain design, the plant's kernel
-    load, ~1 s of CPU -- at normal priority: this thread (the main thread) goes back to
-    SCHED_OTHER and the priority is returned (None: not SCHED_FIFO, or :data:`FIFO_STARTUP_ENV`
-    is "1", or not Linux), for :func:`~fuel_valve_control.ros.node_runner.run_node` to give back
-    to the process's threads once the node is built.
+    after exec) runs its imports -- numpy, scipy, numba, rclpy, the node's modules: most of its
+    start-up's CPU -- at normal priority: this thread (the main thread) goes back to SCHED_OTHER
+    and the priority is returned (None: not SCHED_FIFO, or :data:`FIFO_STARTUP_ENV` is "1", or
+    not Linux), for :func:`~fuel_valve_control.ros.node_runner.run_node` to give back before
+    ``rclpy.init`` (:func:`~fuel_valve_control.ros.node_runner.restore_fifo`).
 
     Why (docs/control_results.md section 107): a start-up at SCHED_FIFO is a CPU burst no normal
     thread can interrupt.  Two of them (plant and controller, both priority 10) held both cores
     while the plant's tick thread, at the same priority, waited (SCHED_FIFO does not time-slice
-    equals); and a second of it used the CPU's real-time budget (``sched_rt_runtime_us``, 95 %
-    of each second), so the kernel throttled every real-time thread on it for up to 50 ms --
-    the plant's tick thread too, while the controller was armed."""
+    equals); and a second of it used a CPU's real-time budget (``sched_rt_runtime_us``, 95 % of
+    each second), so the kernel throttled every real-time thread on it for up to 50 ms -- the
+    plant's tick thread too, while the controller was armed.  (Kept at normal priority through
+    the node's construction as well, the first enable came 1-2.5 s after activation instead of
+    ~0.5 s on the loaded machine: not traced.)"""
     if os.environ.get(FIFO_STARTUP_ENV, "").strip() == "1":
         return None
     try:

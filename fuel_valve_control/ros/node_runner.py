@@ -141,43 +141,30 @@ def freeze_heap(on: bool | None = None) -> bool:
     return on
 
 
-#: attribute a :class:`threading.Thread` sets True to run at the process's real-time priority
-#: (:func:`restore_fifo`; the plant's tick thread); other Python threads keep normal priority
-LOOP_THREAD_ATTR = "loop_thread"
-
-
 def restore_fifo(priority: int | None = None) -> list[str]:
-    """Give a node process started SCHED_FIFO its priority back once the node is built
-    (:func:`fuel_valve_control.ros.start_at_normal_priority` took it away for the start-up):
+    """Give a node process started SCHED_FIFO its priority back
+    (:func:`fuel_valve_control.ros.start_at_normal_priority` took it away for its imports):
     SCHED_FIFO ``priority`` (None: ``fuel_valve_control.ros.STARTUP_FIFO``; None there too:
-    nothing to do) for every thread of the process but Python's own background threads -- the
-    main thread, the C library threads (DDS, the executor) and the Python threads marked
-    :data:`LOOP_THREAD_ATTR` (the plant's tick thread).  A Python background thread (the
-    controller's move-table reader: ~0.75 s of CPU) stays at normal priority: at SCHED_FIFO it
-    would hold a core the loop's threads need.  Threads started later inherit their creator's
-    policy.  Returns what the OS refused (one sentence each)."""
-    import threading
+    nothing to do) for every thread of the process (the main thread, OpenBLAS's workers).
+    :func:`run_node` calls it before ``rclpy.init``: the threads started from then on -- DDS,
+    the executor, the plant's tick thread, the controller's move-table reader -- inherit it, as
+    they did when the whole process ran SCHED_FIFO.  Returns what the OS refused (one sentence)."""
     if priority is None:
         from fuel_valve_control import ros
         priority = ros.STARTUP_FIFO
     if not priority:
         return []
-    background = {t.native_id for t in threading.enumerate()
-                  if t is not threading.main_thread() and not getattr(t, LOOP_THREAD_ATTR, False)}
-    refused = []
     try:
         tids = [int(t) for t in os.listdir("/proc/self/task")]
     except OSError:
-        tids = [threading.main_thread().native_id]
-    for tid in tids:
-        if tid in background:
-            continue
+        tids = [os.getpid()]
+    for tid in sorted(tids, key=lambda t: t != os.getpid()):      # the main thread first
         try:
             os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
         except (OSError, AttributeError) as exc:   # a thread that ended meanwhile / not permitted
             if tid == os.getpid():
-                refused.append(f"SCHED_FIFO {priority} refused ({exc}): normal priority")
-    return refused
+                return [f"SCHED_FIFO {priority} refused ({exc}): normal priority"]
+    return []
 
 
 def quiet_signals(handler=None) -> None:
@@ -234,6 +221,9 @@ def run_node(factory, args=None, on_exit=None) -> int:
     stop: list[int] = []
     quiet_signals(stop.append)
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+    # the imports are done (the node module's, at normal priority: start_at_normal_priority); from
+    # here on, and every thread started from here on, at the real-time priority it was started with
+    refused = restore_fifo()
     if not init_or_explain(args):
         return 2
     node = executor = None
@@ -243,7 +233,7 @@ def run_node(factory, args=None, on_exit=None) -> int:
         executor = make_executor()
         executor.add_node(node)
         freeze_heap()
-        for why in restore_fifo():
+        for why in refused:
             node.get_logger().warn(why)
         spin(executor, until=lambda: bool(stop))
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -69,7 +69,7 @@ from rclpy.node import Node
 from fuel_valve_control.common import contract
 from fuel_valve_control.common.timebase import to_stamp
 from fuel_valve_control.ros import interface as ri
-from fuel_valve_control.ros.node_runner import LOOP_THREAD_ATTR, run_node, set_timer_slack
+from fuel_valve_control.ros.node_runner import run_node, set_timer_slack
 from fuel_valve_control.common.paramspec import ConfigError
 from ..physics.plant import Plant
 from ..physics.params import PLANT_NODE_SPEC, PLANT_SPEC, check_consistency
@@ -284,7 +284,6 @@ class PlantNode(Node):
             self._running = True
             self.timer_slack_ns: int | None = None      # the tick thread's, once it runs
             self._thread = threading.Thread(target=self.realtime_loop, name="plant-loop", daemon=True)
-            setattr(self._thread, LOOP_THREAD_ATTR, True)   # SCHED_FIFO with the process, if it has it
             self._thread.start()
         self.get_logger().info(
             f"plant up: {'lockstep' if self.lockstep else 'real time'}, publish {1 / self.period:g} Hz, physics "
