@@ -205,13 +205,13 @@ def _fifo_child(env: dict) -> str:
     return proc.stdout.strip()
 
 
-def test_a_fifo_node_starts_at_normal_priority_and_gets_fifo_back_for_its_loop():
+def test_a_fifo_node_can_run_its_imports_at_normal_priority_and_gets_fifo_back():
     """docs/control_results.md section 107: a node started SCHED_FIFO (the launcher's default for
     plant and controller) runs its start-up at normal priority (it was a second of CPU nothing
     could interrupt: the plant's tick thread starved, real-time throttling) -- its imports, that is;
     ``restore_fifo`` (run_node: before rclpy.init) gives the priority back to every thread, and the
-    threads started later inherit it.  ``FUEL_VALVE_FIFO_STARTUP=1`` keeps the old way (FIFO
-    throughout)."""
+    threads started later inherit it.  Only with ``FUEL_VALVE_IMPORTS_NORMAL_PRIORITY=1``; without
+    it (the default) FIFO throughout, as before."""
     try:
         os.sched_param(1)
         probe = subprocess.run([sys.executable, "-c", "pass"], preexec_fn=lambda: os.sched_setscheduler(
@@ -220,9 +220,9 @@ def test_a_fifo_node_starts_at_normal_priority_and_gets_fifo_back_for_its_loop()
         probe = None
     if probe is None or probe.returncode != 0:
         pytest.skip("SCHED_FIFO not permitted here")
-    env = {k: v for k, v in os.environ.items() if k != "FUEL_VALVE_FIFO_STARTUP"}
-    # started FIFO 1: normal priority at import (a thread started then too); FIFO again for all, and
-    # inherited by a thread started after
-    assert _fifo_child(env) == "[1, False, False, True, True, True] []"
-    # the old way: FIFO through the start-up, nothing to give back (the threads inherit FIFO)
-    assert _fifo_child(dict(env, FUEL_VALVE_FIFO_STARTUP="1")) == "[None, True, True, True, True, True] []"
+    env = {k: v for k, v in os.environ.items() if k != "FUEL_VALVE_IMPORTS_NORMAL_PRIORITY"}
+    # on, started FIFO 1: normal priority at import (a thread started then too); FIFO again for all,
+    # and inherited by a thread started after
+    assert _fifo_child(dict(env, FUEL_VALVE_IMPORTS_NORMAL_PRIORITY="1")) == "[1, False, False, True, True, True] []"
+    # the default: FIFO throughout, nothing to give back (the threads inherit FIFO)
+    assert _fifo_child(env) == "[None, True, True, True, True, True] []"
