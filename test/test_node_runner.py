@@ -142,3 +142,87 @@ def test_a_hung_tear_down_ends_the_process_with_its_exit_code(code):
     assert proc.returncode == code, out
     assert "destroying" in out and "tear-down returned" not in out, out
     assert "in destroy_node" in out and "in tear_down" in out, out        # where it hung
+
+
+#: the node entry points as their console scripts import them (setup.py)
+ENTRY_MODULES = ("fuel_valve_plant.ros.plant_node", "fuel_valve_control.ros.controller_node",
+                 "fuel_valve_control.ros.demand_node")
+BLAS_CHECK = """
+import os, sys, importlib
+importlib.import_module(sys.argv[1])
+import fuel_valve_control.ros as r
+import numpy
+print(r.BLAS_SPIN_LIMITED, os.environ.get(r.BLAS_TIMEOUT_ENV))
+"""
+
+
+def test_every_node_process_limits_openblas_spin_before_numpy_loads():
+    """docs/control_results.md section 107: OpenBLAS's idle workers spun ~0.1 s (its default
+    2**28 cycles) after the controller's gain design, at SCHED_FIFO, and starved the plant's tick
+    thread: the armed controller latched a resolver timeout in ~half the real-time start-ups.
+    Each node's entry module, imported in a fresh interpreter (as its console script does), sets
+    OPENBLAS_THREAD_TIMEOUT before numpy is loaded (OpenBLAS reads it then); a value the user set
+    is kept.  The three interpreters run side by side (one import's time)."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_THREAD_TIMEOUT"}
+    procs = [subprocess.Popen([sys.executable, "-c", BLAS_CHECK, m], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for m in ENTRY_MODULES]
+    user = subprocess.Popen([sys.executable, "-c", BLAS_CHECK, ENTRY_MODULES[0]],
+                            env=dict(env, OPENBLAS_THREAD_TIMEOUT="28"), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    for module, proc in zip(ENTRY_MODULES, procs):
+        out, err = proc.communicate(timeout=120)
+        assert proc.returncode == 0, err
+        assert out.split() == ["True", "4"], f"{module}: {out} {err}"
+    out, err = user.communicate(timeout=120)
+    assert out.split() == ["True", "28"], err
+
+
+FIFO_CHECK = """
+import os, threading
+import fuel_valve_control.ros as r
+from fuel_valve_control.ros import node_runner as nr
+fifo = lambda tid: os.sched_getscheduler(tid) == os.SCHED_FIFO
+out = [r.STARTUP_FIFO, fifo(0)]
+stop = threading.Event()
+early = threading.Thread(target=stop.wait)          # started during the imports (OpenBLAS's workers)
+early.start()
+out += [fifo(early.native_id)]
+refused = nr.restore_fifo()
+late = threading.Thread(target=stop.wait)           # started after (DDS, the node's threads)
+late.start()
+out += [fifo(0), fifo(early.native_id), fifo(late.native_id)]
+stop.set()
+print(out, refused)
+"""
+
+
+def _fifo_child(env: dict) -> str:
+    def fifo():
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))      # as the launcher does after exec
+    proc = subprocess.run([sys.executable, "-c", FIFO_CHECK], env=env, preexec_fn=fifo, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout.strip()
+
+
+def test_a_fifo_node_can_run_its_imports_at_normal_priority_and_gets_fifo_back():
+    """docs/control_results.md section 107: a node started SCHED_FIFO (the launcher's default for
+    plant and controller) runs its start-up at normal priority (it was a second of CPU nothing
+    could interrupt: the plant's tick thread starved, real-time throttling) -- its imports, that is;
+    ``restore_fifo`` (run_node: before rclpy.init) gives the priority back to every thread, and the
+    threads started later inherit it.  Only with ``FUEL_VALVE_IMPORTS_NORMAL_PRIORITY=1``; without
+    it (the default) FIFO throughout, as before."""
+    try:
+        os.sched_param(1)
+        probe = subprocess.run([sys.executable, "-c", "pass"], preexec_fn=lambda: os.sched_setscheduler(
+            0, os.SCHED_FIFO, os.sched_param(1)), capture_output=True, timeout=60)
+    except (AttributeError, subprocess.SubprocessError, OSError):
+        probe = None
+    if probe is None or probe.returncode != 0:
+        pytest.skip("SCHED_FIFO not permitted here")
+    env = {k: v for k, v in os.environ.items() if k != "FUEL_VALVE_IMPORTS_NORMAL_PRIORITY"}
+    # on, started FIFO 1: normal priority at import (a thread started then too); FIFO again for all,
+    # and inherited by a thread started after
+    assert _fifo_child(dict(env, FUEL_VALVE_IMPORTS_NORMAL_PRIORITY="1")) == "[1, False, False, True, True, True] []"
+    # the default: FIFO throughout, nothing to give back (the threads inherit FIFO)
+    assert _fifo_child(env) == "[None, True, True, True, True, True] []"

@@ -104,6 +104,9 @@ DRIVE_BACK_TIMEOUT_S = 0.1
 DRIVE_BACK_ATTEMPTS = 5
 #: warning code of a missing, stale or implausible measured pressure differential
 PRESSURE_INPUT = "pressure_differential"
+#: key in a "waiting" output's warnings while the first arm waits for a steady resolver stream
+#: (``faults.arm_steady_s``, real time)
+RESOLVER_SETTLING = "resolver_settling"
 #: warning code of a measured Δp that disagrees with the valve friction met (friction_check.py)
 PRESSURE_FRICTION = "pressure_differential_implausible"
 
@@ -169,6 +172,12 @@ class ValveDriver:
         self._late_t: float | None = None
         self._late_why = ""
         self.late_loop_events = 0
+        #: ``faults.arm_steady_s`` (real time only: :meth:`loop_timing` seen): the first arm after
+        #: construction or activation waits for the resolver stream to run on time that long; the
+        #: stamp that began its current on-time run (None: none yet)
+        self._real_time = False
+        self._awaiting_steady = True
+        self._steady_since: float | None = None
         #: age of the latest resolver sample when it arrived (arrival minus stamp, s; None: not
         #: known, offline) and the loop time the drive last reported itself enabled (diagnostics)
         self._sample_age: float | None = None
@@ -464,6 +473,10 @@ class ValveDriver:
         stale = self.ps["faults.stale_sample_periods"]
         self._stale_sample = stale > 0.0 and self.sample_late_s > stale * self.period
         prev, self._timing_prev = self._timing_prev, (stamp, now)
+        self._real_time = True
+        gap = self.ps["faults.resolver_timeout_s"]
+        if (self._steady_since is None or prev is None or stamp - prev[0] > gap or now - prev[1] > gap):
+            self._steady_since = stamp      # faults.arm_steady_s: a new on-time run starts here
         if prev is None:
             return
         late = self.ps["fine.late_loop_s"] + self.period
@@ -472,6 +485,14 @@ class ValveDriver:
             self._loop_late(now, f"{stamped * 1e3:.1f} ms between resolver samples")
         elif arrived > late:
             self._loop_late(now, f"a resolver sample {arrived * 1e3:.1f} ms after the previous one")
+
+    def _settling(self) -> bool:
+        """The first arm since construction or activation still waits for a steady resolver
+        stream (``faults.arm_steady_s`` > 0, real time: offline and in lockstep samples come every
+        period by construction and the driver arms on the first, as before).  Meanwhile a resolver
+        silence is no fault: the drive is off, the spring holds the valve; the on-time run starts
+        over."""
+        return self._real_time and self._awaiting_steady and self.ps["faults.arm_steady_s"] > 0.0
 
     def _loop_late(self, t: float, why: str) -> None:
         self._late_t, self._late_why = t, why
@@ -655,6 +676,8 @@ class ValveDriver:
         torque at the next period without a fault).  The managed node's (de)activate."""
         if inhibited:
             self._armed = False
+        elif self.inhibited:
+            self._awaiting_steady = True       # activated: the first arm proves the stream again
         self.inhibited = bool(inhibited)
 
     def trip(self, reason: str = "trip requested") -> None:
@@ -765,7 +788,10 @@ class ValveDriver:
         pressure = self._scheduled_kpa = self.pressure_kpa = self._scheduled_pressure(t)
         # --- staleness checks
         if self._meas_t is not None and t - self._meas_t > ps["faults.resolver_timeout_s"]:
-            self._latch(RESOLVER_STALE, f"no resolver sample for {(t - self._meas_t) * 1e3:.0f} ms")
+            if self._settling():
+                self._steady_since = None   # not armed yet: the stream's on-time run starts over
+            else:
+                self._latch(RESOLVER_STALE, f"no resolver sample for {(t - self._meas_t) * 1e3:.0f} ms")
         holding = False
         if self._demand_t is not None and t - self._demand_t > ps["demand_timeout_s"]:
             msg = f"no valid demand for {t - self._demand_t:.2f} s"
@@ -780,6 +806,15 @@ class ValveDriver:
             state = "fault" if self.faults else "inactive" if self.inhibited else "waiting"
             self.last = DriverOutput(0.0, False, state, self._demand_pct, position_pct,
                                      dict(self.faults), dict(self.warnings))
+            return self.last
+        if not self._armed and self._settling() and (
+                self._steady_since is None or self._meas_t - self._steady_since < ps["faults.arm_steady_s"]):
+            # the first arm (faults.arm_steady_s): drive off until the resolver stream has run on time
+            run = 0.0 if self._steady_since is None else self._meas_t - self._steady_since
+            why = (f"arming once the resolver stream has run on time for {ps['faults.arm_steady_s']:g} s "
+                   f"({run:.3f} s so far)")
+            self.last = DriverOutput(0.0, False, "waiting", self._demand_pct, position_pct, {},
+                                     {**self.warnings, RESOLVER_SETTLING: why})
             return self.last
         demand_rad = self.demand_rad()
         if self.valve_test is not None:           # a running valve test owns the demand
@@ -831,6 +866,7 @@ class ValveDriver:
             self._stalled = False
             self._arm_torque = 0.0        # re-arming after a fault starts from zero torque
             self._armed = True
+            self._awaiting_steady = False
             if self.friction_check is not None:
                 self.friction_check.reset()   # the valve moved with the drive off: not friction
             self._friction_override = None   # the law was reset for the reading's Δp
@@ -970,6 +1006,8 @@ class ValveDriver:
                 out.faults.values())
         elif out.state == "inactive":
             level, message = 1, "inactive (managed node not active): drive disabled, spring closing the valve"
+        elif out.state == "waiting" and RESOLVER_SETTLING in out.warnings:
+            level, message = 1, "drive off, " + out.warnings[RESOLVER_SETTLING]
         elif out.state == "waiting":
             missing = [what for what, absent in (("a valid demand", out.demand_pct is None),
                                                  ("resolver samples", out.position_pct is None)) if absent]

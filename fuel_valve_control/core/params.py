@@ -768,6 +768,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           0.01, 60.0, runtime=True),
     Param("faults.resolver_timeout_s", 0.02, "s", "resolver silence that latches a fault", 0.002, 5.0,
           runtime=True),
+    Param("faults.arm_steady_s", 0.25, "s", "real time: the drive's first arm after start-up or activation "
+          "waits until the resolver stream has run on time this long (no gap between samples, stamps or arrivals, "
+          "beyond faults.resolver_timeout_s); until then the drive stays off (the spring holds the valve) and a "
+          "resolver silence restarts the wait instead of latching a fault (a node process's start-up stalls are "
+          "not a failed resolver: docs section 107).  0: arm on the first sample.  Offline and in lockstep the "
+          "samples are on time by construction: arms on the first, whatever this is", 0.0, 10.0, runtime=True),
     Param("faults.resolver_max_step_rad", 0.05, "rad", "valve reading change per period that is "
           "physically impossible (implausible)", 1e-3, 1.0, runtime=True),
     # motor/valve resolver disagreement = coupling twist; both limits derive from the model

@@ -62,7 +62,7 @@ from .valve_test_services import ValveTestInterface
 from ..common.paramspec import ConfigError
 
 from ..core.params import CONTROLLER_NODE_SPEC, CONTROLLER_SPEC, load_controller_params
-from ..core.driver import Health, ValveDriver
+from ..core.driver import RESOLVER_SETTLING, Health, ValveDriver
 from ..core.period_inputs import PeriodInputs
 from ..core.pulse_moves import TableBuild, default_cache_dir
 from ..core.health import NE107_DIAGNOSTIC_LEVEL, FUNCTION_CHECK, load_state, save_state, state_owner
@@ -108,6 +108,8 @@ def drive_off_log(out) -> tuple[str, str]:
                          "clear the cause, then call ~/reset")
     if out.state == "inactive":
         return "info", "drive off: state inactive (deactivated or inhibited)"
+    if out.state == "waiting" and RESOLVER_SETTLING in out.warnings:
+        return "info", f"drive off: {out.warnings[RESOLVER_SETTLING]}"
     if out.state == "waiting" and out.demand_pct is not None and out.position_pct is not None:
         return "info", ("drive off: the drive's own watchdog tripped (late loop); waiting for the valve to "
                         "come to rest, then it re-arms by itself")

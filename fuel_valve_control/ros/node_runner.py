@@ -141,6 +141,32 @@ def freeze_heap(on: bool | None = None) -> bool:
     return on
 
 
+def restore_fifo(priority: int | None = None) -> list[str]:
+    """Give a node process started SCHED_FIFO its priority back
+    (:func:`fuel_valve_control.ros.start_at_normal_priority` took it away for its imports):
+    SCHED_FIFO ``priority`` (None: ``fuel_valve_control.ros.STARTUP_FIFO``; None there too:
+    nothing to do) for every thread of the process (the main thread, OpenBLAS's workers).
+    :func:`run_node` calls it before ``rclpy.init``: the threads started from then on -- DDS,
+    the executor, the plant's tick thread, the controller's move-table reader -- inherit it, as
+    they did when the whole process ran SCHED_FIFO.  Returns what the OS refused (one sentence)."""
+    if priority is None:
+        from fuel_valve_control import ros
+        priority = ros.STARTUP_FIFO
+    if not priority:
+        return []
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [os.getpid()]
+    for tid in sorted(tids, key=lambda t: t != os.getpid()):      # the main thread first
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, AttributeError) as exc:   # a thread that ended meanwhile / not permitted
+            if tid == os.getpid():
+                return [f"SCHED_FIFO {priority} refused ({exc}): normal priority"]
+    return []
+
+
 def quiet_signals(handler=None) -> None:
     """Python-level SIGINT/SIGTERM handlers that never raise; ``handler(signum)`` if given.
 
@@ -195,6 +221,9 @@ def run_node(factory, args=None, on_exit=None) -> int:
     stop: list[int] = []
     quiet_signals(stop.append)
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+    # the imports are done (the node module's, at normal priority: start_at_normal_priority); from
+    # here on, and every thread started from here on, at the real-time priority it was started with
+    refused = restore_fifo()
     if not init_or_explain(args):
         return 2
     node = executor = None
@@ -204,6 +233,8 @@ def run_node(factory, args=None, on_exit=None) -> int:
         executor = make_executor()
         executor.add_node(node)
         freeze_heap()
+        for why in refused:
+            node.get_logger().warn(why)
         spin(executor, until=lambda: bool(stop))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
