@@ -349,6 +349,28 @@ def _norm_cdf(x):
     return 0.5 * (1.0 + _erf(np.asarray(x) / math.sqrt(2.0)))
 
 
+#: (task h40m, docs §106) |x| beyond which the normal CDF is exactly 0.0 or 1.0 in this arithmetic (0.5 (1 +
+#: erf(x / sqrt 2)): erf rounds to +-1 past ~5.9 / sqrt 2 ... checked densely from 8.5 to 60, and at +-inf, in the test)
+CDF_SATURATED = 9.0
+#: erf saturates there on this scipy build (else the tails are computed like the rest)
+_CDF_TAILS_EXACT = bool(0.5 * (1.0 + _erf(CDF_SATURATED / math.sqrt(2.0))) == 1.0
+                        and 0.5 * (1.0 + _erf(-CDF_SATURATED / math.sqrt(2.0))) == 0.0)
+
+
+def _norm_cdf_tails(x: np.ndarray) -> np.ndarray:
+    """:func:`_norm_cdf` (the same bits), with ``erf`` evaluated only where |x| <= CDF_SATURATED: beyond, the CDF is
+    exactly 1.0 (x > 0) or 0.0 (task h40m, docs §106: the mixture law's choice evaluates ~15 000 CDFs per try, ~3 of 4
+    in the tails).  NaN stays NaN (through ``erf``)."""
+    x = np.asarray(x, dtype=float)
+    if not _CDF_TAILS_EXACT or x.size < 1024:
+        return _norm_cdf(x)
+    mid = ~(np.abs(x) > CDF_SATURATED)
+    out = (x > 0.0).astype(float)
+    xm = x[mid]
+    out[mid] = 0.5 * (1.0 + _erf(xm / math.sqrt(2.0)))
+    return out
+
+
 @dataclass(frozen=True)
 class LearnedModel(NominalModel):
     """The told model with the valve friction scaled by ``friction_scale`` (Coulomb and static,
@@ -1732,7 +1754,7 @@ class FinePositioner:
         # |e| left: at the read points, and per level for a break in the preload (2 x excess, finite)
         left = np.concatenate([e - np.where(np.isfinite(mvp), mvp, 2.0 * e + 1.0), e - 2.0 * excess])
         # the three normal CDFs of every |e| left in one pass (the edges of a landing, a worsening)
-        cdf = _norm_cdf((np.array([tol, lo, worse_edge])[:, None] - left[None, :]) / s)
+        cdf = _norm_cdf_tails((np.array([tol, lo, worse_edge])[:, None] - left[None, :]) / s)
         hit_all, worse_all = cdf[0] - cdf[1], cdf[2]
         n = len(mvp)
         hit = np.where(brk, hit_all[n:], 0.0)

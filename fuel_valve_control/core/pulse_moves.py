@@ -445,18 +445,12 @@ class PulseMoves:
         row = i0 * no + j0 + off
         n = len(row)
         cells = np.concatenate([row, row + 1, row + no, row + (no + 1)])
-        kk = np.minimum(fa, lok[cells])
-        k = np.minimum(kk.astype(np.intp), na - 2)
-        w = kk - k
-        base = cells * na + k
-        if mvs[0][0] is None:
-            m0, m1 = mvs[0][1][base], mvs[0][1][base + 1]
+        if 4 * n > len(lok):
+            # (task h40m, docs §106) more corner reads than cells (the mixture law's thousands of points): every
+            # cell's move at the aim formed once, then read at the corners -- each cell's the same arithmetic
+            at_aim = PulseMoves._cells_at_aim(mvs, lok, fa, na)[cells].reshape(4, n)
         else:
-            m0 = m1 = 0.0
-            for c, m in mvs:
-                m0 = m0 + c * m[base]
-                m1 = m1 + c * m[base + 1]
-        at_aim = (m0 * (1.0 - w) + m1 * w).reshape(4, n)
+            at_aim = PulseMoves._cells_at_aim(mvs, lok[cells], fa, na, cells).reshape(4, n)
         th_at = thr[cells].reshape(4, n)
         v = np.zeros(x.shape)
         t = np.zeros(x.shape)
@@ -468,6 +462,24 @@ class PulseMoves:
         bad = (x < -eps) | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | ~np.isfinite(x) | (not math.isfinite(aim))
         v[(aim >= t) | bad | (x > xg[-1] * (1 + 1e-6) + eps) | (od > og[-1] * (1 + 1e-6))] = np.nan
         return v
+
+    @staticmethod
+    def _cells_at_aim(mvs, lok, fa: float, na: int, cells=None) -> np.ndarray:
+        """(:meth:`_raw_move_stacked`) The move at the aim index ``fa`` of the stacked cells ``cells`` (None: every
+        cell; ``lok``: their ``last_ok`` aims): the cell's two neighbouring aims' moves, each the corners' blend
+        (``mvs``, as :meth:`_blend` blends the table), blended linearly -- a function of the cell alone."""
+        kk = np.minimum(fa, lok)
+        k = np.minimum(kk.astype(np.intp), na - 2)
+        w = kk - k
+        base = (np.arange(len(lok)) if cells is None else cells) * na + k
+        if mvs[0][0] is None:
+            m0, m1 = mvs[0][1][base], mvs[0][1][base + 1]
+        else:
+            m0 = m1 = 0.0
+            for c, m in mvs:
+                m0 = m0 + c * m[base]
+                m1 = m1 + c * m[base + 1]
+        return m0 * (1.0 - w) + m1 * w
 
     def table(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
               valve_angle_rad: float | None = None) -> dict:
