@@ -723,6 +723,7 @@ class FineConfig:
                                         # where it is until it turns slower than this (rad/s) with the valve at rest
                                         # (or 2 x observe_periods), then hands over (0: at once, today's; task h38s,
                                         # docs §98)
+    apex_mix_points: int = APEX_MIX_POINTS   # fine.apex_level_law not normal: the levels it is weighed on (task h40m)
     apex_stop_rad: float = 0.0    # fine.apex_policy: done once the valve rests within this of the target (when above
                                   # tolerance_rad; 0: tolerance_rad only; task h39t, docs §102)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
@@ -1556,7 +1557,8 @@ class FinePositioner:
         if self.cfg.apex_level_law != "normal":
             scales, weights = self._level_scales(sigma, pressure_kpa)
             if len(scales) > 1:
-                return mixture_level_law(phi_b, d, scales, weights, None if fl is None else fl[1])
+                return mixture_level_law(phi_b, d, scales, weights, None if fl is None else fl[1],
+                                         self.cfg.apex_mix_points)
         z, w = _APEX_Z, _APEX_W
         lv = phi_b + d * sigma * z
         if fl is not None:
