@@ -307,6 +307,9 @@ _BREAK_LIMITS: dict = {}
 _APEX_Z = np.linspace(-APEX_LAW_SIGMAS, APEX_LAW_SIGMAS, APEX_LAW_POINTS)
 _APEX_W = np.exp(-0.5 * _APEX_Z * _APEX_Z)
 _APEX_Z.flags.writeable = _APEX_W.flags.writeable = False
+#: (``fine.apex_policy``) the candidate apexes above the law's top, in learned scatters (formed once, task h40m)
+_APEX_ABOVE = np.linspace(0.1, 1.5, 8)
+_APEX_ABOVE.flags.writeable = False
 
 
 def _break_limit(sigmas: float) -> float:
@@ -352,7 +355,7 @@ def _beyond_best(hit: np.ndarray, w: np.ndarray, beyond: np.ndarray, fixed: bool
         start = nk - np.count_nonzero(beyond, axis=1)             # [a] the first level beyond the candidate
     if beyond.ndim == 1 or np.array_equal(np.arange(nk)[None, :] >= start[:, None], beyond):   # a suffix
         hw = np.zeros((hit.shape[0], nk + 1))
-        hw[:, :nk] = np.cumsum((hit * w)[:, ::-1], axis=1)[:, ::-1]
+        np.cumsum((hit * w)[:, ::-1], axis=1, out=hw[:, nk - 1::-1])
         tw = np.zeros(nk + 1)
         tw[:nk] = np.cumsum(w[::-1])[::-1]
         num, tot = hw.max(axis=0)[start], tw[start]     # (the best row per suffix, then read: the same maxima)
@@ -374,6 +377,18 @@ def _beyond_levels(d: int, lv: np.ndarray, cand: np.ndarray, fixed: bool) -> np.
         if np.all(dl[1:] >= dl[:-1]):            # (False with a NaN: the matrix)
             return np.searchsorted(dl, d * cand, side="right")
     return d * (lv[None, :] - cand[:, None]) > 0.0
+
+
+_PREFIX_MASKS: dict = {}
+
+
+def _prefix_mask(n: int) -> np.ndarray:
+    """[n + 1, n]: row m True on the first m columns (kept per n)."""
+    mask = _PREFIX_MASKS.get(n)
+    if mask is None:
+        mask = _PREFIX_MASKS[n] = np.arange(n)[None, :] < np.arange(n + 1)[:, None]
+        mask.flags.writeable = False
+    return mask
 
 
 def _norm_cdf(x):
@@ -1674,7 +1689,7 @@ class FinePositioner:
         step = APEX_DP_STEP * self.m.pressure_max_kpa
         pressure_kpa = round(pressure_kpa / step) * step
         top = lv[-1] if d * (lv[-1] - lv[0]) > 0 else lv[0]
-        cand = np.concatenate([lv, top + d * sigma * np.linspace(0.1, 1.5, 8)])
+        cand = np.concatenate([lv, top + d * sigma * _APEX_ABOVE])
         fl = self._floor(d)
         if fl is not None:
             cand = cand[d * (cand - fl[1]) > 0.0]
@@ -1798,15 +1813,26 @@ class FinePositioner:
         if fixed:
             # (task h40m) hit, worse and break side by side: one fill, one product, one sum (each row's sum is the
             # same bits computed alone or with the others, docs §99)
-            lvl = np.empty((3, nk))
+            prefix = beyond.ndim == 1        # the levels ordered toward the try: each row's break mask is a prefix
+            lvl = np.empty((2 if prefix else 3, nk))
             np.subtract(cdf[0, n:], cdf[1, n:], out=lvl[0])
             lvl[1] = cdf[2, n:]
-            lvl[2] = 1.0
-            slab = np.where(brk[None], lvl[:, None, None, :], 0.0)     # [hit / worse / break, kick, a, k]
-            flat = slab.reshape(3, -1)
+            if not prefix:
+                lvl[2] = 1.0
+            slab = np.where(brk[None], lvl[:, None, None, :], 0.0)     # [hit / worse (/ break), kick, a, k]
+            flat = slab.reshape(len(lvl), -1)
             flat[0, idx] = cdf[0, :n] - cdf[1, :n]
             flat[1, idx] = cdf[2, :n]
-            p_hit, p_worse, p_break = np.add.reduce(slab * w, axis=-1)
+            sums = np.add.reduce(slab * w, axis=-1)
+            p_hit, p_worse = sums[0], sums[1]
+            if prefix:
+                # (task h40m) od falls along each row (d lv ordered), so a level below the preload is one of the first
+                # m of its row: the break's sum is the law's first-m sum, row m of a table of prefixes (the same
+                # elements w / 0.0, the same row sums)
+                m = np.count_nonzero(brk, axis=-1)
+                p_break = np.add.reduce(np.where(_prefix_mask(nk), w, 0.0), axis=-1)[m]
+            else:
+                p_break = sums[2]
             hit = slab[0]
         else:
             # the normal law: main's BLAS products, each on its own array as ever
