@@ -77,3 +77,27 @@ def test_the_law_scales_are_memoised_unchanged_and_read_only():
         FP.level_law_scales("mixture", 1e-4 * (1 + k), 1.146e-3, 8.0)
     assert len(FP._LAW_SCALES) <= 8
     assert math.isclose(float(FP.level_law_scales("mixture", 1e-4, 1.146e-3, 8.0)[1].sum()), 1.0)
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_the_break_sums_from_the_law_prefixes_equal_the_masked_sums(direction):
+    """A level below a kick's preload (overdrive > its rise) is, on levels ordered toward the try, one of the first m
+    of its candidate's row (the overdrive falls along the row): the law's sum over the break mask equals row m of
+    the table of the law's prefix sums to the bit (the same elements w / 0.0 summed in the same order), as the
+    choice's mixture path reads it; the prefix table's row m is True on the first m columns."""
+    d = direction
+    rng = np.random.default_rng(43 + d)
+    mask = FP._prefix_mask(5)
+    assert mask.shape == (6, 5) and np.array_equal(mask.sum(axis=1), np.arange(6)) and mask[3, :3].all()
+    for n in range(8):
+        floor = None if n % 2 else 0.01 + d * float(rng.uniform(-1e-3, 2e-3))
+        lv, w = FP.mixture_level_law(0.01, d, np.array([2e-4, 5e-4, 1.1e-3]), np.array([0.5, 0.3, 0.2]), floor)
+        cand = np.concatenate([lv, lv[-1] + d * 4e-4 * np.linspace(0.1, 1.5, 8)])
+        od = d * (cand[:, None] - lv[None, :])
+        rises = np.sort(rng.uniform(1e-4, 3e-3, 3))
+        brk = od[None, :, :] > rises[:, None, None]
+        m = np.count_nonzero(brk, axis=-1)
+        assert np.array_equal(np.arange(len(lv))[None, None, :] < m[:, :, None], brk)      # a prefix per row
+        want = np.add.reduce(brk.astype(float) * w, axis=-1)
+        got = np.add.reduce(np.where(FP._prefix_mask(len(lv)), w, 0.0), axis=-1)[m]
+        assert np.array_equal(got, want)
