@@ -13,7 +13,9 @@ profile and time in separate runs).  Each call's outcome (apex, kick, rise) is k
 alike when their lists are equal.  Last line: one JSON object.
 
     python benchmarks/apex_choice.py [--runs 3] [--seed 1000] [--law normal|mixture|both] [--profile] [--compare]
-                                     [--set controller.KEY=VALUE ...] [--json PATH]
+                                     [--replay R] [--set controller.KEY=VALUE ...] [--json PATH]
+
+``--replay R`` (task h40m, docs §106): every recorded try re-run R times, the laws alternating; each try's minimum CPU.
 """
 from __future__ import annotations
 
@@ -197,6 +199,32 @@ def compare(tries: list, repeats: int = 3) -> dict:
             "differences": differ[:5], "ratio_median": round(float(np.median(ref_ms) / np.median(new_ms)), 2)}
 
 
+def replay(tries_by_law: dict, repeats: int) -> dict:
+    """(task h40m, docs §106) Re-run every recorded try (``timed_runs(record=True)``) of each law ``repeats`` times on
+    fresh copies of its stage, the laws alternating per round: per law the distribution of each try's **minimum** CPU
+    time (ms; the quiet-core estimate on a loaded machine) and of its median, and each law's median over the first's."""
+    times = {law: [[] for _ in tries] for law, tries in tries_by_law.items()}
+    for _ in range(repeats):
+        for law, tries in tries_by_law.items():
+            for i, (fine, args, kw) in enumerate(tries):
+                st = _copy(fine)
+                t0 = time.thread_time()
+                F.FinePositioner._choose_apex(st, *args, **kw)
+                times[law][i].append((time.thread_time() - t0) * 1e3)
+    out = {}
+    for law, per in times.items():
+        if not per:
+            continue
+        mins = np.array([min(v) for v in per])
+        out[law] = {**_dist(list(mins)), "p99_ms": round(float(np.percentile(mins, 99)), 4),
+                    "median_of_medians_ms": round(float(np.median([np.median(v) for v in per])), 4)}
+    laws = [law for law in out]
+    if len(laws) > 1:
+        for law in laws[1:]:
+            out[law]["ratio_to_" + laws[0]] = round(out[law]["median_ms"] / out[laws[0]]["median_ms"], 3)
+    return out
+
+
 def _dist(ms: list[float]) -> dict:
     if not ms:
         return {"tries": 0}
@@ -216,19 +244,25 @@ def main(argv=None) -> int:
                     help="controller parameter on top of C1")
     ap.add_argument("--compare", action="store_true", help="also replay every try through main's choice (the "
                     "reference) and the current one, timing both and checking their outcomes are identical")
+    ap.add_argument("--replay", type=int, default=0, metavar="R", help="also re-run every recorded try R times "
+                    "(the laws alternating) and report each try's minimum CPU (the quiet-core estimate)")
     ap.add_argument("--json", metavar="PATH", help="also write the JSON (with every call's time and choice) here")
     args = ap.parse_args(argv)
     extra = parse_overrides(args.overrides, ("controller",))["controller"]
     doc = {"command": "python benchmarks/apex_choice.py " + " ".join(argv if argv is not None else sys.argv[1:]),
            "seed": args.seed, "runs": args.runs, "laws": {}}
     full = {}
+    recorded = {}
     for law in (LAWS if args.law == "both" else (args.law,)):
-        res = timed_runs(args.seed, args.runs, {**C1, "fine.apex_level_law": law, **extra}, args.profile, args.compare)
+        res = timed_runs(args.seed, args.runs, {**C1, "fine.apex_level_law": law, **extra}, args.profile,
+                         args.compare or args.replay > 0)
         dist = _dist(res["ms"])
         doc["laws"][law] = {**dist, "built_calls": len(res["built_ms"]),
                             "built_max_ms": round(max(res["built_ms"]), 1) if res["built_ms"] else None}
         stats = res.pop("stats")
         tries = res.pop("tries")
+        if args.replay > 0:
+            recorded[law] = tries
         if args.compare:
             cmp_ = doc["laws"][law]["compare"] = compare(tries)
             print(f"{law:8s} replayed {cmp_['tries']} tries: reference median {cmp_['reference']['median_ms']:.3f} / "
@@ -244,6 +278,12 @@ def main(argv=None) -> int:
             stats.stream = s
             stats.sort_stats("tottime").print_stats(22)
             print(s.getvalue())
+    if recorded:
+        doc["replay"] = replay(recorded, args.replay)
+        for law, r in doc["replay"].items():
+            print(f"{law:8s} replayed x{args.replay}: per-try minimum median {r['median_ms']:.3f} / p95 {r['p95_ms']:.3f} / "
+                  f"p99 {r['p99_ms']:.3f} / max {r['max_ms']:.3f} ms over {r['tries']} tries"
+                  + "".join(f"; {k} {v}" for k, v in r.items() if k.startswith("ratio_to_")))
     if args.json:
         Path(args.json).write_text(json.dumps({**doc, "calls": full}, indent=1) + "\n")
     print(json.dumps(doc))

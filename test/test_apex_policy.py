@@ -348,4 +348,17 @@ def test_the_move_points_equal_the_move_model_at_every_point():
                                  valve_angle_rad=thl) for i in range(n)], dtype=float)
         assert np.array_equal(got, want, equal_nan=True)
         assert np.array_equal(got_up, want[up], equal_nan=True)
+        # (task h40m) the excess given per level: point i's is x_levels[level[i]] -- the same bits
+        x_levels = np.concatenate([x, [-1e-4, np.nan, 5e-2]])
+        rl = np.random.default_rng(len(x_levels) + int(1e4 * aim))      # (its own draws: rng's stay as they were)
+        level = np.where(rl.uniform(size=n) < 0.9, np.arange(n), n + rl.integers(0, 3, n))
+        got_lv = pm.move_points(d, p, kicks, which[up], x_levels, od[up], aim_rad=aim, valve_angle_rad=thl,
+                                level=level[up])
+        assert np.array_equal(got_lv, pm.move_points(d, p, kicks, which[up], x_levels[level[up]], od[up],
+                                                     aim_rad=aim, valve_angle_rad=thl), equal_nan=True)
+        # (points below their level too: the per-kick fallback takes the excess per point)
+        assert np.array_equal(pm.move_points(d, p, kicks, which, x_levels, od, aim_rad=aim, valve_angle_rad=thl,
+                                             level=level),
+                              pm.move_points(d, p, kicks, which, x_levels[level], od, aim_rad=aim,
+                                             valve_angle_rad=thl), equal_nan=True)
         assert np.isfinite(want[up]).sum() > 30 and (want == 0.0).sum() > 2 and np.isnan(want).sum() > 2

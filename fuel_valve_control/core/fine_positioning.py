@@ -227,6 +227,22 @@ def level_law_scales(kind: str, sigma: float, sigma_hi: float, nu: float) -> tup
     * ``"student"``: a Student-t of ``nu`` degrees of freedom with scale ``sigma`` (the learned rms taken from
       ~``nu`` + 1 stops): its precision Gamma(nu/2, nu/2), on APEX_MIX_SCALES equal-probability quantiles.
     """
+    key = (kind, sigma, sigma_hi, nu)
+    hit = _LAW_SCALES.get(key)
+    if hit is None:                 # (task h40m) 4 of 5 tries ask what the previous asked (the same scatter and Δp)
+        hit = _LAW_SCALES[key] = _level_law_scales(kind, sigma, sigma_hi, nu)
+        for a in hit:
+            a.flags.writeable = False
+        while len(_LAW_SCALES) > 8:
+            _LAW_SCALES.pop(next(iter(_LAW_SCALES)))
+    return hit
+
+
+_LAW_SCALES: dict = {}
+
+
+def _level_law_scales(kind: str, sigma: float, sigma_hi: float, nu: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`level_law_scales`, computed."""
     if kind == "mixture" and sigma_hi > sigma * (1.0 + 1e-6):
         u = (np.arange(APEX_MIX_SCALES) + 0.5) / APEX_MIX_SCALES
         return sigma * (sigma_hi / sigma) ** u, np.full(APEX_MIX_SCALES, 1.0 / APEX_MIX_SCALES)
@@ -291,6 +307,9 @@ _BREAK_LIMITS: dict = {}
 _APEX_Z = np.linspace(-APEX_LAW_SIGMAS, APEX_LAW_SIGMAS, APEX_LAW_POINTS)
 _APEX_W = np.exp(-0.5 * _APEX_Z * _APEX_Z)
 _APEX_Z.flags.writeable = _APEX_W.flags.writeable = False
+#: (``fine.apex_policy``) the candidate apexes above the law's top, in learned scatters (formed once, task h40m)
+_APEX_ABOVE = np.linspace(0.1, 1.5, 8)
+_APEX_ABOVE.flags.writeable = False
 
 
 def _break_limit(sigmas: float) -> float:
@@ -322,20 +341,24 @@ def _beyond_best(hit: np.ndarray, w: np.ndarray, beyond: np.ndarray, fixed: bool
     the try, so the levels beyond a candidate are a suffix of them: the suffix sums of hit x w (a cumulative sum from
     the last level down, numpy's sequential accumulate) read at each candidate's first level beyond, the best row's
     divided by the suffix sum of w: O(rows x levels), not O(rows x candidates x levels).  Levels not ordered (no law
-    builds them so): the sums over the truncated law elementwise, numpy's pairwise sum."""
+    builds them so): the sums over the truncated law elementwise, numpy's pairwise sum.  ``beyond`` may be 1-D
+    (``fixed`` only, :func:`_beyond_levels`): each candidate's first level beyond it, the levels known ordered."""
     if not fixed:
         trunc = np.where(beyond, w[None, :], 0.0)
         tot = trunc.sum(axis=1, keepdims=True)
         trunc = np.divide(trunc, tot, out=np.zeros_like(trunc), where=tot > 0.0)
         return (hit @ trunc.T).max(axis=0)
-    nk = beyond.shape[1]
-    start = nk - np.count_nonzero(beyond, axis=1)                 # [a] the first level beyond the candidate
-    if np.array_equal(np.arange(nk)[None, :] >= start[:, None], beyond):     # the levels beyond: a suffix
+    nk = len(w)
+    if beyond.ndim == 1:
+        start = beyond                           # (task h40m) given as each candidate's first level beyond it
+    else:
+        start = nk - np.count_nonzero(beyond, axis=1)             # [a] the first level beyond the candidate
+    if beyond.ndim == 1 or np.array_equal(np.arange(nk)[None, :] >= start[:, None], beyond):   # a suffix
         hw = np.zeros((hit.shape[0], nk + 1))
-        hw[:, :nk] = np.cumsum((hit * w)[:, ::-1], axis=1)[:, ::-1]
+        np.cumsum((hit * w)[:, ::-1], axis=1, out=hw[:, nk - 1::-1])
         tw = np.zeros(nk + 1)
         tw[:nk] = np.cumsum(w[::-1])[::-1]
-        num, tot = hw[:, start].max(axis=0), tw[start]
+        num, tot = hw.max(axis=0)[start], tw[start]     # (the best row per suffix, then read: the same maxima)
     else:
         trunc = np.where(beyond, w[None, :], 0.0)
         num = np.add.reduce(hit[:, None, :] * trunc[None, :, :], axis=-1).max(axis=0)
@@ -343,10 +366,56 @@ def _beyond_best(hit: np.ndarray, w: np.ndarray, beyond: np.ndarray, fixed: bool
     return np.divide(num, tot, out=np.zeros_like(num), where=tot > 0.0)
 
 
+def _beyond_levels(d: int, lv: np.ndarray, cand: np.ndarray, fixed: bool) -> np.ndarray:
+    """The levels ``lv`` the law keeps after no move at each candidate apex ``cand`` toward ``d`` (those beyond it):
+    [a, k] True where d (lv_k - cand_a) > 0.  With ``fixed`` and the levels ordered toward ``d`` (every law builds
+    them so) the same as each candidate's first level beyond it, 1-D (task h40m, docs §106; for
+    :func:`_beyond_best`): d (lv_k - a) > 0 exactly when d lv_k > d a (IEEE subtraction keeps the sign), so the
+    levels beyond are those after d lv's right insertion point of d a."""
+    if fixed:
+        dl = d * lv
+        if np.all(dl[1:] >= dl[:-1]):            # (False with a NaN: the matrix)
+            return np.searchsorted(dl, d * cand, side="right")
+    return d * (lv[None, :] - cand[:, None]) > 0.0
+
+
+_PREFIX_MASKS: dict = {}
+
+
+def _prefix_mask(n: int) -> np.ndarray:
+    """[n + 1, n]: row m True on the first m columns (kept per n)."""
+    mask = _PREFIX_MASKS.get(n)
+    if mask is None:
+        mask = _PREFIX_MASKS[n] = np.arange(n)[None, :] < np.arange(n + 1)[:, None]
+        mask.flags.writeable = False
+    return mask
+
+
 def _norm_cdf(x):
     """The standard normal's CDF, elementwise (scipy's ufunc ``erf``: ``math.erf`` through ``np.vectorize`` was
     half of the apex policy's ~1.6-4 ms per try, measured in a nominal run)."""
     return 0.5 * (1.0 + _erf(np.asarray(x) / math.sqrt(2.0)))
+
+
+#: (task h40m, docs §106) |x| beyond which the normal CDF is exactly 0.0 or 1.0 in this arithmetic (0.5 (1 +
+#: erf(x / sqrt 2)): erf rounds to +-1 past ~5.9 / sqrt 2 ... checked densely from 8.5 to 60, and at +-inf, in the test)
+CDF_SATURATED = 9.0
+#: erf saturates there on this scipy build (else the tails are computed like the rest)
+_CDF_TAILS_EXACT = bool(0.5 * (1.0 + _erf(CDF_SATURATED / math.sqrt(2.0))) == 1.0
+                        and 0.5 * (1.0 + _erf(-CDF_SATURATED / math.sqrt(2.0))) == 0.0)
+
+
+def _norm_cdf_tails(x: np.ndarray) -> np.ndarray:
+    """:func:`_norm_cdf` (the same bits), with ``erf`` evaluated only where |x| <= CDF_SATURATED: beyond, the CDF is
+    exactly 1.0 (x > 0) or 0.0 (task h40m, docs §106: the mixture law's choice evaluates ~15 000 CDFs per try, ~3 of 4
+    in the tails).  NaN stays NaN (through ``erf``)."""
+    x = np.asarray(x, dtype=float)
+    if not _CDF_TAILS_EXACT or x.size < 1024:
+        return _norm_cdf(x)
+    mid = np.flatnonzero(~(np.abs(x) > CDF_SATURATED))
+    out = (x > 0.0).astype(float)
+    out.reshape(-1).put(mid, 0.5 * (1.0 + _erf(x.reshape(-1).take(mid) / math.sqrt(2.0))))
+    return out
 
 
 @dataclass(frozen=True)
@@ -673,6 +742,7 @@ class FineConfig:
                                    # output held where it is until it turns slower than handover_settle_speed with the
                                    # valve at rest (or 2 x observe_periods), then the main law takes over (stop 28,
                                    # docs §108)
+    apex_mix_points: int = APEX_MIX_POINTS   # fine.apex_level_law not normal: the levels it is weighed on (task h40m)
     apex_stop_rad: float = 0.0    # fine.apex_policy: done once the valve rests within this of the target (when above
                                   # tolerance_rad; 0: tolerance_rad only; task h39t, docs §102)
     supply_voltage_v: float | None = None  # the drive's bus, V (the move model's current loop; None: no limit)
@@ -1537,7 +1607,8 @@ class FinePositioner:
         if self.cfg.apex_level_law != "normal":
             scales, weights = self._level_scales(sigma, pressure_kpa)
             if len(scales) > 1:
-                return mixture_level_law(phi_b, d, scales, weights, None if fl is None else fl[1])
+                return mixture_level_law(phi_b, d, scales, weights, None if fl is None else fl[1],
+                                         self.cfg.apex_mix_points)
         z, w = _APEX_Z, _APEX_W
         lv = phi_b + d * sigma * z
         if fl is not None:
@@ -1653,7 +1724,7 @@ class FinePositioner:
         step = APEX_DP_STEP * self.m.pressure_max_kpa
         pressure_kpa = round(pressure_kpa / step) * step
         top = lv[-1] if d * (lv[-1] - lv[0]) > 0 else lv[0]
-        cand = np.concatenate([lv, top + d * sigma * np.linspace(0.1, 1.5, 8)])
+        cand = np.concatenate([lv, top + d * sigma * _APEX_ABOVE])
         fl = self._floor(d)
         if fl is not None:
             cand = cand[d * (cand - fl[1]) > 0.0]
@@ -1673,7 +1744,7 @@ class FinePositioner:
         worse_edge = 0.0 if short > 0.0 else -e
         fixed = self._fixed_sums()
         p_none = _wsum((~moved).astype(float), w, fixed)
-        beyond = d * (lv[None, :] - cand[:, None]) > 0.0      # [a, k] the levels the law keeps after no move at a
+        beyond = _beyond_levels(d, lv, cand, fixed)         # the levels the law keeps after no move at a
         break_limit = _break_limit(cfg.doublet_sigmas)
         kicks = self._apex_kicks()
         if cfg.apex_kick_continuous and fl is not None and len(kicks) > 1:
@@ -1760,21 +1831,53 @@ class FinePositioner:
         cfg = self.cfg
         fixed = self._fixed_sums()
         rises = self._moves.rises(d, pressure_kpa, kicks, valve_angle_rad=thl)
+        nk, ak = od.shape[1], od.size
         brk = od[None, :, :] > np.array(rises)[:, None, None]     # [kick, a, k] a level below the preload
-        kk, ai, ki = np.nonzero((moved & (w > 0.0)[None, :])[None, :, :] & ~brk)   # read on the move model
-        mvp = self._moves.move_points(d, pressure_kpa, kicks, kk, excess[ki], od[ai, ki], aim_rad=e,
-                                      valve_angle_rad=thl)
+        # (task h40m, docs §106) the points read on the move model by flat index [kick, a, k] (ascending)
+        idx = np.flatnonzero((moved & (w > 0.0)[None, :])[None, :, :] & ~brk)
+        kk = idx // ak
+        pair = idx - kk * ak
+        ki = pair % nk
+        mvp = self._moves.move_points(d, pressure_kpa, kicks, kk, excess, od.reshape(-1)[pair], aim_rad=e,
+                                      valve_angle_rad=thl, level=ki)
         # |e| left: at the read points, and per level for a break in the preload (2 x excess, finite)
         left = np.concatenate([e - np.where(np.isfinite(mvp), mvp, 2.0 * e + 1.0), e - 2.0 * excess])
         # the three normal CDFs of every |e| left in one pass (the edges of a landing, a worsening)
-        cdf = _norm_cdf((np.array([tol, lo, worse_edge])[:, None] - left[None, :]) / s)
-        hit_all, worse_all = cdf[0] - cdf[1], cdf[2]
+        cdf = _norm_cdf_tails((np.array([tol, lo, worse_edge])[:, None] - left[None, :]) / s)
         n = len(mvp)
-        hit = np.where(brk, hit_all[n:], 0.0)
-        hit[kk, ai, ki] = hit_all[:n]
-        worse = np.where(brk, worse_all[n:], 0.0)
-        worse[kk, ai, ki] = worse_all[:n]
-        p_hit, p_worse, p_break = _wsum(hit, w, fixed), _wsum(worse, w, fixed), _wsum(brk.astype(float), w, fixed)
+        if fixed:
+            # (task h40m) hit, worse and break side by side: one fill, one product, one sum (each row's sum is the
+            # same bits computed alone or with the others, docs §99)
+            prefix = beyond.ndim == 1        # the levels ordered toward the try: each row's break mask is a prefix
+            lvl = np.empty((2 if prefix else 3, nk))
+            np.subtract(cdf[0, n:], cdf[1, n:], out=lvl[0])
+            lvl[1] = cdf[2, n:]
+            if not prefix:
+                lvl[2] = 1.0
+            slab = np.where(brk[None], lvl[:, None, None, :], 0.0)     # [hit / worse (/ break), kick, a, k]
+            flat = slab.reshape(len(lvl), -1)
+            flat[0, idx] = cdf[0, :n] - cdf[1, :n]
+            flat[1, idx] = cdf[2, :n]
+            sums = np.add.reduce(slab * w, axis=-1)
+            p_hit, p_worse = sums[0], sums[1]
+            if prefix:
+                # (task h40m) od falls along each row (d lv ordered), so a level below the preload is one of the first
+                # m of its row: the break's sum is the law's first-m sum, row m of a table of prefixes (the same
+                # elements w / 0.0, the same row sums)
+                m = np.count_nonzero(brk, axis=-1)
+                p_break = np.add.reduce(np.where(_prefix_mask(nk), w, 0.0), axis=-1)[m]
+            else:
+                p_break = sums[2]
+            hit = slab[0]
+        else:
+            # the normal law: main's BLAS products, each on its own array as ever
+            hit_all, worse_all = cdf[0] - cdf[1], cdf[2]
+            hit = np.where(brk, hit_all[n:], 0.0)
+            hit.reshape(-1)[idx] = hit_all[:n]
+            worse = np.where(brk, worse_all[n:], 0.0)
+            worse.reshape(-1)[idx] = worse_all[:n]
+            p_hit, p_worse, p_break = (_wsum(hit, w, fixed), _wsum(worse, w, fixed),
+                                       _wsum(brk.astype(float), w, fixed))
         v1 = _beyond_best(hit[0], w, beyond, fixed)   # one more try after no move at a (main's kick): the law beyond a
         score = p_hit + p_none * v1
         ok = p_worse < 0.5
@@ -1791,8 +1894,8 @@ class FinePositioner:
         # the try's mean move (its row as _score_tables reads it at the levels of weight: the whole jump below the
         # preload, the model's move between the level and the preload's reach; 0 elsewhere -- each x 0 in the sum)
         mrow = np.where(brk[bi, j], 2.0 * excess, 0.0)
-        sel = (kk == bi) & (ai == j)
-        mrow[ki[sel]] = mvp[sel]
+        r0, r1 = np.searchsorted(idx, (bi * ak + j * nk, bi * ak + (j + 1) * nk))    # the read points of (bi, j)
+        mrow[ki[r0:r1]] = mvp[r0:r1]
         m_mean = float(_wsum(np.where(moved[j] & np.isfinite(mrow), mrow, 0.0), w, fixed) / pm) if pm > 0 else 0.0
         return (float(score[bi, j]), float(cand[j]), kicks[bi], rises[bi], float(p_hit[bi, j]), float(p_none[j]),
                 m_mean)

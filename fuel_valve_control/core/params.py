@@ -704,6 +704,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "is heavier tailed than one normal; student = a Student-t with the learned scatter and (2 - "
           "fine.scatter_gain) / fine.scatter_gain - 1 degrees of freedom (the learned scatter's sample count; task "
           "h36l, docs section 92)", choices=("normal", "mixture", "student"), runtime=True),
+    Param("fine.apex_mix_points", 81, "", "fine.apex_level_law mixture / student: the levels the law is weighed on "
+          "(equally spaced over +-3 of its widest scatter; 81 as built, docs section 92).  The choice's cost grows about "
+          "as their square (the candidates are the levels and 8 more): fewer is a cheaper, coarser choice -- not the "
+          "same tries (task h40m, docs section 106)", 21, 161, runtime=True),
     Param("fine.apex_floor_repeat", False, "", "fine.apex_policy: once the policy plans an apex no further (within half "
           "of fine.tolerance_rad) than one it already tried at this stop without moving the valve, the law is "
           "truncated at the planned apex, not the measured one, for the rest of the stop (the reading is shown short "

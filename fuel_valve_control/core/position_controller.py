@@ -355,6 +355,7 @@ class PositionController:
                           apex_kick_continuous=ps["fine.apex_kick_continuous"], apex_worse_given_move=ps["fine.apex_worse_given_move"], apex_level_law=ps["fine.apex_level_law"],
                           engage_gear_rest=ps["fine.engage_gear_rest"], handover_settle_speed=ps["fine.handover_settle_speed_rad_s"],
                           handback_settle=ps["fine.handback_settle"], apex_stop_rad=ps["fine.apex_stop_rad"],
+                          apex_mix_points=ps["fine.apex_mix_points"],
                           handover_unwind=ps["fine.handover_unwind"],
                           handover_unwind_max_jumps=ps["fine.handover_unwind_max_jumps"],
                           handover_unwind_near=ps["fine.handover_unwind_near"],

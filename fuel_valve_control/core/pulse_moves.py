@@ -311,20 +311,24 @@ class PulseMoves:
         return self._raw_move(self._blend(d, p, kick, th), x, od, aim)
 
     def move_points(self, direction: int, pressure_kpa: float, kicks, which, excess_rad, overdrive_rad,
-                    aim_rad: float = 0.0, valve_angle_rad: float | None = None) -> np.ndarray:
+                    aim_rad: float = 0.0, valve_angle_rad: float | None = None, level=None) -> np.ndarray:
         """:meth:`move` at points of several kicks in one pass (task h37a, docs §94): the move (rad) at each point i of
         the 1-D arrays ``excess_rad``, ``overdrive_rad`` for the kick ``kicks[which[i]]`` (A), one scalar
         ``aim_rad``; equal bit for bit to ``move(direction, pressure_kpa, excess_rad[i], overdrive_rad[i],
         kicks[which[i]], aim_rad, valve_angle_rad)``: the same arithmetic, element by element, on the kicks' tables
         side by side (:meth:`_blend_stack`; where the kicks' grids differ, or a point lies below its level, one
-        :meth:`_raw_move` per kick).  Builds what :meth:`move` would build."""
+        :meth:`_raw_move` per kick).  ``level`` (task h40m, docs §106; an index array like ``which``): the excess is
+        per level, point i's ``excess_rad[level[i]]`` (the excess's share of the arithmetic formed once per level).
+        Builds what :meth:`move` would build."""
         x, od = np.asarray(excess_rad, dtype=float), np.asarray(overdrive_rad, dtype=float)
         which = np.asarray(which, dtype=np.intp)
         keys = [self._key_parts(direction, pressure_kpa, kick, valve_angle_rad) for kick in kicks]
         if not self.exact and not (od <= 0.0).any():
             stack = self._blend_stack(keys[0][0], keys[0][1], tuple(k[2] for k in keys), keys[0][3])
             if stack is not None:
-                return self._raw_move_stacked(stack, which, x, od, float(aim_rad))
+                return self._raw_move_stacked(stack, which, x, od, float(aim_rad), level)
+        if level is not None:
+            x = x[np.asarray(level, dtype=np.intp)]
         v = np.empty(x.shape)
         for i, (d, p, kk, th) in enumerate(keys):
             sel = which == i
@@ -426,29 +430,62 @@ class PulseMoves:
         return hit
 
     @staticmethod
-    def _raw_move_stacked(stack, which, x, od, aim: float) -> np.ndarray:
+    def _raw_move_stacked(stack, which, x, od, aim: float, level=None) -> np.ndarray:
         """:meth:`_raw_move` on the kicks' tables side by side (``stack``: :meth:`_blend_stack`): point i (1-D
-        points above their levels, ``od`` > 0) read on the table ``which[i]``, one scalar ``aim``.  The arithmetic
-        is :meth:`_raw_move`'s (and :meth:`_blend`'s), operation for operation: each cell's move at the aim (a
-        function of the cell alone for one aim) is formed once per cell instead of once per point and corner, from
-        the cell's two aims' moves blended as :meth:`_blend` blends the whole table; the same bits."""
+        points above their levels, ``od`` > 0) read on the table ``which[i]``, one scalar ``aim``; ``level`` (None:
+        ``x`` per point) an index into ``x`` per point (``x`` per level).  The arithmetic is :meth:`_raw_move`'s (and
+        :meth:`_blend`'s), operation for operation: each cell's move at the aim (a function of the cell alone for one
+        aim) is formed once per cell instead of once per point and corner, from the cell's two aims' moves blended
+        as :meth:`_blend` blends the whole table; the excess's grid index, weight and range test once per level
+        (functions of the excess alone); the same bits."""
         (xg, og, ag), (nx, no, na), mvs, lok, thr = stack
         off = which * (nx * no)                      # each table's first cell in the stacked constants
+        eps = 1e-12
         fx = np.minimum(np.maximum(x * (1.0 / (xg[1] - xg[0])), 0.0), nx - 1)
+        i0 = np.minimum(fx.astype(np.intp), nx - 2)
+        ax = fx - i0
+        bad = (x < -eps) | ~np.isfinite(x) | (x > xg[-1] * (1 + 1e-6) + eps)
+        if level is not None:
+            level = np.asarray(level, dtype=np.intp)
+            i0, ax, bad = i0[level], ax[level], bad[level]
         fo = np.minimum(np.log(np.maximum(od, og[0]) * (1.0 / og[0])) * (1.0 / math.log(og[1] / og[0])), no - 1)
         fa = np.minimum(np.maximum(aim * (1.0 / (ag[1] - ag[0])), 0.0), na - 1)
-        i0 = np.minimum(fx.astype(np.intp), nx - 2)
         j0 = np.minimum(fo.astype(np.intp), no - 2)
-        ax, ao = fx - i0, fo - j0
+        ao = fo - j0
         # the four corner cells of every point, and each one's move at the aim as _raw_move forms it (a function of
         # the cell alone for one aim; on _blend's moves: the cell's two aims blended as _blend blends the table)
         row = i0 * no + j0 + off
         n = len(row)
         cells = np.concatenate([row, row + 1, row + no, row + (no + 1)])
-        kk = np.minimum(fa, lok[cells])
+        if 4 * n > len(lok):
+            # (task h40m, docs §106) more corner reads than cells (the mixture law's thousands of points): every
+            # cell's move at the aim formed once, then read at the corners -- each cell's the same arithmetic
+            at_aim = PulseMoves._cells_at_aim(mvs, lok, fa, na)[cells].reshape(4, n)
+        else:
+            at_aim = PulseMoves._cells_at_aim(mvs, lok[cells], fa, na, cells).reshape(4, n)
+        th_at = thr[cells].reshape(4, n)
+        v = np.zeros(n)
+        t = np.zeros(n)
+        bx, bo = 1.0 - ax, 1.0 - ao
+        for c, wx, wo in ((0, bx, bo), (1, bx, ao), (2, ax, bo), (3, ax, ao)):
+            w2 = wx * wo
+            v += at_aim[c] * w2
+            t += th_at[c] * w2
+        bad = bad | (od > og[-1] * (1 + 1e-6))
+        if aim < -eps or aim > ag[-1] * (1 + 1e-6) + eps or not math.isfinite(aim):
+            bad[:] = True
+        v[(aim >= t) | bad] = np.nan
+        return v
+
+    @staticmethod
+    def _cells_at_aim(mvs, lok, fa: float, na: int, cells=None) -> np.ndarray:
+        """(:meth:`_raw_move_stacked`) The move at the aim index ``fa`` of the stacked cells ``cells`` (None: every
+        cell; ``lok``: their ``last_ok`` aims): the cell's two neighbouring aims' moves, each the corners' blend
+        (``mvs``, as :meth:`_blend` blends the table), blended linearly -- a function of the cell alone."""
+        kk = np.minimum(fa, lok)
         k = np.minimum(kk.astype(np.intp), na - 2)
         w = kk - k
-        base = cells * na + k
+        base = (np.arange(len(lok)) if cells is None else cells) * na + k
         if mvs[0][0] is None:
             m0, m1 = mvs[0][1][base], mvs[0][1][base + 1]
         else:
@@ -456,18 +493,7 @@ class PulseMoves:
             for c, m in mvs:
                 m0 = m0 + c * m[base]
                 m1 = m1 + c * m[base + 1]
-        at_aim = (m0 * (1.0 - w) + m1 * w).reshape(4, n)
-        th_at = thr[cells].reshape(4, n)
-        v = np.zeros(x.shape)
-        t = np.zeros(x.shape)
-        for c, wx, wo in ((0, 1.0 - ax, 1.0 - ao), (1, 1.0 - ax, ao), (2, ax, 1.0 - ao), (3, ax, ao)):
-            w2 = wx * wo
-            v += at_aim[c] * w2
-            t += th_at[c] * w2
-        eps = 1e-12
-        bad = (x < -eps) | (aim < -eps) | (aim > ag[-1] * (1 + 1e-6) + eps) | ~np.isfinite(x) | (not math.isfinite(aim))
-        v[(aim >= t) | bad | (x > xg[-1] * (1 + 1e-6) + eps) | (od > og[-1] * (1 + 1e-6))] = np.nan
-        return v
+        return m0 * (1.0 - w) + m1 * w
 
     def table(self, direction: int, pressure_kpa: float, kick_current_a: float | None = None,
               valve_angle_rad: float | None = None) -> dict:
