@@ -311,11 +311,23 @@ def _stage(**changes):
     return pc.law.fine, pc.model
 
 
+#: C1, the default of stops 26: the apex policy with the normal law of the level, the stage engaging on the valve's
+#: rest alone, the floor at the measured apex, the hand-over at once.  C2 -- these four changed (the mixture law,
+#: docs §92; the engage gate and the planned floor, §95; the hand-over settle, §98) -- is the default since stop 27
+#: (docs §101); the tests written for C1's stage set this explicitly.
+C1_FINE = {"fine.apex_level_law": "normal", "fine.engage_gear_rest": 0.0, "fine.apex_floor_plan": False,
+           "fine.handover_settle_speed_rad_s": 0.0}
+#: ... and C2's values of the four (the defaults since stop 27)
+C2_FINE = {"fine.apex_level_law": "mixture", "fine.engage_gear_rest": 0.1, "fine.apex_floor_plan": True,
+           "fine.handover_settle_speed_rad_s": 0.1}
+
 #: main's doublet before stop 25: the staircase (no apex policy), the hold - cap retreat with its period of half the
-#: cap, the observe servo's integral wound as ever -- C1's six options (docs §88) off.  C1 is the default since stop
-#: 25 (task h36f, docs §91); the tests of the staircase and of main's doublet shape set this explicitly.
+#: cap, the observe servo's integral wound as ever -- C1's six options (docs §88) off, and C2's four (:data:`C1_FINE`).
+#: C1 was the default from stop 25 (task h36f, docs §91), C2 since stop 27; the tests of the staircase and of main's
+#: doublet shape set this explicitly.
 MAIN_DOUBLET = {"fine.apex_policy": False, "fine.apex_kick_max_a": 0.0, "fine.apex_retreat_periods": 0,
-                "fine.retreat_cap": False, "fine.observe_hold_moved": False, "fine.apex_excess_nominal": False}
+                "fine.retreat_cap": False, "fine.observe_hold_moved": False, "fine.apex_excess_nominal": False,
+                **C1_FINE}
 
 
 def _main_stage(**changes):
@@ -989,7 +1001,9 @@ def test_the_stages_own_move_is_no_main_law_breakaway_from_the_rest_before_it(di
     breakaway twist toward the move), which does not fit, and the stage stays out of that plateau (nominal box
     seed 1003 #1: a "closing breakaway" read at +2.0 T_s/K, the plateau left 2.9e-3 rad off; task h29a, docs §63)."""
     assert CONTROLLER_SPEC.defaults()["fine.drop_rest_at_engage"] is True
-    fine, m = _stage(**{"fine.drop_rest_at_engage": drop})
+    # the hand-over at once (C1's): the new demand below arrives mid-observe, which fine.handover_settle_speed_rad_s
+    # (C2) would first wait out with the gear output held
+    fine, m = _stage(**{"fine.drop_rest_at_engage": drop, "fine.handover_settle_speed_rad_s": 0.0})
     p = m.pressure_max_kpa
     thl = 0.5
     _break_loose(fine, thl, p)                      # the main law's breakaway (toward open): it fits

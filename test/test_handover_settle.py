@@ -36,7 +36,7 @@ def _new_demand(fine, p, moving_periods, speed_rad_s):
 
 
 def test_off_hands_over_at_once():
-    fine, p = _engaged()
+    fine, p = _engaged(**{"fine.handover_settle_speed_rad_s": 0.0})
     assert fine.cfg.handover_settle_speed == 0.0
     assert _new_demand(fine, p, 10, 2.0) == 1
 
@@ -60,9 +60,10 @@ def test_on_still_gear_output_hands_over_at_once():
     assert _new_demand(fine, p, 0, 0.0) == 1
 
 
-def test_off_by_default():
+def test_on_by_default():
+    """C2 + the hand-over settle, the default since stop 27 (docs §101)."""
     from fuel_valve_control.core.params import CONTROLLER_SPEC
-    assert CONTROLLER_SPEC.defaults()["fine.handover_settle_speed_rad_s"] == 0.0
+    assert CONTROLLER_SPEC.defaults()["fine.handover_settle_speed_rad_s"] == 0.1
 
 
 def _held(side, **changes):
