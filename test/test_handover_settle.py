@@ -1,5 +1,5 @@
-"""``fine.handover_settle_speed_rad_s`` (task h38s, docs §98, off by default): a new demand that arrives while the fine
-stage is mid-park / -pulse / -observe waits for the gear output to settle before the main law takes over -- the main
+"""``fine.handover_settle_speed_rad_s`` (task h38s, docs §98; 0.1 rad/s, on by default since stop 27, docs §101): a
+new demand that arrives while the fine stage is mid-park / -pulse / -observe waits for the gear output to settle before the main law takes over -- the main
 law restarts with its observer's speeds at 0, and handed a doublet's swing (nominal seed 4034 #11, C2: the gear output
 at 2-3 rad/s toward the breakaway the new step goes to) it broke the valve loose at once and slid 5.2e-3 rad past a
 1.16e-2 step (44.7 %).
