@@ -128,7 +128,7 @@ def test_the_choice_after_a_high_floor_climbs_where_the_mixture_says_the_level_m
 
 
 def test_mixture_by_default():
-    """C2, the default since stop 27 (docs §101): the mixture law."""
+    """C3, the default since stop 28 (docs §108): the mixture law."""
     assert CONTROLLER_SPEC.defaults()["fine.apex_level_law"] == "mixture"
     fine, _ = _stage()
     assert fine.cfg.apex_level_law == "mixture"

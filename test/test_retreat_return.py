@@ -111,7 +111,7 @@ def test_the_slippery_valve_hunter_is_cured():
     b = {"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0, "fine.apex_retreat_periods": 2,
          "fine.retreat_cap": True, "fine.observe_hold_moved": True, "fine.retreat_return_guard": True,
          "fine.apex_excess_nominal": False,                      # build (b), as traced (C1 = b + this)
-         **C1_FINE}                                              # C1's law, floor, engage and hand-over (C2's since stop 27)
+         **C1_FINE}                                              # C1's law, floor, engage and hand-over (C3's since stop 28)
     orig = OV.overrides
     try:
         OV.overrides = lambda v: (orig(v)[0], {**orig(v)[1], **b})

@@ -616,7 +616,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "(its trough passed the other way's breakaway: the slippery valve, friction x0.4, with fine.retreat_cap and "
           "fine.apex_retreat_periods 2 repeated such doublets 20 times -- hunting; task h35v, docs section 89)",
           runtime=True),
-    Param("fine.retreat_trough_bound", False, "", "doublet: a retreat whose trough -- the twist the move model "
+    Param("fine.retreat_trough_bound", True, "", "doublet: a retreat whose trough -- the twist the move model "
           "(fine.apex_policy's PulseMoves) predicts after the kick on a valve that stays stuck -- would pass the other "
           "way's learned breakaway twist less fine.doublet_sigmas of its learned scatter is made shallower: fewer whole "
           "periods, then one period's command scaled toward the hold.  The deep retreat (fine.retreat_cap, two periods) "
@@ -655,7 +655,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.retreat_return_hold", False, "", "with fine.retreat_return_guard: when the return is seen the stage holds "
           "the gear output where it is (no more pulses on the plateau) instead of handing the plateau back (task h35v, "
           "docs section 89)", runtime=True),
-    Param("fine.servo_coupling_cap", False, "", "the stage's gear-output servo stiffness capped on a coupling stiffer "
+    Param("fine.servo_coupling_cap", True, "", "the stage's gear-output servo stiffness capped on a coupling stiffer "
           "(relative to J1) than the default valve's: with the valve stuck the coupling's K adds to the servo's kp, and "
           "kp + K is held at most the default valve's J1 (w^2 + K_ref/J1_ref) (w = 2 pi fine.servo_hz; never below "
           "J1 w^2 / 4), so the closed loop keeps the designed poles and damping; K 1500 N*m/rad: zeta 0.62 -> 0.73, "
@@ -742,7 +742,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "valve at rest (at most 2 x fine.observe_time_s), then hands over; the main law restarts with its observer's "
           "speeds at 0 and, handed a doublet's swing, broke the valve loose toward the new target at once (nominal "
           "seed 4034 #11, 44.7 % overshoot); 0 = at once (off; task h38s, docs section 98)", 0.0, 10.0, runtime=True),
-    Param("fine.handback_settle", False, "", "with fine.handover_settle_speed_rad_s > 0: the fine stage's own "
+    Param("fine.handback_settle", True, "", "with fine.handover_settle_speed_rad_s > 0: the fine stage's own "
           "hand-back decided mid-park, -pulse or -observe holds the gear output where it is until it turns slower "
           "than that speed with the valve at rest (at most 2 x fine.observe_time_s) before the main law takes over -- "
           "as a new demand's hand-over does; the main law restarts with its observer's speeds at 0, and handed the "
