@@ -25,7 +25,8 @@ def test_the_floor_is_the_plan_once_the_policy_repeats_an_apex(direction):
     d, a = direction, 0.0105
     tol = None
     for opt in (False, True):
-        fine, _ = _policy_stage(**{"fine.apex_floor_repeat": opt})
+        # the floor at the reading until the repeat (fine.apex_floor_plan, C2's, takes the plan from the first try)
+        fine, _ = _policy_stage(**{"fine.apex_floor_repeat": opt, "fine.apex_floor_plan": False})
         tol = fine.cfg.tolerance_rad
         _unmoved(fine, d, a)
         assert fine._floor(d) == (d, pytest.approx(a - d * 1e-4))        # the first try: the reading

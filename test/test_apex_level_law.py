@@ -49,7 +49,7 @@ def test_the_mixture_collapses_to_the_normal_when_its_range_does():
     assert scales.tolist() == [5e-4] and weights.tolist() == [1.0]
     scales, weights = FP.level_law_scales("normal", 5e-4, 2e-3, 8.0)
     assert scales.tolist() == [5e-4]
-    normal, model = _stage(**{"fine.apex_policy": True})
+    normal, model = _stage(**{"fine.apex_policy": True, "fine.apex_level_law": "normal"})
     p = model.pressure_max_kpa
     # breakaway_fit 0.01: the design's widest scatter 0.04e-3 rad, below any learned one
     mix, _ = _stage(**{"fine.apex_policy": True, "fine.apex_level_law": "mixture", "fine.breakaway_fit": 0.01})
@@ -86,7 +86,7 @@ def test_a_floor_far_above_the_learned_level_leaves_the_mixture_mass_far_above_i
     one apex ten times, "certain" to move), the mixture keeps most of its weight more than half a scatter above the
     floor, the normal almost none."""
     d, sigma = direction, 3.2e-4
-    normal, model = _stage(**{"fine.apex_policy": True})
+    normal, model = _stage(**{"fine.apex_policy": True, "fine.apex_level_law": "normal"})
     mix, _ = _stage(**{"fine.apex_policy": True, "fine.apex_level_law": "mixture"})
     p = model.pressure_max_kpa
     phi_b = normal._twists(0.5, p, d)[1]
@@ -127,10 +127,11 @@ def test_the_choice_after_a_high_floor_climbs_where_the_mixture_says_the_level_m
     assert above > 0.5 and 0.2 < plan[2] < 0.9 and plan[3] < 0.7
 
 
-def test_normal_by_default():
-    assert CONTROLLER_SPEC.defaults()["fine.apex_level_law"] == "normal"
+def test_mixture_by_default():
+    """C3, the default since stop 28 (docs §108): the mixture law."""
+    assert CONTROLLER_SPEC.defaults()["fine.apex_level_law"] == "mixture"
     fine, _ = _stage()
-    assert fine.cfg.apex_level_law == "normal"
+    assert fine.cfg.apex_level_law == "mixture"
 
 
 def test_the_fixed_order_sums_equal_the_law_and_read_each_row_alone():

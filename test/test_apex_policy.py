@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fuel_valve_control.core.params import CONTROLLER_SPEC
-from test_fine_positioning import MAIN_DOUBLET, _stage
+from test_fine_positioning import C3_FINE, MAIN_DOUBLET, _stage
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT / "benchmarks") not in sys.path:
@@ -85,9 +85,11 @@ C1 = {"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0, "fine.apex_retreat
 
 
 def test_c1_is_the_default_and_off_is_main():
-    """C1's six options are the defaults (task h36f, docs §91); with the policy off the stage makes no move model."""
+    """C1's six options are the defaults (task h36f, docs §91), and C3's seven on top of them (stop 28, docs §108);
+    with the policy off the stage makes no move model."""
     ps = CONTROLLER_SPEC.defaults()
     assert {k: ps[k] for k in C1} == C1
+    assert {k: ps[k] for k in C3_FINE} == C3_FINE
     fine, _ = _stage()
     assert fine.cfg.apex_policy is True and fine._moves is not None
     fine, _ = _stage(**{"fine.apex_policy": False})

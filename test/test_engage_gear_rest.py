@@ -1,4 +1,4 @@
-"""``fine.engage_gear_rest`` (task h37m, docs §95, off by default): the fine stage does not engage while the gear
+"""``fine.engage_gear_rest`` (task h37m, docs §95; 0.1, on by default since stop 28, docs §108): the fine stage does not engage while the gear
 output still winds the twist away from the target -- the valve at rest there sits in a stick mid-swing of the main
 law's last move and slides on (traced: nominal box seed 4022 #11, C1 + the mixture law: an engagement 9 periods
 after the valve stuck, the twist still falling 1e-4 rad a period onto the other way's edge, was handed back when
@@ -32,7 +32,7 @@ def _engage_period(fine, err, p, rate_tol, unwind_periods):
 def test_no_engagement_while_the_gear_unwinds_away_from_the_target(direction):
     err = direction * 2.0e-3
     base = {"fine.engage_inside_deadband": True}
-    off, m = _stage(**base)
+    off, m = _stage(**{**base, "fine.engage_gear_rest": 0.0})
     p = m.pressure_max_kpa
     n = off.cfg.engage_periods
     unwind = 3 * n                                       # still unwinding well past the engage time
@@ -50,8 +50,9 @@ def test_no_engagement_while_the_gear_unwinds_away_from_the_target(direction):
         assert _engage_period(fine, err, p, rate, unwind) == k_off
 
 
-def test_off_by_default():
+def test_on_by_default():
+    """C3, the default since stop 28 (docs §108): the gate at 0.1 of a tolerance a period."""
     from fuel_valve_control.core.params import CONTROLLER_SPEC
-    assert CONTROLLER_SPEC.defaults()["fine.engage_gear_rest"] == 0.0
+    assert CONTROLLER_SPEC.defaults()["fine.engage_gear_rest"] == 0.1
     fine, _ = _stage()
-    assert fine.cfg.engage_gear_rest == 0.0
+    assert fine.cfg.engage_gear_rest == 0.1

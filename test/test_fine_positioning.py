@@ -278,12 +278,15 @@ def test_stage_stays_out_of_a_valve_whose_twist_at_rest_the_model_cannot_explain
         assert not _engages(fine, err, p, centre)        # ... nor later on the same demand
 
 
+@pytest.mark.parametrize("settle", [False, True])
 @pytest.mark.parametrize("direction", [1, -1])
-def test_a_valve_sliding_away_while_preloading_is_handed_back_for_the_plateau(direction):
+def test_a_valve_sliding_away_while_preloading_is_handed_back_for_the_plateau(direction, settle):
     """While the twist moves to its preload the valve may only move toward the target; one that
     slides away shows the planned twists do not hold it: the stage returns control to the main
-    law at once (``None``) and stays out until the demand changes."""
-    fine, m = _stage()
+    law at once (``None``) and stays out until the demand changes.  With ``fine.handback_settle`` (C3's, the
+    default since stop 28, docs §108) the gear output, which moved with the slide, is first held where it is until it
+    is still with the valve at rest (3 periods here), then the main law takes over."""
+    fine, m = _stage(**{"fine.handback_settle": settle})
     p = m.pressure_max_kpa
     thl = 0.5
     phi = _rest_twist(fine, thl, p)
@@ -294,6 +297,9 @@ def test_a_valve_sliding_away_while_preloading_is_handed_back_for_the_plateau(di
             break
     assert fine.phase == "park"
     thl -= direction * 3.0 * fine.cfg.tolerance_rad          # it slides the wrong way
+    for _ in range(3 if settle else 0):
+        assert fine.update(target, thl + phi, thl, True, 0.3, p) is not None
+        assert fine.phase == "hold"
     assert fine.update(target, thl + phi, thl, True, 0.3, p) is None
     assert fine.phase == "idle"
     for _ in range(_patience(fine)):                          # settled again: not on this demand
@@ -311,11 +317,27 @@ def _stage(**changes):
     return pc.law.fine, pc.model
 
 
+#: C1 (+ the stop radius): the default of stops 26-27 -- the apex policy with the normal law of the level, the stage
+#: engaging on the valve's rest alone, the floor at the measured apex, the hand-overs and hand-backs at once, the
+#: two-period retreat whatever its trough, the servo's gains as designed on any coupling.  C3 -- these seven changed
+#: (the mixture law, docs §92; the engage gate and the planned floor, §95; the hand-over settle, §98; the retreat's
+#: trough bound, §90, and the servo's coupling cap, §105; the hand-back settle, §108) -- is the default since stop 28
+#: (docs §108); the tests written for C1's stage set this explicitly.
+C1_FINE = {"fine.apex_level_law": "normal", "fine.engage_gear_rest": 0.0, "fine.apex_floor_plan": False,
+           "fine.handover_settle_speed_rad_s": 0.0, "fine.retreat_trough_bound": False,
+           "fine.servo_coupling_cap": False, "fine.handback_settle": False}
+#: ... and C3's values of the seven (the defaults since stop 28)
+C3_FINE = {"fine.apex_level_law": "mixture", "fine.engage_gear_rest": 0.1, "fine.apex_floor_plan": True,
+           "fine.handover_settle_speed_rad_s": 0.1, "fine.retreat_trough_bound": True,
+           "fine.servo_coupling_cap": True, "fine.handback_settle": True}
+
 #: main's doublet before stop 25: the staircase (no apex policy), the hold - cap retreat with its period of half the
-#: cap, the observe servo's integral wound as ever -- C1's six options (docs §88) off.  C1 is the default since stop
-#: 25 (task h36f, docs §91); the tests of the staircase and of main's doublet shape set this explicitly.
+#: cap, the observe servo's integral wound as ever -- C1's six options (docs §88) off, and C2's four (:data:`C1_FINE`).
+#: C1 was the default from stop 25 (task h36f, docs §91), C2 since stop 27; the tests of the staircase and of main's
+#: doublet shape set this explicitly.
 MAIN_DOUBLET = {"fine.apex_policy": False, "fine.apex_kick_max_a": 0.0, "fine.apex_retreat_periods": 0,
-                "fine.retreat_cap": False, "fine.observe_hold_moved": False, "fine.apex_excess_nominal": False}
+                "fine.retreat_cap": False, "fine.observe_hold_moved": False, "fine.apex_excess_nominal": False,
+                **C1_FINE}
 
 
 def _main_stage(**changes):
@@ -989,7 +1011,9 @@ def test_the_stages_own_move_is_no_main_law_breakaway_from_the_rest_before_it(di
     breakaway twist toward the move), which does not fit, and the stage stays out of that plateau (nominal box
     seed 1003 #1: a "closing breakaway" read at +2.0 T_s/K, the plateau left 2.9e-3 rad off; task h29a, docs §63)."""
     assert CONTROLLER_SPEC.defaults()["fine.drop_rest_at_engage"] is True
-    fine, m = _stage(**{"fine.drop_rest_at_engage": drop})
+    # the hand-over at once (C1's): the new demand below arrives mid-observe, which fine.handover_settle_speed_rad_s
+    # (C2) would first wait out with the gear output held
+    fine, m = _stage(**{"fine.drop_rest_at_engage": drop, "fine.handover_settle_speed_rad_s": 0.0})
     p = m.pressure_max_kpa
     thl = 0.5
     _break_loose(fine, thl, p)                      # the main law's breakaway (toward open): it fits

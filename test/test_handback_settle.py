@@ -1,4 +1,4 @@
-"""``fine.handback_settle`` (stop 28, docs §108, off by default): the fine stage's own hand-back, decided mid-park /
+"""``fine.handback_settle`` (stop 28, docs §108; C3's, on by default since stop 28): the fine stage's own hand-back, decided mid-park /
 -pulse / -observe with the gear output still turning faster than ``fine.handover_settle_speed_rad_s``, holds the gear
 output where it is until it turns slower with the valve at rest, then leaves the plateau to the main law -- which
 restarts with its observer's speeds at 0: handed the observe's pull-back from a retreat's trough (nominal box seed 4013
@@ -33,7 +33,7 @@ def _slide_away(fine, p, moving_periods, speed_rad_s):
 
 
 def test_off_hands_back_at_once():
-    fine, p = _engaged(**C3_SETTLE)
+    fine, p = _engaged(**C3_SETTLE, **{"fine.handback_settle": False})
     assert fine.cfg.handback_settle is False
     assert _slide_away(fine, p, 8, 2.0)[0] == 1
 
@@ -73,6 +73,6 @@ def test_a_new_demand_during_the_wait_still_waits_for_the_swing():
     assert fine._handover is not None
 
 
-def test_off_by_default():
+def test_on_by_default():
     from fuel_valve_control.core.params import CONTROLLER_SPEC
-    assert CONTROLLER_SPEC.defaults()["fine.handback_settle"] is False
+    assert CONTROLLER_SPEC.defaults()["fine.handback_settle"] is True

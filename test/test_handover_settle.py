@@ -1,5 +1,5 @@
-"""``fine.handover_settle_speed_rad_s`` (task h38s, docs §98, off by default): a new demand that arrives while the fine
-stage is mid-park / -pulse / -observe waits for the gear output to settle before the main law takes over -- the main
+"""``fine.handover_settle_speed_rad_s`` (task h38s, docs §98; 0.1 rad/s, on by default since stop 28, docs §108): a
+new demand that arrives while the fine stage is mid-park / -pulse / -observe waits for the gear output to settle before the main law takes over -- the main
 law restarts with its observer's speeds at 0, and handed a doublet's swing (nominal seed 4034 #11, C2: the gear output
 at 2-3 rad/s toward the breakaway the new step goes to) it broke the valve loose at once and slid 5.2e-3 rad past a
 1.16e-2 step (44.7 %).
@@ -36,7 +36,7 @@ def _new_demand(fine, p, moving_periods, speed_rad_s):
 
 
 def test_off_hands_over_at_once():
-    fine, p = _engaged()
+    fine, p = _engaged(**{"fine.handover_settle_speed_rad_s": 0.0})
     assert fine.cfg.handover_settle_speed == 0.0
     assert _new_demand(fine, p, 10, 2.0) == 1
 
@@ -60,9 +60,10 @@ def test_on_still_gear_output_hands_over_at_once():
     assert _new_demand(fine, p, 0, 0.0) == 1
 
 
-def test_off_by_default():
+def test_on_by_default():
+    """C3 (C2 + the hand-over settle + ...), the default since stop 28 (docs §108)."""
     from fuel_valve_control.core.params import CONTROLLER_SPEC
-    assert CONTROLLER_SPEC.defaults()["fine.handover_settle_speed_rad_s"] == 0.0
+    assert CONTROLLER_SPEC.defaults()["fine.handover_settle_speed_rad_s"] == 0.1
 
 
 def _held(side, **changes):

@@ -94,7 +94,8 @@ def test_an_unraised_floor_is_the_last_tries_plan():
     """``fine.apex_unraised_plan``: after an unmoved try whose reading raised the floor by less than a count, the law is
     truncated at that try's planned apex, not at the reading (which gave the same try again, run 1027)."""
     for on in (False, True):
-        fine, _ = _stage(**{"fine.apex_unraised_plan": on})
+        # the floor at the reading (fine.apex_floor_plan, C2's, takes the higher of the reading and the plan at once)
+        fine, _ = _stage(**{"fine.apex_unraised_plan": on, "fine.apex_floor_plan": False})
         fine._apex_floor = (1, 30.0e-3)
         fine._apex_last = (1, 30.45e-3)
         assert fine._floor(1) == (1, 30.0e-3)                 # the reading raised the floor: the reading

@@ -111,9 +111,10 @@ def test_a_late_loop_does_not_stretch_the_fine_stages_pulses():
     unguarded = [u for _, u in runs]
     assert min(late for (_, late), _ in runs) >= 25
     assert max(guarded) <= 1.5 * jump, (guarded, jump)
-    # the mechanism the guard is for: unguarded, the worst throw is many jumps and the typical one several (the
-    # sequences are chaotic: the stop radius of stop 27 moved one median from 4.02 to 3.99 jumps)
-    assert max(unguarded) > 8.0 * jump and float(np.median(unguarded)) > 3.0 * jump, (unguarded, jump)
+    # the mechanism the guard is for: unguarded, the worst throw is many jumps (the sequences are chaotic, so which
+    # and how many of the four a stretched kick throws moves with any change to the stage: C1 threw the worst 8+
+    # jumps and the median 3.99-4.02; C3, the default since stop 28, with its retreat's trough bound, 7.2 and 0.8)
+    assert max(unguarded) > 5.0 * jump and max(unguarded) > 3.0 * max(guarded), (unguarded, guarded, jump)
 
 
 def test_a_drive_watchdog_trip_sets_the_stage_aside_for_the_holdoff():

@@ -20,7 +20,7 @@ import pytest
 from fuel_valve_control.core.params import CONTROLLER_SPEC
 # the stage-alone cases are main's staircase with the deep retreat (DEEP), as measured (task h35v); C1 is the default
 # since stop 25 (docs §91)
-from test_fine_positioning import _main_stage as _stage, _torques_until_observe
+from test_fine_positioning import C1_FINE, _main_stage as _stage, _torques_until_observe
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT / "benchmarks") not in sys.path:
@@ -110,7 +110,8 @@ def test_the_slippery_valve_hunter_is_cured():
     import other_valves as OV
     b = {"fine.apex_policy": True, "fine.apex_kick_max_a": 16.0, "fine.apex_retreat_periods": 2,
          "fine.retreat_cap": True, "fine.observe_hold_moved": True, "fine.retreat_return_guard": True,
-         "fine.apex_excess_nominal": False}                      # build (b), as traced (C1 = b + this, the default)
+         "fine.apex_excess_nominal": False,                      # build (b), as traced (C1 = b + this)
+         **C1_FINE}                                              # C1's law, floor, engage and hand-over (C3's since stop 28)
     orig = OV.overrides
     try:
         OV.overrides = lambda v: (orig(v)[0], {**orig(v)[1], **b})

@@ -26,7 +26,8 @@ LOW_DP = 0.15
 @pytest.mark.parametrize("direction", [1, -1])
 def test_the_bound_keeps_the_deep_retreat_at_max_dp_and_makes_it_shallower_at_low_dp(direction):
     ps = CONTROLLER_SPEC.defaults()
-    assert ps["fine.retreat_trough_bound"] is False and ps["fine.retreat_trough_misfit"] is False
+    # the bound is C3's (the default since stop 28, docs §108); the misfit reading off
+    assert ps["fine.retreat_trough_bound"] is True and ps["fine.retreat_trough_misfit"] is False
     err = direction * 0.5 * ps["fine.doublet_max_error_rad"]
     fine, m = _stage(**DEEP)
     cap = ps["fine.peak_current_a"] * m.torque_constant_nm_per_a

@@ -36,8 +36,9 @@ def _ref():
     return m, 2.0 * math.pi * d["fine.servo_hz"], math.sqrt(m.coupling_stiffness_nm_per_rad / m.j1)
 
 
-def test_the_option_is_off_by_default_and_the_default_valve_keeps_its_gain_to_the_bit():
-    assert CONTROLLER_SPEC.defaults()["fine.servo_coupling_cap"] is False
+def test_the_option_is_on_by_default_and_the_default_valve_keeps_its_gain_to_the_bit():
+    """C3's (the default since stop 28, docs §108)."""
+    assert CONTROLLER_SPEC.defaults()["fine.servo_coupling_cap"] is True
     m, w, mode = _ref()
     kp = m.j1 * w * w
     assert FinePositioner.coupling_capped_kp(kp, m.j1, m.coupling_stiffness_nm_per_rad, w, mode) == kp

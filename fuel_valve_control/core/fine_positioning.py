@@ -219,7 +219,7 @@ def level_law_scales(kind: str, sigma: float, sigma_hi: float, nu: float) -> tup
     """(``fine.apex_level_law``, task h36l, docs §92) The level's law as a scale mixture of normals about the learned
     level: (rms scatters, rad; their weights, summing to 1).
 
-    * ``"normal"``: the learned scatter ``sigma`` alone (today's law).
+    * ``"normal"``: the learned scatter ``sigma`` alone (C1's law, the default of stop 26).
     * ``"mixture"``: scatters log-uniform between ``sigma`` and ``sigma_hi`` (rad; the widest scatter the stage is
       designed for): the box draws each valve's scatter rms from a range and per stop the level is normal with that
       rms, so with a scatter known only within a range the level's law is the normals' mixture over it -- heavier

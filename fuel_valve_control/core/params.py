@@ -616,7 +616,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "(its trough passed the other way's breakaway: the slippery valve, friction x0.4, with fine.retreat_cap and "
           "fine.apex_retreat_periods 2 repeated such doublets 20 times -- hunting; task h35v, docs section 89)",
           runtime=True),
-    Param("fine.retreat_trough_bound", False, "", "doublet: a retreat whose trough -- the twist the move model "
+    Param("fine.retreat_trough_bound", True, "", "doublet: a retreat whose trough -- the twist the move model "
           "(fine.apex_policy's PulseMoves) predicts after the kick on a valve that stays stuck -- would pass the other "
           "way's learned breakaway twist less fine.doublet_sigmas of its learned scatter is made shallower: fewer whole "
           "periods, then one period's command scaled toward the hold.  The deep retreat (fine.retreat_cap, two periods) "
@@ -655,7 +655,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.retreat_return_hold", False, "", "with fine.retreat_return_guard: when the return is seen the stage holds "
           "the gear output where it is (no more pulses on the plateau) instead of handing the plateau back (task h35v, "
           "docs section 89)", runtime=True),
-    Param("fine.servo_coupling_cap", False, "", "the stage's gear-output servo stiffness capped on a coupling stiffer "
+    Param("fine.servo_coupling_cap", True, "", "the stage's gear-output servo stiffness capped on a coupling stiffer "
           "(relative to J1) than the default valve's: with the valve stuck the coupling's K adds to the servo's kp, and "
           "kp + K is held at most the default valve's J1 (w^2 + K_ref/J1_ref) (w = 2 pi fine.servo_hz; never below "
           "J1 w^2 / 4), so the closed loop keeps the designed poles and damping; K 1500 N*m/rad: zeta 0.62 -> 0.73, "
@@ -684,7 +684,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "reads nothing the choice sets; not with fine.retreat_stop_unmoved or fine.repark_from_state, where the "
           "choice stays inline).  A plateau's first try (the engagement's) stays inline (task h39n, docs section 103)",
           runtime=True),
-    Param("fine.apex_floor_plan", False, "", "fine.apex_policy: after an unmoved try the level's law is truncated "
+    Param("fine.apex_floor_plan", True, "", "fine.apex_policy: after an unmoved try the level's law is truncated "
           "at the higher of the apex the resolvers read and the apex the try planned (the once-a-period sample "
           "misses the kick's peak; plateau_floor's --floor plan, docs section 82.3; task h34m)", runtime=True),
     Param("fine.apex_kick_continuous", False, "", "fine.apex_policy: after an unmoved try the preload stays at the "
@@ -696,7 +696,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "to improve it *given that it moves* (the policy's rule counts P(no move) as not worse: at a stop whose "
           "level lies high every move overshoots the error and the law's climb went on until one did; task h34m, "
           "docs section 85)", runtime=True),
-    Param("fine.apex_level_law", "normal", "", "fine.apex_policy: the law of the static level the apex is placed on: "
+    Param("fine.apex_level_law", "mixture", "", "fine.apex_policy: the law of the static level the apex is placed on: "
           "normal = the learned level and scatter (a normal clipped at 3 scatters); mixture = a mixture of normals "
           "about the learned level with scatters log-uniform from the learned one to the widest the stage is designed "
           "for (fine.breakaway_fit / 3 x T_s(dp)/K: a level within the engage gate's bound at 3 scatters) -- the "
@@ -712,7 +712,7 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "of fine.tolerance_rad) than one it already tried at this stop without moving the valve, the law is "
           "truncated at the planned apex, not the measured one, for the rest of the stop (the reading is shown short "
           "of the plan; fine.apex_floor_plan does it from the first try; task h37m, docs section 95)", runtime=True),
-    Param("fine.engage_gear_rest", 0.0, "", "the fine stage engages only once the gear output no longer winds the "
+    Param("fine.engage_gear_rest", 0.1, "", "the fine stage engages only once the gear output no longer winds the "
           "twist away from the target by more than this fraction of fine.tolerance_rad a period (the valve at rest "
           "with the main law's last move still unwinding sits in a stick mid-swing and slides on; 0 = off; task "
           "h37m, docs section 95)", 0.0, 10.0, runtime=True),
@@ -737,12 +737,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           0.0, 1.0, runtime=True),
     Param("fine.hold_relax_time_s", 0.06, "s", "the length of fine.hold_relax's move (a sin^2 blend; task h39h, docs "
           "section 101)", 0.001, 1.0, runtime=True),
-    Param("fine.handover_settle_speed_rad_s", 0.0, "rad/s", "a new demand arriving while the fine stage is mid-park, "
+    Param("fine.handover_settle_speed_rad_s", 0.1, "rad/s", "a new demand arriving while the fine stage is mid-park, "
           "-pulse or -observe: the stage holds the gear output where it is until it turns slower than this with the "
           "valve at rest (at most 2 x fine.observe_time_s), then hands over; the main law restarts with its observer's "
           "speeds at 0 and, handed a doublet's swing, broke the valve loose toward the new target at once (nominal "
           "seed 4034 #11, 44.7 % overshoot); 0 = at once (off; task h38s, docs section 98)", 0.0, 10.0, runtime=True),
-    Param("fine.handback_settle", False, "", "with fine.handover_settle_speed_rad_s > 0: the fine stage's own "
+    Param("fine.handback_settle", True, "", "with fine.handover_settle_speed_rad_s > 0: the fine stage's own "
           "hand-back decided mid-park, -pulse or -observe holds the gear output where it is until it turns slower "
           "than that speed with the valve at rest (at most 2 x fine.observe_time_s) before the main law takes over -- "
           "as a new demand's hand-over does; the main law restarts with its observer's speeds at 0, and handed the "
