@@ -81,6 +81,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from fuel_valve_control.common.paramspec import ConfigError, parse_overrides  # noqa: E402
+from fuel_valve_control.core.params import CONTROLLER_SPEC  # noqa: E402
 from fuel_valve_control.ros.node_runner import GC_FREEZE_ENV, PROFILE_ENV, TIMER_SLACK_ENV  # noqa: E402
 from fuel_valve_control.tools.launcher import Launcher, add_scheduling_arguments, scheduling_from_args  # noqa: E402
 from fuel_valve_control.tools.run_plan import LOCKSTEP, REAL_TIME, plan_run  # noqa: E402
@@ -101,7 +102,11 @@ def parse_build(text: str) -> tuple[str, dict]:
     (``controller.`` may be left out; values as ``--set``'s)."""
     label, *items = text.split()
     items = [i if i.startswith("controller.") else "controller." + i for i in items]
-    return label, parse_overrides(items, ("controller",))["controller"]
+    sets = parse_overrides(items, ("controller",))["controller"]
+    # the schema's values, checked and typed (a "0" for a float parameter is 0.0: written as an integer into the
+    # node's parameter file, rclpy refused it as the wrong type and the controller never started)
+    checked = CONTROLLER_SPEC.load(None, sets)
+    return label, {k: checked[k] for k in sets}
 
 
 def demand_plan(args, build: dict, timing: str = REAL_TIME):
