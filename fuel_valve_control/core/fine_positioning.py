@@ -1098,9 +1098,13 @@ class FinePositioner:
         if self._handover is None:
             self._handover = [th1, 0]     # (the gear output's angle held, periods waited)
         self._handover[1] += 1
-        if (abs(w1) <= speed and self._rest >= 3) or self._handover[1] > 2 * self.cfg.observe_periods:
-            return False
-        return True
+        return not self._swing_settled(w1, self._handover[1])
+
+    def _swing_settled(self, w1: float, waited: int) -> bool:
+        """Whether a hand-over (:meth:`_handover_settling`) or a hand-back (``fine.handback_settle``) held for
+        ``waited`` periods may let the main law take over: the gear output turns no faster than
+        ``fine.handover_settle_speed_rad_s`` with the valve at rest for 3 periods, or 2 x ``fine.observe_time_s`` are up."""
+        return (abs(w1) <= self.cfg.handover_settle_speed and self._rest >= 3) or waited > 2 * self.cfg.observe_periods
 
     def _handover_unwinding(self, target: float, th1: float, w1: float, thl: float,
                             pressure_kpa: float) -> float | None:
@@ -2126,7 +2130,6 @@ class FinePositioner:
         if self._osc >= OSC_LIMIT:
             # its stiff hold limit-cycles on this plant (a resolver delay, a slow current
             # slew at low supply): shaking the valve is worse than the main law's hold
-            self._handback_wait = None
             self._hand_back(settle=False)
             return None
         self._k += 1
@@ -2250,11 +2253,8 @@ class FinePositioner:
                 self._after_move(th1, thl, pressure_kpa, pulsed=self._pulsed,
                                  after_command=cfg.apex_choice_after_command and not cfg.retreat_stop_unmoved
                                  and not cfg.repark_from_state)
-                if self.phase == IDLE:
-                    return None
-                if self._handback_wait == 0:
-                    # (fine.handback_settle) handed back on this verdict, the swing first held where it is
-                    return self._servo(self._hold_ref, 0.0, th1, w1, thl)
+                if self.phase == IDLE or self._handback_wait == 0:
+                    return None                   # (fine.handback_settle: :meth:`update` holds the swing from here)
                 if self.phase == PARK and self._repark is not None:
                     # (fine.repark_from_state) the planned re-park takes over in this period already: the
                     # observe servo pulling on toward the final twist is what throws the rebound past the plan
@@ -2282,9 +2282,7 @@ class FinePositioner:
         if self._handback_wait is not None:
             # (fine.handback_settle) a hand-back waiting for the swing it was decided in to die out
             self._handback_wait += 1
-            if (abs(w1) <= cfg.handover_settle_speed and self._rest >= 3) \
-                    or self._handback_wait > 2 * cfg.observe_periods:
-                self._handback_wait = None
+            if self._swing_settled(w1, self._handback_wait):
                 self._release()
                 return None
             return self._servo(self._hold_ref, 0.0, th1, w1, thl)
@@ -2982,8 +2980,6 @@ class FinePositioner:
         holding on is what shakes the valve)."""
         self._judge(failed=True)
         self._unfit = True
-        self._stair = None
-        self._apex_floor = None
         cfg = self.cfg
         if settle and cfg.handback_settle and cfg.handover_settle_speed > 0.0 and self.phase in (PARK, PULSE, OBSERVE) \
                 and self._last_th1 is not None and self._w1_now is not None \
@@ -2996,7 +2992,8 @@ class FinePositioner:
         self._release()
 
     def _release(self) -> None:
-        """The plateau to the main law now (the end of :meth:`_hand_back`)."""
+        """The plateau to the main law now (the end of :meth:`_hand_back`, at once or once the swing has settled)."""
+        self._handback_wait = None
         self._osc, self._osc_sign = 0.0, 0
         self.phase = IDLE
         self._target = None
