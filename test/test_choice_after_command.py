@@ -49,13 +49,35 @@ def test_the_choice_after_the_command_gives_the_same_commands_to_the_last_bit():
     the next period (offline): the same commands, bit for bit; the tries are chosen after their command, and in the
     node's order every one by ``after_period``.  (Fails if the starting period's command read anything the choice
     sets, or if the pending start ran on the next period's inputs.)"""
-    inline, f_inline, ran_inline = _closed_loop({"fine.apex_choice_after_command": False}, True)
+    inline, f_inline, ran_inline = _closed_loop({"fine.apex_choice_after_command": False,
+                                                 "fine.retreat_plan_after_command": False}, True)
     node, f_node, ran_node = _closed_loop({}, True)
     offline, f_offline, _ = _closed_loop({}, False)
     assert f_inline.apex_choices == f_node.apex_choices == f_offline.apex_choices >= 5
     assert f_inline.apex_choices_after_command == 0 and ran_inline == 0
-    assert f_node.apex_choices_after_command == f_node.apex_choices == ran_node
+    assert f_node.apex_choices_after_command == f_node.apex_choices
+    # (the kicks' retreat plans run after their own periods' commands too: fine.retreat_plan_after_command)
+    assert ran_node == f_node.apex_choices + f_node.retreat_plans_after_command
     assert f_offline.apex_choices_after_command == f_offline.apex_choices
+    assert node == inline
+    assert offline == inline
+
+
+def test_the_retreat_plan_after_the_kick_gives_the_same_commands_to_the_last_bit():
+    """``fine.retreat_plan_after_command`` (docs §111): the doublet's retreat (the move model's trough bound, planned in
+    the kick period) is planned after the kick's command -- by ``after_period`` in the node's order, by the next
+    period offline -- and every command is the inline plan's, bit for bit, with the plan itself unchanged.  (Fails if
+    the kick read the plan, or if the deferred plan ran on the next period's state: the stage's twist and speed are
+    taken from that period's samples.)"""
+    base = {"fine.apex_choice_after_command": False}
+    inline, f_inline, ran_inline = _closed_loop({**base, "fine.retreat_plan_after_command": False}, True)
+    node, f_node, ran_node = _closed_loop(base, True)
+    offline, f_offline, _ = _closed_loop(base, False)
+    assert f_inline.retreat_plans_after_command == 0 and ran_inline == 0
+    # every doublet's retreat after its kick's command: in the node's order each by after_period
+    assert f_node.retreat_plans_after_command == ran_node >= 5
+    assert f_offline.retreat_plans_after_command == f_node.retreat_plans_after_command
+    assert f_node._retreat == f_inline._retreat == f_offline._retreat
     assert node == inline
     assert offline == inline
 
@@ -68,7 +90,7 @@ def test_the_choice_stays_inline_where_the_starting_period_reads_it():
     inline, f_inline, _ = _closed_loop({**sets, "fine.apex_choice_after_command": False}, True)
     on, f_on, ran = _closed_loop(sets, True)
     assert f_on.apex_choices == f_inline.apex_choices >= 5
-    assert f_on.apex_choices_after_command == 0 and ran == 0
+    assert f_on.apex_choices_after_command == 0 and ran == f_on.retreat_plans_after_command  # (only retreat plans)
     assert on == inline
 
 

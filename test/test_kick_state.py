@@ -130,6 +130,9 @@ def test_a_try_expected_not_to_move_the_valve_retreats_at_the_hold(p_none, retre
             kick = fine._doublet_torque(m.pressure_max_kpa)
             assert kick == pytest.approx(0.1 + 4.0 * m.torque_constant_nm_per_a)
             want = (retreat if on else (1, 0.6)) if cut else (2, 1.0)
+            # planned after the kick's command (fine.retreat_plan_after_command, docs §111): the node's after_period
+            assert fine._retreat is None and fine._retreat_pending is not None
+            assert fine.run_pending() is True and fine._retreat_pending is None
             assert fine._retreat == want
             fine._k = 2
             assert fine._doublet_torque(m.pressure_max_kpa) == pytest.approx(0.1 + want[1] * (-cap - 0.1))

@@ -714,6 +714,8 @@ class FineConfig:
     apex_floor_plan: bool = False  # ... an unmoved try truncates the law at max(measured apex, planned apex)
     apex_choice_after_command: bool = False  # ... the choice of a try started by an observe's verdict runs after the
                                              # period's command (run_pending; task h39n, docs §103): same bits
+    retreat_plan_after_command: bool = False  # fine.retreat_trough_bound: the doublet's retreat is planned after its
+                                              # kick period's command (run_pending; docs §111): same bits
     apex_kick_continuous: bool = False  # ... after an unmoved try: preload at that apex, the kick sized to the apex
     apex_worse_given_move: bool = False  # ... no try more likely to worsen |e| than not, given that it moves
     apex_level_law: str = "normal"  # ... the level's law: "normal" (the learned scatter), "mixture" (normals over scatters
@@ -791,6 +793,8 @@ class FinePositioner:
 
     def __init__(self, model: NominalModel, period_s: float, cfg: FineConfig, learner: FineLearner):
         self._pending = None               # (fine.apex_choice_after_command) a try's start left for after the command
+        self._retreat_pending = None       # (fine.retreat_plan_after_command) the kick period's (Δp, kick, periods)
+                                           # whose retreat is planned after its command (:meth:`_settle_retreat`)
         self.m, self.period, self.cfg, self.learn = model, period_s, cfg, learner
         self.m0 = model                    # the told model (self.m: the one the stage plans from)
         self.forget_scale()
@@ -807,6 +811,7 @@ class FinePositioner:
         self._moves = None                 # fine.apex_policy: the doublet's move model (built when first needed)
         self.apex_choices = 0              # fine.apex_policy: the tries chosen (:meth:`_choose_apex` calls), a count
         self.apex_choices_after_command = 0  # ... of them run after their period's command (:meth:`run_pending`)
+        self.retreat_plans_after_command = 0  # doublet retreats planned after their kick's command (run_pending)
         self._pushes = {}                  # fine.probe_reached: {(direction, Δp band): rad of twist (>= 0, toward the
                                            # move) a servo-blended pulse's planned peak lies beyond the learned level's}
         # fine.repark_from_state / fine.retreat_unmoved_fraction: kept across resets (the last gear-output
@@ -978,7 +983,7 @@ class FinePositioner:
         """``target`` valve angle, measured ``th1`` (motor resolver / N) and ``thl`` (valve
         resolver), ``holding``: the main law's reference has arrived at ``target``;
         ``torque_now``: the torque applied last period (N*m, motor)."""
-        if self._pending is not None:
+        if self._pending is not None or self._retreat_pending is not None:
             self.run_pending()            # not run after the last command (offline: nobody calls it): now, the same
         if self._tables_gate == "released" and self.phase == IDLE and (
                 self._plateau is None or abs(target - self._plateau) > self.cfg.tolerance_rad):
@@ -1584,9 +1589,13 @@ class FinePositioner:
         period that started the try commands what the inline choice's period commanded (its observe servo reads
         nothing the choice sets) but for the limit-cycle watch's count, which a hold's verdict adds here.  Returns
         whether there was one."""
+        retreat = self._retreat_pending is not None
+        if retreat:
+            self._settle_retreat()            # (fine.retreat_plan_after_command) the kick period's retreat plan
+            self.retreat_plans_after_command += 1
         pending, self._pending = self._pending, None
         if pending is None:
-            return False
+            return retreat
         choice, th1, thl, final, fb = pending
         self.apex_choices_after_command += 1
         self._start_try(choice, th1, thl, final)
@@ -2402,6 +2411,29 @@ class FinePositioner:
                 return 1, float(scales[j - 1] + f * (scales[j] - scales[j - 1]))
         return 1, 0.0
 
+    def _settle_retreat(self) -> tuple[int, float]:
+        """The doublet in progress' retreat (whole periods, scale; :meth:`_retreat_plan`), planned now if its kick
+        period left it for after the command (``fine.retreat_plan_after_command``): from the state that period
+        ended with -- nothing between that command and the next period's start changes what the plan reads, so
+        offline (the next :meth:`update` runs it first) and in the node (``ValveDriver.after_period``) the plan and
+        every command are those of the inline plan, to the bit."""
+        pending, self._retreat_pending = self._retreat_pending, None
+        if pending is not None:
+            pressure_kpa, kick, periods = pending
+            cfg = self.cfg
+            self._retreat = self._retreat_plan(pressure_kpa, kick, periods)
+            if (cfg.apex_probe_hold and cfg.apex_policy and self._retreat != (periods, 1.0)
+                    and self._apex_try is not None and self._apex_plan is not None
+                    and self._apex_plan[2] >= 1.0 - float(_norm_cdf(-cfg.doublet_sigmas))):
+                # (task h37t, docs §96) where fine.retreat_trough_bound has cut the planned retreat, a try the policy
+                # expects not to move the valve (P(no move) within main's park-break chance of 1) has no move for the
+                # retreat to stop: one period at the hold, then the observe servo -- the model's one-period troughs
+                # read 3.3-4.2e-3 rad shallow on run 1069 (#7: P(no move) 1.000); for every try (the bound not
+                # consulted) nominal seed 1000 went worse (p95 0.989 -> 1.244e-3: the rise tables assume the deep
+                # retreat, the apex overshoots its plan)
+                self._retreat = (1, 0.0)
+        return self._retreat
+
     def _doublet_torque(self, pressure_kpa: float | None = None) -> float:
         """The doublet's torque in its period ``_k`` (1: kick; then ``fine.retreat_full_periods`` of the
         whole current backwards and one of half of it), N*m.  The valve lets go at the end of the first
@@ -2423,19 +2455,13 @@ class FinePositioner:
             periods = 1 if self._deep_unfit else max(
                 cfg.apex_retreat_periods if cfg.apex_policy and cfg.apex_retreat_periods > 0
                 else cfg.retreat_full_periods, 1)
-            # (fine.retreat_trough_bound) fewer / scaled periods where the trough would break the valve loose backwards
-            self._retreat = self._retreat_plan(pressure_kpa, kick, periods)
-            if (cfg.apex_probe_hold and cfg.apex_policy and self._retreat != (periods, 1.0)
-                    and self._apex_try is not None and self._apex_plan is not None
-                    and self._apex_plan[2] >= 1.0 - float(_norm_cdf(-cfg.doublet_sigmas))):
-                # (task h37t, docs §96) where fine.retreat_trough_bound has cut the planned retreat, a try the policy
-                # expects not to move the valve (P(no move) within main's park-break chance of 1) has no move for the
-                # retreat to stop: one period at the hold, then the observe servo -- the model's one-period troughs
-                # read 3.3-4.2e-3 rad shallow on run 1069 (#7: P(no move) 1.000); for every try (the bound not
-                # consulted) nominal seed 1000 went worse (p95 0.989 -> 1.244e-3: the rise tables assume the deep
-                # retreat, the apex overshoots its plan)
-                self._retreat = (1, 0.0)
-        elif self._k <= 1 + self._retreat[0]:
+            # (fine.retreat_trough_bound) fewer / scaled periods where the trough would break the valve loose
+            # backwards: the plan (0.3-1.2 ms of CPU, docs §108.5) sets nothing this period's command reads, so with
+            # fine.retreat_plan_after_command it runs after the kick has gone out (:meth:`run_pending`)
+            self._retreat, self._retreat_pending = None, (pressure_kpa, kick, periods)
+            if not (cfg.retreat_plan_after_command and cfg.retreat_trough_bound):
+                self._settle_retreat()
+        elif self._k <= 1 + self._settle_retreat()[0]:
             # (task h34s, ``fine.retreat_cap``) the cap itself backwards, not the hold less the cap (an opening
             # pulse at 0.5 rad, max Δp, holds ~+10.6 A: hold - cap is -19.4 A; plateau_floor's deep shape, §82)
             torque = -d * cap if cfg.retreat_cap else self._hold_torque - d * cap

@@ -684,6 +684,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "reads nothing the choice sets; not with fine.retreat_stop_unmoved or fine.repark_from_state, where the "
           "choice stays inline).  A plateau's first try (the engagement's) stays inline (task h39n, docs section 103)",
           runtime=True),
+    Param("fine.retreat_plan_after_command", True, "", "fine.retreat_trough_bound: the doublet's retreat (how many "
+          "periods at the cap, how deep -- the move model's trough on a stuck valve, 0.3-1.2 ms of CPU, docs section "
+          "108.5) is planned after the kick period's command has gone out -- the ROS node runs it once the command is "
+          "published, offline the next period runs it first -- instead of between the resolver sample and the kick's "
+          "command: the same plans and commands to the last bit (the kick reads nothing the plan sets; docs section "
+          "111)", runtime=True),
     Param("fine.apex_floor_plan", True, "", "fine.apex_policy: after an unmoved try the level's law is truncated "
           "at the higher of the apex the resolvers read and the apex the try planned (the once-a-period sample "
           "misses the kick's peak; plateau_floor's --floor plan, docs section 82.3; task h34m)", runtime=True),

@@ -352,6 +352,7 @@ class PositionController:
                           apex_kick_max_a=ps["fine.apex_kick_max_a"], apex_kick_ratio=ps["fine.apex_kick_ratio"], apex_retreat_periods=ps["fine.apex_retreat_periods"],
                           apex_excess_nominal=ps["fine.apex_excess_nominal"], apex_floor_plan=ps["fine.apex_floor_plan"],
                           apex_choice_after_command=ps["fine.apex_choice_after_command"],
+                          retreat_plan_after_command=ps["fine.retreat_plan_after_command"],
                           apex_kick_continuous=ps["fine.apex_kick_continuous"], apex_worse_given_move=ps["fine.apex_worse_given_move"], apex_level_law=ps["fine.apex_level_law"],
                           engage_gear_rest=ps["fine.engage_gear_rest"], handover_settle_speed=ps["fine.handover_settle_speed_rad_s"],
                           handback_settle=ps["fine.handback_settle"], apex_stop_rad=ps["fine.apex_stop_rad"],
