@@ -203,7 +203,7 @@ def test_module_is_plant_free_and_ros_free():
                      ".drivetrain_step"} | stdlib, names
     # the kernel: numpy and the standard library's source tools (its float backend is its own source compiled again)
     assert _imports("fuel_valve_control/core/drivetrain_step.py") <= {
-        "__future__", "ast", "copy", "inspect", "math", "textwrap", "types", "typing", "numpy"}
+        "__future__", "ast", "copy", "inspect", "math", "types", "typing", "numpy"}
 
 
 def test_prepare_leaves_nothing_to_build(pm, fine):

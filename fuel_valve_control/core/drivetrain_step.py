@@ -31,7 +31,6 @@ import ast
 import copy
 import inspect
 import math
-import textwrap
 import types
 from typing import Callable, NamedTuple
 
@@ -249,19 +248,22 @@ def _for_floats(inline: bool = True) -> tuple:
     with eager ``where`` / ``clip`` functions (the same values)."""
     ns = dict(globals())
     ns.update(where=_where_eager, sqrt=math.sqrt, maximum=max, minimum=min, clip=_clip_eager, full=_full_float)
+    names = {fn.__name__ for fn in _KERNEL}
     try:
         if not inline:
             raise OSError("eager")
-        sources = [inspect.getsourcelines(fn) for fn in _KERNEL]
-        filename = inspect.getsourcefile(stick_slip) or "<drivetrain_step>"
-    except (OSError, TypeError):
+        filename = inspect.getsourcefile(stick_slip)
+        if filename is None:
+            raise OSError("no source file")
+        with open(filename, encoding="utf-8") as f:
+            tree = ast.parse(f.read(), filename)
+    except (OSError, TypeError, SyntaxError, UnicodeDecodeError):
         for fn in _KERNEL:
             ns[fn.__name__] = types.FunctionType(fn.__code__, ns, fn.__name__, fn.__defaults__)
         return ns, False
-    for lines, first in sources:
-        tree = _Inline().visit(ast.parse(textwrap.dedent("".join(lines))))
-        ast.increment_lineno(tree, first - 1)
-        exec(compile(ast.fix_missing_locations(tree), filename, "exec"), ns)
+    defs = [node for node in tree.body if isinstance(node, ast.FunctionDef) and node.name in names]
+    module = _Inline().visit(ast.Module(body=defs, type_ignores=[]))
+    exec(compile(ast.fix_missing_locations(module), filename, "exec"), ns)
     return ns, True
 
 
