@@ -92,3 +92,20 @@ def test_the_stuck_valve_skip_changes_no_bit():
                          aim=np.zeros(4), retreat_scale=np.array([1.0, 0.5, 0.0, 0.0]), track_trough=True,
                          retreat_periods=2)
     assert np.array_equal(mixed[:3], stuck)
+
+
+def test_the_float_backend_compiles_only_the_loaded_source(tmp_path, monkeypatch):
+    """The float backend recompiles the module's source file; a file that no longer compiles to the loaded functions'
+    code (edited since the import) is not used: the eager fallback runs the loaded code instead (the same values)."""
+    src = open(ds.__file__, encoding="utf-8").read()
+    edited = tmp_path / "drivetrain_step.py"
+    edited.write_text(src.replace("0.5 * (iq + iq_new)", "0.49 * (iq + iq_new)"), encoding="utf-8")
+    assert edited.read_text(encoding="utf-8") != src
+    monkeypatch.setattr(ds.inspect, "getsourcefile", lambda obj: str(edited))
+    ns, inline = ds._for_floats()
+    assert not inline
+    assert ns["substeps"].__code__ is ds.substeps.__code__
+    monkeypatch.setattr(ds.inspect, "getsourcefile", lambda obj: None)
+    assert ds._for_floats()[1] is False
+    monkeypatch.undo()
+    assert ds._for_floats()[1] is True

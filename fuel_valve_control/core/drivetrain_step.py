@@ -16,7 +16,7 @@ few elementwise names -- ``where(cond, a, b)``, ``clip(x, lo, hi)``, ``sqrt``, `
 same source compiled once more at import (:func:`_for_floats`) with those names bound to ``math.sqrt``, ``max``, ``min``,
 every ``where(c, a, b)`` made the inline ``(a if c else b)``, ``clip`` the same two comparisons inline, and ``&`` / ``|``
 ``and`` / ``or``: a float lane computes one side only, as hand-written float code would (without the source -- a
-byte-code-only install -- the same code objects run with eager ``where`` / ``clip`` functions: the same values, ~1.3 x
+byte-code-only install -- the same code objects run with eager ``where`` / ``clip`` functions: the same values, ~1.2 x
 slower).  Both compute
 every value with the same IEEE operations in the same order, so a float lane and the same numpy lane agree to the bit
 (``test_retreat_trough.py``); every constant is computed once, in floats, by :class:`Doublet` for both.
@@ -244,8 +244,9 @@ def _full_float(value, like):
 def _for_floats(inline: bool = True) -> tuple:
     """The kernel's functions for one lane of Python floats, and whether they are inline: the module's source of each
     compiled once more in a namespace binding the elementwise names to the float operations, every ``where`` / ``clip``
-    call made an inline conditional (:class:`_Inline`); without the source (or ``inline`` False) the same code objects
-    with eager ``where`` / ``clip`` functions (the same values)."""
+    call made an inline conditional (:class:`_Inline`); without the source, with a source file that does not compile to
+    the loaded functions' code (edited since the import), or with ``inline`` False: the same code objects with eager
+    ``where`` / ``clip`` functions (the same values, slower)."""
     ns = dict(globals())
     ns.update(where=_where_eager, sqrt=math.sqrt, maximum=max, minimum=min, clip=_clip_eager, full=_full_float)
     names = {fn.__name__ for fn in _KERNEL}
@@ -257,12 +258,19 @@ def _for_floats(inline: bool = True) -> tuple:
             raise OSError("no source file")
         with open(filename, encoding="utf-8") as f:
             tree = ast.parse(f.read(), filename)
-    except (OSError, TypeError, SyntaxError, UnicodeDecodeError):
+        # the kernel's definitions (with the module's __future__ imports: the same compile flags)
+        body = [node for node in tree.body if (isinstance(node, ast.ImportFrom) and node.module == "__future__")
+                or (isinstance(node, ast.FunctionDef) and node.name in names)]
+        # the source read must be the source the loaded functions were compiled from (not a file edited since)
+        plain = compile(ast.Module(body=body, type_ignores=[]), filename, "exec")
+        codes = {c.co_name: c for c in plain.co_consts if isinstance(c, types.CodeType)}
+        if any(codes.get(fn.__name__) != fn.__code__ for fn in _KERNEL):
+            raise OSError("the source file is not the loaded module's")
+    except (OSError, TypeError, SyntaxError, UnicodeDecodeError, ValueError):
         for fn in _KERNEL:
             ns[fn.__name__] = types.FunctionType(fn.__code__, ns, fn.__name__, fn.__defaults__)
         return ns, False
-    defs = [node for node in tree.body if isinstance(node, ast.FunctionDef) and node.name in names]
-    module = _Inline().visit(ast.Module(body=defs, type_ignores=[]))
+    module = _Inline().visit(ast.Module(body=body, type_ignores=[]))
     exec(compile(ast.fix_missing_locations(module), filename, "exec"), ns)
     return ns, True
 
