@@ -70,7 +70,8 @@ def test_a_free_valve_float_lane_is_the_array_lane(shape):
     flt = np.array([lane.thl for lane in lanes])
     assert np.array_equal(flt, s.thl), flt - s.thl
     assert np.array_equal(np.array([lane.th1 for lane in lanes]), s.th1)
-    # ... and it is _simulate's answer; the valve broke loose on the first six lanes (by different moves), not on the last
+    # ... and it is _simulate's answer; the valve broke loose on the first six lanes (six different moves), not on the
+    # last
     end = mv._simulate(d, p, 16.0, th, preload=preload, excess=excess, aim=aim)
     assert np.array_equal(end, s.thl)
     moved = d * (end - th)

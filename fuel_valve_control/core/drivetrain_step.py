@@ -3,28 +3,28 @@
 
 :meth:`PulseMoves._simulate <fuel_valve_control.core.pulse_moves.PulseMoves._simulate>` runs the fine stage's torque
 doublet on thousands of lanes at once (the move tables: numpy arrays); :meth:`PulseMoves.trough_fast` runs the same
-doublet on a valve that stays stuck, one lane at a time in Python floats (1-11 lanes in the control loop, where numpy's
-per-operation overhead would be most of the cost, docs §105.4).  Both run the functions below: :func:`start` (the lanes at
-rest on the hold), :func:`period` (the command of one control period -- the kick, the retreat, its half period, the
-observe servo with its integral and its delayed samples -- held over the period) and :func:`substeps` (the drivetrain:
-the drive's q current -- decoupled PI, the SVPWM voltage circle less the back-EMF, conditional integration, the exact R-L
-step -- and the gear output's and the valve's semi-implicit Euler with exact stick-slip, :func:`stick_slip`).
+doublet on a valve that stays stuck, one lane at a time in Python floats (1-11 lanes in the control loop, where
+numpy's per-operation overhead would be most of the cost, docs §105.4).  Both run the functions below: :func:`start`
+(the lanes at rest on the hold), :func:`period` (the command of one control period -- the kick, the retreat, its
+half period, the observe servo with its integral and its delayed samples -- held over the period) and
+:func:`substeps` (the drivetrain: the drive's q current -- decoupled PI, the SVPWM voltage circle less the back-EMF,
+conditional integration, the exact R-L step -- and the gear output's and the valve's semi-implicit Euler with exact
+stick-slip, :func:`stick_slip`).
 
-**The backends.**  The functions are written with Python's operators (``&`` / ``|`` on conditions), ``abs``, and a
+**The backends.** The functions are written with Python's operators (``&`` / ``|`` on conditions), ``abs``, and a
 few elementwise names -- ``where(cond, a, b)``, ``clip(x, lo, hi)``, ``sqrt``, ``maximum``, ``minimum``,
-``full(value, like)`` -- that this module binds to numpy: :data:`ARRAYS` runs them as written.  :data:`FLOATS` runs the
-same source compiled once more at import (:func:`_for_floats`) with those names bound to ``math.sqrt``, ``max``, ``min``,
-every ``where(c, a, b)`` made the inline ``(a if c else b)``, ``clip`` the same two comparisons inline, and ``&`` / ``|``
-``and`` / ``or``: a float lane computes one side only, as hand-written float code would (without the source -- a
-byte-code-only install -- the same code objects run with eager ``where`` / ``clip`` functions: the same values, ~1.2 x
-slower).  Both compute
-every value with the same IEEE operations in the same order, so a float lane and the same numpy lane agree to the bit
+``full(value, like)`` -- that this module binds to numpy: :data:`ARRAYS` runs them as written.  :data:`FLOATS` runs
+the same source compiled once more at import (:func:`_for_floats`) with those names bound to ``math.sqrt``, ``max``,
+``min``, every ``where(c, a, b)`` made the inline ``(a if c else b)``, ``clip`` the same two comparisons inline, and
+``&`` / ``|`` ``and`` / ``or``: a float lane computes one side only, as hand-written float code would (without the
+source -- a byte-code-only install -- or with a source file that no longer compiles to the loaded functions, the
+same code objects run with eager ``where`` / ``clip`` functions: the same values, ~1.2 x slower).  Both compute every
+value with the same IEEE operations in the same order, so a float lane and the same numpy lane agree to the bit
 (``test_retreat_trough.py``); every constant is computed once, in floats, by :class:`Doublet` for both.
 
-A valve whose static level is infinite (every lane of ``PulseMoves.trough`` and of the rise) never moves: its stick-slip
-keeps its speed at exactly 0 and its angle at the start, so the kernel skips its update there (``valve_free`` False) --
-the same bits, and a float lane carries the gear output alone.
-"""
+A valve whose static level is infinite (every lane of ``PulseMoves.trough`` and of the rise) never moves: its
+stick-slip keeps its speed at exactly 0 and its angle at the start, so the kernel skips its update there
+(``valve_free`` False) -- the same bits, and a float lane carries the gear output alone."""
 from __future__ import annotations
 
 import ast
@@ -205,7 +205,8 @@ class Backend(NamedTuple):
 class _Inline(ast.NodeTransformer):
     """The float lane's rewrite of the kernel's source: ``where(c, a, b)`` -> ``(a if c else b)``, ``clip(x, lo, hi)``
     -> ``(lo if x < lo else (hi if x > hi else x))`` (the kernel's arguments are pure expressions: evaluating one twice
-    gives the same value), and ``c1 & c2`` / ``c1 | c2`` (the kernel uses them on conditions only) -> ``and`` / ``or``."""
+    gives the same value), and ``c1 & c2`` / ``c1 | c2`` (the kernel uses them on conditions only) -> ``and`` /
+    ``or``."""
 
     def visit_Call(self, node):
         self.generic_visit(node)

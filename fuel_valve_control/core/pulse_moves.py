@@ -31,7 +31,8 @@ Sign conventions and units
 What is simulated (one vectorised time loop over every grid point at once)
 --------------------------------------------------------------------------
 The equations live in :mod:`~fuel_valve_control.core.drivetrain_step` (task h41k, docs §109: one source run on numpy
-lanes here and on float lanes by :meth:`PulseMoves.trough_fast`).  Two masses at the gear output (motor ``J1 = Jm N²`` with its viscous term and its Coulomb / static
+lanes here and on float lanes by :meth:`PulseMoves.trough_fast`).
+Two masses at the gear output (motor ``J1 = Jm N²`` with its viscous term and its Coulomb / static
 friction, stick-slip as the plant integrates it; the valve ``JL`` with its viscous term, the spring +
 flow load ``model.load_torque`` at the moving valve angle, and stick-slip at ``T_c(Δp)`` sliding /
 ``T_c + K x`` static), the coupling ``K``, ``c``; the drive's q-axis current loop (decoupled PI of bandwidth
