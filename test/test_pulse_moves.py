@@ -182,20 +182,28 @@ def test_shapes_cache_and_outside(pm, fine):
     assert own.builds == builds + 1 and own.rise(1, P_MAX, 8.0) > own.rise(1, P_MAX)
 
 
-def test_module_is_plant_free_and_ros_free():
-    """(4) core/pulse_moves.py imports neither the plant nor ROS nor the tools (test_architecture checks the
-    whole core; this pins the new module)."""
-    tree = ast.parse((ROOT / "fuel_valve_control/core/pulse_moves.py").read_text())
+def _imports(path: str) -> set:
     names = set()
-    for node in ast.walk(tree):
+    for node in ast.walk(ast.parse((ROOT / path).read_text())):
         if isinstance(node, ast.Import):
             names.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
             names.add(("." * node.level) + (node.module or ""))
+    return names
+
+
+def test_module_is_plant_free_and_ros_free():
+    """(4) core/pulse_moves.py imports neither the plant nor ROS nor the tools (test_architecture checks the
+    whole core; this pins the new module) -- nor does its doublet kernel core/drivetrain_step.py (task h41k)."""
+    names = _imports("fuel_valve_control/core/pulse_moves.py")
     # (task h36b: the disk cache and the background build add the standard library's file, hash and process modules)
     stdlib = {"hashlib", "os", "tempfile", "threading", "pathlib", "pickle", "subprocess", "sys", "signal", "fcntl",
               "shutil"}
-    assert names <= {"__future__", "math", "collections", "time", "numpy", ".model", ".params"} | stdlib, names
+    assert names <= {"__future__", "math", "collections", "time", "numpy", ".model", ".params",
+                     ".drivetrain_step"} | stdlib, names
+    # the kernel: numpy and the standard library's source tools (its float backend is its own source compiled again)
+    assert _imports("fuel_valve_control/core/drivetrain_step.py") <= {
+        "__future__", "ast", "copy", "inspect", "math", "types", "typing", "numpy"}
 
 
 def test_prepare_leaves_nothing_to_build(pm, fine):

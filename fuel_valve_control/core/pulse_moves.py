@@ -30,6 +30,8 @@ Sign conventions and units
 
 What is simulated (one vectorised time loop over every grid point at once)
 --------------------------------------------------------------------------
+The equations live in :mod:`~fuel_valve_control.core.drivetrain_step` (task h41k, docs §109: one source run on numpy
+lanes here and on float lanes by :meth:`PulseMoves.trough_fast`).
 Two masses at the gear output (motor ``J1 = Jm N²`` with its viscous term and its Coulomb / static
 friction, stick-slip as the plant integrates it; the valve ``JL`` with its viscous term, the spring +
 flow load ``model.load_torque`` at the moving valve angle, and stick-slip at ``T_c(Δp)`` sliding /
@@ -92,6 +94,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .drivetrain_step import ARRAYS, FLOATS, Doublet
 from .model import NominalModel
 from .params import CONTROLLER_SPEC
 
@@ -133,8 +136,8 @@ _SHARED: OrderedDict = OrderedDict()
 #: field
 TABLE_VERSION = 1
 #: the modules (relative to this one) whose source the cache signature hashes: the table physics (this module's
-#: ``_table`` / ``_simulate``, the model's friction and load)
-SOURCE_FILES = ("pulse_moves.py", "model.py", "../common/friction.py")
+#: ``_table`` / ``_simulate``, the doublet's kernel ``drivetrain_step``, the model's friction and load)
+SOURCE_FILES = ("pulse_moves.py", "drivetrain_step.py", "model.py", "../common/friction.py")
 #: environment variable naming the cache directory ("" / "off": no disk cache); default
 #: ``$ROS_HOME/fuel_valve/move_tables`` (``ROS_HOME`` default ``~/.ros``)
 CACHE_ENV = "FUEL_VALVE_MOVE_TABLES"
@@ -539,23 +542,25 @@ class PulseMoves:
                     valve_angle_rad: float | None = None, aim_rad: float = 0.0, retreat_periods: int | None = None,
                     retreat_scale=1.0, speed0: float | None = None, hold0: float | None = None,
                     servo_offset: float = 0.0, ref_twist: float | None = None, servo_delay_s: float = 0.0) -> np.ndarray:
-        """(task h40s, docs §105) :meth:`trough`'s answer, to the bit, from the same equations in plain floats: the valve
-        stays stuck in :meth:`trough` (its static level is infinite), so of :meth:`_simulate`'s state only the gear
-        output's (angle, speed, its stick-slip), the drive's q current (its PI, the voltage circle, the exact R-L step)
-        and the observe servo's integral and samples are left, per lane; the lanes run in step and stop together, as
-        :meth:`_simulate`'s do (once every lane's swing has turned).  ~0.3-0.5 ms of CPU per lane where
-        :meth:`trough`'s numpy run costs ~5-17 ms on 1-11 lanes (its per-operation overhead).  Same arguments."""
+        """(task h40s, docs §105) :meth:`trough`'s answer, to the bit, in plain floats: the same kernel
+        (:mod:`~fuel_valve_control.core.drivetrain_step`, task h41k, docs §109) run on one float lane per preload --
+        the valve stays stuck in :meth:`trough` (its static level is infinite), so only the gear output (its angle,
+        speed and stick-slip), the drive's q current and the observe servo are stepped; the lanes run in step and stop
+        together, as :meth:`_simulate`'s do (once every lane's swing has turned).  ~0.15-0.2 ms of CPU per lane where
+        :meth:`trough`'s numpy run costs ~4-17 ms on 1-11 lanes (its per-operation overhead).  Same arguments."""
         d, p, kick, th = self._key_parts(direction, pressure_kpa, kick_current_a, valve_angle_rad)
         pre, scale = np.broadcast_arrays(np.atleast_1d(np.asarray(preload_rad, dtype=float)),
                                          np.atleast_1d(np.asarray(retreat_scale, dtype=float)))
-        lanes = [_TroughLane(self, d, p, kick, th, float(a), float(b), aim_rad, retreat_periods, speed0, hold0,
-                             servo_offset, ref_twist, servo_delay_s) for a, b in zip(pre, scale)]
-        n_pulse = lanes[0].n_pulse
+        dbl = Doublet(self, d, p, kick, th, valve_free=False, track_trough=True, retreat_periods=retreat_periods,
+                      servo_offset=servo_offset, servo_delay_s=servo_delay_s)
+        lanes = [dbl.start(FLOATS, float(a), math.inf, float(aim_rad), speed0=speed0, hold0=hold0, ref_twist=ref_twist,
+                           scale=float(b)) for a, b in zip(pre, scale)]
+        n_pulse, step = dbl.n_pulse, FLOATS.period
         for period in range(n_pulse + self.observe_periods):
-            if period > n_pulse and all(d * lane.w1 > 0.0 for lane in lanes):
+            if period > n_pulse and all(dbl.turned(lane) for lane in lanes):
                 break                                    # the servo has turned every lane's swing: the trough is past
             for lane in lanes:
-                lane.period(period)
+                step(dbl, lane, period)
         return np.array([d * lane.trough for lane in lanes])
 
     def pending(self, pressures_kpa=None, directions=(1, -1), kicks=None) -> list:
@@ -993,276 +998,29 @@ class PulseMoves:
         h37t): the observe servo reads the gear output and valve angles this much before the period's start (the
         resolver delay) -- 0 (default): at the start, as before."""
         self.runs += 1
-        m = self.m
-        n_gear, k, c = m.gear_ratio, m.coupling_stiffness_nm_per_rad, m.coupling_damping_nms
-        j1, jl, b1, bl = m.j1, m.valve_inertia_kgm2, m.b1, m.valve_viscous_nms
-        kt = m.torque_constant_nm_per_a
-        fl = m.friction(p)
-        tc = fl.valve_coulomb_nm
-        ts = np.where(np.isfinite(excess), tc + k * np.where(np.isfinite(excess), excess, 0.0), np.inf)
-        # motor friction at the gear output (the plant's motor-shaft levels x N)
-        tcm, tsm = fl.motor_coulomb_nm * n_gear, fl.motor_static_nm * n_gear
-        r_ohm, lq = m.motor_resistance_ohm, m.motor_lq_h
-        pole = m.motor_pole_pairs
-        psi = kt / (1.5 * pole)
-        per = self.period
-        dt = per / self.substeps
-        n = preload.shape[0]
-        # initial rest: valve at th0, gear output at th0 + preload, the drive holding K φp / N
-        thl = np.full(n, float(th0))
-        wl = np.zeros(n)
-        th1 = thl + preload
-        w1 = np.zeros(n) if speed0 is None else np.full(n, float(speed0))
-        hold = k * preload / n_gear                                        # N*m at the motor
-        if self.park_friction:
-            # the park climbed to the preload toward d: the servo's hold carries the motor's Coulomb friction
-            # too, which the stuck motor's reaction takes over (released by the kick: +5 % rise, docs §80)
-            hold = hold + d * fl.motor_coulomb_nm
-        if hold0 is not None:
-            hold = np.full(n, float(hold0))
-        iq = hold / kt
-        xq = r_ohm * iq                                                    # the current PI's integral at rest
-        cap = self.cap * kt
-        # the load, linear about th0 over the doublet's few mrad (its curvature: < 1e-6 rad of twist over 5e-3 rad)
-        load0 = m.load_torque(float(th0), p)
-        frac0 = float(th0) / m.stroke_rad
-        load_slope = m.spring_rate_nm_per_rad + (
-            m.flow_torque_max_nm * m.pressure_fraction(p) * math.pi / m.stroke_rad * math.cos(math.pi * frac0)
-            if 0.0 < frac0 < 1.0 else 0.0)
-        phi_e = (load0 + d * tc) / k
-        # the observe servo's gear-output target (per final lane)
-        ref1 = (thl + phi_e if base is None else float(th0) + phi_e) + d * aim / 2.0
-        if ref_twist is not None:
-            ref1 = np.full(len(ref1), float(th0) + float(ref_twist))
-        integral = np.zeros(n)
-        th1_prev = th1.copy()
-        apex = d * preload.copy()
-        vlim2 = None if self.vlim is None else self.vlim ** 2
-        if self.wc is not None:
-            kpc, kic = lq * self.wc, r_ohm * self.wc
-            a_rl = math.exp(-r_ohm * dt / lq) if r_ohm > 0.0 else 1.0
-            b_rl = (1.0 - a_rl) / r_ohm if r_ohm > 0.0 else dt / lq
-        c_emf, c_vd = psi * pole * n_gear, lq * pole * n_gear
-        retreat_full = self.retreat_full if retreat_periods is None else max(int(retreat_periods), 0)
-        n_pulse = 2 + retreat_full - (1 if self.retreat_cap else 0)
-        trough = d * preload.copy()
-        # (servo_delay_s) the substep after which the servo's samples are taken: the period's end less the delay
-        lag = min(max(int(round(float(servo_delay_s) / dt)), 0), self.substeps)
-        th1_s, thl_s = th1.copy(), thl.copy()                # the samples the next period's servo reads
-        th1_s_prev = th1_s.copy()
+        k = self.m.coupling_stiffness_nm_per_rad
+        tc = self.m.friction(p).valve_coulomb_nm
+        finite = np.isfinite(excess)
+        ts = np.where(finite, tc + k * np.where(finite, excess, 0.0), np.inf)
+        # one implementation of the doublet for these lanes and trough_fast's floats (drivetrain_step, docs §109); a
+        # valve whose every lane's static level is infinite never moves (its update skipped, the same bits)
+        dbl = Doublet(self, d, p, kick, th0, valve_free=bool(finite.any()), track_apex=track_apex,
+                      apex_torque=apex_torque, track_trough=track_trough, retreat_periods=retreat_periods,
+                      servo_offset=servo_offset, servo_delay_s=servo_delay_s)
+        s = dbl.start(ARRAYS, preload, ts, aim, speed0=speed0, hold0=hold0, ref_twist=ref_twist, scale=retreat_scale)
+        n_pulse = dbl.n_pulse
         for period in range(n_pulse + self.observe_periods):
-            if track_trough and period > n_pulse and np.all(d * (w1 - wl) > 0.0):
+            if track_trough and period > n_pulse and np.all(dbl.turned(s)):
                 break                                    # the servo has turned every lane's swing: the trough is past
             if base is not None and period == n_pulse:
                 # the doublet done on the base lanes: one lane per aim from here
-                thl, wl, th1, w1, iq, xq, th1_prev, ts = (v[base] for v in (thl, wl, th1, w1, iq, xq, th1_prev, ts))
-                n = len(base)
-                integral = np.zeros(n)
-            if period == 0:
-                torque = hold + d * kick * kt
-            elif period <= retreat_full:
-                torque = -d * cap * np.ones(n) if self.cap_full else hold - d * cap
-                if retreat_scale is not None:
-                    torque = hold + retreat_scale * (torque - hold)
-            elif period == retreat_full + 1 and not self.retreat_cap:
-                frac = 0.5
-                if self.unmoved_fraction != 0.5 and self.tolerance > 0.0:
-                    unmoved = np.abs(thl - th0) < 0.5 * self.tolerance
-                    frac = np.where(unmoved, self.unmoved_fraction, 0.5)
-                torque = hold - d * frac * cap
-            else:
-                # the observe servo (FinePositioner._servo, a_ref = v_ref = 0), sampled at the period's start
-                if lag:
-                    # (servo_delay_s) read ``lag`` substeps before the period's start
-                    r1, rl, w1s = th1_s, thl_s, (th1_s - th1_s_prev) / per
-                else:
-                    r1, rl, w1s = th1, thl, (th1 - th1_prev) / per   # the stage's backward difference, every period
-                e = ref1 - r1
-                if self.hold_moved and not self.hold_integral:
-                    integral = integral + np.where(np.abs(rl - th0) >= 0.5 * self.tolerance, 0.0, e * per)
-                elif not self.hold_integral:
-                    integral = integral + e * per
-                ff = k * (ref1 - rl) / n_gear + servo_offset
-                torque = ff + (self.kp * e - self.kd * w1s + self.ki * integral) / n_gear
-            th1_prev = th1.copy()
-            iq_ref = np.clip(torque, -cap, cap) / kt * np.ones(n)
-            if lag:
-                th1_s_prev = th1_s
-                if lag == self.substeps:
-                    th1_s, thl_s = th1.copy(), thl.copy()
-            for sub in range(self.substeps):
-                # ---- the drive's q current (decoupled PI, voltage circle with the back-EMF, exact R-L step)
-                if self.wc is None:
-                    iq_new = iq_mid = iq_ref
-                else:
-                    emf_q = c_emf * w1                                      # ωe ψ, ωe = p N ω1
-                    err = iq_ref - iq
-                    vq = kpc * err + xq + emf_q
-                    if vlim2 is not None:
-                        vd = c_vd * (w1 * iq)                               # |d-axis EMF| ωe Lq iq (id = 0)
-                        vq_max = np.sqrt(np.maximum(vlim2 - vd * vd, 0.0))
-                        sat = np.abs(vq) > vq_max
-                        np.minimum(np.maximum(vq, -vq_max, out=vq), vq_max, out=vq)   # np.clip, at half the cost
-                        xq = xq + np.where(sat, 0.0, kic * dt) * err        # conditional integration
-                    else:
-                        xq = xq + (kic * dt) * err
-                    iq_new = a_rl * iq + b_rl * (vq - emf_q)
-                    iq_mid = 0.5 * (iq + iq_new)
-                iq = iq_new
-                # ---- mechanics (the plant's semi-implicit Euler with exact stick-slip), gear-output coordinates
-                tk = k * (th1 - thl) + c * (w1 - wl)
-                text_m = (kt * n_gear) * iq_mid - tk - b1 * w1
-                text_l = tk - bl * wl - (load0 + load_slope * (thl - th0))
-                w1 = self._stick_slip(w1, text_m, j1, tcm, tsm, dt)
-                wl = self._stick_slip(wl, text_l, jl, tc, ts, dt)
-                th1 = th1 + dt * w1
-                thl = thl + dt * wl
-                if track_apex:
-                    # the coupling's torque over K (twist + its damping's share c (ω1 - ωL) / K): what the valve's
-                    # static level is met by -- the twist alone peaks ~4e-5 rad lower, while it still rises
-                    apex = np.maximum(apex, d * (k * (th1 - thl) + c * (w1 - wl)) / k if apex_torque
-                                      else d * (th1 - thl))
-                if track_trough and period >= 1:
-                    trough = np.minimum(trough, d * (k * (th1 - thl) + c * (w1 - wl)) / k)
-                if lag and lag < self.substeps and sub == self.substeps - 1 - lag:
-                    th1_s, thl_s = th1.copy(), thl.copy()
+                s.thl, s.wl, s.th1, s.w1, s.iq, s.xq, s.th1_prev, s.ts = (
+                    v[base] for v in (s.thl, s.wl, s.th1, s.w1, s.iq, s.xq, s.th1_prev, s.ts))
+                s.integral, s.ones = np.zeros(len(base)), np.ones(len(base))
+            dbl.period(ARRAYS, s, period)
         if track_trough:
-            return d * trough
-        return d * apex if track_apex else thl
-
-    @staticmethod
-    def _stick_slip(w, t_ext, inertia, t_coulomb, t_static, dt):
-        """One step of a shaft with static / Coulomb friction (no Stribeck), as the plant's kernel: stuck
-        while the torque on it is within the static level (breaking away at the Coulomb level), stopped
-        where its speed would reverse within the step."""
-        stuck = w == 0.0
-        sgn = np.sign(w + stuck * t_ext)          # a moving shaft's own direction, a stuck one's torque's
-        w_new = w + (dt / inertia) * (t_ext - sgn * t_coulomb)
-        w_new[(stuck & (np.abs(t_ext) <= t_static)) | (w_new * w < 0.0)] = 0.0
-        return w_new
-
-
-class _TroughLane:
-    """(task h40s) One lane of :meth:`PulseMoves.trough_fast`: :meth:`PulseMoves._simulate` with ``track_trough``, the
-    valve stuck at ``th0``, in floats -- set up as there, advanced one control period at a time (:meth:`period`)."""
-
-    def __init__(self, mv, d, p, kick, th0, preload, scale, aim, retreat_periods, speed0, hold0, servo_offset,
-                 ref_twist, servo_delay_s):
-        m = mv.m
-        self.mv, self.d, self.kick, self.th0, self.scale = mv, d, kick, th0, scale
-        self.n_gear, self.k, self.c = m.gear_ratio, m.coupling_stiffness_nm_per_rad, m.coupling_damping_nms
-        self.j1, self.b1 = m.j1, m.b1
-        self.kt = kt = m.torque_constant_nm_per_a
-        fl = m.friction(p)
-        self.tcm, self.tsm = fl.motor_coulomb_nm * self.n_gear, fl.motor_static_nm * self.n_gear
-        self.r_ohm, lq = m.motor_resistance_ohm, m.motor_lq_h
-        pole = m.motor_pole_pairs
-        psi = kt / (1.5 * pole)
-        self.per = mv.period
-        self.sub_n = mv.substeps
-        self.dt = dt = self.per / self.sub_n
-        self.th1 = th0 + preload
-        self.w1 = 0.0 if speed0 is None else float(speed0)
-        if hold0 is not None:
-            hold = float(hold0)
-        else:
-            hold = self.k * preload / self.n_gear + (d * fl.motor_coulomb_nm if mv.park_friction else 0.0)
-        self.hold = hold
-        self.iq = hold / kt
-        self.xq = self.r_ohm * self.iq
-        self.cap = mv.cap * kt
-        if ref_twist is not None:
-            self.ref1 = th0 + float(ref_twist)
-        else:
-            self.ref1 = th0 + (m.load_torque(float(th0), p) + d * fl.valve_coulomb_nm) / self.k + d * aim / 2.0
-        self.servo_offset = servo_offset
-        self.integral = 0.0
-        self.th1_prev = self.th1
-        self.vlim2 = None if mv.vlim is None else mv.vlim ** 2
-        if mv.wc is not None:
-            self.kpc, self.kic = lq * mv.wc, self.r_ohm * mv.wc
-            self.a_rl = math.exp(-self.r_ohm * dt / lq) if self.r_ohm > 0.0 else 1.0
-            self.b_rl = (1.0 - self.a_rl) / self.r_ohm if self.r_ohm > 0.0 else dt / lq
-        self.c_emf, self.c_vd = psi * pole * self.n_gear, lq * pole * self.n_gear
-        self.retreat_full = mv.retreat_full if retreat_periods is None else max(int(retreat_periods), 0)
-        self.n_pulse = 2 + self.retreat_full - (1 if mv.retreat_cap else 0)
-        self.trough = d * preload
-        self.lag = min(max(int(round(float(servo_delay_s) / dt)), 0), self.sub_n)
-        self.th1_s = self.th1_s_prev = self.th1
-        # the valve is stuck at th0: its sample is th0, and "moved half a tolerance" is |0| >= tolerance / 2
-        self.moved = 0.0 >= 0.5 * mv.tolerance
-        self.frac_half = mv.unmoved_fraction if (mv.unmoved_fraction != 0.5 and mv.tolerance > 0.0) else 0.5
-
-    def period(self, period: int) -> None:
-        mv, d, per = self.mv, self.d, self.per
-        if period == 0:
-            torque = self.hold + d * self.kick * self.kt
-        elif period <= self.retreat_full:
-            torque = -d * self.cap if mv.cap_full else self.hold - d * self.cap
-            torque = self.hold + self.scale * (torque - self.hold)
-        elif period == self.retreat_full + 1 and not mv.retreat_cap:
-            torque = self.hold - d * self.frac_half * self.cap
-        else:
-            if self.lag:
-                r1, w1s = self.th1_s, (self.th1_s - self.th1_s_prev) / per
-            else:
-                r1, w1s = self.th1, (self.th1 - self.th1_prev) / per
-            e = self.ref1 - r1
-            if mv.hold_moved and not mv.hold_integral:
-                self.integral = self.integral + (0.0 if self.moved else e * per)
-            elif not mv.hold_integral:
-                self.integral = self.integral + e * per
-            ff = self.k * (self.ref1 - self.th0) / self.n_gear + self.servo_offset
-            torque = ff + (mv.kp * e - mv.kd * w1s + mv.ki * self.integral) / self.n_gear
-        self.th1_prev = self.th1
-        iq_ref = min(max(torque, -self.cap), self.cap) / self.kt
-        lag, sub_n = self.lag, self.sub_n
-        if lag:
-            self.th1_s_prev = self.th1_s
-            if lag == sub_n:
-                self.th1_s = self.th1
-        k, c, th0, dt, j1 = self.k, self.c, self.th0, self.dt, self.j1
-        iq, xq, w1, th1, trough = self.iq, self.xq, self.w1, self.th1, self.trough
-        for sub in range(sub_n):
-            if mv.wc is None:
-                iq_new = iq_mid = iq_ref
-            else:
-                emf_q = self.c_emf * w1
-                err = iq_ref - iq
-                vq = self.kpc * err + xq + emf_q
-                if self.vlim2 is not None:
-                    vd = self.c_vd * (w1 * iq)
-                    vq_max = math.sqrt(max(self.vlim2 - vd * vd, 0.0))
-                    if abs(vq) > vq_max:
-                        vq = vq_max if vq > 0.0 else -vq_max
-                    else:
-                        xq = xq + (self.kic * dt) * err
-                else:
-                    xq = xq + (self.kic * dt) * err
-                iq_new = self.a_rl * iq + self.b_rl * (vq - emf_q)
-                iq_mid = 0.5 * (iq + iq_new)
-            iq = iq_new
-            tk = k * (th1 - th0) + c * w1
-            text_m = (self.kt * self.n_gear) * iq_mid - tk - self.b1 * w1
-            # the gear output's stick-slip (PulseMoves._stick_slip, one shaft)
-            if w1 == 0.0:
-                if abs(text_m) <= self.tsm:
-                    w_new = 0.0
-                else:
-                    sgn = 1.0 if text_m > 0.0 else -1.0
-                    w_new = (dt / j1) * (text_m - sgn * self.tcm)
-            else:
-                sgn = 1.0 if w1 > 0.0 else -1.0
-                w_new = w1 + (dt / j1) * (text_m - sgn * self.tcm)
-                if w_new * w1 < 0.0:
-                    w_new = 0.0
-            w1 = w_new
-            th1 = th1 + dt * w1
-            if period >= 1:
-                trough = min(trough, d * (k * (th1 - th0) + c * w1) / k)
-            if lag and lag < sub_n and sub == sub_n - 1 - lag:
-                self.th1_s = th1
-        self.iq, self.xq, self.w1, self.th1, self.trough = iq, xq, w1, th1, trough
+            return d * s.trough
+        return d * s.apex if track_apex else s.thl
 
 
 # ---------------------------------------------------------------------- the disk cache and the background build
