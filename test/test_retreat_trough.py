@@ -106,3 +106,68 @@ def test_the_fast_trough_is_the_move_models_to_the_bit(shape):
                 slow = mv.trough(d, p, pres, 8.0, th, **kw)
                 fast = mv.trough_fast(d, p, pres, 8.0, th, **kw)
                 assert np.array_equal(slow, fast), (p, d, kw, slow - fast)
+
+
+def _batch_scale(one: np.ndarray, room: float, scales: np.ndarray) -> float:
+    """The 11-lane batch's answer (the stage's search before docs §111): the first point that fits, linearly."""
+    if one[0] <= room:
+        return 1.0
+    for j in range(1, len(scales)):
+        if one[j] <= room:
+            f = (one[j - 1] - room) / max(one[j - 1] - one[j], 1e-12)
+            return float(scales[j - 1] + f * (scales[j] - scales[j - 1]))
+    return 0.0
+
+
+def test_the_bisection_finds_the_batchs_scale_to_the_bit():
+    """(docs §111) :func:`scaled_retreat` -- the retreat period's scale by bisection, 2 + log2(10) lane runs -- gives the
+    linear scan's answer to the bit on falling depths (ties included) and any room, and runs no more lanes than that.
+    (Fails if the bisection stopped on another grid pair, interpolated between other points or ran the whole grid.)"""
+    from fuel_valve_control.core.fine_positioning import TROUGH_SCALES, scaled_retreat
+    rng = np.random.default_rng(7)
+    scales = np.linspace(1.0, 0.0, TROUGH_SCALES)
+    most = 2 + int(np.ceil(np.log2(TROUGH_SCALES - 1)))
+    for _ in range(2000):
+        steps = rng.exponential(1e-3, TROUGH_SCALES) * (rng.random(TROUGH_SCALES) > 0.2)     # some flat stretches
+        one = 12e-3 - np.cumsum(steps)
+        room = float(rng.uniform(one[-1] - 1e-3, one[0] + 1e-3))
+        if rng.random() < 0.1:
+            room = float(one[rng.integers(TROUGH_SCALES)])                                   # exactly on a point
+        runs = []
+        got = scaled_retreat(lambda j: runs.append(j) or float(one[j]), room, scales)
+        assert got == _batch_scale(one, room, scales)
+        assert len(runs) <= most and len(set(runs)) == len(runs)
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_the_scaled_retreat_in_the_stage_is_the_eleven_lane_batchs(direction):
+    """(docs §111) In the stage (Δp 0.04 x rated: one whole period would pass the other way's level; scaled to ~0.9
+    opening, ~0.6 closing) the plan's scale is the batch's for the same state: every lane of an 11-lane batch equals
+    the single lane the bisection ran at that scale, and the batch falls with the scale."""
+    from fuel_valve_control.core.fine_positioning import TROUGH_SCALES
+    ps = CONTROLLER_SPEC.defaults()
+    err = direction * 0.5 * ps["fine.doublet_max_error_rad"]
+    fine, m = _stage(**BOUND)
+    calls = []
+    orig = PulseMoves.trough_fast
+
+    def spy(self, *a, **kw):
+        out = orig(self, *a, **kw)
+        calls.append((a, kw, out))
+        return out
+
+    PulseMoves.trough_fast = spy
+    try:
+        _torques_until_observe(fine, err, 0.04 * m.pressure_max_kpa)
+    finally:
+        PulseMoves.trough_fast = orig
+    n, s = fine._retreat
+    assert n == 1 and 0.0 < s < 1.0                 # this case takes the scaled path
+    (d, p, pre), kw = calls[-1][0][:3], {k: v for k, v in calls[-1][1].items() if k != "retreat_scale"}
+    scales = np.linspace(1.0, 0.0, TROUGH_SCALES)
+    batch = orig(fine._moves, d, p, np.full(TROUGH_SCALES, pre), retreat_scale=scales, **kw)
+    assert np.all(np.diff(d * (pre - batch)) <= 0.0)
+    single = {float(c[1]["retreat_scale"]): float(c[2][0]) for c in calls if "retreat_scale" in c[1]}
+    assert len(single) >= 3
+    for sc, trough in single.items():
+        assert trough == batch[int(np.argmin(np.abs(scales - sc)))]
