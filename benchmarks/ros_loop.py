@@ -121,6 +121,10 @@ def demand_plan(args, build: dict, timing: str = REAL_TIME):
                         demand_overrides={"publish_rate_hz": args.demand_rate})
     import robustness as R      # noqa: PLC0415 (benchmarks/; the campaign's cases)
     case = R.sample_case(args.plateau_seed, "nominal")
+    if args.plateau_dp is not None:
+        # the case's plant at this Δp, read right by the transducer (docs §111: the retreat bound's plan is
+        # dearest where the static band is narrow, ~0.15 x rated)
+        case["dp_true_kpa"] = case["dp_told_kpa"] = args.plateau_dp * R.PRESSURE_MAX_KPA
     count = int(math.ceil((args.seconds + PLATEAU_MARGIN_S) / PLATEAU_MIN_HOLD_S))
     scenario = R.case_scenario(case, count=count)
     return plan_run(scenario, timing, mode=args.mode, plant_overrides=R.plant_overrides(case),
@@ -476,6 +480,9 @@ def main() -> int:
                         help="plain / record runs: the slow sine (default; the fine stage never engages on it) or "
                              "the nominal box's random plateaus (benchmarks/robustness.py, case --plateau-seed)")
     parser.add_argument("--plateau-seed", type=int, default=1000, help="--demand plateaus: the campaign case")
+    parser.add_argument("--plateau-dp", type=float, default=None, metavar="FRACTION",
+                        help="--demand plateaus: the case's Δp (true and read) as this fraction of the rated "
+                             "(default: the case's own, the rated)")
     parser.add_argument("--build", action="append", default=[], metavar='"LABEL [controller.]KEY=VALUE ..."',
                         help="plain / record runs: a controller build (its parameters on top of the config); "
                              "several: every variant runs once per build, interleaved (default: one build, the "
