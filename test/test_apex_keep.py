@@ -46,8 +46,8 @@ def _engaged(changes, w1):
     p = model.pressure_max_kpa
     thl, target = 0.5, 0.5 + 6e-4
     phi = fine._twists(thl, p, 1)[0]
+    fine._choose_apex = lambda *a, **k: None          # no try worth making (no move model built)
     fine._engage(target, thl + phi, thl, 0.0, p)
-    fine._choose_apex = lambda *a, **k: None          # no try worth making
     fine._w1_now = w1
     twist = phi - 4e-3                                 # in the retreat's trough
     choice = (6e-4, 1, phi, phi + 8e-3, 3e-4, p, 0.0, thl)
