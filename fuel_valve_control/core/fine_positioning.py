@@ -1786,12 +1786,12 @@ class FinePositioner:
         that it moves* (``p_worse <= ½ (1 - P(no move))``) rather than unconditionally (``p_worse < ½``): always with
         ``fine.apex_worse_given_move`` (§85), and with ``fine.apex_keep_rad`` > 0 from a rest within that radius
         (task h41n, docs §110).  Why the radius: traced on C3 (nominal box, seeds 1000 / 2000 / 4000), of the 36
-        plateaus > 8e-4 rad that are not a run's first, 17 ended after a try from a rest at 4.8-8.9e-4 rad whose
-        move model gave P(land) 0.00-0.31 and P(no move) 0.6-0.97 -- the unconditional rule passes it on P(no move)
-        alone -- and whose move (a stick-slip jump, 1.2-2.0e-3) crossed the target and left |e| larger.  From a
-        rest that close the move can only be smaller than the jump by luck, and the rest is worth keeping; from
-        further out (the rule everywhere, §85 / this section's measurement) holding instead gives up plateaus a later
-        try would have landed."""
+        plateaus > 8e-4 rad that are not a run's first, 16 ended after a try from a rest at 4.8-7.9e-4 rad (12 of
+        them with P(land) <= 0.05 and P(no move) 0.85-0.96: the unconditional rule passes such a try on P(no move)
+        alone) whose move, a stick-slip jump of 1.15-2.0e-3, crossed the target and left |e| larger.  From a rest
+        that close the move can only be smaller than the jump by luck, and the rest is worth keeping; from further
+        out (the rule everywhere, §85 / §110.3) holding instead gives up plateaus a later try would have landed.
+        Measured (radius 8e-4, nominal pool of 1440): > 8e-4 63 -> 56, p95 0.756 -> 0.706e-3, > 5e-4 162 -> 167."""
         cfg = self.cfg
         return cfg.apex_worse_given_move or (cfg.apex_keep_rad > 0.0 and e <= cfg.apex_keep_rad)
 
