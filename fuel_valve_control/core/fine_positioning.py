@@ -744,6 +744,7 @@ class FineConfig:
                                               # kick period's command (run_pending; docs §111): same bits
     apex_kick_continuous: bool = False  # ... after an unmoved try: preload at that apex, the kick sized to the apex
     apex_worse_given_move: bool = False  # ... no try more likely to worsen |e| than not, given that it moves
+    apex_keep_rad: float = 0.0    # ... (task h41n, docs §110) that rule only from a rest within this |e| (0: off)
     apex_level_law: str = "normal"  # ... the level's law: "normal" (the learned scatter), "mixture" (normals over scatters
                                     # log-uniform from the learned one to breakaway_fit / 3 x T_s/K), "student" (a t with
                                     # the learned scatter and (2 - scatter_gain) / scatter_gain - 1 degrees of freedom)
@@ -939,6 +940,7 @@ class FinePositioner:
         self._apex_plan = None        # fine.apex_policy: (apex, P(land), P(no move), score, kick) of the last choice
         self._apex_kick = None        # fine.apex_policy: the kick current (A) of the doublet in progress (None: main's)
         self._apex_try = None         # ... (direction, the model's mean move if it moves, rad) of that doublet
+        self._park_hold = False       # (fine.apex_keep_rad) the park in progress ends in the policy's hold, no kick
         self._apex_rise = 0.0         # ... and its rise above the preload, rad
         self._apex_last = None        # ... (direction, planned apex rad) of the last try the policy chose
         self._apex_tried = None       # (fine.apex_floor_repeat) the furthest apex an unmoved try planned at this stop
@@ -1553,6 +1555,7 @@ class FinePositioner:
         self._k = 0
         self._doublet = doublet
         self._apex_try = None
+        self._park_hold = False
         if self._doublet:
             # the kick rises kick_rise above the preload; the retreat after it is the whole
             # current, so the valve breaks loose while the gear output is already turning back
@@ -1599,6 +1602,18 @@ class FinePositioner:
             # ... at the doublet's final twist (about φe, inside the static band), not at th1: after an
             # unmoved doublet th1 lies in its retreat's trough, ~5e-3 rad of twist back (§55.1), and held
             # there the valve broke loose backwards (traced, nominal box seed 1017 #5: 5.8e-3 rad)
+            if cfg.apex_keep_rad > 0.0 and self._w1_now is not None and abs(self._w1_now) > cfg.park_approach_speed:
+                # (fine.apex_keep_rad, task h41n, docs §110) decided on an unmoved try's early verdict, the gear output
+                # still swinging back from the retreat's trough (~2-4 rad/s): the hold's servo, its reference stepped
+                # to the final twist, carried that swing past the apex the try had just failed to reach (nominal box
+                # seed 4028 #11: twist 0.020 -> 0.038 rad, the valve slid 5.6e-3 rad toward the try).  Reached by a
+                # park from the present twist instead (the reference leaves the gear output where it is, as a next
+                # try's park does), held once the park ends
+                self._pre, self._phi_start, self._park_hold = final, th1 - thl, True
+                self._plan_park()
+                self.phase = PARK
+                self._peak_seen = th1 - thl
+                return
             self.phase = HOLD
             self._hold_ref = thl + final
             return
@@ -1801,6 +1816,20 @@ class FinePositioner:
         self._apex_try = (d, best[6])          # the model's mean move, if this try moves (traced in §81)
         return best[1]
 
+    def _worse_given_move(self, e: float) -> bool:
+        """Whether a try from the error ``e`` (|target - valve|, rad) is judged by its chance to worsen |e| *given
+        that it moves* (``p_worse <= ½ (1 - P(no move))``) rather than unconditionally (``p_worse < ½``): always with
+        ``fine.apex_worse_given_move`` (§85), and with ``fine.apex_keep_rad`` > 0 from a rest within that radius
+        (task h41n, docs §110).  Why the radius: traced on C3 (nominal box, seeds 1000 / 2000 / 4000), of the 36
+        plateaus > 8e-4 rad that are not a run's first, 16 ended after a try from a rest at 4.8-7.9e-4 rad (12 of
+        them with P(land) <= 0.05 and P(no move) 0.85-0.96: the unconditional rule passes such a try on P(no move)
+        alone) whose move, a stick-slip jump of 1.15-2.0e-3, crossed the target and left |e| larger.  From a rest
+        that close the move can only be smaller than the jump by luck, and the rest is worth keeping; from further
+        out (the rule everywhere, §85 / §110.3) holding instead gives up plateaus a later try would have landed.
+        Measured (radius 8e-4, nominal pool of 1440): > 8e-4 63 -> 56, p95 0.756 -> 0.706e-3, > 5e-4 162 -> 167."""
+        cfg = self.cfg
+        return cfg.apex_worse_given_move or (cfg.apex_keep_rad > 0.0 and e <= cfg.apex_keep_rad)
+
     def _fixed_sums(self) -> bool:
         """(task h38x, docs §99) Whether the choice's weighted sums avoid BLAS (:func:`_wsum`, :func:`_beyond_best`):
         for every level law but "normal" (the mixture's 89 x 81 x 89 product ran on BLAS's threads, its bits the
@@ -1839,7 +1868,7 @@ class FinePositioner:
                 v1 = _beyond_best(hit, w, beyond, fixed)     # one more try after no move at a: the law beyond a
             score = p_hit + p_none * v1
             ok = p_worse < 0.5
-            if cfg.apex_worse_given_move:
+            if self._worse_given_move(e):
                 # (task h34m, docs §85) more likely to worsen |e| than not *if it moves*: at a stop whose level lies
                 # high (excess 2.5-4.5e-3 rad, smallest move 1.2e-3 and more) every move overshoots the error, and
                 # the unconditional rule let the law's climb (P(no move) 0.8-0.9, P(land) 0) go on until the valve
@@ -1920,7 +1949,7 @@ class FinePositioner:
         v1 = _beyond_best(hit[0], w, beyond, fixed)   # one more try after no move at a (main's kick): the law beyond a
         score = p_hit + p_none * v1
         ok = p_worse < 0.5
-        if cfg.apex_worse_given_move:
+        if self._worse_given_move(e):
             ok = ok & (p_worse <= 0.5 * (1.0 - p_none))
         score = np.where(ok & (p_break <= break_limit), score, -np.inf)
         js = np.argmax(score, axis=1)
@@ -2172,6 +2201,12 @@ class FinePositioner:
         base = self._thl0
         if self.phase == PARK:
             x, v, a = self._park_ref(self._k)
+            if self._park_hold and self._k >= self._park_n + 2:
+                # (fine.apex_keep_rad) a park to the policy's hold: held at its preload, no kick
+                self._park_hold = False
+                self.phase = HOLD
+                self._hold_ref = base + x
+                return self._servo(self._hold_ref, 0.0, th1, w1, thl)
             if self._k >= self._park_n + 2 and (not (cfg.park_settle and self._doublet) or self._park_settled(w1)
                                                  or self._k >= 2 * self._park_n + 2):
                 self.phase, self._k = PULSE, 0
