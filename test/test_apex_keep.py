@@ -7,12 +7,17 @@ import pytest
 from test_fine_positioning import _stage
 from fuel_valve_control.core.fine_positioning import HOLD, PARK
 
+#: the rule off: C3's policy (the default of stop 28)
+OFF = {"fine.apex_keep_rad": 0.0}
 
-def test_keep_radius_is_off_by_default():
-    fine, _ = _stage()
-    assert fine.cfg.apex_keep_rad == 0.0 and not fine._worse_given_move(1e-4)
-    keep, _ = _stage(**{"fine.apex_keep_rad": 8e-4})
+
+def test_keep_radius_is_on_by_default_and_bounds_the_rule():
+    """8e-4 rad by default since stop 29 (docs §111); 0 turns the rule off (C3's policy everywhere)."""
+    keep, _ = _stage()
+    assert keep.cfg.apex_keep_rad == 8e-4
     assert keep._worse_given_move(8e-4) and not keep._worse_given_move(8.1e-4)
+    fine, _ = _stage(**OFF)
+    assert fine.cfg.apex_keep_rad == 0.0 and not fine._worse_given_move(1e-4)
 
 
 def _choose(fine, d, e, phi_e, phi_b, sigma, p, floor):
@@ -27,7 +32,7 @@ def test_a_near_rest_gets_no_try_that_would_only_throw_it_across():
     P(no move) ~0.93 alone; within the keep radius the policy takes no try that can move the valve there (none, or
     an apex that moves it with chance 0).  Beyond the radius (|e| 1.2e-3) the choice is C3's to the bit."""
     d, sigma = -1, 3e-4
-    fine, model = _stage()
+    fine, model = _stage(**OFF)
     keep, _ = _stage(**{"fine.apex_keep_rad": 8e-4})
     p = model.pressure_max_kpa
     phi_e, phi_b, _ = fine._twists(0.5, p, d)
@@ -67,7 +72,7 @@ def test_a_hold_decided_mid_swing_is_reached_by_a_park_from_the_present_twist():
     assert not fine._park_hold
 
 
-@pytest.mark.parametrize("changes, w1", [({"fine.apex_keep_rad": 8e-4}, 0.05), ({}, 3.0)])
+@pytest.mark.parametrize("changes, w1", [({"fine.apex_keep_rad": 8e-4}, 0.05), (OFF, 3.0)])
 def test_a_hold_at_rest_or_without_the_option_is_held_at_once(changes, w1):
     fine, p, thl, twist, final = _engaged(changes, w1)
     assert fine.phase == HOLD and fine._hold_ref == pytest.approx(thl + final) and not fine._park_hold

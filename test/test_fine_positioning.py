@@ -325,7 +325,8 @@ def _stage(**changes):
 #: (docs §108); the tests written for C1's stage set this explicitly.
 C1_FINE = {"fine.apex_level_law": "normal", "fine.engage_gear_rest": 0.0, "fine.apex_floor_plan": False,
            "fine.handover_settle_speed_rad_s": 0.0, "fine.retreat_trough_bound": False,
-           "fine.servo_coupling_cap": False, "fine.handback_settle": False}
+           "fine.servo_coupling_cap": False, "fine.handback_settle": False,
+           "fine.apex_keep_rad": 0.0}     # (and the keep radius, on since stop 29: docs §110, §111)
 #: ... and C3's values of the seven (the defaults since stop 28)
 C3_FINE = {"fine.apex_level_law": "mixture", "fine.engage_gear_rest": 0.1, "fine.apex_floor_plan": True,
            "fine.handover_settle_speed_rad_s": 0.1, "fine.retreat_trough_bound": True,

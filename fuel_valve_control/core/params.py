@@ -702,11 +702,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "to improve it *given that it moves* (the policy's rule counts P(no move) as not worse: at a stop whose "
           "level lies high every move overshoots the error and the law's climb went on until one did; task h34m, "
           "docs section 85)", runtime=True),
-    Param("fine.apex_keep_rad", 0.0, "rad", "fine.apex_policy: from a rest within this |error| a try is judged as "
+    Param("fine.apex_keep_rad", 8e-4, "rad", "fine.apex_policy: from a rest within this |error| a try is judged as "
           "with fine.apex_worse_given_move (no try more likely to worsen the error than to improve it given that it "
           "moves); beyond it by the policy's unconditional rule.  With it on, a hold the policy decides while the gear "
           "output still turns faster than fine.park_approach_speed_rad_s is reached by a park from the present twist "
-          "(not a servo reference stepped to the hold's twist).  0: off (task h41n, docs section 110)",
+          "(not a servo reference stepped to the hold's twist).  0: off (task h41n, docs section 110; on since stop 29, "
+          "section 111: nominal pool 63 -> 56 plateaus > 8e-4, p95 0.756 -> 0.706e-3 rad)",
           0.0, 0.05, runtime=True),
     Param("fine.apex_level_law", "mixture", "", "fine.apex_policy: the law of the static level the apex is placed on: "
           "normal = the learned level and scatter (a normal clipped at 3 scatters); mixture = a mixture of normals "
