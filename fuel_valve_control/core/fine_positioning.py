@@ -748,6 +748,7 @@ class FineConfig:
     servo_unmoved_doublet: int = 0  # after this many servo-blended pulses that did not move the valve at a stop, the
                                     # next pulses are doublets while |e| <= one nominal stick-slip jump (0: off; task
                                     # h42s, docs §112)
+    servo_unmoved_doublet_jumps: float = 1.0  # ... while |e| <= this many nominal stick-slip jumps at the stop's Δp
     apex_level_law: str = "normal"  # ... the level's law: "normal" (the learned scatter), "mixture" (normals over scatters
                                     # log-uniform from the learned one to breakaway_fit / 3 x T_s/K), "student" (a t with
                                     # the learned scatter and (2 - scatter_gain) / scatter_gain - 1 degrees of freedom)
@@ -1529,10 +1530,17 @@ class FinePositioner:
         # pulse kind at every stair -- each servo-blended pulse that did not move the valve raised
         # the learned breakaway, the next doublet's preload started ~1e-3 rad higher and broke the
         # valve loose a whole jump across (nominal box, seed 2013 #8: 6.2e-3 rad; task h20p)
+        stuck = self._servo_stuck(err, d, pressure_kpa)
         doublet = (abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short, self._doublet_jump_range(pressure_kpa))
                    or self._stair is not None and abs(err) <= cfg.doublet_max_error_rad + cfg.tolerance_rad
-            or self._cold or self._restair is not None or self._servo_stuck(err, d, pressure_kpa)) \
-            and cfg.kick_current_a > 0.0
+            or self._cold or self._restair is not None or stuck) and cfg.kick_current_a > 0.0
+        if stuck and doublet and cfg.apex_policy and self._safe is not None and (
+                self._apex_floor is None or self._apex_floor[0] != d or d * (self._safe - self._apex_floor[1]) > 0.0):
+            # (fine.servo_unmoved_doublet) the policy's floor starts at the furthest twist the unmoved servo-blended
+            # pulses reached at this stop (the level lies beyond it), not afresh from the law's start: handed over
+            # without it, the policy's first tries reached 1.5e-3 rad of twist less than the last pulse had
+            # (nominal 4013 #4, docs §112)
+            self._apex_floor = (d, self._safe)
         aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
         final = phi_e + aim / 2.0
         pre = phi_b - d * cfg.preload_margin * gap
@@ -2398,15 +2406,16 @@ class FinePositioner:
     def _servo_stuck(self, err: float, d: int, pressure_kpa: float) -> bool:
         """(``fine.servo_unmoved_doublet``, task h42s, docs §112) Whether the next pulse toward ``d`` is a doublet
         because ``fine.servo_unmoved_doublet`` servo-blended pulses toward ``d`` have not moved the valve at this
-        stop, and |err| is within one nominal stick-slip jump at ``pressure_kpa`` (a doublet's move is one jump; a
-        larger error is the servo-blended pulse's).  Why: a servo-blended pulse's reach is its servo's; at a stop
+        stop, and |err| is within ``fine.servo_unmoved_doublet_jumps`` nominal stick-slip jumps at ``pressure_kpa``
+        (a doublet's move is about one jump; a larger error is the servo-blended pulse's).  Why: a servo-blended pulse's reach is its servo's; at a stop
         whose level was drawn high its apex stops short of its plan (nominal 2026 #5: the planned apex climbed 5e-3
         rad of twist past the first in 19 pulses, the reached one 2.8e-3 and then stayed), each unmoved pulse
         raises the learned level one probe step more, and the pulse that lets go throws the valve a whole jump."""
         n = self.cfg.servo_unmoved_doublet
         if n <= 0 or self._servo_unmoved[0] != d or self._servo_unmoved[1] < n:
             return False
-        return abs(err) <= self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad)
+        jump = self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad)
+        return abs(err) <= self.cfg.servo_unmoved_doublet_jumps * jump
 
     def _doublet_jump_range(self, pressure_kpa: float) -> float:
         """Errors up to this (rad) may get a doublet besides ``fine.doublet_max_error_rad``:

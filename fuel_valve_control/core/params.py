@@ -714,6 +714,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "|error| is within one nominal stick-slip jump: a servo-blended pulse's apex stops short of its plan at a "
           "level drawn high, each unmoved pulse raises the learned level one probe step, and the one that lets go "
           "throws the valve a whole jump.  0: off (task h42s, docs section 112)", 0, 1000, runtime=True),
+    Param("fine.servo_unmoved_doublet_jumps", 1.0, "", "fine.servo_unmoved_doublet: only while |error| is within "
+          "this many nominal stick-slip jumps at the stop's pressure (task h42s, docs section 112)", 0.0, 10.0,
+          runtime=True),
     Param("fine.apex_level_law", "mixture", "", "fine.apex_policy: the law of the static level the apex is placed on: "
           "normal = the learned level and scatter (a normal clipped at 3 scatters); mixture = a mixture of normals "
           "about the learned level with scatters log-uniform from the learned one to the widest the stage is designed "
