@@ -14,7 +14,9 @@ def _stuck(changes, err, pulses):
     thl = 0.5
     phi = fine._twists(thl, p, 1)[0]
     kinds = []
-    fine._start_try = lambda *a, **k: kinds.append("try")   # the policy's choice (no move model built here)
+    floors = []
+    fine._start_try = lambda *a, **k: (kinds.append("try"), floors.append(fine._apex_floor))  # the policy's choice
+    fine.floors = floors                                     # (no move model built here) and its floor then
     fine._engage(thl + err, thl + phi, thl, 0.0, p)
     kinds.append(fine._doublet)
     for _ in range(pulses):
@@ -36,6 +38,8 @@ def test_after_n_unmoved_servo_blended_pulses_the_next_is_the_policys_doublet():
     fine, kinds, _ = _stuck({"fine.servo_unmoved_doublet": 3}, 1.06e-3, 4)
     assert kinds[:5] == [False, False, False, "try", True]
     assert fine._servo_unmoved[1] >= 3
+    # the policy's floor at the hand-over: the furthest twist the unmoved servo-blended pulses reached (not none)
+    assert fine.floors[0] == (1, pytest.approx(fine._safe)) and fine._safe is not None
 
 
 def test_beyond_one_stick_slip_jump_the_servo_blended_pulse_stays():
