@@ -745,6 +745,10 @@ class FineConfig:
     apex_kick_continuous: bool = False  # ... after an unmoved try: preload at that apex, the kick sized to the apex
     apex_worse_given_move: bool = False  # ... no try more likely to worsen |e| than not, given that it moves
     apex_keep_rad: float = 0.0    # ... (task h41n, docs §110) that rule only from a rest within this |e| (0: off)
+    servo_unmoved_doublet: int = 0  # after this many servo-blended pulses that did not move the valve at a stop, the
+                                    # next pulses are doublets while |e| <= one nominal stick-slip jump (0: off; task
+                                    # h42s, docs §112)
+    servo_unmoved_doublet_jumps: float = 1.0  # ... while |e| <= this many nominal stick-slip jumps at the stop's Δp
     apex_level_law: str = "normal"  # ... the level's law: "normal" (the learned scatter), "mixture" (normals over scatters
                                     # log-uniform from the learned one to breakaway_fit / 3 x T_s/K), "student" (a t with
                                     # the learned scatter and (2 - scatter_gain) / scatter_gain - 1 degrees of freedom)
@@ -948,6 +952,8 @@ class FinePositioner:
         self._safe = None             # fine.preload_cap: the furthest twist toward the move an unmoved pulse reached
                                       # at this stop, rad (None: none yet)
         self._stairs_unmoved = 0      # fine.stair_growth_after: unmoved stairs of the staircase in progress
+        self._servo_unmoved = (0, 0)  # (fine.servo_unmoved_doublet) (direction, count) of unmoved servo-blended
+                                      # pulses at this stop
         self._stair_step = 0.0        # the last stair's climb, rad of twist (the level lies within it below the apex)
         self._rise_seen = [0.0, 0.0]  # mean twist a doublet's kick raised above its planned preload, rad (0: none
                                       # yet), [later stairs, a staircase's first stair]
@@ -1524,9 +1530,17 @@ class FinePositioner:
         # pulse kind at every stair -- each servo-blended pulse that did not move the valve raised
         # the learned breakaway, the next doublet's preload started ~1e-3 rad higher and broke the
         # valve loose a whole jump across (nominal box, seed 2013 #8: 6.2e-3 rad; task h20p)
+        stuck = self._servo_stuck(err, d, pressure_kpa)
         doublet = (abs(err) <= max(cfg.doublet_max_error_rad, 2.0 * short, self._doublet_jump_range(pressure_kpa))
                    or self._stair is not None and abs(err) <= cfg.doublet_max_error_rad + cfg.tolerance_rad
-            or self._cold or self._restair is not None) and cfg.kick_current_a > 0.0
+            or self._cold or self._restair is not None or stuck) and cfg.kick_current_a > 0.0
+        if stuck and doublet and cfg.apex_policy and self._safe is not None and (
+                self._apex_floor is None or self._apex_floor[0] != d or d * (self._safe - self._apex_floor[1]) > 0.0):
+            # (fine.servo_unmoved_doublet) the policy's floor starts at the furthest twist the unmoved servo-blended
+            # pulses reached at this stop (the level lies beyond it), not afresh from the law's start: handed over
+            # without it, the policy's first tries reached 1.5e-3 rad of twist less than the last pulse had
+            # (nominal 4013 #4, docs §112)
+            self._apex_floor = (d, self._safe)
         aim = err if doublet else d * max(abs(err) - max(cfg.approach_short * gap, short), 0.0)
         final = phi_e + aim / 2.0
         pre = phi_b - d * cfg.preload_margin * gap
@@ -2389,6 +2403,20 @@ class FinePositioner:
             return self._servo(rel[4], 0.0, th1, w1, thl)
         return self._servo(x, a, th1, w1, thl, v)
 
+    def _servo_stuck(self, err: float, d: int, pressure_kpa: float) -> bool:
+        """(``fine.servo_unmoved_doublet``, task h42s, docs §112) Whether the next pulse toward ``d`` is a doublet
+        because ``fine.servo_unmoved_doublet`` servo-blended pulses toward ``d`` have not moved the valve at this
+        stop, and |err| is within ``fine.servo_unmoved_doublet_jumps`` nominal stick-slip jumps at ``pressure_kpa``
+        (a doublet's move is about one jump; a larger error is the servo-blended pulse's).  Why: a servo-blended pulse's reach is its servo's; at a stop
+        whose level was drawn high its apex stops short of its plan (nominal 2026 #5: the planned apex climbed 5e-3
+        rad of twist past the first in 19 pulses, the reached one 2.8e-3 and then stayed), each unmoved pulse
+        raises the learned level one probe step more, and the pulse that lets go throws the valve a whole jump."""
+        n = self.cfg.servo_unmoved_doublet
+        if n <= 0 or self._servo_unmoved[0] != d or self._servo_unmoved[1] < n:
+            return False
+        jump = self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad)
+        return abs(err) <= self.cfg.servo_unmoved_doublet_jumps * jump
+
     def _doublet_jump_range(self, pressure_kpa: float) -> float:
         """Errors up to this (rad) may get a doublet besides ``fine.doublet_max_error_rad``:
         ``fine.doublet_jump_fraction`` x the nominal stick-slip jump at ``pressure_kpa`` (0: none).
@@ -2704,8 +2732,13 @@ class FinePositioner:
             self.learn.observe_start(d, b, abs(move) > 0.5 * cfg.tolerance_rad, cfg.start_quantile,
                                      cfg.start_step_sigmas, cfg.doublet_sigmas)
         below = self._safe                     # (fine.unbiased_samples) the stop's furthest unmoved apex, if any
+        if pulsed and not self._doublet and abs(move) <= 0.5 * cfg.tolerance_rad:
+            # (fine.servo_unmoved_doublet) one more unmoved servo-blended pulse toward d at this stop
+            n0 = self._servo_unmoved[1] if self._servo_unmoved[0] == d else 0
+            self._servo_unmoved = (d, n0 + 1)
         if abs(move) > 0.5 * cfg.tolerance_rad:
             self._stair = None                 # a new stop: a new breakaway level
+            self._servo_unmoved = (0, 0)
             floor, self._apex_floor = self._apex_floor, None
             if cfg.unbiased_samples:
                 self._pushes[(d, b)] = 0.0     # (h30u) a new stop: the climb was this stop's (its bound is learned)
@@ -3040,6 +3073,7 @@ class FinePositioner:
         self._judge(failed=failed)
         self._unfit = True
         self._stair = None
+        self._servo_unmoved = (0, 0)
         self._apex_floor = None
         self.phase = HOLD
         self._hold_ref = th1
@@ -3079,6 +3113,7 @@ class FinePositioner:
         self.phase = IDLE
         self._target = None
         self._stair = None
+        self._servo_unmoved = (0, 0)
         self._apex_floor = None
 
     def health(self) -> dict:

@@ -709,6 +709,14 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "(not a servo reference stepped to the hold's twist).  0: off (task h41n, docs section 110; on since stop 29, "
           "section 111: nominal pool 63 -> 56 plateaus > 8e-4, p95 0.756 -> 0.706e-3 rad)",
           0.0, 0.05, runtime=True),
+    Param("fine.servo_unmoved_doublet", 0, "", "after this many servo-blended pulses toward one way that did not move "
+          "the valve at a stop, the next pulses there are doublets (with fine.apex_policy the policy's tries) while "
+          "|error| is within one nominal stick-slip jump: a servo-blended pulse's apex stops short of its plan at a "
+          "level drawn high, each unmoved pulse raises the learned level one probe step, and the one that lets go "
+          "throws the valve a whole jump.  0: off (task h42s, docs section 112)", 0, 1000, runtime=True),
+    Param("fine.servo_unmoved_doublet_jumps", 1.0, "", "fine.servo_unmoved_doublet: only while |error| is within "
+          "this many nominal stick-slip jumps at the stop's pressure (task h42s, docs section 112)", 0.0, 10.0,
+          runtime=True),
     Param("fine.apex_level_law", "mixture", "", "fine.apex_policy: the law of the static level the apex is placed on: "
           "normal = the learned level and scatter (a normal clipped at 3 scatters); mixture = a mixture of normals "
           "about the learned level with scatters log-uniform from the learned one to the widest the stage is designed "

@@ -354,7 +354,7 @@ class PositionController:
                           apex_choice_after_command=ps["fine.apex_choice_after_command"],
                           retreat_plan_after_command=ps["fine.retreat_plan_after_command"],
                           apex_kick_continuous=ps["fine.apex_kick_continuous"], apex_worse_given_move=ps["fine.apex_worse_given_move"],
-                          apex_keep_rad=ps["fine.apex_keep_rad"], apex_level_law=ps["fine.apex_level_law"],
+                          apex_keep_rad=ps["fine.apex_keep_rad"], servo_unmoved_doublet=ps["fine.servo_unmoved_doublet"], servo_unmoved_doublet_jumps=ps["fine.servo_unmoved_doublet_jumps"], apex_level_law=ps["fine.apex_level_law"],
                           engage_gear_rest=ps["fine.engage_gear_rest"], handover_settle_speed=ps["fine.handover_settle_speed_rad_s"],
                           handback_settle=ps["fine.handback_settle"], apex_stop_rad=ps["fine.apex_stop_rad"],
                           apex_mix_points=ps["fine.apex_mix_points"],
