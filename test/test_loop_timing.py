@@ -142,3 +142,46 @@ def test_a_drive_watchdog_trip_sets_the_stage_aside_for_the_holdoff():
         if t < 0.3 + 0.9 * holdoff:
             assert drv.controller.law._aside, t
     assert _aside(drv) == "" and not drv.controller.law._aside
+
+
+def test_a_late_loop_keeps_what_the_valve_does_out_of_the_main_laws_jump_learner():
+    """(docs §111.5b) In real time a stall held a fine-stage pulse for several periods and threw the valve 2.8e-2 rad;
+    the main law learned that as the valve's stick-slip jump (ratio 1.22 -> 13.1, deadband 4.6e-2 rad) and held it
+    3.3e-2 rad off for good.  Through the hold-off after a late loop (here a drive watchdog trip) the driver tells the
+    law every period, and the main law's jump learner drops any breakaway in progress; before and after, it is not
+    told.  (Fails without the driver's call or the law's drop.)"""
+    from fuel_valve_control.common import contract
+    plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": 0.0}))
+    drv = ValveDriver(load_controller_params())
+    law = drv.controller.law
+    told = []
+    hook = law.loop_late
+    law.loop_late = lambda: (told.append(t), hook())
+    drv.drive_status(0.0, contract.DRIVE_STATE_ENABLED)
+    period, t = drv.period, 0.0
+
+    def run_until(t_end):
+        nonlocal t
+        while t < t_end:
+            out, _ = exchange_period(drv, plant, t, 40.0)
+            plant.set_command(out.current_a, out.enable)
+            plant.advance(period)
+            t += period
+
+    run_until(0.3)
+    assert told == []
+    drv.drive_status(t, contract.DRIVE_STATE_WATCHDOG)
+    t_late = t
+    run_until(t_late + 0.2)
+    assert len(told) >= int(0.19 / period)
+    # a breakaway in progress (as the learner records one) is dropped when the law is told
+    jumps = law.main.jumps
+    jumps._start, jumps._stuck_at = 0.4, 0.4
+    law.loop_late()
+    assert jumps._start is None and jumps._stuck_at is None
+    holdoff = drv.ps["fine.late_loop_holdoff_s"]
+    run_until(t_late + holdoff + 10 * period)
+    n = len(told)
+    assert max(told) < t_late + holdoff + 2 * period
+    run_until(t + 0.1)
+    assert len(told) == n

@@ -821,7 +821,10 @@ class ValveDriver:
             demand_rad = self.valve_test.demand(t, demand_rad)
         # a valve test measures friction from the drive torque, a late loop stretches a pulse:
         # the fine stage stands aside (the other laws ignore it)
-        self.controller.law.stand_aside(bool(self._stage_aside(t)))
+        aside = self._stage_aside(t)
+        self.controller.law.stand_aside(bool(aside))
+        if aside.startswith("late loop"):
+            self.controller.law.loop_late()       # nothing the valve does now is learned as its own (§111.5b)
         if not self._armed and self._rearm_at_rest and not self._valve_at_rest():
             # the drive is off (it switched itself off): wait, drive off, until the valve is slow
             self.last = DriverOutput(0.0, False, "waiting", self._demand_pct, position_pct, {}, dict(self.warnings))

@@ -48,6 +48,12 @@ class ControlLaw(ABC):
         leaves the valve to the loop until called with ``False``.  Called by the driver every
         period; the default: nothing."""
 
+    def loop_late(self) -> None:
+        """The real-time loop was late within ``fine.late_loop_holdoff_s`` (a stalled period held the last command
+        beyond its period: :meth:`~..driver.ValveDriver.loop_timing`): what the valve did meanwhile is not the law's
+        own doing and must not be learned as the valve's (docs §111.5b).  Called by the driver every such period
+        (never offline or in lockstep, whose timing is exact); the default: nothing."""
+
     def applied(self, torque_nm: float, saturated: bool) -> None:
         """The torque actually applied after limits (for observers and anti-windup)."""
 

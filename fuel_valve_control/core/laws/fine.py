@@ -135,6 +135,9 @@ class FinePositioningLaw(ControlLaw):
         self.fine.forget_scale()
         self.main.forget()
 
+    def loop_late(self) -> None:
+        self.main.loop_late()
+
     def stand_aside(self, on: bool) -> None:
         """A valve test measures friction from the drive torque while it moves the valve: the
         stage's preloads and pulses would falsify it (a signature's breakaway read 26.8 vs
