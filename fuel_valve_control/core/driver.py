@@ -498,12 +498,16 @@ class ValveDriver:
         self._late_t, self._late_why = t, why
         self.late_loop_events += 1
 
+    def _late_recently(self, t: float) -> bool:
+        """The loop was late within ``fine.late_loop_holdoff_s`` before ``t``."""
+        return self._late_t is not None and t - self._late_t < self.ps["fine.late_loop_holdoff_s"]
+
     def _stage_aside(self, t: float) -> str:
         """Why the fine stage stands aside this period ('' = it may act): a valve test is
         measuring, or the loop was late within ``fine.late_loop_holdoff_s``."""
         if self.valve_test is not None and self.valve_test.running is not None:
             return "valve test"
-        if self._late_t is not None and t - self._late_t < self.ps["fine.late_loop_holdoff_s"]:
+        if self._late_recently(t):
             return "late loop: " + self._late_why
         return ""
 
@@ -821,9 +825,8 @@ class ValveDriver:
             demand_rad = self.valve_test.demand(t, demand_rad)
         # a valve test measures friction from the drive torque, a late loop stretches a pulse:
         # the fine stage stands aside (the other laws ignore it)
-        aside = self._stage_aside(t)
-        self.controller.law.stand_aside(bool(aside))
-        if aside.startswith("late loop"):
+        self.controller.law.stand_aside(bool(self._stage_aside(t)))
+        if self._late_recently(t):
             self.controller.law.loop_late()       # nothing the valve does now is learned as its own (§111.5b)
         if not self._armed and self._rearm_at_rest and not self._valve_at_rest():
             # the drive is off (it switched itself off): wait, drive off, until the valve is slow

@@ -1642,8 +1642,9 @@ class FinePositioner:
         the park or hold it leads to.  The ROS node calls it once the period's command has gone out
         (``ValveDriver.after_period``); otherwise the next :meth:`update` (or :meth:`reset`) runs it first.  The
         period that started the try commands what the inline choice's period commanded (its observe servo reads
-        nothing the choice sets) but for the limit-cycle watch's count, which a hold's verdict adds here.  Returns
-        whether there was one."""
+        nothing the choice sets) but for the limit-cycle watch's count, which a hold's verdict adds here.  A kick
+        period's retreat plan left for after its command (``fine.retreat_plan_after_command``, :meth:`_settle_retreat`)
+        is made here too.  Returns whether there was any such work."""
         retreat = self._retreat_pending is not None
         if retreat:
             self._settle_retreat()            # (fine.retreat_plan_after_command) the kick period's retreat plan
@@ -2407,8 +2408,8 @@ class FinePositioner:
         """(``fine.servo_unmoved_doublet``, task h42s, docs §112) Whether the next pulse toward ``d`` is a doublet
         because ``fine.servo_unmoved_doublet`` servo-blended pulses toward ``d`` have not moved the valve at this
         stop, and |err| is within ``fine.servo_unmoved_doublet_jumps`` nominal stick-slip jumps at ``pressure_kpa``
-        (a doublet's move is about one jump; a larger error is the servo-blended pulse's).  Why: a servo-blended pulse's reach is its servo's; at a stop
-        whose level was drawn high its apex stops short of its plan (nominal 2026 #5: the planned apex climbed 5e-3
+        (a doublet's move is about one jump; a larger error is the servo-blended pulse's).  Why: a servo-blended
+        pulse's reach is its servo's; at a stop whose level was drawn high its apex stops short of its plan (nominal 2026 #5: the planned apex climbed 5e-3
         rad of twist past the first in 19 pulses, the reached one 2.8e-3 and then stayed), each unmoved pulse
         raises the learned level one probe step more, and the pulse that lets go throws the valve a whole jump."""
         n = self.cfg.servo_unmoved_doublet
