@@ -11,11 +11,20 @@ percent of the stroke; currents in A (q axis, positive opening); Δp in kPa.
 """
 from __future__ import annotations
 
+import math
+
 # --- topics (relative: they follow the node namespace) ---------------------------------------
 DEMAND = "demand"
 DEMAND_MA = "demand_ma"
 POSITION = "position"
 CURRENT_COMMAND = "current_command"
+#: the current (std_msgs/Float64, A, latched, published on change) the drive applies over a control period for which
+#: no new ``current_command`` arrived: a command is then applied for one period only.  NaN (the default, and what a
+#: drive that never received this topic assumes): hold the last command, as a drive without this feature does.  The
+#: controller sets it while its output is a timed open-loop sequence (the fine stage's doublet: the next period's
+#: planned retreat): a kick held over a late answer is a longer kick, and throws the valve
+#: (docs/control_results.md §113)
+CURRENT_FALLBACK = "current_fallback"
 DRIVE_ENABLE = "drive_enable"
 RESOLVER = "resolver"
 JOINT_STATES = "joint_states"
@@ -37,6 +46,7 @@ TOPIC_TYPES = {
     DEMAND_MA: "std_msgs/msg/Float64",
     POSITION: "std_msgs/msg/Float64",
     CURRENT_COMMAND: "std_msgs/msg/Float64",
+    CURRENT_FALLBACK: "std_msgs/msg/Float64",
     DRIVE_ENABLE: "std_msgs/msg/Bool",
     RESOLVER: "sensor_msgs/msg/JointState",
     JOINT_STATES: "sensor_msgs/msg/JointState",
@@ -51,7 +61,16 @@ TOPIC_TYPES = {
 #: topics of the control loop itself (keep-last-1: a loop wants the newest value, no backlog)
 LOOP_TOPICS = (RESOLVER, CURRENT_COMMAND, DEMAND, DEMAND_MA)
 #: topics that are latched (a late joiner still learns the state)
-LATCHED_TOPICS = (DRIVE_ENABLE, VALVE_TEST, DRIVE_STATUS)
+LATCHED_TOPICS = (DRIVE_ENABLE, VALVE_TEST, DRIVE_STATUS, CURRENT_FALLBACK)
+
+
+def current_without_command(last_command_a: float, fallback_a: float | None) -> float:
+    """The current (A) a drive applies over a period for which no new ``current_command`` arrived: the fallback of
+    :data:`CURRENT_FALLBACK` when one is set (finite), else the last command held."""
+    if fallback_a is not None and math.isfinite(fallback_a):
+        return fallback_a
+    return last_command_a
+
 
 # --- the drive's state word (DRIVE_STATUS) ---------------------------------------------------
 DRIVE_STATE_DISABLED = 0         # off because drive_enable is false (the controller's choice)
