@@ -444,6 +444,11 @@ def _norm_cdf_tails(x: np.ndarray) -> np.ndarray:
     return out
 
 
+#: (fine.pulse_fallback) the band-middle torque is recomputed once the valve has moved this far (rad) from where it
+#: was computed: the spring and flow torques change by milli-N*m over a few counts
+MIDDLE_REUSE_RAD = 1e-3
+
+
 @dataclass(frozen=True)
 class LearnedModel(NominalModel):
     """The told model with the valve friction scaled by ``friction_scale`` (Coulomb and static,
@@ -825,6 +830,10 @@ class FinePositioner:
     def __init__(self, model: NominalModel, period_s: float, cfg: FineConfig, learner: FineLearner):
         self._pending = None               # (fine.apex_choice_after_command) a try's start left for after the command
         self._retreat_pending = None       # (fine.retreat_plan_after_command) the kick period's (Δp, kick, periods)
+        #: (fine.pulse_fallback) the torque (N*m) the doublet plans for the period after this one, for the drive to
+        #: apply if that period's command is late (None: hold this one); set in the doublet's periods only
+        self.fallback_nm: float | None = None
+        self._middle: tuple | None = None    # (model, Δp), valve angle (rad), band-middle torque (N*m): its cache
                                            # whose retreat is planned after its command (:meth:`_settle_retreat`)
         self.m, self.period, self.cfg, self.learn = model, period_s, cfg, learner
         self.m0 = model                    # the told model (self.m: the one the stage plans from)
@@ -1016,9 +1025,22 @@ class FinePositioner:
                pressure_kpa: float) -> float | None:
         """``target`` valve angle, measured ``th1`` (motor resolver / N) and ``thl`` (valve
         resolver), ``holding``: the main law's reference has arrived at ``target``;
-        ``torque_now``: the torque applied last period (N*m, motor)."""
+        ``torque_now``: the torque applied last period (N*m, motor).  Returns the torque (N*m, motor) or None (the
+        main law's period).  Sets :attr:`fallback_nm`, the torque for the drive to apply next period if that
+        period's command is late (``fine.pulse_fallback``): a doublet's next planned step, else the middle of the
+        static band -- every torque of the stage is a timed preload, pulse or stiff servo torque (up to the whole
+        30 A while the observe servo pulls a retreat's swing back), which held for a few late periods throws the
+        valve (docs §113)."""
+        torque = self._update(target, th1, thl, holding, torque_now, pressure_kpa)
+        if torque is not None and self.fallback_nm is None:
+            self.fallback_nm = self._band_middle_torque(pressure_kpa)
+        return torque
+
+    def _update(self, target: float, th1: float, thl: float, holding: bool, torque_now: float,
+                pressure_kpa: float) -> float | None:
         if self._pending is not None or self._retreat_pending is not None:
             self.run_pending()            # not run after the last command (offline: nobody calls it): now, the same
+        self.fallback_nm = None           # (fine.pulse_fallback) set by a doublet period for the next: _doublet_torque
         if self._tables_gate == "released" and self.phase == IDLE and (
                 self._plateau is None or abs(target - self._plateau) > self.cfg.tolerance_rad):
             # (task h36b) the deferred move tables are in: the policy from this plateau on (never mid-engagement)
@@ -1649,6 +1671,8 @@ class FinePositioner:
         if retreat:
             self._settle_retreat()            # (fine.retreat_plan_after_command) the kick period's retreat plan
             self.retreat_plans_after_command += 1
+            if self.fallback_nm is not None:
+                self.fallback_nm = self._retreat_torque(self._retreat)    # (fine.pulse_fallback) the planned one
         pending, self._pending = self._pending, None
         if pending is None:
             return retreat
@@ -2545,22 +2569,57 @@ class FinePositioner:
             self._retreat, self._retreat_pending = None, (pressure_kpa, kick, periods)
             if not (cfg.retreat_plan_after_command and cfg.retreat_trough_bound):
                 self._settle_retreat()
+            # (fine.pulse_fallback) the next period's retreat, planned or (its plan left for after the command:
+            # run_pending sets the planned one) whole
+            self.fallback_nm = self._retreat_torque(self._retreat or (periods, 1.0))
         elif self._k <= 1 + self._settle_retreat()[0]:
-            # (task h34s, ``fine.retreat_cap``) the cap itself backwards, not the hold less the cap (an opening
-            # pulse at 0.5 rad, max Δp, holds ~+10.6 A: hold - cap is -19.4 A; plateau_floor's deep shape, §82)
-            torque = -d * cap if cfg.retreat_cap else self._hold_torque - d * cap
-            if self._retreat[1] != 1.0:
-                torque = self._hold_torque + self._retreat[1] * (torque - self._hold_torque)
+            torque = self._retreat_torque(self._retreat)
+            if self._k < 1 + self._retreat[0]:
+                self.fallback_nm = torque             # another whole retreat period follows
+            elif not (cfg.retreat_cap and not cfg.retreat_cap_half):
+                self.fallback_nm = self._retreat_half_torque()
+            else:
+                self.fallback_nm = self._band_middle_torque(pressure_kpa)
         elif cfg.retreat_cap and not cfg.retreat_cap_half:
             # ... and no half period: the observe servo takes this period (None: :meth:`_run` runs it)
             self.phase, self._k, self._pulsed = OBSERVE, 0, True
             return None
         else:
-            # (h28r, ``fine.retreat_unmoved_fraction``) a valve not yet moved by now may get less of it
-            frac = cfg.retreat_unmoved_fraction if self._unmoved_now else 0.5
-            torque = self._hold_torque - d * frac * cap
+            torque = self._retreat_half_torque()
+            self.fallback_nm = self._band_middle_torque(pressure_kpa)
             self.phase, self._k, self._pulsed = OBSERVE, 0, True
         return min(max(torque, -cap), cap)
+
+    def _retreat_torque(self, retreat: tuple[int, float]) -> float:
+        """A whole retreat period's torque (N*m) under the plan ``retreat`` (periods, scale; :meth:`_retreat_plan`)."""
+        cfg, d = self.cfg, self._dir
+        cap = cfg.peak_current_a * self.m.torque_constant_nm_per_a
+        # (task h34s, ``fine.retreat_cap``) the cap itself backwards, not the hold less the cap (an opening
+        # pulse at 0.5 rad, max Δp, holds ~+10.6 A: hold - cap is -19.4 A; plateau_floor's deep shape, §82)
+        torque = -d * cap if cfg.retreat_cap else self._hold_torque - d * cap
+        if retreat[1] != 1.0:
+            torque = self._hold_torque + retreat[1] * (torque - self._hold_torque)
+        return min(max(torque, -cap), cap)
+
+    def _retreat_half_torque(self) -> float:
+        """The retreat's closing half period (N*m; h28r, ``fine.retreat_unmoved_fraction``: a valve not yet moved by
+        now may get less of it)."""
+        cfg = self.cfg
+        cap = cfg.peak_current_a * self.m.torque_constant_nm_per_a
+        frac = cfg.retreat_unmoved_fraction if self._unmoved_now else 0.5
+        return min(max(self._hold_torque - self._dir * frac * cap, -cap), cap)
+
+    def _band_middle_torque(self, pressure_kpa: float | None) -> float | None:
+        """(``fine.pulse_fallback``) The motor torque holding the valve at its last measured angle against the known
+        load (spring, Δp; no friction): the middle of the static band, where a held valve stays and a sliding one is
+        braked by its whole Coulomb friction -- what the drive applies after a doublet's last retreat period when
+        the next command is late.  None without a Δp."""
+        if pressure_kpa is None or self._last_valve is None:
+            return None
+        key = (self.m, pressure_kpa)
+        if self._middle is None or self._middle[0] != key or abs(self._middle[1] - self._last_valve) > MIDDLE_REUSE_RAD:
+            self._middle = (key, self._last_valve, self.m.equilibrium(self._last_valve, pressure_kpa)[1])
+        return self._middle[2]
 
     def _spent(self) -> bool:
         """The plateau's pulses are used up (a doublet that did not move the valve does not count),

@@ -550,7 +550,16 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "for fine.late_loop_holdoff_s after (measured beside two CPU hogs: gaps of 1-2 ms beyond the period a "
           "few times a second, one of 6 ms in 15 s)", 5e-4, 1.0, runtime=True),
     Param("fine.late_loop_holdoff_s", 2.0, "s", "the stage stands aside this long after the loop was late "
-          "(fine.late_loop_s; 0 = never)", 0.0, 600.0, runtime=True),
+          "(fine.late_loop_s; 0 = never).  Shorter measured better on random late answers (0.2 s: 6 of 192 start-up "
+          "steps over 10 %, 2 s: 23; benchmarks/loop_stalls.py) but threw valves 0.1-0.17 rad where the loop is late "
+          "every 0.25 s (benchmarks/vcpu_freezes.py: the stage stopped mid-try each time it re-engages; docs section "
+          "113): kept", 0.0, 600.0, runtime=True),
+    Param("fine.pulse_fallback", True, "", "real time: in a doublet's periods (a one-period kick, then the retreat "
+          "that stops the valve it broke loose: timed open-loop torques) the drive is told, on the latched "
+          "current_fallback topic, the next period's planned current, to apply if that period's command is late -- "
+          "held instead, a kick is a longer kick and throws the valve; after the last retreat period, the current "
+          "holding the valve against the known load (the middle of the static band); NaN (hold) otherwise "
+          "(docs section 113).  Off: always NaN, the drive holds the last command", runtime=True),
     Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "

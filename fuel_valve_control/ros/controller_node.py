@@ -217,6 +217,8 @@ class ControllerNode(LifecycleNode):
         deep = bool(recorded)                 # a recorder in the run: deep writer histories
         self.pub_current = ri.quiet_publisher(self, Float64, contract.CURRENT_COMMAND, recorded=deep)
         self.pub_enable = ri.quiet_publisher(self, Bool, contract.DRIVE_ENABLE, recorded=deep)
+        self.pub_fallback = ri.quiet_publisher(self, Float64, contract.CURRENT_FALLBACK, recorded=deep)
+        self._last_fallback: float | None = None    # the fallback current last published (NaN: hold; None: none yet)
         self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION, recorded=deep)
         self.pub_estimate = ri.quiet_publisher(self, JointState, contract.ESTIMATE, recorded=deep)
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=deep)
@@ -624,6 +626,8 @@ class ControllerNode(LifecycleNode):
             self.pub_enable.publish(self._bool(data=False))
             self.recorder_gate.count(contract.DRIVE_ENABLE, latched=True)
             self._last_enable = False
+        if self._last_fallback is not None:
+            self._publish_fallback(math.nan)    # whoever commands the drive next: it holds its commands again
         # (lockstep: no command before the plant's first sample but the hello, _say_hello; a
         # command the plant receives after its start steps it)
         if self.recorder_gate.is_open and not (self.lockstep and not self._sample_seen):
@@ -786,6 +790,8 @@ class ControllerNode(LifecycleNode):
         # started, fine.apex_choice_after_command): the command is out, the next sample is a period away
         if self.driver.after_period():
             self._after.add(time.perf_counter() - t1)
+            # a retreat planned after the kick's command: the drive's fallback for the next period is the planned one
+            self._publish_fallback(self.driver.fallback_current())
 
     @locked
     def watchdog(self) -> None:
@@ -821,6 +827,16 @@ class ControllerNode(LifecycleNode):
         except Exception:                   # noqa: BLE001 - context gone: the plant's watchdog acts
             pass
 
+    def _publish_fallback(self, amps: float) -> None:
+        """The drive's fallback current (``contract.CURRENT_FALLBACK``, latched) when it changed: before the command it
+        applies to (NaN: hold the last command)."""
+        last = self._last_fallback
+        if last is not None and (amps == last or (math.isnan(amps) and math.isnan(last))):
+            return
+        self._last_fallback = amps
+        self.pub_fallback.publish(self._float(data=float(amps)))
+        self.recorder_gate.count(contract.CURRENT_FALLBACK, latched=True)
+
     def publish_step(self, t: float, out=None) -> None:
         """One driver period at ``t`` (s): the command first (the plant is waiting for it), then
         the rest.  ``out``: the period's ``DriverOutput`` when the driver has stepped already."""
@@ -836,6 +852,7 @@ class ControllerNode(LifecycleNode):
                                        f"{contract.DRIVE_STATE_NAMES.get(self.driver.drive_state, 'unreported')}): "
                                        "re-armed from the measurement with the holding torque, drive re-enabled",
                                        throttle_duration_sec=1.0)
+        self._publish_fallback(out.fallback_current_a)
         self.pub_current.publish(self._float(data=float(out.current_a)))
         self.recorder_gate.count(contract.CURRENT_COMMAND)
         self._periods += 1
