@@ -109,7 +109,10 @@ def simulate_freezes(freezes: dict[int, int], seconds: float, demand=soak_demand
             left = length = freezes[k]
         if left:                               # frozen: nobody steps the driver
             held = length - left < on_periods
-            plant.set_command(last.current_a if held else 0.0, last.enable and held)
+            # what the drive applies without a command: the last one, or the fallback the controller set
+            # (contract.CURRENT_FALLBACK, fine.pulse_fallback: a doublet's next step; docs §113)
+            amps = contract.current_without_command(last.current_a, last.fallback_current_a)
+            plant.set_command(amps if held else 0.0, last.enable and held)
             left -= 1
             if not left and length > on_periods:
                 drv.drive_status(t, contract.DRIVE_STATE_WATCHDOG)

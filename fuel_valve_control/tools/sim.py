@@ -34,6 +34,7 @@ from ..core.period_inputs import PeriodInputs
 from ..core.params import MODES
 from ..core.valve_tests import ValveTests, load_baselines
 from . import metrics as M
+from .loop_stalls import LoopStalls, StalledDrive
 from .run_plan import OFFLINE, RunPlan, apply_event, plan_run
 from .scenarios import Scenario, load_scenario
 
@@ -63,6 +64,9 @@ class SimResult:
     #: messages of refused valve-test requests
     valve_test_refusals: list = field(default_factory=list)
     warnings: dict = field(default_factory=dict)    # the driver's warnings at the end (code -> message)
+    #: with emulated loop stalls (:mod:`.loop_stalls`): periods whose command was lost, the controller asleep, the
+    #: drive's watchdog trips and the periods it applied the controller's fallback current
+    stall_counts: dict = field(default_factory=dict)
 
     def column(self, name: str) -> np.ndarray:
         return self.log[:, LOG_COLUMNS.index(name)]
@@ -125,11 +129,14 @@ def exchange_period(driver, plant, t: float, demand_pct: float):
     return inputs.run(driver, t, sample.motor_rad, sample.valve_rad), sample
 
 
-def simulate_plan(plan: RunPlan, baselines: list[dict] = ()) -> SimResult:
+def simulate_plan(plan: RunPlan, baselines: list[dict] = (), stalls: LoopStalls | None = None) -> SimResult:
     """Run an offline plan: every control period events due, demand, resolver sample, driver
     step, plant step (the order of the ROS loop).  A plan with valve-test events runs them on
     a :class:`~fuel_valve_control.core.valve_tests.ValveTests`, judged against ``baselines``
-    (stored results; none: the first run of each test is its baseline)."""
+    (stored results; none: the first run of each test is its baseline).  ``stalls``: the
+    real-time loop's late answers emulated (:mod:`.loop_stalls`): in a stalled period the
+    driver does not run and the drive applies its no-command current; the log's command
+    column holds the current the drive applied."""
     plant = Plant(plan.plant_params)
     driver = ValveDriver(plan.controller_params)
     tests = None
@@ -147,11 +154,36 @@ def simulate_plan(plan: RunPlan, baselines: list[dict] = ()) -> SimResult:
     events = plan.event_queue()
     demand = plan.demand
     start = time.perf_counter()
+    lost = asleep = drive = None
+    if stalls is not None:
+        (lost, asleep), drive = stalls.schedule(n), StalledDrive(stalls)
+        reported = None                # the drive state the driver was last told
     for k in range(n):
         t = k * period
         for ev in events.due(t):
             apply_event(ev, plant, driver)
-        out, sample = exchange_period(driver, plant, t, demand.value(t))
+        if drive is not None and asleep[k]:
+            # the controller is not scheduled this period: the drive applies its no-command current
+            amps, on = drive.no_command()
+            out, sample = replace(driver.last, current_a=amps, enable=on), None
+        else:
+            if drive is not None:
+                if drive.state != reported:
+                    reported = drive.state
+                    driver.drive_status(t, reported)
+                driver.loop_timing(t, t)
+            out, sample = exchange_period(driver, plant, t, demand.value(t))
+            if drive is not None:
+                # the command reaches the drive, or (a transit stall) not in time; then the work left for after
+                # the command, as the node does it (the same bits: the next step would do it first), and the
+                # fallback it may have changed
+                if lost[k]:
+                    amps, on = drive.no_command()
+                else:
+                    amps, on = drive.command(out)
+                    if driver.after_period():
+                        drive.fallback(driver.fallback_current())
+                out = replace(out, current_a=amps, enable=on)
         est = driver.controller.estimate()
         truth = plant.truth()
         i_d, i_q = plant.currents
@@ -169,9 +201,11 @@ def simulate_plan(plan: RunPlan, baselines: list[dict] = ()) -> SimResult:
     log = np.array(rows, dtype=float).reshape(n, len(LOG_COLUMNS))   # the same floats the row writes stored
     trace = M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9], stroke)
     metrics, segments = M.compute(trace)
+    counts = {} if drive is None else {"periods_lost": int(lost.sum()), "periods_asleep": int(asleep.sum()),
+                                       "watchdog_trips": drive.trips, "fallback_periods": drive.fallback_periods}
     return SimResult(plan.name, plan.mode, log, metrics, segments, n * period, wall, stroke, fault,
                      dict(tests.results) if tests else {}, list(tests.refusals) if tests else [],
-                     warnings=dict(driver.warnings))
+                     warnings=dict(driver.warnings), stall_counts=counts)
 
 
 def run(scenario_name: str, mode: str | None = None, plant_overrides=None, controller_overrides=None,
