@@ -111,15 +111,17 @@ def simulate_freezes(freezes: dict[int, int], seconds: float, demand=soak_demand
             held = length - left < on_periods
             # what the drive applies without a command: the last one, or the fallback the controller set
             # (contract.CURRENT_FALLBACK, fine.pulse_fallback: a doublet's next step; docs §113)
-            amps = contract.current_without_command(last.current_a, last.fallback_current_a)
+            amps = contract.current_without_command(last.current_a, last.fallback_currents_a, length - left + 1)
             plant.set_command(amps if held else 0.0, last.enable and held)
             left -= 1
             if not left and length > on_periods:
                 drv.drive_status(t, contract.DRIVE_STATE_WATCHDOG)
                 drive_on = False
         else:
+            # the controller node's real-time timing check, before the period as in the node (it ran after the
+            # period until stop 30: the first period after a freeze still ran the stage's stale sequence, §113)
+            drv.loop_timing(t, t)
             last, _ = sim.exchange_period(drv, plant, t, demand(t))
-            drv.loop_timing(t, t)              # the controller node's real-time timing check
             # the drive comes back on an explicit re-enable or an enable edge (plant_node) and
             # says so (its state word reaches the driver before the next period)
             if not drive_on and (last.reenable or (last.enable and not enabled)):

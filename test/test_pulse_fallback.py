@@ -24,10 +24,18 @@ from fuel_valve_control.tools.scenarios import load_scenario
 from fuel_valve_plant.physics.plant import Plant
 
 
-@pytest.mark.parametrize("fallback, applied", [(None, 5.0), (math.nan, 5.0), (-3.0, -3.0), (math.inf, 5.0),
-                                               (-math.inf, 5.0), (0.0, 0.0)])
-def test_a_period_without_a_command_applies_a_finite_fallback_else_holds_the_last_command(fallback, applied):
-    assert contract.current_without_command(5.0, fallback) == applied
+@pytest.mark.parametrize("fallback, missed, applied", [((), 1, 5.0), ((), 3, 5.0), ((-3.0,), 1, -3.0),
+                                                       ((-3.0,), 4, -3.0), ((-30.0, 6.0), 1, -30.0),
+                                                       ((-30.0, 6.0), 2, 6.0), ((-30.0, 6.0), 9, 6.0)])
+def test_a_period_without_a_command_applies_the_fallback_schedule_else_holds_the_last_command(fallback, missed,
+                                                                                            applied):
+    assert contract.current_without_command(5.0, fallback, missed) == applied
+
+
+@pytest.mark.parametrize("fallback, valid", [((), True), ((1.0, -2.0), True), ((math.nan,), False),
+                                             ((1.0, math.inf), False)])
+def test_a_schedule_with_a_non_finite_current_is_refused(fallback, valid):
+    assert contract.fallback_valid(fallback) == valid
 
 
 def test_the_stall_schedule_is_seeded_and_a_sleeping_controller_loses_its_commands():
@@ -43,26 +51,29 @@ def test_the_stall_schedule_is_seeded_and_a_sleeping_controller_loses_its_comman
 
 
 class _Out:
-    def __init__(self, amps, fallback=math.nan, enable=True, reenable=False):
-        self.current_a, self.fallback_current_a, self.enable, self.reenable = amps, fallback, enable, reenable
+    def __init__(self, amps, fallback=(), enable=True, reenable=False):
+        self.current_a, self.fallback_currents_a, self.enable, self.reenable = amps, fallback, enable, reenable
 
 
 def test_the_emulated_drive_holds_or_falls_back_and_its_watchdog_needs_a_re_enable():
-    drive = StalledDrive(LoopStalls(command_timeout_periods=2))
+    drive = StalledDrive(LoopStalls(command_timeout_periods=3))
     assert drive.command(_Out(5.0)) == (5.0, True)
     assert drive.no_command() == (5.0, True)                 # no fallback: held
-    drive.command(_Out(7.0, fallback=-2.0))
-    assert drive.no_command() == (-2.0, True)                # the fallback, for every period without one
-    assert drive.no_command() == (-2.0, True)
-    assert drive.fallback_periods == 2
-    assert drive.no_command() == (0.0, False)                # beyond 2 periods without a command: the watchdog
+    drive.command(_Out(7.0, fallback=(-30.0, 2.0)))
+    assert drive.no_command() == (-30.0, True)               # the schedule: its first current, then the last
+    assert drive.no_command() == (2.0, True)
+    assert drive.no_command() == (2.0, True)
+    assert drive.fallback_periods == 3
+    assert drive.no_command() == (0.0, False)                # beyond 3 periods without a command: the watchdog
     assert drive.trips == 1 and drive.state == contract.DRIVE_STATE_WATCHDOG
     assert drive.command(_Out(6.0)) == (0.0, False)          # resumed commands do not re-enable it
     assert drive.command(_Out(6.0, reenable=True)) == (6.0, True)
     assert drive.state == contract.DRIVE_STATE_ENABLED
+    drive.command(_Out(7.0, fallback=(math.nan,)))           # refused: held
+    assert drive.no_command() == (7.0, True)
     # a drive without the feature holds whatever the controller says
     old = StalledDrive(LoopStalls(fallback=False))
-    old.command(_Out(7.0, fallback=-2.0))
+    old.command(_Out(7.0, fallback=(-2.0,)))
     assert old.no_command() == (7.0, True) and old.fallback_periods == 0
 
 
@@ -81,34 +92,37 @@ def _startup_periods(overrides: dict, seconds: float = 20.0):
         # 1: the doublet's kick, 2..: its retreat (0: not in a doublet's pulse)
         doublet = fine._k if fine is not None and fine.phase == PULSE and fine._doublet else 0
         drv.after_period()
-        rows.append((out, drv.fallback_current(), doublet))
+        rows.append((out, drv.fallback_currents(), doublet))
         plant.set_command(out.current_a, out.enable)
         plant.advance(drv.period)
     return rows
 
 
-def test_in_a_doublet_the_fallback_is_the_next_periods_command_and_outside_it_the_band_middle_or_nothing():
+def test_in_a_doublet_the_fallback_is_the_next_periods_command_then_the_band_middle():
     rows = _startup_periods({})
     kicks = 0
     for (out, fallback, doublet), (nxt, _, _) in zip(rows, rows[1:]):
         if doublet == 1:
-            # the drive's fallback after the kick's command (and after the retreat planned meanwhile) is the retreat
-            # the next period commands
+            # after the kick's command (and after the retreat planned meanwhile) the drive's first fallback is the
+            # retreat the next period commands, then the current holding the valve against the known load
             kicks += 1
-            assert fallback == pytest.approx(nxt.current_a, abs=1e-9), (out.current_a, fallback, nxt.current_a)
+            assert len(fallback) == 2 and fallback[0] == pytest.approx(nxt.current_a, abs=1e-9), (fallback, nxt)
             assert abs(nxt.current_a - out.current_a) > 10.0         # (a kick, then a retreat)
+            assert abs(fallback[1]) < 15.0
         elif doublet > 1:
-            # a retreat period: the next retreat period, or after the last the band middle (the observe servo's
-            # first command is a feedback torque up to the cap: not what a late answer should leave applied)
-            assert fallback == pytest.approx(nxt.current_a, abs=1e-9) or abs(fallback) < 15.0, (fallback, nxt)
-        elif math.isfinite(out.fallback_current_a):
-            # the stage's other periods (park, observe, hold): the current holding the valve against the known load
-            assert abs(fallback) < 15.0
+            # a retreat period: the next retreat period and the band middle, or after the last the band middle alone
+            # (the observe servo's first command is a feedback torque up to the cap: not what a late answer should
+            # leave applied, and a retreat held over several periods breaks the valve loose backwards)
+            assert (len(fallback) == 2 and fallback[0] == pytest.approx(nxt.current_a, abs=1e-9)) or (
+                len(fallback) == 1 and abs(fallback[0]) < 15.0), (fallback, nxt)
+        elif out.fallback_currents_a:
+            # the stage's other periods (park, observe, hold): the band middle alone
+            assert len(fallback) == 1 and abs(fallback[0]) < 15.0
     assert kicks >= 2, kicks              # (the profile's plateaus take 2 doublets; the rest are servo-blended pulses)
     # the main law's periods (its moves, a plateau's wait before the stage engages): hold
-    assert sum(math.isnan(o.fallback_current_a) for o, _, _ in rows) > 0.1 * len(rows)
+    assert sum(not o.fallback_currents_a for o, _, _ in rows) > 0.1 * len(rows)
     # off: never set
-    assert all(math.isnan(o.fallback_current_a) for o, _, _ in _startup_periods({"fine.pulse_fallback": False}, 4.0))
+    assert not any(o.fallback_currents_a for o, _, _ in _startup_periods({"fine.pulse_fallback": False}, 4.0))
 
 
 def _steps(overrides: dict, stall_seed: int) -> list[float]:
@@ -131,7 +145,7 @@ def test_the_plant_node_applies_the_fallback_in_a_tick_without_a_command():
     pytest.importorskip("rclpy")
     import rclpy
     from rclpy.parameter import Parameter
-    from std_msgs.msg import Bool, Float64
+    from std_msgs.msg import Bool, Float64, Float64MultiArray
     from fuel_valve_plant.ros import plant_node as pn
 
     ctx = rclpy.context.Context()
@@ -150,13 +164,16 @@ def test_the_plant_node_applies_the_fallback_in_a_tick_without_a_command():
         node.on_command(Float64(data=5.0))
         ticks()
         assert node._iq == 5.0 and node.fallback_periods == 0          # no fallback set: held
-        node.on_fallback(Float64(data=-3.0))
+        node.on_fallback(Float64MultiArray(data=[-3.0]))
         node.on_command(Float64(data=5.0))
         ticks()
         assert node._iq == -3.0 and node.fallback_periods > 0
-        node.on_fallback(Float64(data=math.inf))                       # refused: hold again
-        assert node._fallback is None
-        node.on_fallback(Float64(data=math.nan))
+        node.on_fallback(Float64MultiArray(data=[-30.0, 2.0]))         # the first period's, then the last one
+        node.on_command(Float64(data=5.0))
+        ticks()
+        assert node._iq == 2.0
+        node.on_fallback(Float64MultiArray(data=[1.0, math.inf]))      # refused: hold again
+        assert node._fallback == ()
         node.on_command(Float64(data=4.0))
         ticks()
         assert node._iq == 4.0

@@ -151,7 +151,8 @@ def test_recorded_bag_reads_back(lockstep_bag):
     # /clock is the valve's own clock in lockstep (launcher.clock_remap)
     expected = {"/diagnostics"} | {f"{NS}/{t}" for t in (
         "clock", "demand", "demand_ma", "position", "current_command", "drive_enable", "resolver", "joint_states",
-        "drive", "drive_status", "estimate", "pressure_differential", "valve_test")}   # valve_test: no test run, 0 messages
+        "drive", "drive_status", "estimate", "pressure_differential", "valve_test",   # valve_test: no test run, 0 messages
+        "current_fallback")}
     assert set(counts) == expected
     # every message the nodes published is in the bag, topic by topic (a tick the plant re-published
     # after a wall-clock stall -- /clock and resolver -- was sent twice and is in it twice) ...

@@ -12,18 +12,20 @@ percent of the stroke; currents in A (q axis, positive opening); Δp in kPa.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 # --- topics (relative: they follow the node namespace) ---------------------------------------
 DEMAND = "demand"
 DEMAND_MA = "demand_ma"
 POSITION = "position"
 CURRENT_COMMAND = "current_command"
-#: the current (std_msgs/Float64, A, latched, published on change) the drive applies over a control period for which
-#: no new ``current_command`` arrived: a command is then applied for one period only.  NaN (the default, and what a
+#: the currents (std_msgs/Float64MultiArray, A, latched, published on change) a drive applies over consecutive control
+#: periods for which no new ``current_command`` arrived: ``data[0]`` in the first such period, ``data[1]`` in the
+#: second, ..., the last element in every later one (:func:`current_without_command`).  Empty (the default, and what a
 #: drive that never received this topic assumes): hold the last command, as a drive without this feature does.  The
 #: controller sets it while its output is a timed open-loop sequence (the fine stage's doublet: the next period's
-#: planned retreat): a kick held over a late answer is a longer kick, and throws the valve
-#: (docs/control_results.md §113)
+#: planned retreat, then the current holding the valve): a kick held over a late answer is a longer kick, and throws
+#: the valve, and so does a retreat held over several (docs/control_results.md §113)
 CURRENT_FALLBACK = "current_fallback"
 DRIVE_ENABLE = "drive_enable"
 RESOLVER = "resolver"
@@ -46,7 +48,7 @@ TOPIC_TYPES = {
     DEMAND_MA: "std_msgs/msg/Float64",
     POSITION: "std_msgs/msg/Float64",
     CURRENT_COMMAND: "std_msgs/msg/Float64",
-    CURRENT_FALLBACK: "std_msgs/msg/Float64",
+    CURRENT_FALLBACK: "std_msgs/msg/Float64MultiArray",
     DRIVE_ENABLE: "std_msgs/msg/Bool",
     RESOLVER: "sensor_msgs/msg/JointState",
     JOINT_STATES: "sensor_msgs/msg/JointState",
@@ -64,12 +66,19 @@ LOOP_TOPICS = (RESOLVER, CURRENT_COMMAND, DEMAND, DEMAND_MA)
 LATCHED_TOPICS = (DRIVE_ENABLE, VALVE_TEST, DRIVE_STATUS, CURRENT_FALLBACK)
 
 
-def current_without_command(last_command_a: float, fallback_a: float | None) -> float:
-    """The current (A) a drive applies over a period for which no new ``current_command`` arrived: the fallback of
-    :data:`CURRENT_FALLBACK` when one is set (finite), else the last command held."""
-    if fallback_a is not None and math.isfinite(fallback_a):
-        return fallback_a
-    return last_command_a
+def current_without_command(last_command_a: float, fallback_a: Sequence[float], missed: int) -> float:
+    """The current (A) a drive applies in the ``missed``-th consecutive period (1 = the first) for which no new
+    ``current_command`` arrived: that element of the :data:`CURRENT_FALLBACK` schedule (its last one beyond its end),
+    or with an empty schedule the last command held.  A schedule with a non-finite element is refused by the drive
+    (it holds): :func:`fallback_valid`."""
+    if not fallback_a:
+        return last_command_a
+    return float(fallback_a[min(max(missed, 1), len(fallback_a)) - 1])
+
+
+def fallback_valid(fallback_a: Sequence[float]) -> bool:
+    """Whether a drive takes the :data:`CURRENT_FALLBACK` schedule ``fallback_a`` (every element finite)."""
+    return all(math.isfinite(x) for x in fallback_a)
 
 
 # --- the drive's state word (DRIVE_STATUS) ---------------------------------------------------

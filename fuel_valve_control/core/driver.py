@@ -137,9 +137,10 @@ class DriverOutput:
     #: the drive switched itself off under the running law (its command watchdog) and the loop
     #: has re-armed: send drive_enable true again (an explicit re-enable) with this command
     reenable: bool = False
-    #: the current (A) the drive is to apply over a period for which no new command arrives (contract.CURRENT_FALLBACK;
-    #: NaN: hold the last command): set while the law's output is a timed pulse (``fine.pulse_fallback``)
-    fallback_current_a: float = math.nan
+    #: the currents (A) the drive is to apply over the first, second, ... period in a row for which no new command
+    #: arrives (contract.CURRENT_FALLBACK; empty: hold the last command): set while the law's output is a timed
+    #: sequence (``fine.pulse_fallback``)
+    fallback_currents_a: tuple = ()
 
 
 class ValveDriver:
@@ -934,22 +935,22 @@ class ValveDriver:
         self._settled_demand = demand_rad
         self.last = DriverOutput(current, True, "holding" if holding else "running", self._demand_pct,
                                  position_pct, {}, dict(self.warnings), reenable=reenable,
-                                 fallback_current_a=self.fallback_current())
+                                 fallback_currents_a=self.fallback_currents())
         return self.last
 
-    def fallback_current(self) -> float:
-        """The current (A) the drive is to apply in the next period if that period's command is late
-        (``DriverOutput.fallback_current_a``, ``contract.CURRENT_FALLBACK``), NaN: hold this period's command.  The
-        law's next planned step where its output is a timed sequence (:meth:`.laws.base.ControlLaw.fallback_torque`;
-        ``fine.pulse_fallback``), within the peak current.  After :meth:`after_period` it may have changed (a retreat
-        planned after the kick's command): the node publishes it again."""
+    def fallback_currents(self) -> tuple[float, ...]:
+        """The currents (A) the drive is to apply in the first, second, ... period in a row whose command is late
+        (``DriverOutput.fallback_currents_a``, ``contract.CURRENT_FALLBACK``), ``()``: hold this period's command.  The
+        law's next planned steps where its output is a timed sequence (:meth:`.laws.base.ControlLaw.fallback_torques`;
+        ``fine.pulse_fallback``), within the peak current.  After :meth:`after_period` they may have changed (a
+        retreat planned after the kick's command): the node publishes them again."""
         if not self.ps["fine.pulse_fallback"] or not self._armed:
-            return math.nan
-        torque = self.controller.law.fallback_torque()
-        if torque is None or not math.isfinite(torque):
-            return math.nan
-        cap = self.ps["limits.peak_current_a"]
-        return min(max(torque / self.controller.model.torque_constant_nm_per_a, -cap), cap)
+            return ()
+        torques = self.controller.law.fallback_torques()
+        if not all(math.isfinite(x) for x in torques):
+            return ()
+        cap, kt = self.ps["limits.peak_current_a"], self.controller.model.torque_constant_nm_per_a
+        return tuple(min(max(x / kt, -cap), cap) for x in torques)
 
     def _twist_context(self, t: float) -> str:
         """What the loop knew when the twist check latched (diagnostics in its message): the

@@ -830,9 +830,9 @@ class FinePositioner:
     def __init__(self, model: NominalModel, period_s: float, cfg: FineConfig, learner: FineLearner):
         self._pending = None               # (fine.apex_choice_after_command) a try's start left for after the command
         self._retreat_pending = None       # (fine.retreat_plan_after_command) the kick period's (Δp, kick, periods)
-        #: (fine.pulse_fallback) the torque (N*m) the doublet plans for the period after this one, for the drive to
-        #: apply if that period's command is late (None: hold this one); set in the doublet's periods only
-        self.fallback_nm: float | None = None
+        #: (fine.pulse_fallback) the torques (N*m) for the drive to apply in the first, second, ... period in a row whose
+        #: command is late (:meth:`update`; ``()``: hold this period's)
+        self.fallback_nm: tuple[float, ...] = ()
         self._middle: tuple | None = None    # (model, Δp), valve angle (rad), band-middle torque (N*m): its cache
                                            # whose retreat is planned after its command (:meth:`_settle_retreat`)
         self.m, self.period, self.cfg, self.learn = model, period_s, cfg, learner
@@ -1032,15 +1032,17 @@ class FinePositioner:
         30 A while the observe servo pulls a retreat's swing back), which held for a few late periods throws the
         valve (docs §113)."""
         torque = self._update(target, th1, thl, holding, torque_now, pressure_kpa)
-        if torque is not None and self.fallback_nm is None:
-            self.fallback_nm = self._band_middle_torque(pressure_kpa)
+        if torque is not None:
+            # a doublet period's next step, then (and in every other period of the stage) the band middle
+            middle = self._band_middle_torque(pressure_kpa)
+            self.fallback_nm = self.fallback_nm + (() if middle is None else (middle,))
         return torque
 
     def _update(self, target: float, th1: float, thl: float, holding: bool, torque_now: float,
                 pressure_kpa: float) -> float | None:
         if self._pending is not None or self._retreat_pending is not None:
             self.run_pending()            # not run after the last command (offline: nobody calls it): now, the same
-        self.fallback_nm = None           # (fine.pulse_fallback) set by a doublet period for the next: _doublet_torque
+        self.fallback_nm = ()             # (fine.pulse_fallback) set by a doublet period for the next: _doublet_torque
         if self._tables_gate == "released" and self.phase == IDLE and (
                 self._plateau is None or abs(target - self._plateau) > self.cfg.tolerance_rad):
             # (task h36b) the deferred move tables are in: the policy from this plateau on (never mid-engagement)
@@ -1671,8 +1673,9 @@ class FinePositioner:
         if retreat:
             self._settle_retreat()            # (fine.retreat_plan_after_command) the kick period's retreat plan
             self.retreat_plans_after_command += 1
-            if self.fallback_nm is not None:
-                self.fallback_nm = self._retreat_torque(self._retreat)    # (fine.pulse_fallback) the planned one
+            if self.fallback_nm:
+                # (fine.pulse_fallback) the kick period's: the planned retreat, then the band middle
+                self.fallback_nm = (self._retreat_torque(self._retreat),) + self.fallback_nm[1:]
         pending, self._pending = self._pending, None
         if pending is None:
             return retreat
@@ -2570,23 +2573,21 @@ class FinePositioner:
             if not (cfg.retreat_plan_after_command and cfg.retreat_trough_bound):
                 self._settle_retreat()
             # (fine.pulse_fallback) the next period's retreat, planned or (its plan left for after the command:
-            # run_pending sets the planned one) whole
-            self.fallback_nm = self._retreat_torque(self._retreat or (periods, 1.0))
+            # run_pending sets the planned one) whole; then the band middle (:meth:`update`)
+            self.fallback_nm = (self._retreat_torque(self._retreat or (periods, 1.0)),)
         elif self._k <= 1 + self._settle_retreat()[0]:
             torque = self._retreat_torque(self._retreat)
             if self._k < 1 + self._retreat[0]:
-                self.fallback_nm = torque             # another whole retreat period follows
+                self.fallback_nm = (torque,)          # another whole retreat period follows
             elif not (cfg.retreat_cap and not cfg.retreat_cap_half):
-                self.fallback_nm = self._retreat_half_torque()
-            else:
-                self.fallback_nm = self._band_middle_torque(pressure_kpa)
+                self.fallback_nm = (self._retreat_half_torque(),)
+            # (after the last: the band middle alone, :meth:`update`)
         elif cfg.retreat_cap and not cfg.retreat_cap_half:
             # ... and no half period: the observe servo takes this period (None: :meth:`_run` runs it)
             self.phase, self._k, self._pulsed = OBSERVE, 0, True
             return None
         else:
             torque = self._retreat_half_torque()
-            self.fallback_nm = self._band_middle_torque(pressure_kpa)
             self.phase, self._k, self._pulsed = OBSERVE, 0, True
         return min(max(torque, -cap), cap)
 

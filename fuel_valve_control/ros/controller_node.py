@@ -217,8 +217,9 @@ class ControllerNode(LifecycleNode):
         deep = bool(recorded)                 # a recorder in the run: deep writer histories
         self.pub_current = ri.quiet_publisher(self, Float64, contract.CURRENT_COMMAND, recorded=deep)
         self.pub_enable = ri.quiet_publisher(self, Bool, contract.DRIVE_ENABLE, recorded=deep)
-        self.pub_fallback = ri.quiet_publisher(self, Float64, contract.CURRENT_FALLBACK, recorded=deep)
-        self._last_fallback: float | None = None    # the fallback current last published (NaN: hold; None: none yet)
+        self.pub_fallback = ri.quiet_publisher(self, Float64MultiArray, contract.CURRENT_FALLBACK, recorded=deep)
+        self._float_array = Float64MultiArray
+        self._last_fallback: tuple | None = None    # the fallback schedule last published (empty: hold; None: none yet)
         self.pub_position = ri.quiet_publisher(self, Float64, contract.POSITION, recorded=deep)
         self.pub_estimate = ri.quiet_publisher(self, JointState, contract.ESTIMATE, recorded=deep)
         self.pub_diag = ri.quiet_publisher(self, DiagnosticArray, contract.DIAGNOSTICS, recorded=deep)
@@ -627,7 +628,7 @@ class ControllerNode(LifecycleNode):
             self.recorder_gate.count(contract.DRIVE_ENABLE, latched=True)
             self._last_enable = False
         if self._last_fallback is not None:
-            self._publish_fallback(math.nan)    # whoever commands the drive next: it holds its commands again
+            self._publish_fallback(())          # whoever commands the drive next: it holds its commands again
         # (lockstep: no command before the plant's first sample but the hello, _say_hello; a
         # command the plant receives after its start steps it)
         if self.recorder_gate.is_open and not (self.lockstep and not self._sample_seen):
@@ -791,7 +792,7 @@ class ControllerNode(LifecycleNode):
         if self.driver.after_period():
             self._after.add(time.perf_counter() - t1)
             # a retreat planned after the kick's command: the drive's fallback for the next period is the planned one
-            self._publish_fallback(self.driver.fallback_current())
+            self._publish_fallback(self.driver.fallback_currents())
 
     @locked
     def watchdog(self) -> None:
@@ -827,14 +828,14 @@ class ControllerNode(LifecycleNode):
         except Exception:                   # noqa: BLE001 - context gone: the plant's watchdog acts
             pass
 
-    def _publish_fallback(self, amps: float) -> None:
-        """The drive's fallback current (``contract.CURRENT_FALLBACK``, latched) when it changed: before the command it
-        applies to (NaN: hold the last command)."""
-        last = self._last_fallback
-        if last is not None and (amps == last or (math.isnan(amps) and math.isnan(last))):
+    def _publish_fallback(self, amps: tuple) -> None:
+        """The drive's fallback schedule (``contract.CURRENT_FALLBACK``, latched) when it changed: before the command it
+        applies to (empty: hold the last command)."""
+        amps = tuple(float(x) for x in amps)
+        if amps == self._last_fallback:
             return
         self._last_fallback = amps
-        self.pub_fallback.publish(self._float(data=float(amps)))
+        self.pub_fallback.publish(self._float_array(data=list(amps)))
         self.recorder_gate.count(contract.CURRENT_FALLBACK, latched=True)
 
     def publish_step(self, t: float, out=None) -> None:
@@ -852,7 +853,7 @@ class ControllerNode(LifecycleNode):
                                        f"{contract.DRIVE_STATE_NAMES.get(self.driver.drive_state, 'unreported')}): "
                                        "re-armed from the measurement with the holding torque, drive re-enabled",
                                        throttle_duration_sec=1.0)
-        self._publish_fallback(out.fallback_current_a)
+        self._publish_fallback(out.fallback_currents_a)
         self.pub_current.publish(self._float(data=float(out.current_a)))
         self.recorder_gate.count(contract.CURRENT_COMMAND)
         self._periods += 1

@@ -73,7 +73,7 @@ class StalledDrive:
         self.stalls = stalls
         self.current_a = 0.0
         self.enabled = False
-        self.fallback_a: float | None = None
+        self.fallback_a: tuple[float, ...] = ()
         self.silent = 0                 # periods since the last command
         self.tripped = False
         self.trips = 0
@@ -82,16 +82,17 @@ class StalledDrive:
     def command(self, out) -> tuple[float, bool]:
         """A period the controller answered with ``out`` (a ``DriverOutput``): the current and enable applied."""
         self.silent = 0
-        self.fallback(out.fallback_current_a)
+        self.fallback(out.fallback_currents_a)
         if self.tripped and not (out.enable and out.reenable):
             return 0.0, False           # off until re-enabled (resumed commands do not re-enable it)
         self.tripped = False
         self.current_a, self.enabled = out.current_a, out.enable
         return self.current_a, self.enabled
 
-    def fallback(self, amps: float) -> None:
-        """The controller's fallback current (A; NaN: hold), honoured if ``LoopStalls.fallback``."""
-        self.fallback_a = amps if self.stalls.fallback and math.isfinite(amps) else None
+    def fallback(self, amps: tuple) -> None:
+        """The controller's fallback schedule (A; empty: hold), honoured if ``LoopStalls.fallback`` (refused, as by
+        the plant node, if not finite)."""
+        self.fallback_a = tuple(amps) if self.stalls.fallback and contract.fallback_valid(amps) else ()
 
     def no_command(self) -> tuple[float, bool]:
         """A period without a command: the current and enable applied."""
@@ -101,9 +102,9 @@ class StalledDrive:
             self.trips += 1
         if self.tripped:
             return 0.0, False
-        if self.fallback_a is not None:
+        if self.fallback_a:
             self.fallback_periods += 1
-        self.current_a = contract.current_without_command(self.current_a, self.fallback_a)
+        self.current_a = contract.current_without_command(self.current_a, self.fallback_a, self.silent)
         return self.current_a, self.enabled
 
     @property

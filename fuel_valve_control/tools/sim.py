@@ -182,7 +182,7 @@ def simulate_plan(plan: RunPlan, baselines: list[dict] = (), stalls: LoopStalls 
                 else:
                     amps, on = drive.command(out)
                     if driver.after_period():
-                        drive.fallback(driver.fallback_current())
+                        drive.fallback(driver.fallback_currents())
                 out = replace(out, current_a=amps, enable=on)
         est = driver.controller.estimate()
         truth = plant.truth()

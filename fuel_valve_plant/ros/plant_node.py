@@ -39,9 +39,9 @@ Two timing modes:
   the next period's, and the plant steps once per command.
 
 A period without a new command (real time: the controller's answer to the last sample had not arrived by the
-tick) applies the last command again, or -- where the controller has set one on the latched ``current_fallback``
-(``contract.CURRENT_FALLBACK``: it does while its output is a timed pulse) -- that fallback current: a command then
-acts for one period only.  Counted on ``/diagnostics`` (``periods_on_fallback``).
+tick) applies the last command again, or -- where the controller has set a schedule on the latched
+``current_fallback`` (``contract.CURRENT_FALLBACK``: it does while its output is a timed pulse) -- that schedule's
+current for the first, second, ... such period in a row: a command then acts for one period only.  Counted on ``/diagnostics`` (``periods_on_fallback``).
 
 Malformed commands (NaN, inf) never reach the physics: the drive treats them as zero
 current with the drive disabled, like a drive that rejects a corrupt set-point.
@@ -66,7 +66,6 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 import threading
 import time
 
@@ -243,9 +242,10 @@ class PlantNode(Node):
         self._held_s = 0.0
         self._held_max_s = 0.0
         self._held_long = 0
-        #: the current applied over a period without a new command (contract.CURRENT_FALLBACK; None: hold the last
-        #: command) and the periods it was applied in (real time)
-        self._fallback: float | None = None
+        #: the currents applied over consecutive periods without a new command (contract.CURRENT_FALLBACK; empty: hold
+        #: the last command), the periods without one in a row so far, and the periods a fallback was applied in
+        self._fallback: tuple[float, ...] = ()
+        self._missed_run = 0
         self.fallback_periods = 0
 
         from sensor_msgs.msg import JointState
@@ -268,7 +268,7 @@ class PlantNode(Node):
         # lockstep a command steps the plant at once, with the enable state it applies to
         ri.quiet_subscription(self, Bool, contract.DRIVE_ENABLE, self.on_enable)
         self.sub_command = ri.quiet_subscription(self, Float64, contract.CURRENT_COMMAND, self.on_command)
-        ri.quiet_subscription(self, Float64, contract.CURRENT_FALLBACK, self.on_fallback)
+        ri.quiet_subscription(self, Float64MultiArray, contract.CURRENT_FALLBACK, self.on_fallback)
         ri.handle_parameter_changes(self, PLANT_SPEC, self.plant.check_params, self.apply_parameters)
         self.create_timer(1.0, self.publish_diagnostics)
         self.report_state()
@@ -384,14 +384,15 @@ class PlantNode(Node):
 
     @guarded
     def on_fallback(self, msg) -> None:
-        """``current_fallback`` (contract.CURRENT_FALLBACK): the current for a period without a new command; NaN: hold
-        the last command.  An infinite value is refused (logged; the last command is held)."""
-        value = float(msg.data)
-        if math.isinf(value):
-            self.get_logger().warn(f"current fallback {value!r} A refused: the last command is held in a period "
-                                   "without one", throttle_duration_sec=1.0)
-            value = math.nan
-        self._fallback = None if math.isnan(value) else value
+        """``current_fallback`` (contract.CURRENT_FALLBACK): the currents for consecutive periods without a new
+        command; empty: hold the last command.  A schedule with a non-finite element is refused (logged; the last
+        command is held)."""
+        values = tuple(float(x) for x in msg.data)
+        if not contract.fallback_valid(values):
+            self.get_logger().warn(f"current fallback {list(values)!r} A refused: the last command is held in a "
+                                   "period without one", throttle_duration_sec=1.0)
+            values = ()
+        self._fallback = values
 
     @guarded
     def on_enable(self, msg) -> None:
@@ -457,12 +458,13 @@ class PlantNode(Node):
             if self.stats.commands:         # the loop is closed (a controller answers): count
                 self.stats.ticks += 1 + skipped     # its periods (those skipped: missed); before,
                 self.stats.missed += skipped        # every tick would be "missed"
+                self._missed_run = 0 if self._got_command else self._missed_run + 1
                 if not self._got_command:
                     self.stats.missed += 1
                     # no answer to the last sample: a command is applied for one period only where the controller
                     # set a fallback (its timed pulses: held, a kick is a longer kick), else held
-                    if self._fallback is not None and not self._command_rejected:
-                        self._iq = contract.current_without_command(self._iq, self._fallback)
+                    if self._fallback and not self._command_rejected:
+                        self._iq = contract.current_without_command(self._iq, self._fallback, self._missed_run)
                         self.fallback_periods += 1
                 self._check_watchdog(elapsed)
                 self._count_held(elapsed)
@@ -634,7 +636,7 @@ class PlantNode(Node):
         else:
             values["command_held_max_ms"] = f"{self._held_max_s * 1e3:.3f}"
             values["commands_held_over_2_periods"] = str(self._held_long)
-            values["current_fallback_a"] = "hold" if self._fallback is None else f"{self._fallback:.3f}"
+            values["current_fallback_a"] = " ".join(f"{x:.3f}" for x in self._fallback) or "hold"
             values["periods_on_fallback"] = str(self.fallback_periods)
         values.update({k: f"{v:.6g}" if isinstance(v, float) else str(v) for k, v in s.items()})
         if not self.lockstep:

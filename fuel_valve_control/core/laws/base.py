@@ -54,14 +54,15 @@ class ControlLaw(ABC):
         own doing and must not be learned as the valve's (docs §111.5b).  Called by the driver every such period
         (never offline or in lockstep, whose timing is exact); the default: nothing."""
 
-    def fallback_torque(self) -> float | None:
-        """The motor torque (N*m) a drive should apply in the next period if that period's command is late, or None:
-        the drive holds this period's command (a feedback law's command held one period more is one period of
-        delay).  Asked after :meth:`update`.  A timed open-loop sequence (the fine stage's doublet: a one-period kick,
-        then the retreat that stops the valve it broke loose) says its next step: held over a late answer, a kick
-        is a longer kick and throws the valve (docs §113; the driver passes it on as the drive's fallback current,
-        ``contract.CURRENT_FALLBACK``).  The default: None."""
-        return None
+    def fallback_torques(self) -> tuple[float, ...]:
+        """The motor torques (N*m) a drive should apply in the first, second, ... period in a row whose command is
+        late (the last one in every later), or ``()``: the drive holds this period's command (a feedback law's command
+        held one period more is one period of delay).  Asked after :meth:`update`.  A timed open-loop sequence (the
+        fine stage's doublet: a one-period kick, then the retreat that stops the valve it broke loose) says its next
+        step and then the torque that holds the valve: held over a late answer, a kick is a longer kick, and a retreat
+        held over several breaks the valve loose backwards (docs §113; the driver passes them on as the drive's
+        fallback schedule, ``contract.CURRENT_FALLBACK``).  The default: ``()``."""
+        return ()
 
     def applied(self, torque_nm: float, saturated: bool) -> None:
         """The torque actually applied after limits (for observers and anti-windup)."""

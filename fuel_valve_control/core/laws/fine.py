@@ -167,8 +167,8 @@ class FinePositioningLaw(ControlLaw):
         self.main.friction_rescheduled(pressure_kpa)
         self._stop_stage()
 
-    def fallback_torque(self) -> float | None:
-        return self.fine.fallback_nm if self._fine_active else None
+    def fallback_torques(self) -> tuple[float, ...]:
+        return self.fine.fallback_nm if self._fine_active else ()
 
     def after_period(self) -> bool:
         """The fine stage's try start left for after the command (``fine.apex_choice_after_command``)."""
