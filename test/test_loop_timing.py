@@ -141,7 +141,7 @@ def test_a_drive_watchdog_trip_sets_the_stage_aside_for_the_holdoff():
     out, _ = exchange_period(drv, plant, t, 40.0)
     drv.drive_status(t, contract.DRIVE_STATE_ENABLED)
     assert drv.stall_rearms == 1 and "watchdog" in _aside(drv)
-    holdoff = drv.ps["fine.late_loop_holdoff_s"]
+    holdoff = drv.ps["fine.late_loop_holdoff_first_s"]          # an isolated late loop: the short hold-off
     while t < 0.3 + holdoff + 5 * period:
         out, _ = exchange_period(drv, plant, t, 40.0)
         plant.set_command(out.current_a, out.enable)
@@ -193,3 +193,29 @@ def test_a_late_loop_keeps_what_the_valve_does_out_of_the_main_laws_jump_learner
     assert max(told) < t_late + holdoff + 2 * period
     run_until(t + 0.1)
     assert len(told) == n
+
+
+def test_an_isolated_late_loop_sets_the_stage_aside_briefly_a_repeated_one_long():
+    # (stop 30, §113) fine.late_loop_holdoff_first_s after a late loop with fewer than fine.late_loop_repeats late
+    # episodes in the fine.late_loop_holdoff_s before; the long hold-off once the loop keeps being late
+    drv = ValveDriver(load_controller_params())
+    short, long = drv.ps["fine.late_loop_holdoff_first_s"], drv.ps["fine.late_loop_holdoff_s"]
+    repeats = drv.ps["fine.late_loop_repeats"]
+    assert short < long and repeats >= 1
+    t = 1.0
+    for k in range(repeats + 1):
+        drv._loop_late(t, "test")
+        assert drv._late_recently(t + 0.9 * short)
+        if k < repeats:
+            assert not drv._late_recently(t + 1.1 * short), k      # isolated (or not repeated enough): brief
+        else:
+            assert drv._late_recently(t + 0.9 * long) and not drv._late_recently(t + 1.1 * long)
+        t += 2.0 * short                                              # the next episode, within the long hold-off
+    # late periods of one episode (a stall's samples, a watchdog trip with it) count once
+    drv2 = ValveDriver(load_controller_params())
+    for k in range(5):
+        drv2._loop_late(10.0 + 1e-3 * k, "one stall")
+    assert not drv2._late_recently(10.004 + 1.1 * short)
+    # once the loop has kept time for the long hold-off, a late loop is isolated again
+    drv._loop_late(t + long, "test")
+    assert not drv._late_recently(t + long + 1.1 * short)

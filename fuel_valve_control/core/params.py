@@ -550,10 +550,18 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "for fine.late_loop_holdoff_s after (measured beside two CPU hogs: gaps of 1-2 ms beyond the period a "
           "few times a second, one of 6 ms in 15 s)", 5e-4, 1.0, runtime=True),
     Param("fine.late_loop_holdoff_s", 2.0, "s", "the stage stands aside this long after the loop was late "
-          "(fine.late_loop_s; 0 = never).  Shorter measured better on random late answers (0.2 s: 6 of 192 start-up "
-          "steps over 10 %, 2 s: 23; benchmarks/loop_stalls.py) but threw valves 0.1-0.17 rad where the loop is late "
-          "every 0.25 s (benchmarks/vcpu_freezes.py: the stage stopped mid-try each time it re-engages; docs section "
-          "113): kept", 0.0, 600.0, runtime=True),
+          "(fine.late_loop_s; 0 = never) where it keeps being late (fine.late_loop_repeats; else "
+          "fine.late_loop_holdoff_first_s): where it was late every 0.25 s, a 0.2 s hold-off let valves be thrown up "
+          "to 1.4e-2 rad, 2 s 2.7e-3 (docs section 113)", 0.0, 600.0, runtime=True),
+    Param("fine.late_loop_holdoff_first_s", 0.2, "s", "the hold-off after a late loop that is not repeated "
+          "(fewer than fine.late_loop_repeats late episodes in the fine.late_loop_holdoff_s before it; at most "
+          "that): an isolated late loop costs the stage a try, and kept aside 2 s the plateau is left to the main "
+          "law, whose steps overshoot (start-up profile with late answers emulated, benchmarks/loop_stalls.py: 23 "
+          "of 192 steps over 10 % with 2 s alone, 6 with this; docs section 113)", 0.0, 600.0, runtime=True),
+    Param("fine.late_loop_repeats", 2, "", "earlier late episodes (late loops more than "
+          "fine.late_loop_holdoff_first_s apart) within fine.late_loop_holdoff_s that make a late loop's hold-off "
+          "the long one: a loop late every 0.25 s (benchmarks/vcpu_freezes.py) keeps the stage aside as with 2 s "
+          "alone (valves thrown at most 2.9e-3 rad; 1: the same, 3: 8.4e-3)", 1, 15, runtime=True),
     Param("fine.pulse_fallback", True, "", "real time: in a doublet's periods (a one-period kick, then the retreat "
           "that stops the valve it broke loose: timed open-loop torques) the drive is told, on the latched "
           "current_fallback topic, the next period's planned current, to apply if that period's command is late -- "
