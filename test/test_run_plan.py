@@ -44,6 +44,18 @@ def test_offline_rejects_unknown_parameters_nodes_get_theirs():
     assert plan.node_parameters()["controller"]["telemetry_decimation"] == 1
 
 
+def test_node_parameters_are_typed_as_the_schema_says():
+    # `--set controller.fine.late_loop_holdoff_first_s=2` parses to the integer 2: a node's DOUBLE parameter refused
+    # it ("expecting type 'DOUBLE'") and the demo's controller did not come up (stop 30)
+    plan = plan_run(load_scenario("startup"), REAL_TIME, plant_overrides={"friction_scale": 2, "command_timeout_s": 0.01},
+                    controller_overrides={"fine.late_loop_holdoff_first_s": 2, "fine.max_pulses": 4.0})
+    nodes = plan.node_parameters()
+    assert type(nodes["controller"]["fine.late_loop_holdoff_first_s"]) is float
+    assert type(nodes["controller"]["fine.max_pulses"]) is int
+    assert type(nodes["plant"]["friction_scale"]) is float
+    assert nodes["plant"]["command_timeout_s"] == 0.01           # a node-only parameter: as given
+
+
 def test_node_parameters_carry_initial_state_demand_and_timing():
     sc = load_scenario("step_small")
     assert sc.initial_percent > 0

@@ -160,6 +160,12 @@ def apply_event(event: Event, plant: Plant, driver: ValveDriver) -> None:
         driver.set_params(event.params)
 
 
+def _typed(overrides: dict, ps: ParamSet, spec) -> dict:
+    """``overrides`` with every value of a parameter in ``spec`` as the parameter set ``ps`` holds it (converted to
+    the parameter's type); others (node-only parameters) as given."""
+    return {k: ps[k] if k in spec.params else v for k, v in overrides.items()}
+
+
 def plan_run(scenario: Scenario | None, timing: str = OFFLINE, *, mode: str | None = None,
              seed: int | None = None, duration_s: float | None = None, plant_overrides: dict | None = None,
              controller_overrides: dict | None = None, demand_overrides: dict | None = None) -> RunPlan:
@@ -194,6 +200,10 @@ def plan_run(scenario: Scenario | None, timing: str = OFFLINE, *, mode: str | No
     duration = float(scenario.duration_s if duration_s is None else duration_s)
     if not duration > 0.0:
         raise ConfigError(f"run duration must be > 0 s, got {duration!r}")
+    # the node processes get the overrides typed as the schema says (a ROS parameter typed DOUBLE refuses the
+    # INTEGER 2 that `--set controller.fine.late_loop_holdoff_first_s=2` parses to; the offline run took it)
+    plant = _typed(plant, plant_ps, PLANT_SPEC)
+    controller = _typed(controller, controller_ps, CONTROLLER_SPEC)
     return RunPlan(scenario.name, scenario.description, timing, duration, scenario.demand,
                    dict(scenario.demand_spec), plant_ps, controller_ps, plant, controller,
                    dict(demand_overrides or {}), scenario.initial_percent, tuple(scenario.events))
