@@ -562,12 +562,12 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "fine.late_loop_holdoff_first_s apart) within fine.late_loop_holdoff_s that make a late loop's hold-off "
           "the long one: a loop late every 0.25 s (benchmarks/vcpu_freezes.py) keeps the stage aside as with 2 s "
           "alone (valves thrown at most 2.9e-3 rad; 1: the same, 3: 8.4e-3)", 1, 15, runtime=True),
-    Param("fine.pulse_fallback", True, "", "real time: in a doublet's periods (a one-period kick, then the retreat "
-          "that stops the valve it broke loose: timed open-loop torques) the drive is told, on the latched "
-          "current_fallback topic, the next period's planned current, to apply if that period's command is late -- "
-          "held instead, a kick is a longer kick and throws the valve; after the last retreat period, the current "
-          "holding the valve against the known load (the middle of the static band); NaN (hold) otherwise "
-          "(docs section 113).  Off: always NaN, the drive holds the last command", runtime=True),
+    Param("fine.pulse_fallback", True, "", "real time: while the stage commands, the drive is told on the latched "
+          "current_fallback topic what to apply in periods whose command is late: after a doublet's kick (a "
+          "one-period timed torque) its planned retreat for one period, then the current holding the valve against "
+          "the known load (the middle of the static band); in the stage's other periods that current alone -- held "
+          "instead, a kick is a longer kick and throws the valve.  Empty (hold the last command) while the main law "
+          "commands (docs section 113).  Off: always empty", runtime=True),
     Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
           1, 64),
     Param("fine.learn_limit_rad", 0.15, "rad", "bound of every learned twist offset (covers friction x3 on a "
