@@ -830,11 +830,12 @@ class FinePositioner:
     def __init__(self, model: NominalModel, period_s: float, cfg: FineConfig, learner: FineLearner):
         self._pending = None               # (fine.apex_choice_after_command) a try's start left for after the command
         self._retreat_pending = None       # (fine.retreat_plan_after_command) the kick period's (Δp, kick, periods)
+                                           # whose retreat is planned after its command (:meth:`_settle_retreat`)
         #: (fine.pulse_fallback) the torques (N*m) for the drive to apply in the first, second, ... period in a row whose
         #: command is late (:meth:`update`; ``()``: hold this period's)
         self.fallback_nm: tuple[float, ...] = ()
-        self._middle: tuple | None = None    # (model, Δp), valve angle (rad), band-middle torque (N*m): its cache
-                                           # whose retreat is planned after its command (:meth:`_settle_retreat`)
+        #: (fine.pulse_fallback) the band-middle torque's cache: model, Δp (kPa), valve angle (rad), torque (N*m)
+        self._middle: tuple | None = None
         self.m, self.period, self.cfg, self.learn = model, period_s, cfg, learner
         self.m0 = model                    # the told model (self.m: the one the stage plans from)
         self.forget_scale()
@@ -2617,10 +2618,12 @@ class FinePositioner:
         the next command is late.  None without a Δp."""
         if pressure_kpa is None or self._last_valve is None:
             return None
-        key = (self.m, pressure_kpa)
-        if self._middle is None or self._middle[0] != key or abs(self._middle[1] - self._last_valve) > MIDDLE_REUSE_RAD:
-            self._middle = (key, self._last_valve, self.m.equilibrium(self._last_valve, pressure_kpa)[1])
-        return self._middle[2]
+        c = self._middle
+        # (the model by identity: a dataclass == compares every field, every period the stage commands)
+        if c is None or c[0] is not self.m or c[1] != pressure_kpa or abs(c[2] - self._last_valve) > MIDDLE_REUSE_RAD:
+            c = self._middle = (self.m, pressure_kpa, self._last_valve,
+                                self.m.equilibrium(self._last_valve, pressure_kpa)[1])
+        return c[3]
 
     def _spent(self) -> bool:
         """The plateau's pulses are used up (a doublet that did not move the valve does not count),
