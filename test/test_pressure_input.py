@@ -1,6 +1,7 @@
 """Δp as an input, without ROS: the plant's pressure transducer (rate, noise, seeding) and the
 valve driver's handling of the measured pressure differential (used by the law while valid;
-missing, stale or implausible -> latched warning, not a trip, and the fallback schedule).
+missing, stale or implausible -> a warning, not a trip, and the fallback schedule; a gap's warning
+clears itself after ``pressure.recover_s`` of timely readings, an implausible reading's is latched).
 
 The DDS side (the plant publishes it, the controller schedules for it, ``ros2 param set`` on
 the plant reaches the controller) is in ``test_parameters.py``.
@@ -161,17 +162,53 @@ def test_physically_impossible_rate_is_implausible():
     assert ok.pressure_kpa == 2000.0 and not ok.warnings
 
 
-def test_schedule_recovers_when_valid_and_the_warning_clears_on_reset():
+def test_schedule_recovers_when_valid_and_an_implausible_readings_warning_clears_on_reset():
     drv = driver()
     run(drv, 20, dp=3000.0)
     drv.pressure_differential(0.02, math.nan)
     drv.step(0.02)
-    outs = run(drv, 30, dp=3000.0, t0=0.021)
+    outs = run(drv, 1500, dp=3000.0, t0=0.021)            # 1.5 s of timely readings > pressure.recover_s
     assert drv.pressure_kpa == 3000.0                     # valid again: measured value used
-    assert PRESSURE_INPUT in outs[-1].warnings            # ... but the warning stays latched
+    assert PRESSURE_INPUT in outs[-1].warnings            # ... but the transducer's warning stays latched
+    assert drv.pressure_gap_episodes == 0
     ok, message = drv.reset()
     assert ok and PRESSURE_INPUT in message
-    assert not run(drv, 5, dp=3000.0, t0=0.06)[-1].warnings
+    assert not run(drv, 5, dp=3000.0, t0=1.53)[-1].warnings
+
+
+def test_a_gaps_warning_clears_itself_after_timely_readings():
+    """A stale Δp (a transport gap, e.g. a start-up stall) warns, then clears itself once the
+    readings have arrived without a gap for pressure.recover_s (1 s); it is counted."""
+    drv = driver()
+    gap = lambda k: None if 200 <= k < 400 else 4000.0     # noqa: E731 -- 0.2 s without a reading
+    outs = run(drv, 1800, dp=gap)
+    assert "no pressure differential reading for" in outs[399].warnings[PRESSURE_INPUT]
+    assert outs[399].enable and drv.health().values["pressure_gap_episodes"] == 1
+    # readings again from 0.4 s: the schedule at once, the warning after 1 s of them
+    assert drv.pressure_kpa == 4000.0
+    assert PRESSURE_INPUT in outs[1390].warnings
+    assert PRESSURE_INPUT not in outs[1410].warnings and not outs[-1].warnings
+    assert drv.health().level == 0 and drv.pressure_gap_episodes == 1
+
+
+def test_a_gap_inside_the_recovery_restarts_it_and_zero_keeps_it_latched():
+    drv = driver()
+    gaps = lambda k: None if 200 <= k < 400 or 900 <= k < 1050 else 4000.0    # noqa: E731
+    outs = run(drv, 2600, dp=gaps)
+    assert drv.pressure_gap_episodes == 1                  # one warning, never cleared in between
+    assert PRESSURE_INPUT in outs[2000].warnings           # 1.05 s + 1 s of readings not yet reached
+    assert PRESSURE_INPUT not in outs[-1].warnings
+    latched = driver(**{"pressure.recover_s": 0.0})
+    assert PRESSURE_INPUT in run(latched, 1800, dp=lambda k: None if 200 <= k < 400 else 4000.0)[-1].warnings
+
+
+def test_missing_at_start_clears_once_the_source_arrives():
+    """A Δp source matched late (none received within pressure.timeout_s of the loop's first
+    period) is a gap too: the warning clears 1 s after its readings start."""
+    drv = driver()
+    outs = run(drv, 1500, dp=lambda k: None if k < 300 else 2000.0)
+    assert "no pressure differential reading received" in outs[299].warnings[PRESSURE_INPUT]
+    assert PRESSURE_INPUT in outs[1290].warnings and not outs[-1].warnings
 
 
 def test_warning_latches_again_after_reset_while_the_input_is_still_missing():

@@ -122,7 +122,7 @@ def test_a_copied_held_loop_continues_as_a_fresh_run():
 # ------------------------------------------------------------------ coverage
 def test_every_runtime_parameter_has_a_consumer():
     """Each run-time key is read by a law, the limiter or the driver's own loop (recorded while
-    the loop runs through demands, Δp, a tracking error and a reset): a new run-time key that
+    the loop runs through demands, Δp and its gap, a tracking error and a reset): a new run-time key that
     nothing reads fails here."""
     drv = ValveDriver(CONTROLLER_SPEC.defaults())
     drv.ps = Reads(drv.ps)
@@ -130,8 +130,8 @@ def test_every_runtime_parameter_has_a_consumer():
     for k in range(300):
         t = k * 1e-3
         drv.demand_percent(t, 90.0 if k > 100 else 20.0)            # a far demand: tracking error
-        if k < 150:                                                  # then stale: the fallback
-            drv.pressure_differential(t, 3000.0)
+        if k < 100 or k >= 250:                                      # stale between: the fallback,
+            drv.pressure_differential(t, 3000.0)                     # then timely again (recovery)
         drv.resolver(t, 0.2 * 48.019, 0.2, now=t)                    # received on the loop clock
         drv.loop_timing(t, t + (0.01 if k >= 200 else 0.0))          # real time: one late arrival
         drv.step(t)

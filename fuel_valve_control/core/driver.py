@@ -15,8 +15,13 @@ grows with Δp, so the Δp = 0 schedule never asks for more friction torque than
 (under-compensation: a slower, stickier valve), whereas a schedule above the real Δp pushes
 the valve past breakaway on its own and hunts (measured with ``fuel_valve_sim`` on ``hold``,
 observer_fc: told 6206 kPa with the real Δp 0 -> a 4.4e-3 rad limit cycle; told 0 with the
-real Δp 6206 kPa -> no limit cycle).  Valid samples are used again as soon as they arrive; the
-warning stays latched until :meth:`ValveDriver.reset`.
+real Δp 6206 kPa -> no limit cycle).  Valid samples are used again as soon as they arrive.  A
+warning for a *gap* (missing or stale readings) clears itself once readings have arrived without
+a gap for ``pressure.recover_s``: a gap is a transport event (a start-up stall of 0.27 s on a
+loaded machine latched it for good and the node reported WARN until ``~/reset``), and each one is
+counted on /diagnostics (``pressure_gap_episodes``).  A warning for an *implausible* reading (not
+finite, out of range, too fast) points at the transducer and stays latched until
+:meth:`ValveDriver.reset`.
 
 A reading can be plausible as a signal and still wrong (a biased transducer, a gain error):
 :class:`~.friction_check.FrictionCheck` (``pressure.friction_check``) compares the static
@@ -234,6 +239,12 @@ class ValveDriver:
         self._dp: float | None = None              # last valid measured Δp, kPa (None: use the fallback)
         self._dp_t: float | None = None
         self._dp_prev: tuple[float, float] | None = None   # (t, kPa) of the last finite reading
+        #: start (s) of the present run of valid readings without a gap (None: no such run), whether
+        #: the latched Δp warning saw an implausible reading (then only a reset clears it), and how
+        #: many Δp warnings for a gap were raised since the start (/diagnostics)
+        self._dp_fresh_since: float | None = None
+        self._dp_implausible = False
+        self.pressure_gap_episodes = 0
         self.pressure_kpa = self.ps["pressure.fallback_kpa"]   # Δp the law is scheduled for now
         self._scheduled_kpa = self.pressure_kpa                  # Δp of the reading (or fallback)
         #: static friction met at breakaways vs the Δp schedule (None: check off)
@@ -603,9 +614,11 @@ class ValveDriver:
                            f"(faster than {ps['pressure.max_rate_kpa_s']:g} kPa/s)")
             self._dp_prev = (t, kpa)
         if why:
-            self._dp = None
-            self._warn_pressure(why)
+            self._dp = self._dp_fresh_since = None
+            self._warn_pressure(why, gap=False)
             return
+        if self._dp is None:
+            self._dp_fresh_since = t
         self._dp, self._dp_t = min(max(kpa, 0.0), PRESSURE_MAX_KPA), t
 
     def _make_friction_check(self, ps: ParamSet) -> FrictionCheck | None:
@@ -649,19 +662,28 @@ class ValveDriver:
             f"predicts (x{lo:g}..{hi:g} allowed); friction scheduled for {kpa:.0f} kPa from the friction met"))
         return kpa
 
-    def _warn_pressure(self, why: str) -> None:
-        self.warnings.setdefault(PRESSURE_INPUT, why + f"; friction scheduled for the fallback "
-                                                       f"{self.ps['pressure.fallback_kpa']:g} kPa")
+    def _warn_pressure(self, why: str, gap: bool) -> None:
+        """Raise the :data:`PRESSURE_INPUT` warning for a gap in the readings (``gap``: clears itself
+        after ``pressure.recover_s`` of timely readings) or an implausible reading (latched)."""
+        if PRESSURE_INPUT not in self.warnings:
+            self.warnings[PRESSURE_INPUT] = why + (f"; friction scheduled for the fallback "
+                                                   f"{self.ps['pressure.fallback_kpa']:g} kPa")
+            self.pressure_gap_episodes += gap
+        self._dp_implausible |= not gap
 
     def _scheduled_pressure(self, t: float) -> float:
         """Δp for the law this period: the measured one while valid, else the fallback."""
-        timeout = self.ps["pressure.timeout_s"]
+        ps = self.ps
+        timeout = ps["pressure.timeout_s"]
         if self._dp is not None and t - self._dp_t > timeout:
-            self._dp = None
-            self._warn_pressure(f"no pressure differential reading for {(t - self._dp_t) * 1e3:.0f} ms")
+            self._dp = self._dp_fresh_since = None
+            self._warn_pressure(f"no pressure differential reading for {(t - self._dp_t) * 1e3:.0f} ms", gap=True)
         elif self._dp_t is None and t - self._t_first > timeout:
-            self._warn_pressure("no pressure differential reading received")
-        return self.ps["pressure.fallback_kpa"] if self._dp is None else self._dp
+            self._warn_pressure("no pressure differential reading received", gap=True)
+        elif (self._dp_fresh_since is not None and not self._dp_implausible and PRESSURE_INPUT in self.warnings
+              and 0.0 < ps["pressure.recover_s"] <= t - self._dp_fresh_since):
+            del self.warnings[PRESSURE_INPUT]   # a gap, and timely readings since: the transport recovered
+        return ps["pressure.fallback_kpa"] if self._dp is None else self._dp
 
     @_guarded
     def drive_status(self, t: float, state: int) -> None:
@@ -732,6 +754,7 @@ class ValveDriver:
         self.faults.clear()
         self.warnings.pop(DEMAND_STALE, None)
         self.warnings.pop(PRESSURE_INPUT, None)     # latches again next period if still invalid
+        self._dp_implausible = False
         self.warnings.pop(PRESSURE_FRICTION, None)  # latches again after two breakaways if still wrong
         if self.friction_check is not None:
             self.friction_check.reset()
@@ -1076,6 +1099,7 @@ class ValveDriver:
             "pressure_differential_kpa": self.pressure_kpa,
             "pressure_source": ("friction_met" if self._friction_override is not None else
                                 "fallback" if self._dp is None else "measured"),
+            "pressure_gap_episodes": self.pressure_gap_episodes,
             "friction_met_ratio": (None if self.friction_check is None
                                    else self.friction_check.ratio(self._scheduled_kpa)),
             "i2t_budget_used": self.controller.i2t_budget_fraction,
