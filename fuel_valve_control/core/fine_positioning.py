@@ -815,6 +815,9 @@ class FineConfig:
     hold_reversed: bool = False   # the stage holds instead of handing back a plateau on which the main law's move
                                   # could be the hunting metric's second reversal (task h34h, docs §86; in force also
                                   # with apex_policy)
+    kick_lost_fraction: float = 0.0  # doublet: a kick whose gear-output acceleration, read from the motor resolver
+                                     # in the next sample, is below this fraction of the commanded one did not reach
+                                     # the drive: kicked again instead of retreating (0: never checked; docs §114)
 
 
 class FinePositioner:
@@ -834,6 +837,14 @@ class FinePositioner:
         #: (fine.pulse_fallback) the torques (N*m) for the drive to apply in the first, second, ... period in a row whose
         #: command is late (:meth:`update`; ``()``: hold this period's)
         self.fallback_nm: tuple[float, ...] = ()
+        #: (fine.kick_lost_fraction) the motor resolver's gear-output angle (rad) of the last period, the park's last
+        #: and the kick's samples, the second difference (rad) the kick's torque alone would make, the kicks in a row
+        #: found lost, and how many kicks were lost since the start (/diagnostics ``fine_kicks_lost``)
+        self._th1_last: float | None = None
+        self._kick_th1: tuple[float, float] | None = None
+        self._kick_expected = 0.0
+        self._kick_retries = 0
+        self.kicks_lost = 0
         #: (fine.pulse_fallback) the band-middle torque's cache: model, Δp (kPa), valve angle (rad), torque (N*m)
         self._middle: tuple | None = None
         self.m, self.period, self.cfg, self.learn = model, period_s, cfg, learner
@@ -930,6 +941,7 @@ class FinePositioner:
         shown: how long the valve has sat still and the twist of the last breakaway seen."""
         self.run_pending()                # a try's start left for after the command: its verdicts first, as inline
         self.phase = IDLE
+        self._th1_last = None              # (fine.kick_lost_fraction) consecutive samples of the stage's own periods
         self._target = None
         self._handover = None             # (fine.handover_settle_speed_rad_s) a hand-over waiting for the gear output
         self._handback_wait = None        # (fine.handback_settle) periods a hand-back has held the gear output so far
@@ -2241,6 +2253,7 @@ class FinePositioner:
             return None
         self._k += 1
         self._w1_prev, self._w1_now = (w1 if self._w1_now is None else self._w1_now), w1   # (fine.repark_from_state)
+        th1_prev, self._th1_last = self._th1_last, th1
         base = self._thl0
         if self.phase == PARK:
             x, v, a = self._park_ref(self._k)
@@ -2280,6 +2293,14 @@ class FinePositioner:
             # the whole current backwards (one period, then half), then the servo to the final
             # twist (SPEC §6: the retreat must already be at full current when the valve breaks;
             # through the 60 Hz servo it is not)
+            if self._k == 1:
+                self._kick_th1 = None if th1_prev is None else (th1_prev, th1)
+            elif self._k == 2 and self._kick_lost(th1):
+                if self._kick_retries >= 1:
+                    return self._hand_back()       # lost twice in a row: the loop cannot time a pulse now
+                self._kick_retries += 1
+                self._k = 1                        # the try again from the preload it still holds: this period kicks
+                self._kick_th1 = (th1_prev, th1)
             self._track_peak(th1 - thl)
             if self._k == 1:
                 self._hold_torque = self._servo_torque
@@ -2563,6 +2584,10 @@ class FinePositioner:
             if cfg.apex_policy and self._apex_kick is not None:
                 kick = self._apex_kick             # (task h33p) the kick the policy chose for this try
             torque = self._hold_torque + d * kick * kt
+            # (fine.kick_lost_fraction) the gear output's second difference this kick alone makes by the next sample:
+            # its torque over the motor inertia (reflected), for one period (the cap as the drive applies it)
+            self._kick_expected = 0.5 * self.period ** 2 * d * (min(max(torque, -cap), cap) - self._hold_torque) \
+                * self.m.gear_ratio / self.m.j1       # (> 0: in the kick's direction)
             # (fine.retreat_return_guard: one whole period once a doublet's valve came back on this plant)
             periods = 1 if self._deep_unfit else max(
                 cfg.apex_retreat_periods if cfg.apex_policy and cfg.apex_retreat_periods > 0
@@ -2591,6 +2616,26 @@ class FinePositioner:
             torque = self._retreat_half_torque()
             self.phase, self._k, self._pulsed = OBSERVE, 0, True
         return min(max(torque, -cap), cap)
+
+    def _kick_lost(self, th1: float) -> bool:
+        """(``fine.kick_lost_fraction``) Whether the kick commanded last period did not reach the drive: the gear
+        output's second difference over the park's last, the kick's and this sample (rad, motor resolver / N), in the
+        kick's direction, is below the fraction of the one the kick's torque alone makes (:meth:`_doublet_torque`).
+        Why: in real time a command can miss the drive's tick (docs §113: a transit stall the controller does not
+        see); the drive then holds the band middle, and the retreat that follows on time, with no kick before it,
+        swings the twist below the closing breakaway -- stall seed 89 of the start-up profile: the valve thrown 4.7e-3
+        rad back, then 5.7e-3 across the target by the observe servo's pull (54 % overshoot).  A kick of 4-30 A makes
+        0.2-1.4e-3 rad here; the motor resolver reads it to ~2e-6 rad.  A kick seen counts the retries down."""
+        frac = self.cfg.kick_lost_fraction
+        if frac <= 0.0 or self._kick_th1 is None or self._kick_expected == 0.0:
+            return False
+        s0, s1 = self._kick_th1
+        seen = self._dir * (th1 - 2.0 * s1 + s0) / self._kick_expected
+        if seen >= frac:
+            self._kick_retries = 0
+            return False
+        self.kicks_lost += 1
+        return True
 
     def _retreat_torque(self, retreat: tuple[int, float]) -> float:
         """A whole retreat period's torque (N*m) under the plan ``retreat`` (periods, scale; :meth:`_retreat_plan`)."""
@@ -3182,7 +3227,7 @@ class FinePositioner:
 
     def health(self) -> dict:
         self.run_pending()                  # (fine.apex_choice_after_command) what the stage learned, verdicts included
-        return {"fine_phase": self.phase, "fine_pulses_total": self.learn.pulses,
+        return {"fine_phase": self.phase, "fine_pulses_total": self.learn.pulses, "fine_kicks_lost": self.kicks_lost,
                 "learned_equilibrium_rad": {"open": list(self.learn.equilibrium[1]),
                                             "close": list(self.learn.equilibrium[-1])},
                 "learned_breakaway_rad": {"open": list(self.learn.breakaway[1]),

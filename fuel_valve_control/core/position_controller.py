@@ -378,6 +378,7 @@ class PositionController:
                           retreat_return_hold=ps["fine.retreat_return_hold"],
                           retreat_return_rest=ps["fine.retreat_return_rest"],
                           unmoved_settled=ps["fine.unmoved_settled"],
+                          kick_lost_fraction=ps["fine.kick_lost_fraction"],
                           servo_mode_ref_rad_s=self._servo_mode_ref(ps))
 
     def _compensator(self, mode: str, ps: Mapping[str, Any]) -> Compensator:
