@@ -271,8 +271,7 @@ def seized(tmp_path, request):
         "faults.resolver_timeout_s": 1.0, "demand_timeout_s": 3.0,
         # the test's Δp publisher is created after its resolver one: its match can come more
         # than 0.1 s after the loop's first period, and "no pressure differential reading
-        # received" then stayed latched (a warning, level 1) until a reset (now it clears
-        # 1 s after the readings start; a loaded machine's gaps restart that), so the rig never
+        # received" then stays latched (a warning, level 1) until a reset, so the rig never
         # reported "running" (the 120 s start-up timeouts of test_tracking_error_latches /
         # test_i2t_budget_latches on a slow machine, stop-13 CI)
         "pressure.timeout_s": 3.0})

@@ -127,10 +127,10 @@ def test_every_runtime_parameter_has_a_consumer():
     drv = ValveDriver(CONTROLLER_SPEC.defaults())
     drv.ps = Reads(drv.ps)
     drv.valve_health.configure(drv.ps)       # the NE107/counter core reads its own (set_params does this)
-    for k in range(300):
+    for k in range(600):
         t = k * 1e-3
         drv.demand_percent(t, 90.0 if k > 100 else 20.0)            # a far demand: tracking error
-        if k < 100 or k >= 250:                                      # stale between: the fallback,
+        if k < 300 or k >= 450:                                      # stale between (armed): the fallback,
             drv.pressure_differential(t, 3000.0)                     # then timely again (recovery)
         drv.resolver(t, 0.2 * 48.019, 0.2, now=t)                    # received on the loop clock
         drv.loop_timing(t, t + (0.01 if k >= 200 else 0.0))          # real time: one late arrival

@@ -15,13 +15,15 @@ grows with Δp, so the Δp = 0 schedule never asks for more friction torque than
 (under-compensation: a slower, stickier valve), whereas a schedule above the real Δp pushes
 the valve past breakaway on its own and hunts (measured with ``fuel_valve_sim`` on ``hold``,
 observer_fc: told 6206 kPa with the real Δp 0 -> a 4.4e-3 rad limit cycle; told 0 with the
-real Δp 6206 kPa -> no limit cycle).  Valid samples are used again as soon as they arrive.  A
-warning for a *gap* (missing or stale readings) clears itself once readings have arrived without
-a gap for ``pressure.recover_s``: a gap is a transport event (a start-up stall of 0.27 s on a
-loaded machine latched it for good and the node reported WARN until ``~/reset``), and each one is
-counted on /diagnostics (``pressure_gap_episodes``).  A warning for an *implausible* reading (not
-finite, out of range, too fast) points at the transducer and stays latched until
-:meth:`ValveDriver.reset`.
+real Δp 6206 kPa -> no limit cycle).  Valid samples are used again as soon as they arrive; the
+warning stays latched until :meth:`ValveDriver.reset` (SPEC §4), and each gap (missing or stale
+readings) is counted on /diagnostics (``pressure_gap_episodes``).  Two refinements: in real time
+the first arm's wait for a steady resolver stream (``faults.arm_steady_s``) also waits out Δp gaps
+-- a node process's start-up stall (0.27 s under ``ros2 launch`` on a loaded machine) is no
+failed transducer, and latched the node at WARN for good -- and the missing-Δp watch starts at
+the end of that wait; ``pressure.recover_s`` > 0 lets a gap's warning clear itself after that
+long of timely readings (a deployment's choice; an *implausible* reading's warning -- not
+finite, out of range, too fast: the transducer -- stays latched regardless).
 
 A reading can be plausible as a signal and still wrong (a biased transducer, a gain error):
 :class:`~.friction_check.FrictionCheck` (``pressure.friction_check``) compares the static
@@ -235,7 +237,8 @@ class ValveDriver:
         self._tracking_time = 0.0                  # leaky time beyond the tracking limit, s
         self._twist_time = 0.0                     # leaky time the twist disagreed with the torque, s
         self._positions: deque = deque(maxlen=int(2.0 / self.period))
-        self._t_first: float | None = None         # time of the first step (for a missing Δp)
+        #: start of the missing-Δp watch (s): the first step, or in real time the end of the first arm's wait
+        self._t_first: float | None = None
         self._dp: float | None = None              # last valid measured Δp, kPa (None: use the fallback)
         self._dp_t: float | None = None
         self._dp_prev: tuple[float, float] | None = None   # (t, kPa) of the last finite reading
@@ -675,7 +678,11 @@ class ValveDriver:
         """Δp for the law this period: the measured one while valid, else the fallback."""
         ps = self.ps
         timeout = ps["pressure.timeout_s"]
-        if self._dp is not None and t - self._dp_t > timeout:
+        if self._settling():
+            # the first arm still waits for a steady resolver stream (drive off): a start-up stall silences the
+            # transducer's stream too; the watch for a missing Δp starts when the wait ends
+            self._t_first = t
+        elif self._dp is not None and t - self._dp_t > timeout:
             self._dp = self._dp_fresh_since = None
             self._warn_pressure(f"no pressure differential reading for {(t - self._dp_t) * 1e3:.0f} ms", gap=True)
         elif self._dp_t is None and t - self._t_first > timeout:

@@ -68,9 +68,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "this long after the loop started): the contract rate is >= 50 Hz (the plant: 100 Hz), so 5 periods "
           "at the slowest; a source slower than the contract needs >= 3 of its periods here", 0.005, 60.0,
           runtime=True),
-    Param("pressure.recover_s", 1.0, "s", "a Δp warning for a gap (no reading, or a stale one) clears itself "
-          "once readings have arrived without a gap for this long (0: latched until ~/reset); a warning for an "
-          "implausible reading stays latched until ~/reset", 0.0, 600.0, runtime=True),
+    Param("pressure.recover_s", 0.0, "s", "0: a Δp warning is latched until ~/reset (SPEC section 4).  > 0: a "
+          "warning for a gap (no reading, or a stale one) clears itself once readings have arrived without a gap "
+          "for this long; a warning for an implausible reading stays latched until ~/reset regardless", 0.0, 600.0,
+          runtime=True),
     Param("pressure.range_margin_kpa", 310.0, "kPa", "readings beyond 0..pressure max by more than this "
           "are implausible (within it they are clamped)", 0.0, PRESSURE_MAX_KPA, runtime=True),
     Param("pressure.max_rate_kpa_s", 5.0e5, "kPa/s", "a change between two readings faster than this is "
