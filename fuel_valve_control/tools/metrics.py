@@ -12,7 +12,8 @@ current and drive enable.  Segments are found in the demand itself:
 * **ramps**: the monotonic pieces of the other stretches between plateaus (or before the first,
   after the last) that last at least ``MIN_RAMP_S`` and change the demand by more than
   ``MIN_STEP_RAD`` (a reversing ramp is two);
-* **trips**: falling edges of the drive enable.
+* **trips**: falling edges of the drive enable, each to the next rising edge (a re-enabled drive:
+  a command watchdog's trip in real time, a reset) or to the end.
 
 Metric definitions (all angles rad, times s, currents A):
 
@@ -27,7 +28,8 @@ Metric definitions (all angles rad, times s, currents A):
   resolver count; worst hold.
 * ``peak_current_a``, ``rms_current_a``: over the whole run.
 * ``stroke_time_s``: from a step of >= 95 % of the stroke to 98 % of it.
-* ``close_time_s``: from the drive being disabled to <= 2 % open.
+* ``close_time_s``: from the drive being disabled to <= 2 % open (the first trip that closed the
+  valve; ``null`` when none did before the drive was enabled again).
 * ``bandwidth_hz``: where the per-cycle gain ``p-p(angle) / p-p(demand)`` of a sweep falls
   below -3 dB (interpolated in log frequency); the top frequency when it never does.
 * ``iae_rad_s``: integral of ``|demand - angle|`` over the whole run.
@@ -167,14 +169,19 @@ def find_segments(tr: Trace) -> list[Segment]:
         if t[p.i1 - 1] - t[p.i0] >= MIN_HOLD_S:
             segs.append(Segment("hold", p.i0, p.i1, dict(p.info)))
     en = tr.enable > 0.5
+    rises = np.flatnonzero(~en[:-1] & en[1:]) + 1
     for i in np.flatnonzero(en[:-1] & ~en[1:]) + 1:
-        segs.append(Segment("trip", int(i), len(t)))
-    # steps and holds end where the drive is disabled: a tripped valve is not being positioned
+        back = rises[rises > i]
+        segs.append(Segment("trip", int(i), int(back[0]) if len(back) else len(t)))
+    # steps and holds end where the drive is disabled for the rest of them: a tripped valve is not being
+    # positioned.  A drive disabled and enabled again within one (in real time a command watchdog's trip of a
+    # few ms, re-enabled by the loop) leaves it whole: the valve is positioned again and its end error is the
+    # plateau's (cut at the first disabled sample, a start-up step of the start-up profile with a 5 ms watchdog
+    # trip mid-move read 3.8e-2 rad "end error" where the valve ended 3.4e-4 off: benchmarks/loop_stalls.py)
     for seg in segs:
-        if seg.kind in ("step", "hold"):
-            off = np.flatnonzero(~en[seg.i0:seg.i1])
-            if len(off):
-                seg.i1 = seg.i0 + int(off[0])
+        if seg.kind in ("step", "hold") and not en[seg.i1 - 1]:
+            on = np.flatnonzero(en[seg.i0:seg.i1])
+            seg.i1 = seg.i0 + (int(on[-1]) + 1 if len(on) else 0)
     segs = [s for s in segs if s.i1 - s.i0 >= 2 and not (s.kind == "hold" and t[s.i1 - 1] - t[s.i0] < MIN_HOLD_S)]
     segs.sort(key=lambda s: s.i0)
     return segs
@@ -274,8 +281,8 @@ def ramp_metrics(tr: Trace, seg: Segment) -> dict:
 
 
 def trip_metrics(tr: Trace, seg: Segment) -> dict:
-    pos = tr.position[seg.i0:]
-    t = tr.t[seg.i0:] - tr.t[seg.i0]
+    pos = tr.position[seg.i0:seg.i1]                 # (None: re-enabled before the valve closed)
+    t = tr.t[seg.i0:seg.i1] - tr.t[seg.i0]
     closed = np.flatnonzero(pos <= 0.02 * tr.stroke_rad)
     return {"close_time_s": float(t[closed[0]]) if len(closed) else None}
 
@@ -303,8 +310,8 @@ def compute(tr: Trace) -> tuple[dict, list[dict]]:
                 ramp_results.append(m)
         elif seg.kind == "trip":
             m = trip_metrics(tr, seg)
-            if "close_time_s" not in metrics:
-                metrics["close_time_s"] = m["close_time_s"]
+            if metrics.get("close_time_s") is None:     # the first trip that closed the valve (a watchdog's
+                metrics["close_time_s"] = m["close_time_s"]  # few ms re-enabled first do not)
         else:
             continue
         details.append({"kind": seg.kind, "t_start_s": float(tr.t[seg.i0]), "t_end_s": float(tr.t[seg.i1 - 1]), **m})
