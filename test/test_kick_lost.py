@@ -41,7 +41,7 @@ def _lose_kicks(overrides: dict, lose: int, first: int = 1, after_s: float = 0.0
         kicks += doublet == 1
         if doublet == 1 and kicks >= first and lost < lose:
             lost += 1
-            amps, on = drive.no_command()
+            amps, on = drive.missed(out)
         else:
             amps, on = drive.command(out)
             if drv.after_period():

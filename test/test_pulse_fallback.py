@@ -71,6 +71,13 @@ def test_the_emulated_drive_holds_or_falls_back_and_its_watchdog_needs_a_re_enab
     assert drive.state == contract.DRIVE_STATE_ENABLED
     drive.command(_Out(7.0, fallback=(math.nan,)))           # refused: held
     assert drive.no_command() == (7.0, True)
+    # a re-enable sent in a period whose command was late is not lost (drive_enable is latched and reliable): it
+    # arrives with the next command
+    for _ in range(4):
+        drive.no_command()
+    assert drive.state == contract.DRIVE_STATE_WATCHDOG and drive.trips == 2
+    assert drive.missed(_Out(6.0, reenable=True)) == (0.0, False)
+    assert drive.command(_Out(6.5)) == (6.5, True) and not drive.reenable_pending
     # a drive without the feature holds whatever the controller says
     old = StalledDrive(LoopStalls(fallback=False))
     old.command(_Out(7.0, fallback=(-2.0,)))

@@ -78,12 +78,15 @@ class StalledDrive:
         self.tripped = False
         self.trips = 0
         self.fallback_periods = 0
+        self.reenable_pending = False   # a re-enable sent in a period whose command was late, not yet delivered
 
     def command(self, out) -> tuple[float, bool]:
         """A period the controller answered with ``out`` (a ``DriverOutput``): the current and enable applied."""
         self.silent = 0
         self.fallback(out.fallback_currents_a)
-        if self.tripped and not (out.enable and out.reenable):
+        reenable = out.enable and (out.reenable or self.reenable_pending)
+        self.reenable_pending = False
+        if self.tripped and not reenable:
             return 0.0, False           # off until re-enabled (resumed commands do not re-enable it)
         self.tripped = False
         self.current_a, self.enabled = out.current_a, out.enable
@@ -93,6 +96,16 @@ class StalledDrive:
         """The controller's fallback schedule (A; empty: hold), honoured if ``LoopStalls.fallback`` (refused, as by
         the plant node, if not finite)."""
         self.fallback_a = tuple(amps) if self.stalls.fallback and contract.fallback_valid(amps) else ()
+
+    def missed(self, out) -> tuple[float, bool]:
+        """A period the controller answered with ``out`` whose command did not reach the drive in time (a transit
+        stall): the no-command current and enable.  A re-enable in it is not lost: ``drive_enable`` is latched and
+        reliable, so it arrives with the commands when they resume (the plant node then takes it; dropped, the
+        drive stayed off until the driver sent it again ``DRIVE_BACK_TIMEOUT_S`` later, and the spring closed the
+        valve: stall seed 97 of the start-up profile, a 1 % step read 2700 % overshoot)."""
+        if out.enable and out.reenable:
+            self.reenable_pending = True
+        return self.no_command()
 
     def no_command(self) -> tuple[float, bool]:
         """A period without a command: the current and enable applied."""

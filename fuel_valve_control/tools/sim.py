@@ -178,7 +178,7 @@ def simulate_plan(plan: RunPlan, baselines: list[dict] = (), stalls: LoopStalls 
                 # the command, as the node does it (the same bits: the next step would do it first), and the
                 # fallback it may have changed
                 if lost[k]:
-                    amps, on = drive.no_command()
+                    amps, on = drive.missed(out)
                 else:
                     amps, on = drive.command(out)
                     if driver.after_period():
