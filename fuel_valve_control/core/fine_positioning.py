@@ -936,9 +936,10 @@ class FinePositioner:
         campaign better, startup and hold mixed).  Nominal valve: 1 exactly."""
         return max(math.sqrt(reference.coupling_stiffness_nm_per_rad / model.coupling_stiffness_nm_per_rad), 1.0)
 
-    def reset(self, measurements: bool = True) -> None:
+    def reset(self, measurements: bool = True, keep_breakaway: bool = False) -> None:
         """Back to idle; ``measurements=False`` (a new demand) keeps what the resolvers have
-        shown: how long the valve has sat still and the twist of the last breakaway seen."""
+        shown: how long the valve has sat still and the twist of the last breakaway seen;
+        ``keep_breakaway`` keeps that breakaway alone (a re-arm of the loop: the same valve)."""
         self.run_pending()                # a try's start left for after the command: its verdicts first, as inline
         self.phase = IDLE
         self._th1_last = None              # (fine.kick_lost_fraction) consecutive samples of the stage's own periods
@@ -952,7 +953,8 @@ class FinePositioner:
             self._last_valve = None
             self._last_th1 = None
             self._rest_point = None       # (twist, valve, Δp) of the last period the valve sat still
-            self._breakaway_seen = None   # (direction, twist rad, valve rad, Δp kPa) of the last breakaway seen
+            if not keep_breakaway:
+                self._breakaway_seen = None   # (direction, twist rad, valve rad, Δp kPa) of the last breakaway seen
         self._last_target = None
         self._fresh = False
         self._plateau = None          # the demand this plateau started with (shifts within the tolerance
@@ -1317,8 +1319,9 @@ class FinePositioner:
         return self._moves
 
     def forget_scale(self) -> None:
-        """Back to the told model: no friction scale read (``fine.learned_scale_*``)."""
+        """Back to the told model: no friction scale read (``fine.learned_scale_*``) and no breakaway seen."""
         self.run_pending()                  # a try's start left for after the command is planned on the model it had
+        self._breakaway_seen = None
         self.m = self.m0
         self.applied_scale = None           # (friction scale, load offset in T_s units) the stage plans from, or None
         self._time_scale = 1.0              # the servo-blended pulse's rise and fall times x this

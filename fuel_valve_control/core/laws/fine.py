@@ -33,7 +33,11 @@ class FinePositioningLaw(ControlLaw):
 
     def reset(self, meas: Measurement, torque_nm: float, pressure_kpa: float) -> None:
         self.main.reset(meas, torque_nm, pressure_kpa)
-        self.fine.reset()
+        # the last breakaway seen stays: it is evidence about this valve, which a re-arm does not change (cleared,
+        # a re-arm after the drive's watchdog trip left a 0.5 % step inside the main law's deadband with no
+        # evidence for the stage to engage on: 5.4e-3 rad off for 3 s, stall seed 4 of the start-up profile);
+        # forgetting what was learned (a fault's reset) clears it (forget)
+        self.fine.reset(keep_breakaway=True)
         self._fine_active = False
         self._holding = False
         self._stand_down = False
