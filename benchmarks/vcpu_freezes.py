@@ -11,8 +11,9 @@ itself off and reports it, the driver re-arms and re-enables it.
 
 The loop here is the offline simulator's (``fuel_valve_sim``'s exchange), on the soak's demand
 (a 40 ± 20 % sine at 0.1 Hz), with freezes: nobody steps the driver for ``n`` periods, the
-drive holds the last command for its command timeout (``contract.DRIVE_COMMAND_TIMEOUT_S``) and
-is then off, reports ``watchdog`` and stays off until the driver re-enables it (plant_node);
+drive (``tools/loop_stalls.StalledDrive``, the plant node's rules) holds the last command or the
+controller's fallback for its command timeout (``contract.DRIVE_COMMAND_TIMEOUT_S``) and is then
+off, reports ``watchdog`` and stays off until the driver re-enables it;
 after the freeze the driver gets the report and the latest sample only (depth-1 topics).
 Measured after the first second: the valve's excess over the highest demand of the trailing
 0.5 s and its shortfall under the lowest (soak.py's window), percent of stroke, re-arms.
@@ -39,6 +40,7 @@ from fuel_valve_control.common.contract import STROKE_RAD
 from fuel_valve_control.core.driver import ValveDriver
 from fuel_valve_control.core.params import load_controller_params
 from fuel_valve_control.tools import sim
+from fuel_valve_control.tools.loop_stalls import LoopStalls, StalledDrive
 from fuel_valve_plant.physics.params import load_plant_params
 from fuel_valve_plant.physics.plant import Plant
 
@@ -97,38 +99,37 @@ def simulate_freezes(freezes: dict[int, int], seconds: float, demand=soak_demand
     ``freezes``, the driver's ``rearms`` and the ``driver`` itself (its state at the end)."""
     plant = Plant(load_plant_params(overrides={"pressure_sensor.noise_kpa": 0.0}))
     drv = ValveDriver(load_controller_params(overrides=controller_overrides or {}))
-    drv.drive_status(0.0, contract.DRIVE_STATE_ENABLED)
     period = drv.period
-    on_periods = int(round(contract.DRIVE_COMMAND_TIMEOUT_S / period))
+    # the drive (the plant node's rules, tools/loop_stalls.StalledDrive): without a command the last one or the
+    # fallback the controller set (contract.CURRENT_FALLBACK, fine.pulse_fallback: a doublet's next step; docs
+    # §113) for its command timeout, then off until a drive_enable true reaches it (a re-enable or an enable edge)
+    drive = StalledDrive(LoopStalls(command_timeout_periods=int(round(contract.DRIVE_COMMAND_TIMEOUT_S / period))))
+    reported = contract.DRIVE_STATE_ENABLED
+    drv.drive_status(0.0, reported)
     n = int(round(seconds / period))
-    drive_on, enabled, last, left, length = True, False, None, 0, 0
+    started, left = False, 0
     valve, dem = np.empty(n), np.empty(n)
     for k in range(n):
         t = k * period
-        if k in freezes and last is not None:
-            left = length = freezes[k]
+        if k in freezes and started:
+            left = freezes[k]
         if left:                               # frozen: nobody steps the driver
-            held = length - left < on_periods
-            # what the drive applies without a command: the last one, or the fallback the controller set
-            # (contract.CURRENT_FALLBACK, fine.pulse_fallback: a doublet's next step; docs §113)
-            amps = contract.current_without_command(last.current_a, last.fallback_currents_a, length - left + 1)
-            plant.set_command(amps if held else 0.0, last.enable and held)
+            plant.set_command(*drive.no_command())
             left -= 1
-            if not left and length > on_periods:
-                drv.drive_status(t, contract.DRIVE_STATE_WATCHDOG)
-                drive_on = False
         else:
-            # the controller node's real-time timing check, before the period as in the node (it ran after the
-            # period until stop 30: the first period after a freeze still ran the stage's stale sequence, §113)
+            # the drive's state word reaches the driver before the period (after a freeze: its watchdog trip;
+            # after a re-enable: on again), then the controller node's real-time timing check, before the period
+            # as in the node (it ran after the period until stop 30: the first period after a freeze still ran
+            # the stage's stale sequence, §113)
+            if drive.state != reported:
+                reported = drive.state
+                drv.drive_status(t, reported)
             drv.loop_timing(t, t)
-            last, _ = sim.exchange_period(drv, plant, t, demand(t))
-            # the drive comes back on an explicit re-enable or an enable edge (plant_node) and
-            # says so (its state word reaches the driver before the next period)
-            if not drive_on and (last.reenable or (last.enable and not enabled)):
-                drive_on = True
-                drv.drive_status(t, contract.DRIVE_STATE_ENABLED)
-            enabled = last.enable
-            plant.set_command(last.current_a if drive_on else 0.0, last.enable and drive_on)
+            out, _ = sim.exchange_period(drv, plant, t, demand(t))
+            started = True
+            plant.set_command(*drive.command(out))
+            if drv.after_period():             # the work left for after the command, as the node does it
+                drive.fallback(drv.fallback_currents())
         plant.advance(period)
         valve[k] = 100.0 * plant.truth().valve_angle / STROKE_RAD
         dem[k] = demand(t + period)

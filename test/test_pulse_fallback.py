@@ -78,6 +78,11 @@ def test_the_emulated_drive_holds_or_falls_back_and_its_watchdog_needs_a_re_enab
     assert drive.state == contract.DRIVE_STATE_WATCHDOG and drive.trips == 2
     assert drive.missed(_Out(6.0, reenable=True)) == (0.0, False)
     assert drive.command(_Out(6.5)) == (6.5, True) and not drive.reenable_pending
+    # an enable edge re-enables too (the controller node publishes drive_enable on a change), as on the plant node
+    for _ in range(4):
+        drive.no_command()
+    assert drive.command(_Out(0.0, enable=False)) == (0.0, False)
+    assert drive.command(_Out(6.0)) == (6.0, True) and drive.state == contract.DRIVE_STATE_ENABLED
     # a drive without the feature holds whatever the controller says
     old = StalledDrive(LoopStalls(fallback=False))
     old.command(_Out(7.0, fallback=(-2.0,)))

@@ -66,8 +66,10 @@ class LoopStalls:
 
 class StalledDrive:
     """The plant node's command rules in real time (``plant_node``), offline: the last command, or the fallback, over
-    a period without a command; the command watchdog; a tripped drive back on only when the controller re-enables
-    it (``DriverOutput.reenable``)."""
+    a period without a command; the command watchdog; a tripped drive back on only when a ``drive_enable`` true
+    reaches it -- the controller node publishes one on an enable edge and on a re-enable
+    (``DriverOutput.reenable``); resumed commands alone do not.  ``benchmarks/vcpu_freezes.py`` and
+    ``test_held_command.py`` run their scripted freezes on it too."""
 
     def __init__(self, stalls: LoopStalls):
         self.stalls = stalls
@@ -79,13 +81,14 @@ class StalledDrive:
         self.trips = 0
         self.fallback_periods = 0
         self.reenable_pending = False   # a re-enable sent in a period whose command was late, not yet delivered
+        self.enable_sent = False        # the drive_enable the controller last sent (an edge to true re-enables)
 
     def command(self, out) -> tuple[float, bool]:
         """A period the controller answered with ``out`` (a ``DriverOutput``): the current and enable applied."""
         self.silent = 0
         self.fallback(out.fallback_currents_a)
-        reenable = out.enable and (out.reenable or self.reenable_pending)
-        self.reenable_pending = False
+        reenable = out.enable and (out.reenable or self.reenable_pending or not self.enable_sent)
+        self.reenable_pending, self.enable_sent = False, out.enable
         if self.tripped and not reenable:
             return 0.0, False           # off until re-enabled (resumed commands do not re-enable it)
         self.tripped = False
@@ -103,8 +106,9 @@ class StalledDrive:
         reliable, so it arrives with the commands when they resume (the plant node then takes it; dropped, the
         drive stayed off until the driver sent it again ``DRIVE_BACK_TIMEOUT_S`` later, and the spring closed the
         valve: stall seed 97 of the start-up profile, a 1 % step read 2700 % overshoot)."""
-        if out.enable and out.reenable:
-            self.reenable_pending = True
+        # (latched: the newest value wins -- a disable after it cancels it)
+        self.reenable_pending = out.enable and (self.reenable_pending or out.reenable or not self.enable_sent)
+        self.enable_sent = out.enable
         return self.no_command()
 
     def no_command(self) -> tuple[float, bool]:
