@@ -575,8 +575,8 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.kick_lost_fraction", 0.15, "", "real time: a doublet's kick whose gear-output acceleration, read "
           "from the motor resolver in the next sample, is below this fraction of the one its torque makes did not "
           "reach the drive (a late command; a kick that reached it reads 0.64 nominal, 0.41 at 18 V with the "
-          "inertia +20 %, a lost one about 0): the stage kicks again instead of retreating (a retreat with no kick before it "
-          "throws the valve backwards), and hands the plateau back if that kick is lost too; counted in "
+          "inertia +20 %, a lost one about 0): the stage kicks again instead of retreating (a retreat with no kick "
+          "before it throws the valve backwards), and hands the plateau back if that kick is lost too; counted in "
           "fine_kicks_lost on /diagnostics.  0: not checked (docs section 114)", 0.0, 0.9, runtime=True),
     Param("fine.pressure_bands", 4, "", "learned values are kept per direction and per this many Δp bands",
           1, 64),
