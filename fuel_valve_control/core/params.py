@@ -516,13 +516,14 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "a doublet staircase whose first apex lies this many learned rms scatters of the breakaway twist below the "
           "preload twist the last one broke at, instead of handing the plateau back to the main law; a third hands it "
           "back (0 = hand back at the second; task h30b, docs §66)", 0.0, 10.0, runtime=True),
-    Param("fine.cold_start", True, "", "the stage engages before any breakaway has been seen (a run's first "
+    Param("fine.cold_start", False, "", "the stage engages before any breakaway has been seen (a run's first "
           "steps too small for the main law's hold to move the valve): after FRESH_WAIT engage times at rest with "
           "the twist at rest inside the nominal static band, it judges the valve by its own first doublets (a "
           "staircase from fine.doublet_margin below the nominal breakaway) and hands back when the first "
-          "breakaway they find lies beyond fine.breakaway_fit x T_s/K of nominal.  On since stop 31 (docs section "
-          "114.9): nominal plateaus > 8e-4 rad 150 -> 88 over 3360 (a run's first plateaus 23 -> 3 per 1440, left "
-          "unmoved before); the wrong-Δp 2 % grid's largest overshoot 4.2 -> 9.3 %", runtime=True),
+          "breakaway they find lies beyond fine.breakaway_fit x T_s/K of nominal.  Off: on, nominal plateaus > "
+          "8e-4 rad 150 -> 88 of 3360, but a valve with friction x0.5-0.8 of the told is thrown a whole jump across "
+          "its first small step (1.5e-3 rad step: 2.2-4.3e-3 off instead of 1.5e-3; docs section 114.9)",
+          runtime=True),
     Param("fine.cold_band_gate", False, "", "with fine.cold_start: a cold engagement also needs the main law's hold "
           "to have met both slip edges of the static band, half their difference within fine.breakaway_fit x T_s of "
           "the told static friction (a valve of about the told friction: the cold staircase neither breaks a "
