@@ -444,6 +444,9 @@ def _norm_cdf_tails(x: np.ndarray) -> np.ndarray:
     return out
 
 
+#: (fine.kick_lost_fraction) the least second difference of the motor angle (motor-resolver counts) a kick must be planned
+#: to make for the check to read it: at the nominal valve a 4 A kick makes ~100, a 26 A one ~670
+KICK_SEEN_MIN_COUNTS = 20.0
 #: (fine.pulse_fallback) the band-middle torque is recomputed once the valve has moved this far (rad) from where it
 #: was computed: the spring and flow torques change by milli-N*m over a few counts
 MIDDLE_REUSE_RAD = 1e-3
@@ -943,6 +946,7 @@ class FinePositioner:
         self.run_pending()                # a try's start left for after the command: its verdicts first, as inline
         self.phase = IDLE
         self._th1_last = None              # (fine.kick_lost_fraction) consecutive samples of the stage's own periods
+        self._kick_retries = 0
         self._target = None
         self._handover = None             # (fine.handover_settle_speed_rad_s) a hand-over waiting for the gear output
         self._handback_wait = None        # (fine.handback_settle) periods a hand-back has held the gear output so far
@@ -2630,7 +2634,10 @@ class FinePositioner:
         rad back, then 5.7e-3 across the target by the observe servo's pull (54 % overshoot).  A kick of 4-30 A makes
         0.2-1.4e-3 rad here; the motor resolver reads it to ~2e-6 rad.  A kick seen counts the retries down."""
         frac = self.cfg.kick_lost_fraction
-        if frac <= 0.0 or self._kick_th1 is None or self._kick_expected == 0.0:
+        # (a kick the cap left almost nothing of -- a hold already near the cap -- is no reading: below
+        # KICK_SEEN_MIN_COUNTS motor-resolver counts the ratio would be resolver noise)
+        if frac <= 0.0 or self._kick_th1 is None \
+                or self._kick_expected < KICK_SEEN_MIN_COUNTS * RESOLVER_COUNT_RAD / self.m.gear_ratio:
             return False
         s0, s1 = self._kick_th1
         seen = self._dir * (th1 - 2.0 * s1 + s0) / self._kick_expected
