@@ -671,7 +671,8 @@ class ValveDriver:
         if PRESSURE_INPUT not in self.warnings:
             self.warnings[PRESSURE_INPUT] = why + (f"; friction scheduled for the fallback "
                                                    f"{self.ps['pressure.fallback_kpa']:g} kPa")
-            self.pressure_gap_episodes += gap
+            if gap:
+                self.pressure_gap_episodes += 1
         self._dp_implausible |= not gap
 
     def _scheduled_pressure(self, t: float) -> float:

@@ -840,11 +840,8 @@ class FinePositioner:
         #: (fine.pulse_fallback) the torques (N*m) for the drive to apply in the first, second, ... period in a row whose
         #: command is late (:meth:`update`; ``()``: hold this period's)
         self.fallback_nm: tuple[float, ...] = ()
-        #: (fine.kick_lost_fraction) the motor resolver's gear-output angle (rad) of the last period, the park's last
-        #: and the kick's samples, the second difference (rad) the kick's torque alone would make, the kicks in a row
-        #: found lost, and how many kicks were lost since the start (/diagnostics ``fine_kicks_lost``)
-        self._th1_last: float | None = None
-        self._kick_th1: tuple[float, float] | None = None
+        #: (fine.kick_lost_fraction) the second difference (rad) of the gear output the kick's torque alone would make,
+        #: the kicks in a row found lost, and how many kicks were lost since the start (/diagnostics ``fine_kicks_lost``)
         self._kick_expected = 0.0
         self._kick_retries = 0
         self.kicks_lost = 0
@@ -945,8 +942,7 @@ class FinePositioner:
         ``keep_breakaway`` keeps that breakaway alone (a re-arm of the loop: the same valve)."""
         self.run_pending()                # a try's start left for after the command: its verdicts first, as inline
         self.phase = IDLE
-        self._th1_last = None              # (fine.kick_lost_fraction) consecutive samples of the stage's own periods
-        self._kick_retries = 0
+        self._kick_retries = 0             # (fine.kick_lost_fraction)
         self._target = None
         self._handover = None             # (fine.handover_settle_speed_rad_s) a hand-over waiting for the gear output
         self._handback_wait = None        # (fine.handback_settle) periods a hand-back has held the gear output so far
@@ -2260,7 +2256,6 @@ class FinePositioner:
             return None
         self._k += 1
         self._w1_prev, self._w1_now = (w1 if self._w1_now is None else self._w1_now), w1   # (fine.repark_from_state)
-        th1_prev, self._th1_last = self._th1_last, th1
         base = self._thl0
         if self.phase == PARK:
             x, v, a = self._park_ref(self._k)
@@ -2300,14 +2295,11 @@ class FinePositioner:
             # the whole current backwards (one period, then half), then the servo to the final
             # twist (SPEC §6: the retreat must already be at full current when the valve breaks;
             # through the 60 Hz servo it is not)
-            if self._k == 1:
-                self._kick_th1 = None if th1_prev is None else (th1_prev, th1)
-            elif self._k == 2 and self._kick_lost(th1):
+            if self._k == 2 and self._kick_lost():
                 if self._kick_retries >= 1:
                     return self._hand_back()       # lost twice in a row: the loop cannot time a pulse now
                 self._kick_retries += 1
                 self._k = 1                        # the try again from the preload it still holds: this period kicks
-                self._kick_th1 = (th1_prev, th1)
             self._track_peak(th1 - thl)
             if self._k == 1:
                 self._hold_torque = self._servo_torque
@@ -2624,10 +2616,11 @@ class FinePositioner:
             self.phase, self._k, self._pulsed = OBSERVE, 0, True
         return min(max(torque, -cap), cap)
 
-    def _kick_lost(self, th1: float) -> bool:
+    def _kick_lost(self) -> bool:
         """(``fine.kick_lost_fraction``) Whether the kick commanded last period did not reach the drive: the gear
-        output's second difference over the park's last, the kick's and this sample (rad, motor resolver / N), in the
-        kick's direction, is below the fraction of the one the kick's torque alone makes (:meth:`_doublet_torque`).
+        output's second difference over the park's last, the kick's and this sample (rad, motor resolver / N: the
+        change of the per-period speeds ``_w1_prev`` -> ``_w1_now`` times the period), in the kick's direction, is
+        below the fraction of the one the kick's torque alone makes (:meth:`_doublet_torque`).
         Why: in real time a command can miss the drive's tick (docs §113: a transit stall the controller does not
         see); the drive then holds the band middle, and the retreat that follows on time, with no kick before it,
         swings the twist below the closing breakaway -- stall seed 89 of the start-up profile: the valve thrown 4.7e-3
@@ -2636,11 +2629,10 @@ class FinePositioner:
         frac = self.cfg.kick_lost_fraction
         # (a kick the cap left almost nothing of -- a hold already near the cap -- is no reading: below
         # KICK_SEEN_MIN_COUNTS motor-resolver counts the ratio would be resolver noise)
-        if frac <= 0.0 or self._kick_th1 is None \
+        if frac <= 0.0 or self._w1_prev is None \
                 or self._kick_expected < KICK_SEEN_MIN_COUNTS * RESOLVER_COUNT_RAD / self.m.gear_ratio:
             return False
-        s0, s1 = self._kick_th1
-        seen = self._dir * (th1 - 2.0 * s1 + s0) / self._kick_expected
+        seen = self._dir * (self._w1_now - self._w1_prev) * self.period / self._kick_expected
         if seen >= frac:
             self._kick_retries = 0
             return False
