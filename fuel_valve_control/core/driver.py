@@ -666,8 +666,9 @@ class ValveDriver:
         return kpa
 
     def _warn_pressure(self, why: str, gap: bool) -> None:
-        """Raise the :data:`PRESSURE_INPUT` warning for a gap in the readings (``gap``: clears itself
-        after ``pressure.recover_s`` of timely readings) or an implausible reading (latched)."""
+        """Raise the :data:`PRESSURE_INPUT` warning for a gap in the readings (``gap``: latched, or with
+        ``pressure.recover_s`` > 0 cleared after that long of timely readings) or an implausible reading
+        (latched until :meth:`reset`)."""
         if PRESSURE_INPUT not in self.warnings:
             self.warnings[PRESSURE_INPUT] = why + (f"; friction scheduled for the fallback "
                                                    f"{self.ps['pressure.fallback_kpa']:g} kPa")

@@ -68,8 +68,9 @@ class StalledDrive:
     """The plant node's command rules in real time (``plant_node``), offline: the last command, or the fallback, over
     a period without a command; the command watchdog; a tripped drive back on only when a ``drive_enable`` true
     reaches it -- the controller node publishes one on an enable edge and on a re-enable
-    (``DriverOutput.reenable``); resumed commands alone do not.  ``benchmarks/vcpu_freezes.py`` and
-    ``test_held_command.py`` run their scripted freezes on it too."""
+    (``DriverOutput.reenable``); resumed commands alone do not.  ``benchmarks/vcpu_freezes.py`` runs its
+    scripted freezes on it too (``test_held_command.py`` keeps its own: its traced drive trips late, at the stall's
+    end, which no command timeout here reproduces)."""
 
     def __init__(self, stalls: LoopStalls):
         self.stalls = stalls
