@@ -44,6 +44,8 @@ class IntegralPolicy:
     #: observer_fp too, on valves whose swing cannot arrest itself against it
     #: (StateFeedbackLaw.SWING_ARREST_RATIO; never the nominal valve)
     relieve_unarrested_swing: bool = False
+    #: s32 (docs section 115): the same give-back at every breakaway of the hold, whatever JL / J1
+    relieve_every_breakaway: bool = False
     #: h25h: size that give-back on the drive the valve broke away at (the static friction met)
     #: times the schedule's 1 - Tc/Ts, instead of the scheduled Ts - Tc
     relieve_met_surplus: bool = True

@@ -170,7 +170,14 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "at the gear output > 0.2172; nominal 0.11, never on), give the stuck ramp's static-Coulomb surplus back "
           "once the valve breaks away (docs/control_results.md section 38: JL x3 startup worst plateau 4.6e-3 -> "
           "4.8e-4 rad, but its observer_fp campaign p95 1.4e-3 -> 2.4e-3: off)"),
-    Param("integral.relieve_met_surplus", True, "", "with integral.relieve_unarrested_swing: size the give-back "
+    Param("integral.relieve_every_breakaway", False, "", "observer_ff, observer_fp: give the stuck ramp's "
+          "static-Coulomb surplus back at every breakaway of a plateau's hold, whatever the valve / motor inertia "
+          "ratio (at most the scheduled Ts - Tc; not while the reference ramps or a planned move waits for its "
+          "breakaway).  A run's first small steps on a valve whose friction differs from the told: 3.7e-3 rad at max "
+          "dp on friction x0.6 115 % -> 0 % overshoot; full box median 2.15e-3 -> 1.79e-3 rad; but holds on the told "
+          "friction stop short (hold 1.6e-4 -> 4.4e-4 rad), two other valves' startup worse and more overload faults "
+          "on plants beyond rating: off (docs/control_results.md section 115)"),
+    Param("integral.relieve_met_surplus", True, "", "with integral.relieve_unarrested_swing (or relieve_every_breakaway): size the give-back "
           "on the drive the valve broke away at (the static friction met) times the schedule's 1 - Tc/Ts, not on "
           "the scheduled Ts - Tc (docs/control_results.md section 47)"),
     Param("integral.read_stiffness", True, "", "observer_ff, observer_fp: read the coupling stiffness at every "
