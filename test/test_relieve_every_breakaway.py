@@ -8,8 +8,10 @@ finishes the move; on one whose friction differs from the told (x0.5-0.8, x1.5-2
 engage, and the slide ran 2-3x the free stick-slip jump: a 3.7e-3 rad step on friction x0.6 ended
 4.3e-3 rad past (115 %).  With the option the surplus is taken out once the valve has slid
 ``jumps.min_jump`` -- no more than the schedule's Ts - Tc (an unknown load hindering the move
-inflates the drive met), and only at a plateau's hold (not while the reference ramps or a planned
-move waits for its breakaway: the compensator's own retreat handles that one)."""
+inflates the drive met), only at a plateau's hold (not while the reference ramps or a planned
+move waits for its breakaway: the compensator's own retreat handles that one), and not on a valve whose
+breakaway drive fits the told static friction (``integral.relieve_fit``: there the slide is the one the
+stage is planned on, and given back the holds stopped short).  Off by default (section 115)."""
 from __future__ import annotations
 
 import pytest
@@ -69,19 +71,29 @@ def test_the_option_alone_turns_the_relief_on_for_the_nominal_valve(on):
     assert law.relieve_swing is on
 
 
-@pytest.mark.parametrize("drive_nm, capped", [(1.0, False), (40.0, True)])
-def test_the_give_back_is_the_met_surplus_at_most_the_scheduled_one(drive_nm, capped):
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_valve_of_the_told_friction_moves_as_without_the_option(direction):
+    """Its breakaway drive fits the told static friction (``integral.relieve_fit``): no give-back, and the
+    step is the default's to the bit (the stage finishes it)."""
+    off = _first_step(direction * 3.7e-3, 1.0)
+    on = _first_step(direction * 3.7e-3, 1.0, **{OPTION: True})
+    assert on == off
+
+
+@pytest.mark.parametrize("ratio, want", [(0.19, "met"), (8.0, "scheduled"), (1.1, "none")])
+def test_the_give_back_is_the_met_surplus_at_most_the_scheduled_one_and_none_on_the_told_friction(ratio, want):
     law, model = _law(**{OPTION: True})
     fl = model.friction(PRESSURE_MAX_KPA)
     scheduled = fl.valve_static_nm - fl.valve_coulomb_nm
+    drive_nm = ratio * fl.valve_static_nm
     law.zeta = 0.0
     # stuck short of the target (error +), outside the deadband, at the drive met ...
     law._relieve_breakaway(0.5, True, True, False, 5e-3, fl, drive_nm)
     # ... then slid the resolver's minimum jump toward it
     law._relieve_breakaway(0.5 + 2.0 * law.jumps.min_jump, False, True, False, 3e-3, fl, drive_nm)
     given = -law.zeta * law.model.gear_ratio * law.fb.ki
-    want = scheduled if capped else drive_nm * scheduled / fl.valve_static_nm
-    assert given == pytest.approx(want, rel=1e-9)
+    expected = {"met": drive_nm * scheduled / fl.valve_static_nm, "scheduled": scheduled, "none": 0.0}[want]
+    assert given == pytest.approx(expected, rel=1e-9, abs=1e-12)
 
 
 @pytest.mark.parametrize("moving", [True, False])

@@ -46,6 +46,8 @@ class IntegralPolicy:
     relieve_unarrested_swing: bool = False
     #: s32 (docs section 115): the same give-back at every breakaway of the hold, whatever JL / J1
     relieve_every_breakaway: bool = False
+    #: ... except where the drive met at the breakaway lies within this fraction of the told static level
+    relieve_fit: float = 0.15
     #: h25h: size that give-back on the drive the valve broke away at (the static friction met)
     #: times the schedule's 1 - Tc/Ts, instead of the scheduled Ts - Tc
     relieve_met_surplus: bool = True

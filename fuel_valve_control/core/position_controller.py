@@ -250,6 +250,7 @@ class PositionController:
                                   relieve_unarrested_swing=ps["integral.relieve_unarrested_swing"],
                                   relieve_met_surplus=ps["integral.relieve_met_surplus"],
                                   relieve_every_breakaway=ps["integral.relieve_every_breakaway"],
+                                  relieve_fit=ps["integral.relieve_fit"],
                                   read_stiffness=ps["integral.read_stiffness"],
                                   stiffness_tolerance=ps["integral.stiffness_tolerance"],
                                   probe_soft_floor=ps["integral.probe_soft_floor"],

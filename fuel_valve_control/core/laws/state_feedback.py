@@ -711,6 +711,10 @@ class StateFeedbackLaw(ControlLaw):
                     # the give-back (full box seed 5000, uncapped: overload faults 5 -> 10, all on plants
                     # that need more than the continuous torque to open; capped 8; docs section 115)
                     surplus = min(scaled, surplus) if self.relieve_every else scaled
+                    if self.relieve_every and abs(met / friction.valve_static_nm - 1.0) <= self.integral.relieve_fit:
+                        # a valve of the told friction: its slide is the one the stage is planned on
+                        # (given back there, holds stopped short, nominal hold 1.6e-4 -> 4.4e-4 rad)
+                        surplus = 0.0
                 self.zeta -= sign * surplus / self.model.gear_ratio / self.fb.ki
                 self._stuck_short = None
 
