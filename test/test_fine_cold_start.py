@@ -9,27 +9,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fuel_valve_control.common.contract import PRESSURE_MAX_KPA, STROKE_RAD
-from fuel_valve_control.tools import metrics as M
-from fuel_valve_control.tools import sim
-from fuel_valve_control.tools.scenarios import parse_scenario
-
-START_PCT = 40.0
+from first_step import first_step
+from fuel_valve_control.common.contract import PRESSURE_MAX_KPA
 
 
 def _first_step(step_rad: float, friction_scale: float = 1.0, **controller):
-    """The nominal plant at max Δp (no breakaway scatter), held at rest at ``START_PCT``, one step of
-    ``step_rad`` at 0.3 s held 0.7 s: (plateau results, the run's true valve angle, rad)."""
-    pct = START_PCT + 100.0 * step_rad / STROKE_RAD
-    sc = parse_scenario({"name": "cold", "duration_s": 1.0, "initial_percent": START_PCT,
-                         "pressure_differential_kpa": PRESSURE_MAX_KPA,
-                         "demand": {"type": "points", "interpolation": "previous",
-                                    "points": [[0.0, START_PCT], [0.3, START_PCT], [0.3, pct], [1.0, pct]]}})
-    p, c = sim.build(sc, {"friction_scale": friction_scale}, controller, 0, "observer_fp")
-    res = sim.simulate(sc, p, c)
-    log = res.log
-    tr = M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9], res.stroke_rad)
-    return M.plateau_results(tr), log
+    """(plateau results, the run's log) of a first step from rest at max Δp (:func:`first_step.first_step`)."""
+    return first_step(step_rad, friction_scale, **controller)
 
 
 @pytest.mark.parametrize("direction", [1, -1])

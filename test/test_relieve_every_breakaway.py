@@ -16,30 +16,17 @@ from __future__ import annotations
 
 import pytest
 
-from fuel_valve_control.common.contract import PRESSURE_MAX_KPA, STROKE_RAD
-from fuel_valve_control.tools import metrics as M
+from first_step import START_PCT, first_step
+from fuel_valve_control.common.contract import PRESSURE_MAX_KPA
 from fuel_valve_control.tools import sim
 from fuel_valve_control.tools.scenarios import parse_scenario
-
-import numpy as np
-
-START_PCT = 40.0
 OPTION = "integral.relieve_every_breakaway"
 
 
 def _first_step(step_rad: float, friction_scale: float, **controller) -> dict:
-    """The plant at max Δp (no breakaway scatter), friction x ``friction_scale`` (the controller told
-    the nominal), held at ``START_PCT``; one step of ``step_rad`` at 0.3 s held 0.7 s: its plateau."""
-    pct = START_PCT + 100.0 * step_rad / STROKE_RAD
-    sc = parse_scenario({"name": "first_step", "duration_s": 1.0, "initial_percent": START_PCT,
-                         "pressure_differential_kpa": PRESSURE_MAX_KPA,
-                         "demand": {"type": "points", "interpolation": "previous",
-                                    "points": [[0.0, START_PCT], [0.3, START_PCT], [0.3, pct], [1.0, pct]]}})
-    p, c = sim.build(sc, {"friction_scale": friction_scale}, controller, 0, "observer_fp")
-    res = sim.simulate(sc, p, c)
-    log = res.log
-    tr = M.Trace(log[:, 0], log[:, 1], log[:, 2], np.hypot(log[:, 7], log[:, 8]), log[:, 9], res.stroke_rad)
-    return M.plateau_results(tr)[-1]
+    """The first step's plateau (:func:`first_step.first_step`: max Δp, friction x ``friction_scale``, the
+    controller told the nominal)."""
+    return first_step(step_rad, friction_scale, **controller)[0][-1]
 
 
 @pytest.mark.parametrize("direction", [1, -1])
