@@ -181,8 +181,8 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("integral.relieve_fit", 0.15, "", "with integral.relieve_every_breakaway: no give-back where the drive the "
           "valve broke away at lies within this fraction of the told static friction (a valve of the told friction, "
           "whose slide the fine stage is planned on; the nominal box's scatter is 2-8 %)", 0.0, 10.0),
-    Param("integral.relieve_met_surplus", True, "", "with integral.relieve_unarrested_swing (or relieve_every_breakaway): size the give-back "
-          "on the drive the valve broke away at (the static friction met) times the schedule's 1 - Tc/Ts, not on "
+    Param("integral.relieve_met_surplus", True, "", "with integral.relieve_unarrested_swing (or "
+          "integral.relieve_every_breakaway): size the give-back on the drive the valve broke away at (the static friction met) times the schedule's 1 - Tc/Ts, not on "
           "the scheduled Ts - Tc (docs/control_results.md section 47)"),
     Param("integral.read_stiffness", True, "", "observer_ff, observer_fp: read the coupling stiffness at every "
           "hold (twist from the two resolvers against the drive at rest) and, beyond the reading's scatter, size the "
