@@ -702,22 +702,22 @@ class StateFeedbackLaw(ControlLaw):
         elif self._stuck_short is not None:
             start, sign, drive0 = self._stuck_short
             if (valve_rad - start) * sign >= self.jumps.min_jump:
-                surplus = max(friction.valve_static_nm - friction.valve_coulomb_nm, 0.0)
+                self._stuck_short = None
+                static = friction.valve_static_nm
                 met = max(sign * drive0, 0.0)           # the drive the valve broke away at, toward the target
-                if self.relieve_swing and self.integral.relieve_met_surplus and friction.valve_static_nm > 0.0:
-                    scaled = met * surplus / friction.valve_static_nm
+                if self.relieve_every and static > 0.0 and abs(met / static - 1.0) <= self.integral.relieve_fit:
+                    # (integral.relieve_every_breakaway) a valve of the told friction: its slide is the one the
+                    # stage is planned on (given back there, holds stopped short, nominal hold 1.6e-4 -> 4.4e-4 rad)
+                    return
+                surplus = max(static - friction.valve_coulomb_nm, 0.0)
+                if self.relieve_swing and self.integral.relieve_met_surplus and static > 0.0:
+                    scaled = met * surplus / static
                     # (integral.relieve_every_breakaway) at most the scheduled surplus: the drive met
                     # includes any load the hold has not learned, and one hindering the move inflated
                     # the give-back (full box seed 5000, uncapped: overload faults 5 -> 10, all on plants
                     # that need more than the continuous torque to open; capped 8; docs section 115)
                     surplus = min(scaled, surplus) if self.relieve_every else scaled
-                if self.relieve_every and friction.valve_static_nm > 0.0 \
-                        and abs(met / friction.valve_static_nm - 1.0) <= self.integral.relieve_fit:
-                    # a valve of the told friction: its slide is the one the stage is planned on
-                    # (given back there, holds stopped short, nominal hold 1.6e-4 -> 4.4e-4 rad)
-                    surplus = 0.0
                 self.zeta -= sign * surplus / self.model.gear_ratio / self.fb.ki
-                self._stuck_short = None
 
     def applied(self, torque_nm, saturated):
         self._applied = torque_nm
