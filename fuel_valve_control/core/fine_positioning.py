@@ -680,6 +680,8 @@ class FineConfig:
     retreat_full_periods: int = 1  # doublet: periods of the whole current backwards after the kick (then one of half)
     cold_start: bool = False      # engage before any breakaway was seen, judging the valve by the stage's own
                                   # first doublets (:meth:`FinePositioner._cold_ready`)
+    cold_climb: bool = False      # while cold, climb from the twist proven to hold with the largest kick (s33)
+    cold_friction_min: float = 0.0  # fine.cold_climb: the least friction (x the told) assumed before any breakaway
     cold_band_gate: bool = False  # a cold engagement also needs the main law's hold to have measured the static
                                   # band (both slip edges) within breakaway_fit of the nominal T_s (h30c)
     learn_kick_rise: bool = False  # doublet: plan each preload against the kick's rise learned from the stage's
@@ -863,6 +865,7 @@ class FinePositioner:
         self._moves = None                 # fine.apex_policy: the doublet's move model (built when first needed)
         self.apex_choices = 0              # fine.apex_policy: the tries chosen (:meth:`_choose_apex` calls), a count
         self.apex_choices_after_command = 0  # ... of them run after their period's command (:meth:`run_pending`)
+        self.cold_climbs = 0               # fine.cold_climb: the cold tries parked at a proven twist (a count)
         self.retreat_plans_after_command = 0  # doublet retreats planned after their kick's command (run_pending)
         self._pushes = {}                  # fine.probe_reached: {(direction, Δp band): rad of twist (>= 0, toward the
                                            # move) a servo-blended pulse's planned peak lies beyond the learned level's}
@@ -1446,9 +1449,15 @@ class FinePositioner:
         doublets are made while cold (their moves at ~0 overdrive are the smallest the stage
         makes, and their staircase starts below the nominal breakaway)."""
         cfg = self.cfg
+        limit = 0.5 * self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad)
+        if cfg.cold_climb and self.main_deadband_rad is not None:
+            # (fine.cold_climb, task s33) any error the main law's hold leaves alone: its deadband (0.55 of the
+            # jump) lies above half the jump, and first plateaus of 2.3-2.5e-3 rad stayed unmoved between the two (the
+            # wait at rest has shown the hold leaves it: no count of noise margin, as :meth:`_main_stays` keeps)
+            limit = max(limit, self.main_deadband_rad)
         return (cfg.cold_start and self._breakaway_seen is None and not math.isinf(cfg.breakaway_fit)
                 and self._steady >= FRESH_WAIT * cfg.engage_periods
-                and abs(err) <= 0.5 * self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad)
+                and abs(err) <= limit
                 and (not cfg.cold_band_gate or self._cold_band_fits(pressure_kpa)))
 
     def _main_stays(self, err: float) -> bool:
@@ -1649,7 +1658,11 @@ class FinePositioner:
         err, d = choice[0], choice[1]
         # (task h33p) the apex from the level's law, not the staircase's stair; the preload the model's
         # kick rise below it
-        apex = self._choose_apex(*choice)
+        # (fine.cold_climb) before any breakaway, a climb from the twist proven to hold while below the told level
+        climb = None
+        if self._cold and cfg.cold_climb:
+            climb = self._cold_climb(d, choice[3], choice[4], choice[5], choice[7])
+        apex = climb if climb is not None else self._choose_apex(*choice)
         if apex is None:
             # no try more likely to land than the policy's floor, or more likely to worsen |e|: hold here
             self._judge(failed=abs(err) > self._err0 + cfg.tolerance_rad)
@@ -1675,6 +1688,68 @@ class FinePositioner:
         self._plan_park()
         self.phase = PARK
         self._peak_seen = th1 - thl
+
+    def _cold_climb(self, d: int, phi_b: float, sigma: float, pressure_kpa: float, thl: float) -> float | None:
+        """(``fine.cold_climb``, task s33, docs §116) A cold try's apex (absolute twist, rad) toward ``d`` from the
+        valve angle ``thl`` while the climb is still below the told level's region, or None (then the policy chooses,
+        its law truncated at the climb's floor).  ``phi_b`` / ``sigma``: the learned level (absolute twist, rad) and
+        its scatter (rad) the policy would place its try on.  The try parks at the furthest twist the valve is proven
+        to hold toward ``d`` -- the highest apex an unmoved try reached at this stop, the twist it rested at when the
+        stage engaged, or ``fine.doublet_sigmas`` scatters below the level of ``fine.cold_friction_min`` x the told
+        friction, whichever lies furthest -- less the smallest kick's rise, and kicks with the largest kick
+        (:meth:`_apex_kicks`).  Sets the kick, its rise and the observe servo's final twist.  Why: before any
+        breakaway the valve's level is not known; the policy's first preload, placed below the *told* level, broke a
+        valve of friction x0.5-0.8 loose while parked -- a whole stick-slip jump past a 1.5e-3 rad step (2.2-4.3e-3
+        rad off, docs §114.9).  A level on the climb is crossed in a kick, at most one climb step of overdrive
+        (1.26e-3 rad of twist with 16 A at the rated Δp), and the retreat after it cuts the move short.  Once the
+        next apex would enter the told level's region (``fine.doublet_sigmas`` learned -- here prior -- scatters
+        below it) the policy takes over."""
+        cfg = self.cfg
+        if self._moves is None:
+            self._moves = _pulse_moves(self)
+        # the furthest twist proven to hold: the rest at engagement, the climb's floor, the least level assumed
+        m = self.m
+        least = cfg.cold_friction_min * m.friction(pressure_kpa).valve_static_nm / m.coupling_stiffness_nm_per_rad
+        proven = self._load_twist(thl, pressure_kpa) + d * (least - cfg.doublet_sigmas * sigma)
+        fl = self._floor(d)
+        for twist in (self._phi0, None if fl is None else fl[1]):
+            if twist is not None and d * (twist - proven) > 0.0:
+                proven = twist
+        kicks = self._apex_kicks()
+        step = APEX_DP_STEP * self.m.pressure_max_kpa
+        rises = self._moves.rises(d, round(pressure_kpa / step) * step, kicks, valve_angle_rad=thl)
+        # the park to the preload rings past it (2.4e-4 rad of twist on a x0.6 valve, which broke loose 2.7e-3 rad
+        # across in the park to its floor): the preload lies the smallest kick's rise short of the proven twist
+        apex = proven + d * (rises[-1] - rises[0])
+        if d * (apex - (phi_b - d * cfg.doublet_sigmas * sigma)) >= 0.0:
+            return None
+        self._apex_kick, self._apex_rise = kicks[-1], rises[-1]
+        self._apex_last, self._apex_try, self._apex_plan = (d, apex), None, None
+        # the observe servo's final twist on the level this try would meet: the told swing centre (load + T_c) / K is
+        # the told valve's; a valve that lets go at the climb's apex has the levels of friction x (apex - e) K / T_s,
+        # and held at the told centre it slid on (x0.6: 6.9e-3 rad for a 1.5e-3 rad step) -- its own centre is the
+        # told T_c / T_s of the way to the apex
+        fl = self.m.friction(pressure_kpa)
+        e = self._load_twist(thl, pressure_kpa)
+        ratio = fl.valve_coulomb_nm / fl.valve_static_nm if fl.valve_static_nm > 0.0 else 1.0
+        self._final = e + ratio * (apex - e) + (self._target - thl) / 2.0
+        self.cold_climbs += 1
+        return apex
+
+    def _load_twist(self, thl: float, pressure_kpa: float) -> float:
+        """The twist that holds the told load at ``thl`` (rad): the middle of the static band."""
+        m = self.m
+        return m.load_torque(thl, pressure_kpa) / m.coupling_stiffness_nm_per_rad
+
+    def _cold_static_min(self, d: int, thl: float, pressure_kpa: float) -> float:
+        """(``fine.cold_climb``) The least static twist T_s/K (rad) the valve is known to have before any breakaway:
+        ``fine.cold_friction_min`` x the told, or more where the twist it rested at (its distance from the load's
+        twist) or the climb's floor toward ``d`` shows it."""
+        m = self.m
+        e = self._load_twist(thl, pressure_kpa)
+        least = self.cfg.cold_friction_min * m.friction(pressure_kpa).valve_static_nm / m.coupling_stiffness_nm_per_rad
+        fl = self._floor(d)
+        return max(least, abs(self._phi0 - e), 0.0 if fl is None else d * (fl[1] - e))
 
     def run_pending(self) -> bool:
         """(``fine.apex_choice_after_command``, task h39n, docs §103) Finish the try whose start an observe's verdict
@@ -2519,6 +2594,13 @@ class FinePositioner:
             m = self.m
             margin += cfg.breakaway_fit * m.friction(p).valve_static_nm / m.coupling_stiffness_nm_per_rad
         room = d * (pre - phi_bo) - margin           # rad of twist the trough may lie below the start
+        if self._cold and cfg.cold_climb:
+            # (fine.cold_climb, task s33) before any breakaway the other way's level is the told one only if the
+            # valve is the told one: a valve of friction x0.6 broke loose backwards in the trough of the climb's
+            # first try from its rest twist (its static band 0.6 x as wide), and the observe servo's pull back then
+            # threw it 1.1e-2 rad forwards.  The least level the valve is known to have (:meth:`_cold_static_min`),
+            # mirrored about the load's twist, bounds the trough instead
+            room = d * (pre - self._load_twist(thl, p)) + self._cold_static_min(d, thl, p) - margin
         if self._moves is None:
             self._moves = _pulse_moves(self)
         mv = self._moves

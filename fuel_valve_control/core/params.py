@@ -540,6 +540,16 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "the told static friction (a valve of about the told friction: the cold staircase neither breaks a "
           "low-friction valve loose in its first preload nor climbs toward a far higher level); no band measured, no "
           "cold engagement (task h30c, docs §67)", runtime=True),
+    Param("fine.cold_climb", False, "", "with fine.cold_start and fine.apex_policy: a cold try parks at the furthest "
+          "twist the valve is proven to hold (the last unmoved apex, else its rest twist) and kicks with the largest "
+          "kick, until the next apex would enter the told level's region (fine.doublet_sigmas prior scatters below "
+          "it), where the policy takes over: a valve of less friction than told is crossed in a kick, not in a park "
+          "(task s33, docs section 116)", runtime=True),
+    Param("fine.cold_friction_min", 0.0, "", "fine.cold_climb: the least valve friction (x the told static level) "
+          "assumed before any breakaway: the climb's first preload lies fine.doublet_sigmas prior scatters below that "
+          "level and its retreat's trough above the other way's (0: none -- the climb starts from the twist the valve "
+          "rests at; at 0.5, the issue's lowest friction, a valve told the rated dp at 0 dp (x0.09) broke loose in "
+          "the first park: docs section 116)", 0.0, 1.0, runtime=True),
     Param("fine.min_jump_rad", 1.0e-3, "rad", "the stage engages only where the nominal stick-slip jump "
           "2 (T_s - T_c(dp)) / K at the dp scheduled is at least this: below it (dp < ~15 % of max) the doublet's "
           "smallest move exceeds the valve's whole jump (bare plant: 0.77e-3 / 2.2e-3 / 1.4e-3 rad at 0 / 5 / 10 % "
