@@ -105,3 +105,23 @@ def test_a_least_friction_assumed_above_the_valves_breaks_it_loose_in_the_first_
     tries = _Tries(monkeypatch)
     first_step(1.5e-3, 0.6, **CLIMB, **{"fine.cold_friction_min": 0.7})
     assert any(not pulsed and abs(move) > 1e-3 for pulsed, move in tries.ends)
+
+
+@pytest.fixture(scope="module")
+def grid():
+    from conftest import load_benchmark
+    return load_benchmark("adaptation_grid")
+
+
+def test_no_cold_climb_on_the_error_the_valve_started_with(grid):
+    """``adaptation_grid.py --dp-error``, F x 0.5, Δp 0 told the rated Δp (friction x0.045 of the told): the valve
+    starts 5.2e-4 rad off its first demand.  Engaged cold on that start, the climb's first kick carried the valve
+    along and the main law's 2 % step from where it was left overshot 46 %; the climb waits for the demand to change,
+    and the cell is the default's to the bit."""
+    cell = {**grid.NOMINAL, "friction": 0.5, "inertia": 1.0, "dp_kpa": 0.0, "stiffness": 1.0}
+    told = grid.P_MAX
+    off = grid.run_cell("observer_fp", cell, told_dp_kpa=told)
+    on = grid.run_cell("observer_fp", cell, told_dp_kpa=told, controller_sets=CLIMB)
+    for key in ("overshoot_pct", "final_error_rad", "tail_pp_rad", "peak_current_a"):
+        assert on[key] == off[key], key
+    assert on["overshoot_pct"] < 5.0

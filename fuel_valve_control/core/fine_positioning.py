@@ -958,6 +958,8 @@ class FinePositioner:
             self._rest_point = None       # (twist, valve, Δp) of the last period the valve sat still
             if not keep_breakaway:
                 self._breakaway_seen = None   # (direction, twist rad, valve rad, Δp kPa) of the last breakaway seen
+            self._first_demand = None     # (fine.cold_climb) the first demand since, and whether one has differed
+            self._demand_moved = False
         self._last_target = None
         self._fresh = False
         self._plateau = None          # the demand this plateau started with (shifts within the tolerance
@@ -1090,6 +1092,10 @@ class FinePositioner:
                     e0, b0 = self._nominal(v, p, d)
                     self._learn_breakaway(d, self.learn.band(self.m.pressure_fraction(p)), phi - b0, abs(b0 - e0),
                                           cfg.main_sample_weight)
+        if self._first_demand is None:
+            self._first_demand = target
+        elif abs(target - self._first_demand) > cfg.tolerance_rad:
+            self._demand_moved = True
         # a demand that keeps changing (ramps, sweeps, noise) is followed by the main law
         same = self._last_target is not None and abs(target - self._last_target) <= 1e-12
         self._steady = self._steady + 1 if same else 0
@@ -1455,6 +1461,12 @@ class FinePositioner:
             # jump) lies above half the jump, and first plateaus of 2.3-2.5e-3 rad stayed unmoved between the two (the
             # wait at rest has shown the hold leaves it: no count of noise margin, as :meth:`_main_stays` keeps)
             limit = max(limit, self.main_deadband_rad)
+        if cfg.cold_climb and not self._demand_moved:
+            # (fine.cold_climb, task s33) not on the error the valve started with: a demand the hold has not been
+            # asked to reach is no step the main law left, and on the wrong-Δp grid (told the rated Δp at 0 Δp,
+            # friction x0.05-0.09 of the told) the climb's first kick on the start's 5.2e-4 rad error carried the
+            # valve along, and the main law's 2 % step from where it left it overshot 46 %
+            return False
         return (cfg.cold_start and self._breakaway_seen is None and not math.isinf(cfg.breakaway_fit)
                 and self._steady >= FRESH_WAIT * cfg.engage_periods
                 and abs(err) <= limit
@@ -1695,8 +1707,9 @@ class FinePositioner:
         its law truncated at the climb's floor).  ``phi_b`` / ``sigma``: the learned level (absolute twist, rad) and
         its scatter (rad) the policy would place its try on.  The try parks at the furthest twist the valve is proven
         to hold toward ``d`` -- the highest apex an unmoved try reached at this stop, the twist it rested at when the
-        stage engaged, or ``fine.doublet_sigmas`` scatters below the level of ``fine.cold_friction_min`` x the told
-        friction, whichever lies furthest -- less the smallest kick's rise, and kicks with the largest kick
+        stage engaged, or (``fine.cold_friction_min`` > 0) ``fine.doublet_sigmas`` scatters below the level of that
+        fraction of the told friction, whichever lies furthest -- less the smallest kick's rise, and kicks with the
+        largest kick
         (:meth:`_apex_kicks`).  Sets the kick, its rise and the observe servo's final twist.  Why: before any
         breakaway the valve's level is not known; the policy's first preload, placed below the *told* level, broke a
         valve of friction x0.5-0.8 loose while parked -- a whole stick-slip jump past a 1.5e-3 rad step (2.2-4.3e-3
@@ -1707,14 +1720,17 @@ class FinePositioner:
         cfg = self.cfg
         if self._moves is None:
             self._moves = _pulse_moves(self)
-        # the furthest twist proven to hold: the rest at engagement, the climb's floor, the least level assumed
-        m = self.m
-        least = cfg.cold_friction_min * m.friction(pressure_kpa).valve_static_nm / m.coupling_stiffness_nm_per_rad
-        proven = self._load_twist(thl, pressure_kpa) + d * (least - cfg.doublet_sigmas * sigma)
+        # the furthest twist proven to hold: the rest at engagement, the climb's floor, the least level assumed (if
+        # any: with none, the load's twist less the margin is no proof -- under a load the controller was not told,
+        # full box 3010's first park went 9.5e-3 rad of twist from the rest toward it)
+        proven = self._phi0
         fl = self._floor(d)
-        for twist in (self._phi0, None if fl is None else fl[1]):
-            if twist is not None and d * (twist - proven) > 0.0:
-                proven = twist
+        if fl is not None and d * (fl[1] - proven) > 0.0:
+            proven = fl[1]
+        if cfg.cold_friction_min > 0.0:
+            m = self.m
+            least = cfg.cold_friction_min * m.friction(pressure_kpa).valve_static_nm / m.coupling_stiffness_nm_per_rad
+            proven = d * max(d * proven, d * (self._load_twist(thl, pressure_kpa) + d * (least - cfg.doublet_sigmas * sigma)))
         kicks = self._apex_kicks()
         step = APEX_DP_STEP * self.m.pressure_max_kpa
         rises = self._moves.rises(d, round(pressure_kpa / step) * step, kicks, valve_angle_rad=thl)

@@ -543,8 +543,9 @@ CONTROLLER_SPEC = ParamSpec("controller", [
     Param("fine.cold_climb", False, "", "with fine.cold_start and fine.apex_policy: a cold try parks at the furthest "
           "twist the valve is proven to hold (the last unmoved apex, else its rest twist) and kicks with the largest "
           "kick, until the next apex would enter the told level's region (fine.doublet_sigmas prior scatters below "
-          "it), where the policy takes over: a valve of less friction than told is crossed in a kick, not in a park "
-          "(task s33, docs section 116)", runtime=True),
+          "it), where the policy takes over: a valve of less friction than told is crossed in a kick, not in a park; "
+          "its trough and final twist sized for the level proven; cold only once the demand has changed since the "
+          "start, on any error inside the main law's deadband (task s33, docs section 116)", runtime=True),
     Param("fine.cold_friction_min", 0.0, "", "fine.cold_climb: the least valve friction (x the told static level) "
           "assumed before any breakaway: the climb's first preload lies fine.doublet_sigmas prior scatters below that "
           "level and its retreat's trough above the other way's (0: none -- the climb starts from the twist the valve "
