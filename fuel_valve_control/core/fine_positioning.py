@@ -1709,14 +1709,14 @@ class FinePositioner:
         to hold toward ``d`` -- the highest apex an unmoved try reached at this stop, the twist it rested at when the
         stage engaged, or (``fine.cold_friction_min`` > 0) ``fine.doublet_sigmas`` scatters below the level of that
         fraction of the told friction, whichever lies furthest -- less the smallest kick's rise, and kicks with the
-        largest kick
-        (:meth:`_apex_kicks`).  Sets the kick, its rise and the observe servo's final twist.  Why: before any
-        breakaway the valve's level is not known; the policy's first preload, placed below the *told* level, broke a
-        valve of friction x0.5-0.8 loose while parked -- a whole stick-slip jump past a 1.5e-3 rad step (2.2-4.3e-3
-        rad off, docs §114.9).  A level on the climb is crossed in a kick, at most one climb step of overdrive
-        (1.26e-3 rad of twist with 16 A at the rated Δp), and the retreat after it cuts the move short.  Once the
-        next apex would enter the told level's region (``fine.doublet_sigmas`` learned -- here prior -- scatters
-        below it) the policy takes over."""
+        largest kick (:meth:`_apex_kicks`).  Sets the kick, its rise and the observe servo's final twist.
+
+        Why: before any breakaway the valve's level is not known; the policy's first preload, placed below the
+        *told* level, broke a valve of friction x0.5-0.8 loose while parked -- a whole stick-slip jump past a 1.5e-3
+        rad step (2.2-4.3e-3 rad off, docs §114.9).  A level on the climb is crossed in a kick, at most one climb step
+        of overdrive (1.26e-3 rad of twist with 16 A at the rated Δp), and the retreat after it cuts the move short.
+        Once the next apex would enter the told level's region (``fine.doublet_sigmas`` learned -- here prior --
+        scatters below it) the policy takes over."""
         cfg = self.cfg
         if self._moves is None:
             self._moves = _pulse_moves(self)
@@ -1728,9 +1728,10 @@ class FinePositioner:
         if fl is not None and d * (fl[1] - proven) > 0.0:
             proven = fl[1]
         if cfg.cold_friction_min > 0.0:
-            m = self.m
-            least = cfg.cold_friction_min * m.friction(pressure_kpa).valve_static_nm / m.coupling_stiffness_nm_per_rad
-            proven = d * max(d * proven, d * (self._load_twist(thl, pressure_kpa) + d * (least - cfg.doublet_sigmas * sigma)))
+            assumed = self._load_twist(thl, pressure_kpa) + d * (self._cold_least_rad(pressure_kpa)
+                                                                 - cfg.doublet_sigmas * sigma)
+            if d * (assumed - proven) > 0.0:
+                proven = assumed
         kicks = self._apex_kicks()
         step = APEX_DP_STEP * self.m.pressure_max_kpa
         rises = self._moves.rises(d, round(pressure_kpa / step) * step, kicks, valve_angle_rad=thl)
@@ -1745,9 +1746,9 @@ class FinePositioner:
         # the told valve's; a valve that lets go at the climb's apex has the levels of friction x (apex - e) K / T_s,
         # and held at the told centre it slid on (x0.6: 6.9e-3 rad for a 1.5e-3 rad step) -- its own centre is the
         # told T_c / T_s of the way to the apex
-        fl = self.m.friction(pressure_kpa)
+        fr = self.m.friction(pressure_kpa)
         e = self._load_twist(thl, pressure_kpa)
-        ratio = fl.valve_coulomb_nm / fl.valve_static_nm if fl.valve_static_nm > 0.0 else 1.0
+        ratio = fr.valve_coulomb_nm / fr.valve_static_nm if fr.valve_static_nm > 0.0 else 1.0
         self._final = e + ratio * (apex - e) + (self._target - thl) / 2.0
         self.cold_climbs += 1
         return apex
@@ -1761,11 +1762,14 @@ class FinePositioner:
         """(``fine.cold_climb``) The least static twist T_s/K (rad) the valve is known to have before any breakaway:
         ``fine.cold_friction_min`` x the told, or more where the twist it rested at (its distance from the load's
         twist) or the climb's floor toward ``d`` shows it."""
-        m = self.m
         e = self._load_twist(thl, pressure_kpa)
-        least = self.cfg.cold_friction_min * m.friction(pressure_kpa).valve_static_nm / m.coupling_stiffness_nm_per_rad
         fl = self._floor(d)
-        return max(least, abs(self._phi0 - e), 0.0 if fl is None else d * (fl[1] - e))
+        return max(self._cold_least_rad(pressure_kpa), abs(self._phi0 - e), 0.0 if fl is None else d * (fl[1] - e))
+
+    def _cold_least_rad(self, pressure_kpa: float) -> float:
+        """(``fine.cold_climb``) ``fine.cold_friction_min`` x the told static twist T_s(Δp)/K, rad."""
+        m = self.m
+        return self.cfg.cold_friction_min * m.friction(pressure_kpa).valve_static_nm / m.coupling_stiffness_nm_per_rad
 
     def run_pending(self) -> bool:
         """(``fine.apex_choice_after_command``, task h39n, docs §103) Finish the try whose start an observe's verdict
