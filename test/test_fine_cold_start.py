@@ -13,19 +13,14 @@ from first_step import first_step
 from fuel_valve_control.common.contract import PRESSURE_MAX_KPA
 
 
-def _first_step(step_rad: float, friction_scale: float = 1.0, **controller):
-    """(plateau results, the run's log) of a first step from rest at max Δp (:func:`first_step.first_step`)."""
-    return first_step(step_rad, friction_scale, **controller)
-
-
 @pytest.mark.parametrize("direction", [1, -1])
 def test_a_cold_stage_ends_a_first_step_too_small_for_the_main_law(direction):
     step = direction * 1.5e-3
     # without it (as on main): the main law's hold never moves the valve for a step inside its
     # deadband, and the stage waits for a breakaway that never comes
-    plateaus, _ = _first_step(step, **{"fine.cold_start": False})
+    plateaus, _ = first_step(step, **{"fine.cold_start": False})
     assert plateaus[-1]["final_error_rad"] > 1.0e-3
-    plateaus, log = _first_step(step, **{"fine.cold_start": True})
+    plateaus, log = first_step(step, **{"fine.cold_start": True})
     assert plateaus[-1]["final_error_rad"] <= 5e-4, plateaus[-1]
     assert not plateaus[-1]["hunts"]
     # ... by its own doublets: the valve never went a whole stick-slip jump (4.6e-3 rad) past the
@@ -42,7 +37,7 @@ def test_a_cold_stage_on_a_low_friction_valve_jumps_across_the_target_without_hu
     is known only to lie above the twist at rest; what the drive knows at rest does not tell a x0.6
     valve from a nominal one).  The stage then hands the plateau back (any breakaway in a cold
     preload: full box seed 1032 hunted when a second preload broke it back), and it does not hunt."""
-    plateaus, log = _first_step(direction * 1.5e-3, friction_scale=0.6, **{"fine.cold_start": True})
+    plateaus, log = first_step(direction * 1.5e-3, friction_scale=0.6, **{"fine.cold_start": True})
     t, target, valve = log[:, 0], log[:, 1], log[:, 2]
     after = t >= 0.3
     assert np.max(direction * (valve[after] - target[after])) > 2e-3     # the cold preload's jump
@@ -84,7 +79,7 @@ def test_the_band_gated_cold_stage_does_not_jump_a_low_friction_valve_across_its
     (:func:`test_a_cold_stage_on_a_low_friction_valve_jumps_across_the_target_without_hunting`): with the
     band gate the hold has measured no band before the step, so the stage waits as on main (the step is
     left to the main law: 1.5e-3 rad off, never past the target)."""
-    plateaus, log = _first_step(1.5e-3, friction_scale=0.6, **{"fine.cold_start": True, "fine.cold_band_gate": True})
+    plateaus, log = first_step(1.5e-3, friction_scale=0.6, **{"fine.cold_start": True, "fine.cold_band_gate": True})
     t, target, valve = log[:, 0], log[:, 1], log[:, 2]
     after = t >= 0.3
     assert np.max(valve[after] - target[after]) < 5e-4

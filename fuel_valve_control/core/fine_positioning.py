@@ -865,7 +865,6 @@ class FinePositioner:
         self._moves = None                 # fine.apex_policy: the doublet's move model (built when first needed)
         self.apex_choices = 0              # fine.apex_policy: the tries chosen (:meth:`_choose_apex` calls), a count
         self.apex_choices_after_command = 0  # ... of them run after their period's command (:meth:`run_pending`)
-        self.cold_climbs = 0               # fine.cold_climb: the cold tries parked at a proven twist (a count)
         self.retreat_plans_after_command = 0  # doublet retreats planned after their kick's command (run_pending)
         self._pushes = {}                  # fine.probe_reached: {(direction, Δp band): rad of twist (>= 0, toward the
                                            # move) a servo-blended pulse's planned peak lies beyond the learned level's}
@@ -1455,6 +1454,8 @@ class FinePositioner:
         doublets are made while cold (their moves at ~0 overdrive are the smallest the stage
         makes, and their staircase starts below the nominal breakaway)."""
         cfg = self.cfg
+        if not cfg.cold_start:
+            return False
         limit = 0.5 * self.m.friction(pressure_kpa).stick_slip_jump_rad(self.m.coupling_stiffness_nm_per_rad)
         if cfg.cold_climb and self.main_deadband_rad is not None:
             # (fine.cold_climb, task s33) any error the main law's hold leaves alone: its deadband (0.55 of the
@@ -1467,7 +1468,7 @@ class FinePositioner:
             # friction x0.05-0.09 of the told) the climb's first kick on the start's 5.2e-4 rad error carried the
             # valve along, and the main law's 2 % step from where it left it overshot 46 %
             return False
-        return (cfg.cold_start and self._breakaway_seen is None and not math.isinf(cfg.breakaway_fit)
+        return (self._breakaway_seen is None and not math.isinf(cfg.breakaway_fit)
                 and self._steady >= FRESH_WAIT * cfg.engage_periods
                 and abs(err) <= limit
                 and (not cfg.cold_band_gate or self._cold_band_fits(pressure_kpa)))
@@ -1673,7 +1674,8 @@ class FinePositioner:
         # (fine.cold_climb) before any breakaway, a climb from the twist proven to hold while below the told level
         climb = None
         if self._cold and cfg.cold_climb:
-            climb = self._cold_climb(d, choice[3], choice[4], choice[5], choice[7])
+            _, _, _, phi_b, sigma, pressure_kpa, _, valve = choice
+            climb = self._cold_climb(d, phi_b, sigma, pressure_kpa, valve)
         apex = climb if climb is not None else self._choose_apex(*choice)
         if apex is None:
             # no try more likely to land than the policy's floor, or more likely to worsen |e|: hold here
@@ -1750,7 +1752,6 @@ class FinePositioner:
         e = self._load_twist(thl, pressure_kpa)
         ratio = fr.valve_coulomb_nm / fr.valve_static_nm if fr.valve_static_nm > 0.0 else 1.0
         self._final = e + ratio * (apex - e) + (self._target - thl) / 2.0
-        self.cold_climbs += 1
         return apex
 
     def _load_twist(self, thl: float, pressure_kpa: float) -> float:
