@@ -125,3 +125,23 @@ def test_no_cold_climb_on_the_error_the_valve_started_with(grid):
     for key in ("overshoot_pct", "final_error_rad", "tail_pp_rad", "peak_current_a"):
         assert on[key] == off[key], key
     assert on["overshoot_pct"] < 5.0
+
+
+def test_no_cold_engagement_on_a_valve_the_hold_moved_this_plateau(robustness_bench):
+    """``fine.cold_still`` (task s34, docs §117), full box seed 3025 (LuGre friction x2.9, an untold 9.3 N*m load, Δp
+    read 9 % low): the run's first step (-3.1e-3 rad) lies beyond the main law's deadband, its hold creeps the valve
+    0.8e-3 rad toward the target with no slip the stage reads as a breakaway, and the valve rests at the edge of its
+    band.  Climbing from that rest, the first kick let it go a whole jump of this friction: 1.5e-2 rad across.  With
+    the gate the cold start leaves a valve that moved on this plateau to the main law: the plateau ends as the
+    default's."""
+    case = robustness_bench.sample_case(3025, "full")
+
+    def first(sets):
+        return robustness_bench.run_case((case, None, sets))["plateaus"][0]
+
+    base = first({})
+    assert 1.5e-3 < base["final_error_rad"] < 3e-3                 # the main law's: inside its deadband
+    thrown = first({**CLIMB, "fine.cold_still": False})
+    assert thrown["final_error_rad"] > 1e-2 and thrown["overshoot_pct"] > 100.0
+    gated = first(CLIMB)
+    assert gated["final_error_rad"] == base["final_error_rad"] and gated["overshoot_pct"] == base["overshoot_pct"]

@@ -63,11 +63,12 @@ def test_the_band_gate_lets_a_cold_stage_engage_only_on_a_static_band_the_hold_m
     p = PRESSURE_MAX_KPA
     ts = m.friction(p).valve_static_nm
     fine._steady = 10 ** 6                      # the demand held long enough; no breakaway seen yet
+    fine._plateau_valve = 0.3                   # the valve still where this plateau's demand found it
     err = 1.5e-3                                # inside half the nominal jump
     verdicts = {}
     for band in (None, 0.6 * ts, ts, 1.1 * ts, 2.77 * ts):
         fine.hold_static_nm = band
-        verdicts[band] = fine._cold_ready(err, p)
+        verdicts[band] = fine._cold_ready(err, 0.3, p)
     if not gate:
         assert all(verdicts.values())           # ungated: the cold start ignores the band
     else:

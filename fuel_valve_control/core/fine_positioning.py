@@ -682,6 +682,7 @@ class FineConfig:
                                   # first doublets (:meth:`FinePositioner._cold_ready`)
     cold_climb: bool = False      # while cold, climb from the twist proven to hold with the largest kick (s33)
     cold_friction_min: float = 0.0  # fine.cold_climb: the least friction (x the told) assumed before any breakaway
+    cold_still: bool = True       # a cold engagement only on a valve still since its plateau's demand arrived (s34)
     cold_band_gate: bool = False  # a cold engagement also needs the main law's hold to have measured the static
                                   # band (both slip edges) within breakaway_fit of the nominal T_s (h30c)
     learn_kick_rise: bool = False  # doublet: plan each preload against the kick's rise learned from the stage's
@@ -961,6 +962,7 @@ class FinePositioner:
             self._demand_moved = False
         self._last_target = None
         self._fresh = False
+        self._plateau_valve = None    # (fine.cold_still) the valve angle when this plateau's demand arrived, rad
         self._plateau = None          # the demand this plateau started with (shifts within the tolerance
                                       # -- a conditioned noisy demand -- are the same plateau)
         self._steady = 0
@@ -1110,6 +1112,7 @@ class FinePositioner:
             return None
         if new_plateau:
             self._plateau = target
+            self._plateau_valve = thl     # (fine.cold_still) where the valve was when this demand arrived
             self._new_plateau()
             self._fresh = False           # no breakaway seen on this plateau yet
         self._count_reversals(thl)
@@ -1127,7 +1130,7 @@ class FinePositioner:
                     or self._near_rating(thl, pressure_kpa, 1 if err > 0 else -1) \
                     or self._gear_unwinding(err, w1):
                 return None
-            cold = self._cold_ready(err, pressure_kpa)
+            cold = self._cold_ready(err, thl, pressure_kpa)
             early = not cold and not math.isinf(cfg.breakaway_fit) and (self._breakaway_seen is None or (
                 not self._fresh and self._steady < FRESH_WAIT * cfg.engage_periods))
             if early and (self._breakaway_seen is None or not self._main_stays(err)):
@@ -1438,7 +1441,7 @@ class FinePositioner:
         amps = abs(m.coupling_stiffness_nm_per_rad * phi_b) / (m.gear_ratio * m.torque_constant_nm_per_a)
         return amps > SCALE_HOLD_FRACTION * self.cfg.continuous_current_a
 
-    def _cold_ready(self, err: float, pressure_kpa: float) -> bool:
+    def _cold_ready(self, err: float, thl: float, pressure_kpa: float) -> bool:
         """Whether to engage *cold*: no breakaway seen yet this run (the run's first steps, too
         small for the main law's hold to move the valve: 10 + 4 of the nominal box's plateaus >
         8e-4 rad on seeds 1000-1039 / 2000-2039 waited for one, 1.1-2.4e-3 off; task h21c), the
@@ -1467,6 +1470,12 @@ class FinePositioner:
             # asked to reach is no step the main law left, and on the wrong-Δp grid (told the rated Δp at 0 Δp,
             # friction x0.05-0.09 of the told) the climb's first kick on the start's 5.2e-4 rad error carried the
             # valve along, and the main law's 2 % step from where it left it overshot 46 %
+            return False
+        if cfg.cold_still and (self._plateau_valve is None or abs(thl - self._plateau_valve) > cfg.tolerance_rad):
+            # (fine.cold_still, task s34, docs §117) the valve moved on this plateau: the main law's hold carried it
+            # toward the target (a creep below any slip the stage reads as a breakaway: LuGre friction) and it rests at
+            # the edge of its band, not inside it -- the rest twist is no proof of a margin, and the climb's first kick
+            # from it threw full box 3025 (LuGre x2.9, an untold 9.3 N*m load) 1.5e-2 rad across a 3.1e-3 rad step
             return False
         return (self._breakaway_seen is None and not math.isinf(cfg.breakaway_fit)
                 and self._steady >= FRESH_WAIT * cfg.engage_periods

@@ -551,6 +551,11 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "level and its retreat's trough above the other way's (0: none -- the climb starts from the twist the valve "
           "rests at; at 0.5, the issue's lowest friction, a valve told the rated dp at 0 dp (x0.09) broke loose in "
           "the first park: docs section 116)", 0.0, 1.0, runtime=True),
+    Param("fine.cold_still", True, "", "with fine.cold_start: a cold engagement needs the valve still where it was "
+          "when this plateau's demand arrived (within fine.tolerance_counts): the cold class is a first step the main "
+          "law left unmoved; a valve the hold moved toward the target (creep, LuGre friction) rests at the edge of its "
+          "band, and the climb from that rest threw full box 3025 (friction x2.9, untold load) 1.5e-2 rad across "
+          "(task s34, docs section 117)", runtime=True),
     Param("fine.min_jump_rad", 1.0e-3, "rad", "the stage engages only where the nominal stick-slip jump "
           "2 (T_s - T_c(dp)) / K at the dp scheduled is at least this: below it (dp < ~15 % of max) the doublet's "
           "smallest move exceeds the valve's whole jump (bare plant: 0.77e-3 / 2.2e-3 / 1.4e-3 rad at 0 / 5 / 10 % "

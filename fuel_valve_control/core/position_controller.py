@@ -327,6 +327,7 @@ class PositionController:
                           retreat_full_periods=ps["fine.retreat_full_periods"],
                           cold_start=ps["fine.cold_start"], cold_band_gate=ps["fine.cold_band_gate"],
                           cold_climb=ps["fine.cold_climb"], cold_friction_min=ps["fine.cold_friction_min"],
+                          cold_still=ps["fine.cold_still"],
                           learn_kick_rise=ps["fine.learn_kick_rise"],
                           drop_rest_at_engage=ps["fine.drop_rest_at_engage"],
                           restair_sigmas=ps["fine.restair_sigmas"],
