@@ -14,7 +14,7 @@ from first_step import first_step
 from fuel_valve_control.core import fine_positioning as fp
 from fuel_valve_control.core.params import CONTROLLER_SPEC
 
-COLD = {"fine.cold_start": True}
+COLD = {"fine.cold_start": True, "fine.cold_climb": False}      # the cold start without the climb
 CLIMB = {"fine.cold_start": True, "fine.cold_climb": True}
 
 
@@ -25,11 +25,15 @@ def _across(log, direction: int) -> float:
     return float(np.max(direction * (valve[after] - target[after])))
 
 
-def test_the_climb_is_off_by_default_and_does_nothing_without_the_cold_start():
-    assert CONTROLLER_SPEC.defaults()["fine.cold_climb"] is False
-    _, base = first_step(1.5e-3, 0.6)
-    _, climb_only = first_step(1.5e-3, 0.6, **{"fine.cold_climb": True})
+def test_the_climb_is_on_by_default_and_does_nothing_without_the_cold_start():
+    defaults = CONTROLLER_SPEC.defaults()
+    assert defaults["fine.cold_start"] is True and defaults["fine.cold_climb"] is True    # since stop 34 (§117)
+    _, base = first_step(1.5e-3, 0.6, **{"fine.cold_start": False, "fine.cold_climb": False})
+    _, climb_only = first_step(1.5e-3, 0.6, **{"fine.cold_start": False})
     assert np.array_equal(base, climb_only)
+    _, default = first_step(1.5e-3, 0.6)
+    _, climb = first_step(1.5e-3, 0.6, **CLIMB)
+    assert np.array_equal(default, climb) and not np.array_equal(default, base)
 
 
 @pytest.mark.parametrize("direction", [1, -1])

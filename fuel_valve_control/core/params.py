@@ -527,25 +527,26 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "a doublet staircase whose first apex lies this many learned rms scatters of the breakaway twist below the "
           "preload twist the last one broke at, instead of handing the plateau back to the main law; a third hands it "
           "back (0 = hand back at the second; task h30b, docs §66)", 0.0, 10.0, runtime=True),
-    Param("fine.cold_start", False, "", "the stage engages before any breakaway has been seen (a run's first "
+    Param("fine.cold_start", True, "", "the stage engages before any breakaway has been seen (a run's first "
           "steps too small for the main law's hold to move the valve): after FRESH_WAIT engage times at rest with "
-          "the twist at rest inside the nominal static band, it judges the valve by its own first doublets (a "
-          "staircase from fine.doublet_margin below the nominal breakaway) and hands back when the first "
-          "breakaway they find lies beyond fine.breakaway_fit x T_s/K of nominal.  Off: on, nominal plateaus > "
-          "8e-4 rad 150 -> 88 of 3360, but a valve with friction x0.5-0.8 of the told is thrown a whole jump across "
-          "its first small step (1.5e-3 rad step: 2.2-4.3e-3 off instead of 1.5e-3; docs section 114.9)",
+          "the twist at rest inside the nominal static band, it judges the valve by its own first doublets and "
+          "hands back when the first breakaway they find lies beyond fine.breakaway_fit x T_s/K of nominal.  On "
+          "since stop 34 with fine.cold_climb and fine.cold_still (docs section 117: nominal plateaus > 8e-4 rad "
+          "56 -> 36 of 1440); alone (without the climb) it throws a valve with friction x0.5-0.8 of the told a whole "
+          "jump across its first small step (1.5e-3 rad step: 2.2-4.3e-3 off; docs section 114.9)",
           runtime=True),
     Param("fine.cold_band_gate", False, "", "with fine.cold_start: a cold engagement also needs the main law's hold "
           "to have met both slip edges of the static band, half their difference within fine.breakaway_fit x T_s of "
           "the told static friction (a valve of about the told friction: the cold staircase neither breaks a "
           "low-friction valve loose in its first preload nor climbs toward a far higher level); no band measured, no "
           "cold engagement (task h30c, docs §67)", runtime=True),
-    Param("fine.cold_climb", False, "", "with fine.cold_start and fine.apex_policy: a cold try parks at the furthest "
+    Param("fine.cold_climb", True, "", "with fine.cold_start and fine.apex_policy: a cold try parks at the furthest "
           "twist the valve is proven to hold (the last unmoved apex, else its rest twist) and kicks with the largest "
           "kick, until the next apex would enter the told level's region (fine.doublet_sigmas prior scatters below "
           "it), where the policy takes over: a valve of less friction than told is crossed in a kick, not in a park; "
           "its trough and final twist sized for the level proven; cold only once the demand has changed since the "
-          "start, on any error inside the main law's deadband (task s33, docs section 116)", runtime=True),
+          "start, on any error inside the main law's deadband (task s33, docs section 116; on since stop 34, section "
+          "117)", runtime=True),
     Param("fine.cold_friction_min", 0.0, "", "fine.cold_climb: the least valve friction (x the told static level) "
           "assumed before any breakaway: the climb's first preload lies fine.doublet_sigmas prior scatters below that "
           "level and its retreat's trough above the other way's (0: none -- the climb starts from the twist the valve "
