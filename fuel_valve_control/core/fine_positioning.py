@@ -683,6 +683,8 @@ class FineConfig:
     cold_climb: bool = False      # while cold, climb from the twist proven to hold with the largest kick (s33)
     cold_friction_min: float = 0.0  # fine.cold_climb: the least friction (x the told) assumed before any breakaway
     cold_still: bool = True       # a cold engagement only on a valve still since its plateau's demand arrived (s34)
+    servo_margin_rad: float = 0.0  # the servo's least phase margin with the resolver delay, rad (0: not checked; s34)
+    resolver_delay_s: float = 0.0  # the measured resolver delay (s) the servo's margin counts (servo_margin_rad)
     cold_band_gate: bool = False  # a cold engagement also needs the main law's hold to have measured the static
                                   # band (both slip edges) within breakaway_fit of the nominal T_s (h30c)
     learn_kick_rise: bool = False  # doublet: plan each preload against the kick's rise learned from the stage's
@@ -854,14 +856,27 @@ class FinePositioner:
         self.m0 = model                    # the told model (self.m: the one the stage plans from)
         self.forget_scale()
         self._last_engage = None
-        w = 2.0 * math.pi * cfg.servo_hz
         j1 = model.j1
-        self.kp = j1 * w * w               # N*m/rad at the gear output
-        self.kd = 2.0 * 0.8 * w * j1       # N*m*s/rad
-        if cfg.servo_mode_ref_rad_s > 0.0:
-            self.kp = self.coupling_capped_kp(self.kp, j1, model.coupling_stiffness_nm_per_rad, w,
-                                              cfg.servo_mode_ref_rad_s)
-        self.ki = self.kp * w / 8.0        # slow integral: removes the feed-forward's error
+        w = 2.0 * math.pi * cfg.servo_hz
+        self.kp, self.kd, self.ki = self._servo_gains(model, w)
+        if cfg.servo_margin_rad > 0.0 and cfg.resolver_delay_s > 0.0 and \
+                self.servo_margin_rad(j1, self.kp, self.kd, period_s + cfg.resolver_delay_s) < cfg.servo_margin_rad:
+            # (fine.servo_margin_deg, task s34, docs §118) the gear output is read resolver_delay_s late, a lag the
+            # period's alone does not hold: at 0.6-0.9 ms the 60 Hz servo's margin falls from 31 to 11-0 deg and the
+            # observe / hold servos rattled at +-30 A, ~125 Hz (full box 1032: the landed valve broken loose backwards).
+            # The bandwidth is lowered until the margin with the delay is the one asked for (bisection on w; the
+            # margin falls with w)
+            lo, hi = 0.0, w
+            for _ in range(40):
+                mid = 0.5 * (lo + hi)
+                kp, kd, _ = self._servo_gains(model, mid)
+                if self.servo_margin_rad(j1, kp, kd, period_s + cfg.resolver_delay_s) >= cfg.servo_margin_rad:
+                    lo = mid
+                else:
+                    hi = mid
+            w = max(lo, 1e-3)
+            self.kp, self.kd, self.ki = self._servo_gains(model, w)
+        self.servo_w = w                   # rad/s: the servo's design bandwidth
         self.timeable = self.servo_margin_rad(j1, self.kp, self.kd, period_s) > 0.0
         self._moves = None                 # fine.apex_policy: the doublet's move model (built when first needed)
         self.apex_choices = 0              # fine.apex_policy: the tries chosen (:meth:`_choose_apex` calls), a count
@@ -886,6 +901,17 @@ class FinePositioner:
         self.main_deadband_rad = None  # the main law's integrator deadband in force (rad; set by the law each period;
                                        # None: its hold may move the valve inside it -- a probe), fine.engage_inside_deadband
         self.reset()
+
+    def _servo_gains(self, model: NominalModel, w: float) -> tuple[float, float, float]:
+        """The gear-output servo's ``(kp, kd, ki)`` (N*m/rad, N*m*s/rad, N*m/(rad*s) at the gear output) for the
+        bandwidth ``w`` (rad/s): PD on the gear output's inertia J1 at damping 0.8 (``fine.servo_coupling_cap`` caps
+        kp on a stiffer coupling), the integral slow (w/8) to remove the feed-forward's error."""
+        j1 = model.j1
+        kp = j1 * w * w
+        kd = 2.0 * 0.8 * w * j1
+        if self.cfg.servo_mode_ref_rad_s > 0.0:
+            kp = self.coupling_capped_kp(kp, j1, model.coupling_stiffness_nm_per_rad, w, self.cfg.servo_mode_ref_rad_s)
+        return kp, kd, kp * w / 8.0
 
     @staticmethod
     def coupling_capped_kp(kp: float, j1: float, stiffness: float, w: float, ref_mode: float) -> float:

@@ -372,6 +372,10 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           runtime=True),
     Param("fine.servo_hz", 60.0, "Hz", "bandwidth of the stiff gear-output hold on the motor resolver",
           1.0, 200.0),
+    Param("fine.servo_margin_deg", 0.0, "deg", "the gear-output servo's least phase margin counting the measured "
+          "resolver_delay_s beside the loop period: where fine.servo_hz's gives less, its bandwidth is lowered until "
+          "the margin is this (0: the delay not counted; the 60 Hz servo has 33 deg at 1 kHz with no delay, 11 deg at "
+          "0.6 ms and none at 0.9 ms, where it rattled at +-30 A: task s34, docs section 118)", 0.0, 80.0),
     Param("fine.max_move_rad", 0.02, "rad", "errors larger than this are left to the main law", 1e-4, 1.0,
           runtime=True),
     Param("fine.peak_current_a", 30.0, "A", "the fine stage's torque is capped at this current (its pulses "

@@ -328,6 +328,8 @@ class PositionController:
                           cold_start=ps["fine.cold_start"], cold_band_gate=ps["fine.cold_band_gate"],
                           cold_climb=ps["fine.cold_climb"], cold_friction_min=ps["fine.cold_friction_min"],
                           cold_still=ps["fine.cold_still"],
+                          servo_margin_rad=math.radians(ps["fine.servo_margin_deg"]),
+                          resolver_delay_s=ps["resolver_delay_s"],
                           learn_kick_rise=ps["fine.learn_kick_rise"],
                           drop_rest_at_engage=ps["fine.drop_rest_at_engage"],
                           restair_sigmas=ps["fine.restair_sigmas"],
