@@ -149,3 +149,22 @@ def test_no_cold_engagement_on_a_valve_the_hold_moved_this_plateau(robustness_be
     assert thrown["final_error_rad"] > 1e-2 and thrown["overshoot_pct"] > 100.0
     gated = first(CLIMB)
     assert gated["final_error_rad"] == base["final_error_rad"] and gated["overshoot_pct"] == base["overshoot_pct"]
+
+
+def test_no_cold_engagement_while_the_policy_waits_for_its_move_tables():
+    """A ROS node's stage runs main's staircase, the policy off, until its move tables are built (task h36b,
+    ``FinePositioner.defer_tables``).  The climb is the policy's: a cold engagement then would be the staircase's cold
+    start, which throws a valve of less friction than told a whole jump across its first step (docs §114.9) -- none
+    is made until the policy is back."""
+    from dataclasses import replace
+
+    from fuel_valve_control.common.contract import PRESSURE_MAX_KPA
+    from fuel_valve_control.core.position_controller import PositionController
+    pc = PositionController(CONTROLLER_SPEC.defaults().replace({"mode": "observer_fp"}))
+    fine = pc.law.fine
+    fine._steady = 10 ** 6                      # the demand held long enough, changed since the start
+    fine._demand_moved = True
+    fine._plateau_valve = 0.3                   # the valve still where this plateau's demand found it
+    assert fine._cold_ready(1.5e-3, 0.3, PRESSURE_MAX_KPA)
+    fine.cfg = replace(fine.cfg, **dict.fromkeys(fp.APEX_BUILD_OFF, False))    # what defer_tables' gate sets
+    assert not fine._cold_ready(1.5e-3, 0.3, PRESSURE_MAX_KPA)

@@ -1491,6 +1491,12 @@ class FinePositioner:
             # jump) lies above half the jump, and first plateaus of 2.3-2.5e-3 rad stayed unmoved between the two (the
             # wait at rest has shown the hold leaves it: no count of noise margin, as :meth:`_main_stays` keeps)
             limit = max(limit, self.main_deadband_rad)
+        if cfg.cold_climb and not cfg.apex_policy:
+            # (fine.cold_climb, task s34) the climb is the policy's (its kicks' rises come from the move tables): where
+            # the policy is off -- a ROS node's stage on main's staircase until its move tables are built (task h36b) --
+            # a cold engagement would be the staircase's cold start, which throws a valve of less friction than told a
+            # whole jump across its first small step (docs §114.9); none then
+            return False
         if cfg.cold_climb and not self._demand_moved:
             # (fine.cold_climb, task s33) not on the error the valve started with: a demand the hold has not been
             # asked to reach is no step the main law left, and on the wrong-Δp grid (told the rated Δp at 0 Δp,
