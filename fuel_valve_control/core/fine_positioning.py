@@ -861,20 +861,7 @@ class FinePositioner:
         self.kp, self.kd, self.ki = self._servo_gains(model, w)
         if cfg.servo_margin_rad > 0.0 and cfg.resolver_delay_s > 0.0 and \
                 self.servo_margin_rad(j1, self.kp, self.kd, period_s + cfg.resolver_delay_s) < cfg.servo_margin_rad:
-            # (fine.servo_margin_deg, task s34, docs §118) the gear output is read resolver_delay_s late, a lag the
-            # period's alone does not hold: at 0.6-0.9 ms the 60 Hz servo's margin falls from 31 to 11-0 deg and the
-            # observe / hold servos rattled at +-30 A, ~125 Hz (full box 1032: the landed valve broken loose backwards).
-            # The bandwidth is lowered until the margin with the delay is the one asked for (bisection on w; the
-            # margin falls with w)
-            lo, hi = 0.0, w
-            for _ in range(40):
-                mid = 0.5 * (lo + hi)
-                kp, kd, _ = self._servo_gains(model, mid)
-                if self.servo_margin_rad(j1, kp, kd, period_s + cfg.resolver_delay_s) >= cfg.servo_margin_rad:
-                    lo = mid
-                else:
-                    hi = mid
-            w = max(lo, 1e-3)
+            w = self._delay_limited_bandwidth(model, w, period_s + cfg.resolver_delay_s)
             self.kp, self.kd, self.ki = self._servo_gains(model, w)
         self.servo_w = w                   # rad/s: the servo's design bandwidth
         self.timeable = self.servo_margin_rad(j1, self.kp, self.kd, period_s) > 0.0
@@ -912,6 +899,22 @@ class FinePositioner:
         if self.cfg.servo_mode_ref_rad_s > 0.0:
             kp = self.coupling_capped_kp(kp, j1, model.coupling_stiffness_nm_per_rad, w, self.cfg.servo_mode_ref_rad_s)
         return kp, kd, kp * w / 8.0
+
+    def _delay_limited_bandwidth(self, model: NominalModel, w: float, lag_s: float) -> float:
+        """(``fine.servo_margin_deg``, task s34, docs §118) The servo bandwidth (rad/s, at most ``w``) whose phase
+        margin with the loop's lag ``lag_s`` (s: the period and the measured resolver delay) is ``servo_margin_rad``.
+        The gear output is read resolver_delay_s late, a lag the period's alone does not hold: at 0.6-0.9 ms the 60 Hz
+        servo's margin falls from 31 to 11-0 deg and the observe / hold servos rattled at +-30 A, ~125 Hz (full box
+        1032: the landed valve broken loose backwards).  Bisection on w (the margin falls as w grows)."""
+        lo, hi = 0.0, w
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            kp, kd, _ = self._servo_gains(model, mid)
+            if self.servo_margin_rad(model.j1, kp, kd, lag_s) >= self.cfg.servo_margin_rad:
+                lo = mid
+            else:
+                hi = mid
+        return max(lo, 1e-3)
 
     @staticmethod
     def coupling_capped_kp(kp: float, j1: float, stiffness: float, w: float, ref_mode: float) -> float:
@@ -1476,7 +1479,9 @@ class FinePositioner:
         so the main law's hold leaves such an error alone -- its integrator's deadband is 0.55 of
         the jump; a larger one it ramps through within ~0.1 s, and a cold engagement that cut into
         that ramp left first plateaus 1-4e-3 off that the main law had finished), and
-        ``fine.cold_start`` on.
+        ``fine.cold_start`` on.  ``thl`` (rad): the valve angle now, against where this plateau's demand found it
+        (``fine.cold_still``).  With ``fine.cold_climb``: only once the demand has changed since the start and while
+        the apex policy is on (the climb is the policy's).
         The valve is then judged by what the drive knows at rest -- its twist inside the nominal
         static band (:meth:`_twist_fits`, checked as for any engagement) -- and by the stage's own
         first breakaway, which must fit as the main law's would (:meth:`_breakaway_fits`).  Only
