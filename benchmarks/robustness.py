@@ -369,6 +369,9 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", default=DEFAULT_MODE, help=f"control mode (default {DEFAULT_MODE})")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="controller.KEY=VALUE",
                     help="controller parameter for every run")
+    ap.add_argument("--valve-noise-counts", type=float, default=None, metavar="COUNTS",
+                    help="the valve resolver's rms noise (counts) of every run instead of the box's draw (the "
+                         "nominal box: 0.25; docs section 119)")
     ap.add_argument("--json", metavar="PATH", help="also write the JSON (with every run) here")
     ap.add_argument("--markdown", metavar="PATH", help="also write the tables here")
     args = ap.parse_args(argv)
@@ -381,7 +384,11 @@ def main(argv=None) -> int:
         print(f"robustness: {exc}", file=sys.stderr)
         return 2
     n = args.runs if args.runs is not None else (QUICK_RUNS if args.quick else DEFAULT_RUNS)
-    jobs = [(sample_case(args.seed + i, args.box), args.mode, sets) for i in range(n)]
+    if args.valve_noise_counts is not None and not 0.0 <= args.valve_noise_counts <= 100.0:
+        print("robustness: --valve-noise-counts must lie in 0..100", file=sys.stderr)
+        return 2
+    noise = {} if args.valve_noise_counts is None else {"valve_noise_counts": args.valve_noise_counts}
+    jobs = [({**sample_case(args.seed + i, args.box), **noise}, args.mode, sets) for i in range(n)]
     start = time.perf_counter()
     if args.jobs > 1:
         with Pool(args.jobs) as pool:
@@ -391,13 +398,15 @@ def main(argv=None) -> int:
     wall = time.perf_counter() - start
     summary = summarise(results)
     command = "python benchmarks/robustness.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    label = f"`{args.mode}`, {args.box} box" + (f" ({', '.join(f'{k}={v}' for k, v in sets.items())})" if sets else "")
+    label = f"`{args.mode}`, {args.box} box" + (f" ({', '.join(f'{k}={v}' for k, v in sets.items())})" if sets else "") \
+        + (f", valve resolver noise {args.valve_noise_counts} counts rms" if noise else "")
     md = report(summary, results, label) + f"\n\n_{n} runs, {wall:.1f} s wall with {args.jobs} job(s): " \
                                             f"`{command.strip()}`_"
     print(md)
     if args.markdown:
         Path(args.markdown).write_text(md + "\n")
     doc = {"command": command.strip(), "mode": args.mode, "box": args.box, "controller_sets": sets, "seed": args.seed,
+           "valve_noise_counts": args.valve_noise_counts,
            "wall_time_s": round(wall, 2), "jobs": args.jobs, "summary": summary}
     if args.json:
         Path(args.json).write_text(json.dumps(M.jsonable({**doc, "results": results}), indent=1) + "\n")

@@ -144,6 +144,7 @@ from scipy.special import erf as _erf
 from ..common.contract import RESOLVER_COUNT_RAD
 from ..common.hunting import HUNT_REVERSALS, ReversalCounter
 from .model import NominalModel
+from .valve_rest import ValveRest
 
 IDLE, PARK, PULSE, OBSERVE, HOLD = "idle", "park", "pulse", "observe", "hold"
 #: fraction of each doublet's move taken into the learned smallest move (the first is taken whole)
@@ -683,8 +684,12 @@ class FineConfig:
     cold_climb: bool = False      # while cold, climb from the twist proven to hold with the largest kick (s33)
     cold_friction_min: float = 0.0  # fine.cold_climb: the least friction (x the told) assumed before any breakaway
     cold_still: bool = True       # a cold engagement only on a valve still since its plateau's demand arrived (s34)
+    rest_noise_rate: float = 0.0  # where more than this fraction of a still valve's sample-to-sample steps fail the rest
+                                  # test (a noisy valve resolver), rest compares the means of two windows of
+                                  # engage_periods readings instead (:class:`~.valve_rest.ValveRest`; 0: never; s35)
     servo_margin_rad: float = 0.0  # the servo's least phase margin with the resolver delay, rad (0: not checked; s34)
     resolver_delay_s: float = 0.0  # the measured resolver delay (s) the servo's margin counts (servo_margin_rad)
+    timeable_delay: bool = False  # the stage stays out where its servo has no phase margin with that delay (s35)
     cold_band_gate: bool = False  # a cold engagement also needs the main law's hold to have measured the static
                                   # band (both slip edges) within breakaway_fit of the nominal T_s (h30c)
     learn_kick_rise: bool = False  # doublet: plan each preload against the kick's rise learned from the stage's
@@ -854,6 +859,8 @@ class FinePositioner:
         self._middle: tuple | None = None
         self.m, self.period, self.cfg, self.learn = model, period_s, cfg, learner
         self.m0 = model                    # the told model (self.m: the one the stage plans from)
+        # (fine.rest_noise_rate, task s35) the valve resolver's noise and the rest by means on a noisy one
+        self.valve_rest = ValveRest(cfg.engage_periods, 0.5 * cfg.tolerance_rad, cfg.rest_noise_rate, period_s)
         self.forget_scale()
         self._last_engage = None
         j1 = model.j1
@@ -864,7 +871,11 @@ class FinePositioner:
             w = self._delay_limited_bandwidth(model, w, period_s + cfg.resolver_delay_s)
             self.kp, self.kd, self.ki = self._servo_gains(model, w)
         self.servo_w = w                   # rad/s: the servo's design bandwidth
-        self.timeable = self.servo_margin_rad(j1, self.kp, self.kd, period_s) > 0.0
+        # (fine.timeable_delay, task s35) the margin counting the told resolver delay: a servo with none left
+        # limit-cycles (full box 3109, 1 ms: +-30 A in the observe, the landed valve thrown 1.9e-2 rad and the main
+        # law's restart hunting); without it the loop period's lag alone, as before
+        self.timeable = self.servo_margin_rad(
+            j1, self.kp, self.kd, period_s + (cfg.resolver_delay_s if cfg.timeable_delay else 0.0)) > 0.0
         self._moves = None                 # fine.apex_policy: the doublet's move model (built when first needed)
         self.apex_choices = 0              # fine.apex_policy: the tries chosen (:meth:`_choose_apex` calls), a count
         self.apex_choices_after_command = 0  # ... of them run after their period's command (:meth:`run_pending`)
@@ -983,6 +994,7 @@ class FinePositioner:
         if measurements:
             self._rest = 0
             self._last_valve = None
+            self.valve_rest.reset()       # (fine.rest_noise_rate) the readings' noise and their rest by means
             self._last_th1 = None
             self._rest_point = None       # (twist, valve, Δp) of the last period the valve sat still
             if not keep_breakaway:
@@ -1100,6 +1112,13 @@ class FinePositioner:
         cfg = self.cfg
         w1 = 0.0 if self._last_th1 is None else (th1 - self._last_th1) / self.period
         at_rest = self._last_valve is not None and abs(thl - self._last_valve) < 0.5 * cfg.tolerance_rad
+        noisy = False
+        if cfg.rest_noise_rate > 0.0:
+            # (fine.rest_noise_rate, task s35) a noisy valve resolver: rest by the means of two windows
+            self.valve_rest.update(thl, th1 - thl, holding and self.phase == IDLE)
+            noisy = self.valve_rest.noisy
+            if noisy:
+                at_rest = self.valve_rest.at_rest()
         self._last_th1, self._last_valve = th1, thl
         self._rest = self._rest + 1 if at_rest else 0
         if self.phase == IDLE:
@@ -1108,9 +1127,14 @@ class FinePositioner:
             # of tolerances from there (not a resolver-noise count), is the twist it broke loose
             # at (with the direction, position and Δp)
             if self._rest >= cfg.engage_periods:
-                self._rest_point = (th1 - thl, thl, pressure_kpa)
+                # (fine.rest_noise_rate) on a noisy resolver the means read rest for a few periods into a slide:
+                # the rest is the older window's mean, its twist read at the slide's onset once the slide is seen
+                self._rest_point = (None, self.valve_rest.rest_valve(), pressure_kpa) if noisy \
+                    else (th1 - thl, thl, pressure_kpa)
             elif self._rest_point is not None and abs(thl - self._rest_point[1]) > 2.0 * cfg.tolerance_rad:
                 phi, v, p = self._rest_point
+                if phi is None:
+                    phi = self.valve_rest.onset_twist(1 if thl > v else -1, v)
                 self._breakaway_seen = (1 if thl > v else -1, phi, v, p)
                 self._fresh = True
                 self._rest_point = None
@@ -1366,6 +1390,7 @@ class FinePositioner:
         self.applied_scale = None           # (friction scale, load offset in T_s units) the stage plans from, or None
         self._time_scale = 1.0              # the servo-blended pulse's rise and fall times x this
         self._ratios = {1: [], -1: []}      # per direction: the last SCALE_SAMPLES friction ratios
+        self.valve_rest.forget()            # (fine.rest_noise_rate) the resolver's noise read
 
     def _observe_scale(self, d: int, phi: float, thl: float, pressure_kpa: float) -> None:
         """Read the valve's friction scale from a main-law breakaway from rest toward ``d`` at twist
@@ -3386,4 +3411,6 @@ class FinePositioner:
                 "learned_min_move_rad": {"open": list(self.learn.min_move[1]),
                                          "close": list(self.learn.min_move[-1])},
                 "learned_scatter_rad": {"open": list(self.learn.scatter[1]), "close": list(self.learn.scatter[-1])},
-                "learned_misfit": {"open": list(self.learn.misfit[1]), "close": list(self.learn.misfit[-1])}}
+                "learned_misfit": {"open": list(self.learn.misfit[1]), "close": list(self.learn.misfit[-1])},
+                "valve_noise_counts": self.valve_rest.noise_counts,
+                "valve_rest_step_rate": self.valve_rest.step_rate}

@@ -561,6 +561,19 @@ CONTROLLER_SPEC = ParamSpec("controller", [
           "law left unmoved; a valve the hold moved toward the target (creep, LuGre friction) rests at the edge of its "
           "band, and the climb from that rest threw full box 3025 (friction x2.9, untold load) 1.5e-2 rad across "
           "(task s34, docs section 117)", runtime=True),
+    Param("fine.rest_noise_rate", 0.015, "", "where more than this fraction of a still valve's sample-to-sample "
+          "reading steps fail the rest test (a step under half fine.tolerance_counts; read while the main law holds) "
+          "-- a noisy valve resolver -- the engage test's rest compares the means of the last two fine.engage_time_s "
+          "of readings instead, and a main-law breakaway's twist is read at the slide's onset: at 0.5-1 count rms the "
+          "steps reset the rest count and left the breakaway's twist stale, and the stage seldom engaged (nominal "
+          "0.25-count resolver: 0.14 % median, 0.78 % at most; 0.5 count: 1.7 % at least; 0: never; task s35, docs "
+          "section 119: on by default since stop 35)",
+          0.0, 1.0, runtime=True),
+    Param("fine.timeable_delay", True, "", "the stage stays out where its gear-output servo has no phase margin "
+          "with the loop period and the measured resolver_delay_s (without: the period's lag alone -- the 60 Hz servo "
+          "of the 1 kHz loop has none left from ~0.9 ms of delay, and limit-cycled at +-30 A there; task s35, docs "
+          "section 119: on by default since stop 35)",
+          runtime=True),
     Param("fine.min_jump_rad", 1.0e-3, "rad", "the stage engages only where the nominal stick-slip jump "
           "2 (T_s - T_c(dp)) / K at the dp scheduled is at least this: below it (dp < ~15 % of max) the doublet's "
           "smallest move exceeds the valve's whole jump (bare plant: 0.77e-3 / 2.2e-3 / 1.4e-3 rad at 0 / 5 / 10 % "
