@@ -97,6 +97,14 @@ def test_a_slides_twist_is_read_at_its_onset():
     assert twist[-1] - level > 2e-3                            # ... where the last twist lay 2.8e-3 past it
 
 
+def test_the_stage_reads_a_noisy_valve_through_a_short_mean():
+    readings = _readings(np.full(400, 0.3), 1.0, seed=5)
+    rest = _fed(readings)
+    assert vr.SMOOTH_PERIODS == 4
+    assert rest.smoothed() == pytest.approx(np.mean(readings[-4:]), abs=1e-15)
+    assert _fed(readings[:2]).smoothed() == pytest.approx(np.mean(readings[:2]), abs=1e-15)
+
+
 def test_a_rearm_keeps_the_noise_read_and_a_learning_reset_forgets_it():
     rest = _fed(_readings(np.full(500, 0.3), 1.0))
     n, rate = rest.noise_counts, rest.step_rate
