@@ -157,3 +157,12 @@ def test_the_campaign_sets_the_valve_resolvers_noise_of_every_run(robustness_ben
     assert doc["valve_noise_counts"] == 1.0 and doc["results"][0]["case"]["valve_noise_counts"] == 1.0
     assert "valve resolver noise 1.0 counts rms" in capsys.readouterr().out
     assert robustness_bench.main(["--runs", "1", "--valve-noise-counts", "-1"]) == 2
+
+
+def test_a_one_period_window_reads_its_readings():
+    """``fine.engage_time_s`` at its least on a slow loop makes a window of one period: two readings are both windows,
+    and a second difference needs three."""
+    rest = vr.ValveRest(1, STEP, RATE, 2e-3)
+    for _ in range(3):
+        rest.update(0.3, 0.0, True)
+    assert rest.at_rest() and rest.noise_counts == 0.0 and rest.step_rate == 0.0

@@ -11,8 +11,9 @@ of its model and stayed out (nominal box seed 1000: 14 / 43 / 137 / 200 plateaus
 
 :class:`ValveRest` reads the resolver's noise from the readings themselves and, where the
 readings are noisy, tests rest on the means of two windows, finds a slide's onset by looking
-back, and gives the stage a short mean of the readings to judge its tries by.  All angles in rad, noise in resolver counts (:data:`RESOLVER_COUNT_RAD`).  Nothing here
-depends on the simulated plant.
+back, and gives the stage a short mean of the readings to judge its tries by.  All angles in
+rad, noise in resolver counts (:data:`RESOLVER_COUNT_RAD`).  Nothing here depends on the
+simulated plant.
 """
 from __future__ import annotations
 
@@ -61,6 +62,7 @@ class ValveRest:
         first 100 periods read 2 % of failing steps from one or two on the nominal resolver)."""
         self._valve: list[float] = []     # the last 2 x window valve readings, rad (oldest first)
         self._twist: list[float] = []     # ... and the twists (gear output - valve) read with them, rad
+        self._still = False               # :meth:`at_rest` of the readings so far (computed once per update)
 
     def forget(self) -> None:
         """Forget the noise read as well (a learning reset)."""
@@ -78,9 +80,11 @@ class ValveRest:
         v = self._valve
         v.append(valve)
         self._twist.append(twist)
-        if len(v) > 2 * self.window:
+        n = self.window
+        if len(v) > 2 * n:
             del v[0], self._twist[0]
-        if held and len(v) >= 3 and self.at_rest():
+        self._still = len(v) == 2 * n and abs(sum(v[n:]) - sum(v[:n])) < self.step_rad * n
+        if held and self._still and len(v) >= 3:
             d2 = min(abs(v[-1] - 2.0 * v[-2] + v[-3]) / RESOLVER_COUNT_RAD, D2_CLIP)
             self._n += 1
             gain = max(self.period_s / NOISE_TIME_S, 1.0 / self._n)
@@ -115,11 +119,8 @@ class ValveRest:
         """Rest by the means: the mean of the last ``window`` readings lies within ``step_rad`` of
         the mean of the ``window`` before them (not yet 2 x window readings: no).  The means'
         difference has 0.45 x the noise's rms at 10 periods a window; as a speed the test is
-        ``window`` times stricter than the sample-to-sample test."""
-        v, n = self._valve, self.window
-        if len(v) < 2 * n:
-            return False
-        return abs(sum(v[n:]) - sum(v[:n])) < self.step_rad * n
+        ``window`` times stricter than the sample-to-sample test.  Computed in :meth:`update`."""
+        return self._still
 
     def smoothed(self) -> float:
         """The valve angle as the mean of the last ``SMOOTH_PERIODS`` readings (rad; fewer before
